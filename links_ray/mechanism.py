@@ -1,0 +1,288 @@
+"""Mechanism model: input validation and the dyadic solution path.
+
+A mechanism is a graph (SPEC section 1): joints are nodes, links are edges. Joint 0 is fixed,
+joint 1 is the only actuated joint, and link (0, 1) is the crank. A simple joint is solved once
+exactly two of its neighbours are known; the order in which joints get solved is the solution
+path, found once per topology and reused for every position set.
+
+Pure numpy: no numba, no Ray.
+"""
+
+from __future__ import annotations
+
+import heapq
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+FIXED, SIMPLE, ACTUATED = 0, 1, 2
+CRANK_CENTER = (0.5, 0.5)
+CRANK_TIP = (0.55, 0.5)
+MIN_DATASET_JOINTS, MAX_DATASET_JOINTS = 8, 20
+#: Larger graphs are refused: the solution search is quadratic and nobody draws such linkages.
+MAX_JOINTS = 1000
+
+
+class InvalidMechanismError(ValueError):
+    """The input is not a simulable one-degree-of-freedom dyadic mechanism."""
+
+
+class LockingError(ValueError):
+    """The mechanism cannot be assembled at crank step `step`: joint `node` has no position."""
+
+    def __init__(self, step: int, node: int) -> None:
+        super().__init__(f"mechanism locks at step {step}: joint {node} cannot be assembled")
+        self.step = int(step)
+        self.node = int(node)
+
+
+@dataclass(frozen=True, eq=False)
+class Topology:
+    """A validated topology and its solution path.
+
+    `order[k] = (joint, parent_a, parent_b)` solves `joint` from its two known neighbours, with
+    `parent_a < parent_b`; rows are in solving order. Fixed joints and the crank joint 1 are known
+    from the start and do not appear in `order`.
+    """
+
+    adjacency: np.ndarray  # (n, n) uint8
+    node_types: np.ndarray  # (n,) int8
+    order: np.ndarray  # (m, 3) int64
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.node_types.shape[0])
+
+    @cached_property
+    def fixed_joints(self) -> np.ndarray:
+        return np.flatnonzero(self.node_types == FIXED).astype(np.int64)
+
+    @property
+    def last_joint(self) -> int:
+        """The last joint of the solution path (joint 1 when only the crank moves)."""
+        return int(self.order[-1, 0]) if len(self.order) else 1
+
+    def ancestors(self, joint: int) -> np.ndarray:
+        """Sorted indices of the joints `joint`'s motion depends on, `joint` included."""
+        parents = {int(j): (int(a), int(b)) for j, a, b in self.order}
+        parents[1] = (0, 0)
+        needed, stack = {joint}, [joint]
+        while stack:
+            for parent in parents.get(stack.pop(), ()):
+                if parent not in needed:
+                    needed.add(parent)
+                    stack.append(parent)
+        return np.array(sorted(needed), dtype=np.int64)
+
+
+def _as_int_array(name: str, value: ArrayLike, ndim: int) -> np.ndarray:
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError) as exc:  # ragged nested lists
+        raise InvalidMechanismError(f"{name} is not a rectangular array: {exc}") from None
+    if array.ndim != ndim:
+        raise InvalidMechanismError(f"{name} must be {ndim}-D, got shape {array.shape}")
+    if array.dtype == bool:
+        return array.astype(np.int64)
+    if not (np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)):
+        raise InvalidMechanismError(f"{name} must be numeric, got dtype {array.dtype}")
+    if np.issubdtype(array.dtype, np.floating):
+        if not np.all(np.isfinite(array)):
+            raise InvalidMechanismError(f"{name} has NaN or infinite entries")
+        if np.any(array != np.round(array)):
+            raise InvalidMechanismError(f"{name} must hold whole numbers")
+    return array.astype(np.int64)
+
+
+def as_positions(positions: ArrayLike, n_joints: int, *, batch: bool = False) -> np.ndarray:
+    """`positions` as a C-contiguous float64 array of shape (n, 2), or (B, n, 2) with `batch`."""
+    shape = "(B, n, 2)" if batch else "(n, 2)"
+    try:
+        array = np.asarray(positions)
+    except (TypeError, ValueError) as exc:
+        raise InvalidMechanismError(f"positions is not a rectangular array: {exc}") from None
+    if array.dtype == bool or not (
+        np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)
+    ):
+        raise InvalidMechanismError(f"positions must be numeric, got dtype {array.dtype}")
+    expected_ndim = 3 if batch else 2
+    if array.ndim != expected_ndim or array.shape[-2:] != (n_joints, 2):
+        raise InvalidMechanismError(
+            f"positions must have shape {shape} with n = {n_joints}, got {array.shape}"
+        )
+    array = np.ascontiguousarray(array, dtype=np.float64)
+    if not np.all(np.isfinite(array)):
+        raise InvalidMechanismError("positions has NaN or infinite entries")
+    return array
+
+
+def as_steps(steps: object) -> int:
+    """Validate a step count: an integer from 1 to 100,000."""
+    if isinstance(steps, bool) or not isinstance(steps, int | np.integer):
+        raise InvalidMechanismError(f"steps must be an integer, got {steps!r}")
+    if not 1 <= steps <= 100_000:
+        raise InvalidMechanismError(f"steps must be between 1 and 100000, got {steps}")
+    return int(steps)
+
+
+def analyze_topology(adjacency: ArrayLike, node_types: ArrayLike) -> Topology:
+    """Validate a topology and find its solution path.
+
+    Raises `InvalidMechanismError` naming the first problem found.
+    """
+    adj = _as_int_array("adjacency", adjacency, 2)
+    types = _as_int_array("node_types", node_types, 1)
+    n = adj.shape[0]
+    if adj.shape != (n, n):
+        raise InvalidMechanismError(f"adjacency must be square, got shape {adj.shape}")
+    if n < 2:
+        raise InvalidMechanismError(f"a mechanism needs at least 2 joints (the crank), got {n}")
+    if n > MAX_JOINTS:
+        raise InvalidMechanismError(f"at most {MAX_JOINTS} joints are supported, got {n}")
+    if types.shape != (n,):
+        raise InvalidMechanismError(
+            f"node_types must have one entry per joint ({n}), got {types.shape[0]}"
+        )
+    bad = np.argwhere((adj != 0) & (adj != 1))
+    if len(bad):
+        i, j = bad[0]
+        raise InvalidMechanismError(
+            f"adjacency entries must be 0 or 1, got {adj[i, j]} at ({i}, {j})"
+        )
+    if np.any(np.diag(adj)):
+        i = int(np.flatnonzero(np.diag(adj))[0])
+        raise InvalidMechanismError(f"self-link: adjacency[{i}, {i}] must be 0")
+    asym = np.argwhere(adj != adj.T)
+    if len(asym):
+        i, j = asym[0]
+        raise InvalidMechanismError(
+            f"adjacency is not symmetric: [{i}, {j}] = {adj[i, j]} but [{j}, {i}] = {adj[j, i]}"
+        )
+    bad_types = np.flatnonzero((types < FIXED) | (types > ACTUATED))
+    if len(bad_types):
+        i = int(bad_types[0])
+        raise InvalidMechanismError(
+            f"node_types must be 0 (fixed), 1 (simple) or 2 (actuated); joint {i} is {types[i]}"
+        )
+    if types[0] != FIXED:
+        raise InvalidMechanismError(
+            f"wrong crank joints: joint 0 must be fixed (0), got {types[0]}"
+        )
+    if types[1] != ACTUATED:
+        raise InvalidMechanismError(
+            f"wrong crank joints: joint 1 must be the actuated joint (2), got {types[1]}"
+        )
+    actuated = np.flatnonzero(types == ACTUATED)
+    if len(actuated) > 1:
+        raise InvalidMechanismError(
+            f"wrong crank joints: only joint 1 may be actuated, also {actuated[1:].tolist()}"
+        )
+    if not adj[0, 1]:
+        raise InvalidMechanismError("no crank: joints 0 and 1 are not linked")
+
+    fixed = types == FIXED
+    ground_links = np.argwhere(np.triu(adj, 1) & fixed[:, None] & fixed[None, :])
+    if len(ground_links):
+        i, j = ground_links[0]
+        raise InvalidMechanismError(f"link ({i}, {j}) joins two fixed joints")
+    extra = [int(j) for j in np.flatnonzero(adj[1] & fixed) if j != 0]
+    if extra:
+        raise InvalidMechanismError(
+            f"over-constrained: crank joint 1 is also linked to fixed joint {extra[0]}"
+        )
+
+    order = _solution_path(adj, types)
+    return Topology(
+        adjacency=adj.astype(np.uint8),
+        node_types=types.astype(np.int8),
+        order=order,
+    )
+
+
+def _solution_path(adj: np.ndarray, types: np.ndarray) -> np.ndarray:
+    """Solve the lowest-index solvable joint first, each from exactly two known neighbours."""
+    n = len(types)
+    neighbours = [np.flatnonzero(adj[j]).tolist() for j in range(n)]
+    known = (types != SIMPLE).tolist()
+    known_count = [sum(known[k] for k in neighbours[j]) for j in range(n)]
+    solvable = [j for j in range(n) if not known[j] and known_count[j] >= 2]
+    heapq.heapify(solvable)
+    order: list[tuple[int, int, int]] = []
+    while solvable:
+        j = heapq.heappop(solvable)
+        parents = [k for k in neighbours[j] if known[k]]
+        if len(parents) > 2:
+            raise InvalidMechanismError(
+                f"over-constrained: joint {j} is linked to {len(parents)} joints whose "
+                f"positions are already determined ({', '.join(map(str, parents))})"
+            )
+        order.append((j, parents[0], parents[1]))
+        known[j] = True
+        for k in neighbours[j]:
+            known_count[k] += 1
+            if not known[k] and known_count[k] == 2:
+                heapq.heappush(solvable, k)
+    if not all(known):
+        unsolved = [j for j in range(n) if not known[j]]
+        moving = int(np.count_nonzero(types != FIXED))
+        links = int(np.count_nonzero(np.triu(adj, 1)))
+        dof = 2 * moving - links
+        if dof > 1:
+            raise InvalidMechanismError(
+                f"more than one degree of freedom: 2 x {moving} moving joints - {links} links "
+                f"= {dof}; joints {unsolved} are not determined by the crank"
+            )
+        if dof < 1:
+            raise InvalidMechanismError(
+                f"over-constrained: 2 x {moving} moving joints - {links} links = {dof}; "
+                f"joints {unsolved} cannot be solved"
+            )
+        raise InvalidMechanismError(
+            f"not dyadic-solvable: joints {unsolved} never have two known neighbours "
+            "(a complex kinematic loop)"
+        )
+    return np.array(order, dtype=np.int64).reshape(-1, 3)
+
+
+def check_positions(topology: Topology, positions: np.ndarray) -> None:
+    """Refuse degenerate geometry: a linked pair of joints at one point (batch-aware)."""
+    i, j = np.nonzero(np.triu(topology.adjacency, 1))
+    same = np.all(positions[..., i, :] == positions[..., j, :], axis=-1)
+    if np.any(same):
+        k = int(np.flatnonzero(same.reshape(-1, len(i)).any(axis=0))[0])
+        what = "the crank has zero length" if (i[k], j[k]) == (0, 1) else "a link has zero length"
+        raise InvalidMechanismError(f"{what}: joints {i[k]} and {j[k]} are at the same position")
+
+
+def structure_violations(topology: Topology) -> list[str]:
+    """The topology rules of the dataset this topology breaks: reducibility and the last joint."""
+    problems = []
+    last = topology.last_joint
+    if len(topology.ancestors(last)) != topology.n_joints:
+        problems.append(f"reducible: the last joint {last} does not depend on every joint")
+    if np.any(topology.adjacency[last] & (topology.node_types == FIXED)):
+        problems.append(f"the last joint {last} is linked to a fixed joint")
+    return problems
+
+
+def dataset_rule_violations(
+    topology: Topology, positions: np.ndarray | None = None, *, atol: float = 1e-12
+) -> list[str]:
+    """The SPEC section 1 dataset rules this mechanism breaks (empty when it obeys them all).
+
+    Locking is not checked here; simulate for that.
+    """
+    problems = structure_violations(topology)
+    n = topology.n_joints
+    if not MIN_DATASET_JOINTS <= n <= MAX_DATASET_JOINTS:
+        problems.append(f"{n} joints, outside {MIN_DATASET_JOINTS}-{MAX_DATASET_JOINTS}")
+    if positions is not None:
+        if not np.allclose(positions[0], CRANK_CENTER, rtol=0, atol=atol):
+            problems.append(f"joint 0 at {positions[0].tolist()}, not {CRANK_CENTER}")
+        if not np.allclose(positions[1], CRANK_TIP, rtol=0, atol=atol):
+            problems.append(f"joint 1 at {positions[1].tolist()}, not {CRANK_TIP}")
+        if np.any((positions < 0) | (positions > 1)):
+            problems.append("initial positions outside [0, 1]^2")
+    return problems

@@ -1,0 +1,303 @@
+"""The compiled dyadic solver (SPEC section 1).
+
+One numba kernel serves every topology: the topology enters as data (its solution path), so
+nothing is compiled per topology. A candidate is simulated step by step and stops at its first
+lock, so rejecting a locking candidate costs only the steps it survived.
+
+Pure numpy/numba: no Ray.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+from numpy.typing import ArrayLike
+
+from links_ray.mechanism import (
+    LockingError,
+    Topology,
+    analyze_topology,
+    as_positions,
+    as_steps,
+    check_positions,
+)
+
+DEFAULT_STEPS = 200
+
+
+@njit(cache=True, nogil=True)
+def crank_table(steps: int) -> np.ndarray:
+    """cos and sin of the crank turn at each step, (steps, 2)."""
+    table = np.empty((steps, 2))
+    for t in range(steps):
+        angle = 2.0 * np.pi * t / steps
+        table[t, 0] = np.cos(angle)
+        table[t, 1] = np.sin(angle)
+    return table
+
+
+@njit(cache=True, nogil=True)
+def dyad_geometry(order: np.ndarray, pos: np.ndarray, geometry: np.ndarray) -> None:
+    """Per solved joint: radius to each parent and the frozen branch sign, from the initial pose.
+
+    The branch sign is the side of the line parent_a -> parent_b the joint starts on (+1 left,
+    -1 right; a joint exactly on the line counts as left).
+    """
+    for k in range(order.shape[0]):
+        j, a, b = order[k, 0], order[k, 1], order[k, 2]
+        geometry[k, 0] = np.hypot(pos[j, 0] - pos[a, 0], pos[j, 1] - pos[a, 1])
+        geometry[k, 1] = np.hypot(pos[j, 0] - pos[b, 0], pos[j, 1] - pos[b, 1])
+        cross = (pos[b, 0] - pos[a, 0]) * (pos[j, 1] - pos[a, 1]) - (pos[b, 1] - pos[a, 1]) * (
+            pos[j, 0] - pos[a, 0]
+        )
+        geometry[k, 2] = 1.0 if cross >= 0.0 else -1.0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def solve_dyad(ax, ay, bx, by, r1, r2, side):
+    """Where a joint at distance r1 from a and r2 from b sits, on `side` of a -> b.
+
+    Returns (x, y, ok); ok is False when the two circles do not meet (the mechanism locks).
+    """
+    dx = bx - ax
+    dy = by - ay
+    d = np.sqrt(dx * dx + dy * dy)
+    if d > r1 + r2 or d < abs(r1 - r2) or d == 0.0:
+        return 0.0, 0.0, False
+    inv_d = 1.0 / d
+    along = 0.5 * (d * d + r1 * r1 - r2 * r2) * inv_d
+    h2 = r1 * r1 - along * along
+    # Rounding can push h2 just below zero at tangency, where the circles do touch.
+    h = side * np.sqrt(h2) if h2 > 0.0 else 0.0
+    ux = dx * inv_d
+    uy = dy * inv_d
+    return ax + along * ux - h * uy, ay + along * uy + h * ux, True
+
+
+@njit(cache=True, nogil=True)
+def simulate_one(
+    order: np.ndarray,
+    fixed: np.ndarray,
+    pos: np.ndarray,
+    crank: np.ndarray,
+    keep: bool,
+    out: np.ndarray,
+    geometry: np.ndarray,
+) -> tuple[int, int]:
+    """Simulate one position set over `crank` steps into `out` (n, steps or 1, 2).
+
+    With `keep` every step is stored; without, only the current pose (out[:, 0]), which is all a
+    lock check needs. Returns (-1, -1) when valid, else (first locking step, joint). The
+    trajectories of a locking candidate are left partly written.
+    """
+    steps = crank.shape[0]
+    dyad_geometry(order, pos, geometry)
+    n_stored = steps if keep else 1
+    for i in range(fixed.shape[0]):
+        f = fixed[i]
+        for t in range(n_stored):
+            out[f, t, 0] = pos[f, 0]
+            out[f, t, 1] = pos[f, 1]
+    cx, cy = pos[0, 0], pos[0, 1]
+    vx, vy = pos[1, 0] - cx, pos[1, 1] - cy
+    for t in range(steps):
+        s = t if keep else 0
+        c, sn = crank[t, 0], crank[t, 1]
+        out[1, s, 0] = cx + c * vx - sn * vy
+        out[1, s, 1] = cy + sn * vx + c * vy
+        for k in range(order.shape[0]):
+            j, a, b = order[k, 0], order[k, 1], order[k, 2]
+            x, y, ok = solve_dyad(
+                out[a, s, 0],
+                out[a, s, 1],
+                out[b, s, 0],
+                out[b, s, 1],
+                geometry[k, 0],
+                geometry[k, 1],
+                geometry[k, 2],
+            )
+            if not ok:
+                return t, j
+            out[j, s, 0] = x
+            out[j, s, 1] = y
+    return -1, -1
+
+
+@njit(cache=True, nogil=True)
+def simulate_candidates(
+    order: np.ndarray,
+    fixed: np.ndarray,
+    positions: np.ndarray,
+    crank: np.ndarray,
+    keep: bool,
+    out: np.ndarray,
+    lock_step: np.ndarray,
+    lock_node: np.ndarray,
+) -> None:
+    """Simulate position sets (B, n, 2) of one topology, one thread.
+
+    With `keep`, `out` is (B, n, steps, 2) and a locking candidate's rows become NaN; without,
+    `out` is scratch of shape (1, n, 1, 2) and only the lock results are produced.
+    """
+    geometry = np.empty((order.shape[0], 3))
+    for b in range(positions.shape[0]):
+        slot = b if keep else 0
+        step, node = simulate_one(order, fixed, positions[b], crank, keep, out[slot], geometry)
+        lock_step[b] = step
+        lock_node[b] = node
+        if keep and step >= 0:
+            out[b] = np.nan
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def simulate_candidates_parallel(
+    order: np.ndarray,
+    fixed: np.ndarray,
+    positions: np.ndarray,
+    crank: np.ndarray,
+    out: np.ndarray,
+    lock_step: np.ndarray,
+    lock_node: np.ndarray,
+) -> None:
+    """`simulate_candidates` with `keep`, spread over numba's threads."""
+    for b in prange(positions.shape[0]):
+        geometry = np.empty((order.shape[0], 3))
+        step, node = simulate_one(order, fixed, positions[b], crank, True, out[b], geometry)
+        lock_step[b] = step
+        lock_node[b] = node
+        if step >= 0:
+            out[b] = np.nan
+
+
+class TopologySimulator:
+    """Simulates many position sets of one topology; its solution path is found once."""
+
+    def __init__(self, adjacency: ArrayLike, node_types: ArrayLike) -> None:
+        self.topology: Topology = analyze_topology(adjacency, node_types)
+        self._crank: dict[int, np.ndarray] = {}
+        self._scratch = np.empty((1, self.n_joints, 1, 2))
+
+    @classmethod
+    def from_topology(cls, topology: Topology) -> TopologySimulator:
+        """Wrap an already validated topology."""
+        simulator = cls.__new__(cls)
+        simulator.topology = topology
+        simulator._crank = {}
+        simulator._scratch = np.empty((1, topology.n_joints, 1, 2))
+        return simulator
+
+    @property
+    def n_joints(self) -> int:
+        return self.topology.n_joints
+
+    def crank(self, steps: int) -> np.ndarray:
+        table = self._crank.get(steps)
+        if table is None:
+            table = self._crank[steps] = crank_table(steps)
+        return table
+
+    def _prepare(self, positions: ArrayLike, steps: int) -> tuple[np.ndarray, int]:
+        steps = as_steps(steps)
+        positions = as_positions(positions, self.n_joints, batch=True)
+        check_positions(self.topology, positions)
+        return positions, steps
+
+    def simulate(
+        self,
+        positions: ArrayLike,
+        steps: int = DEFAULT_STEPS,
+        *,
+        parallel: bool = False,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Trajectories (B, n, steps, 2), NaN where invalid, and the valid mask (B,).
+
+        `parallel` spreads the batch over numba's threads.
+        """
+        positions, steps = self._prepare(positions, steps)
+        trajectories, lock_step, _ = self.run(positions, steps, parallel=parallel)
+        return trajectories, lock_step < 0
+
+    def run(
+        self, positions: np.ndarray, steps: int, *, parallel: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Unchecked fast path: (trajectories, lock_step, lock_node), -1 where valid.
+
+        `positions` must already be a valid float64 (B, n, 2) array.
+        """
+        batch = positions.shape[0]
+        out = np.empty((batch, self.n_joints, steps, 2))
+        lock_step = np.empty(batch, dtype=np.int64)
+        lock_node = np.empty(batch, dtype=np.int64)
+        topology = self.topology
+        if parallel:
+            simulate_candidates_parallel(
+                topology.order,
+                topology.fixed_joints,
+                positions,
+                self.crank(steps),
+                out,
+                lock_step,
+                lock_node,
+            )
+        else:
+            simulate_candidates(
+                topology.order,
+                topology.fixed_joints,
+                positions,
+                self.crank(steps),
+                True,
+                out,
+                lock_step,
+                lock_node,
+            )
+        return out, lock_step, lock_node
+
+    def first_lock(
+        self, positions: ArrayLike, steps: int = DEFAULT_STEPS
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """First locking step and joint per position set (-1 where valid); stores no paths."""
+        positions, steps = self._prepare(positions, steps)
+        return self.lock_check(positions, steps)
+
+    def lock_check(self, positions: np.ndarray, steps: int) -> tuple[np.ndarray, np.ndarray]:
+        """Unchecked fast path of `first_lock`."""
+        batch = positions.shape[0]
+        lock_step = np.empty(batch, dtype=np.int64)
+        lock_node = np.empty(batch, dtype=np.int64)
+        simulate_candidates(
+            self.topology.order,
+            self.topology.fixed_joints,
+            positions,
+            self.crank(steps),
+            False,
+            self._scratch,
+            lock_step,
+            lock_node,
+        )
+        return lock_step, lock_node
+
+
+def simulate_batch(
+    adjacency: ArrayLike,
+    node_types: ArrayLike,
+    positions: ArrayLike,
+    steps: int = DEFAULT_STEPS,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One topology, positions (B, n, 2) -> (trajectories (B, n, steps, 2), valid (B,))."""
+    return TopologySimulator(adjacency, node_types).simulate(positions, steps)
+
+
+def simulate(
+    adjacency: ArrayLike,
+    node_types: ArrayLike,
+    positions: ArrayLike,
+    steps: int = DEFAULT_STEPS,
+) -> np.ndarray:
+    """Trajectories (n, steps, 2) of one mechanism; raises `LockingError` if it locks."""
+    simulator = TopologySimulator(adjacency, node_types)
+    positions = as_positions(positions, simulator.n_joints)[None]
+    positions, steps = simulator._prepare(positions, steps)
+    trajectories, lock_step, lock_node = simulator.run(positions, steps)
+    if lock_step[0] >= 0:
+        raise LockingError(int(lock_step[0]), int(lock_node[0]))
+    return trajectories[0]
