@@ -218,14 +218,22 @@ class TopologySimulator:
         return trajectories, lock_step < 0
 
     def run(
-        self, positions: np.ndarray, steps: int, *, parallel: bool = False
+        self,
+        positions: np.ndarray,
+        steps: int,
+        *,
+        parallel: bool = False,
+        out: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Unchecked fast path: (trajectories, lock_step, lock_node), -1 where valid.
 
-        `positions` must already be a valid float64 (B, n, 2) array.
+        `positions` must already be a valid float64 (B, n, 2) array. Passing a reused float64
+        `out` of shape (B, n, steps, 2) saves the page faults of a fresh large array, which can
+        cost more than the simulation itself.
         """
         batch = positions.shape[0]
-        out = np.empty((batch, self.n_joints, steps, 2))
+        if out is None:
+            out = np.empty((batch, self.n_joints, steps, 2))
         lock_step = np.empty(batch, dtype=np.int64)
         lock_node = np.empty(batch, dtype=np.int64)
         topology = self.topology
