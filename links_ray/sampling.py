@@ -27,11 +27,15 @@ from numba import njit
 
 from links_ray.mechanism import CRANK_CENTER, CRANK_TIP, Topology
 from links_ray.solver import (
+    CHECK_BLOCK,
     DEFAULT_STEPS,
     TopologySimulator,
+    dyad_fails,
     dyad_geometry,
+    place_crank,
+    place_fixed,
     simulate_one,
-    solve_dyad,
+    solve_span,
 )
 from links_ray.topology import SeedLike
 
@@ -93,7 +97,7 @@ def _rejection_kernel(
     """Fill `positions`/`trajectories` with valid sets; returns (found, candidates, kept)."""
     n = positions.shape[1]
     geometry = np.empty((order.shape[0], 3))
-    scratch = np.empty((n, 1, 2))
+    scratch = np.empty((n, CHECK_BLOCK, 2))
     pos = np.empty((n, 2))
     found = kept = candidates = 0
     while found < positions.shape[0] and candidates < max_candidates:
@@ -141,33 +145,29 @@ def _sequential_kernel(
         attempts += 1
         traj = trajectories[found]
         _place_crank_and_ground(fixed, pos)
-        cx, cy = pos[0, 0], pos[0, 1]
-        vx, vy = pos[1, 0] - cx, pos[1, 1] - cy
-        for t in range(steps):
-            traj[1, t, 0] = cx + crank[t, 0] * vx - crank[t, 1] * vy
-            traj[1, t, 1] = cy + crank[t, 1] * vx + crank[t, 0] * vy
-            for i in range(fixed.shape[0]):
-                traj[fixed[i], t, 0] = pos[fixed[i], 0]
-                traj[fixed[i], t, 1] = pos[fixed[i], 1]
+        place_fixed(fixed, pos, traj, steps)
+        place_crank(pos, crank, traj, 0, steps, 0)
         placed_all = True
         for k in range(order.shape[0]):
             j, a, b = order[k, 0], order[k, 1], order[k, 2]
-            d_min, d_max = np.inf, 0.0
+            # Extremes of the parents' squared distance over the turn.
+            d_sq_min, d_sq_max = np.inf, 0.0
             for t in range(steps):
                 dx = traj[b, t, 0] - traj[a, t, 0]
                 dy = traj[b, t, 1] - traj[a, t, 1]
-                d = np.sqrt(dx * dx + dy * dy)
-                d_min = min(d_min, d)
-                d_max = max(d_max, d)
+                d_sq = dx * dx + dy * dy
+                d_sq_min = min(d_sq_min, d_sq)
+                d_sq_max = max(d_sq_max, d_sq)
             placed = False
             for _ in range(draws_per_joint):
                 pos[j, 0] = np.random.random()
                 pos[j, 1] = np.random.random()
-                r1 = np.hypot(pos[j, 0] - pos[a, 0], pos[j, 1] - pos[a, 1])
-                r2 = np.hypot(pos[j, 0] - pos[b, 0], pos[j, 1] - pos[b, 1])
-                # The same comparisons as solve_dyad, so a joint that passes always assembles.
-                if d_min > 0.0 and d_max <= r1 + r2 and d_min >= abs(r1 - r2):
-                    placed = True
+                dyad_geometry(order[k : k + 1], pos, geometry)
+                r1, r2 = geometry[0, 0], geometry[0, 1]
+                # Exactly the lock test of the solver, at the extremes of the parents' distance.
+                if not (dyad_fails(d_sq_max, r1, r2) or dyad_fails(d_sq_min, r1, r2)):
+                    placed = solve_span(traj, j, a, b, r1, r2, geometry[0, 2], 0, steps) == 0
+                if placed:
                     break
                 if kept < negatives.shape[0]:
                     negatives[kept] = pos
@@ -176,19 +176,6 @@ def _sequential_kernel(
             if not placed:
                 placed_all = False
                 break
-            dyad_geometry(order[k : k + 1], pos, geometry)
-            for t in range(steps):
-                x, y, _ = solve_dyad(
-                    traj[a, t, 0],
-                    traj[a, t, 1],
-                    traj[b, t, 0],
-                    traj[b, t, 1],
-                    geometry[0, 0],
-                    geometry[0, 1],
-                    geometry[0, 2],
-                )
-                traj[j, t, 0] = x
-                traj[j, t, 1] = y
         if placed_all:
             positions[found] = pos
             found += 1
@@ -288,4 +275,3 @@ def sample_positions(
     simulator = TopologySimulator(adjacency, node_types)
     rng = np.random.default_rng(seed)
     return PositionSampler(simulator).search(count, rng, sampler).positions
-

@@ -23,6 +23,10 @@ from links_ray.mechanism import (
 )
 
 DEFAULT_STEPS = 200
+#: Steps solved together per joint when trajectories are kept (see `simulate_one`).
+BLOCK = 16
+#: Steps per block of a lock check: small, so a rejected candidate costs little past its lock.
+CHECK_BLOCK = 4
 
 
 @njit(cache=True, nogil=True)
@@ -54,24 +58,78 @@ def dyad_geometry(order: np.ndarray, pos: np.ndarray, geometry: np.ndarray) -> N
 
 
 @njit(cache=True, nogil=True, inline="always")
-def solve_dyad(ax, ay, bx, by, r1, r2, side):
-    """Where a joint at distance r1 from a and r2 from b sits, on `side` of a -> b.
+def dyad_fails(d_sq: float, r1: float, r2: float) -> bool:
+    """Whether circles of radii r1 and r2 whose centres are sqrt(d_sq) apart fail to meet.
 
-    Returns (x, y, ok); ok is False when the two circles do not meet (the mechanism locks).
+    Compared in squares, which saves a square root per joint and step.
     """
-    dx = bx - ax
-    dy = by - ay
-    d = np.sqrt(dx * dx + dy * dy)
-    if d > r1 + r2 or d < abs(r1 - r2) or d == 0.0:
-        return 0.0, 0.0, False
-    inv_d = 1.0 / d
-    along = 0.5 * (d * d + r1 * r1 - r2 * r2) * inv_d
-    h2 = r1 * r1 - along * along
-    # Rounding can push h2 just below zero at tangency, where the circles do touch.
-    h = side * np.sqrt(h2) if h2 > 0.0 else 0.0
-    ux = dx * inv_d
-    uy = dy * inv_d
-    return ax + along * ux - h * uy, ay + along * uy + h * ux, True
+    outer = r1 + r2
+    inner = r1 - r2
+    return d_sq > outer * outer or d_sq < inner * inner or d_sq == 0.0
+
+
+@njit(cache=True, nogil=True)
+def solve_span(
+    traj: np.ndarray, j: int, a: int, b: int, r1: float, r2: float, side: float, lo: int, hi: int
+) -> int:
+    """Place joint j at rows lo:hi of `traj` (n, rows, 2) from parents a and b.
+
+    The joint sits at distance r1 from a and r2 from b, on `side` of the line a -> b (+1 left).
+    Returns how many rows lock; their values are meaningless. Branch-free, so the rows' work
+    overlaps in the CPU.
+    """
+    r1_sq = r1 * r1
+    lever = r1_sq - r2 * r2
+    failures = 0
+    for s in range(lo, hi):
+        ax = traj[a, s, 0]
+        ay = traj[a, s, 1]
+        dx = traj[b, s, 0] - ax
+        dy = traj[b, s, 1] - ay
+        d_sq = dx * dx + dy * dy
+        failures += dyad_fails(d_sq, r1, r2)
+        # Along a -> b by `along` d, then sideways by `height` d: one division, one root.
+        inv_d_sq = 1.0 / d_sq
+        along = 0.5 * (d_sq + lever) * inv_d_sq
+        # Rounding can push this just below zero at tangency, where the circles do touch.
+        height = side * np.sqrt(max(r1_sq * inv_d_sq - along * along, 0.0))
+        traj[j, s, 0] = ax + along * dx - height * dy
+        traj[j, s, 1] = ay + along * dy + height * dx
+    return failures
+
+
+@njit(cache=True, nogil=True)
+def first_failure(traj: np.ndarray, a: int, b: int, r1: float, r2: float, lo: int, hi: int) -> int:
+    """The first row in lo:hi where a dyad on parents a and b cannot be assembled, else -1."""
+    for s in range(lo, hi):
+        dx = traj[b, s, 0] - traj[a, s, 0]
+        dy = traj[b, s, 1] - traj[a, s, 1]
+        if dyad_fails(dx * dx + dy * dy, r1, r2):
+            return s
+    return -1
+
+
+@njit(cache=True, nogil=True)
+def place_crank(
+    pos: np.ndarray, crank: np.ndarray, traj: np.ndarray, start: int, stop: int, row: int
+) -> None:
+    """Joint 1 at crank steps start:stop, the initial crank turned, into `traj` from `row` on."""
+    cx, cy = pos[0, 0], pos[0, 1]
+    vx, vy = pos[1, 0] - cx, pos[1, 1] - cy
+    for t in range(start, stop):
+        c, s = crank[t, 0], crank[t, 1]
+        traj[1, row + t - start, 0] = cx + c * vx - s * vy
+        traj[1, row + t - start, 1] = cy + s * vx + c * vy
+
+
+@njit(cache=True, nogil=True)
+def place_fixed(fixed: np.ndarray, pos: np.ndarray, traj: np.ndarray, rows: int) -> None:
+    """Fixed joints at their initial positions in the first `rows` rows of `traj`."""
+    for i in range(fixed.shape[0]):
+        f = fixed[i]
+        for s in range(rows):
+            traj[f, s, 0] = pos[f, 0]
+            traj[f, s, 1] = pos[f, 1]
 
 
 @njit(cache=True, nogil=True)
@@ -84,42 +142,35 @@ def simulate_one(
     out: np.ndarray,
     geometry: np.ndarray,
 ) -> tuple[int, int]:
-    """Simulate one position set over `crank` steps into `out` (n, steps or 1, 2).
+    """Simulate one position set over `crank` steps into `out`.
 
-    With `keep` every step is stored; without, only the current pose (out[:, 0]), which is all a
-    lock check needs. Returns (-1, -1) when valid, else (first locking step, joint). The
-    trajectories of a locking candidate are left partly written.
+    Steps go in blocks; inside a block each joint is solved for every step before the next
+    joint, so independent steps overlap in the CPU instead of waiting on one long chain. With
+    `keep`, `out` is (n, steps, 2) and keeps every step (blocks of `BLOCK`); without, it is
+    (n, block, 2) scratch, all a lock check needs. Returns (-1, -1) when valid, else (first
+    locking step, joint): the earliest step at which some joint cannot be assembled, and the
+    first such joint in solution order. Rows of a locking candidate are left partly written.
     """
     steps = crank.shape[0]
+    block = BLOCK if keep else out.shape[1]
     dyad_geometry(order, pos, geometry)
-    n_stored = steps if keep else 1
-    for i in range(fixed.shape[0]):
-        f = fixed[i]
-        for t in range(n_stored):
-            out[f, t, 0] = pos[f, 0]
-            out[f, t, 1] = pos[f, 1]
-    cx, cy = pos[0, 0], pos[0, 1]
-    vx, vy = pos[1, 0] - cx, pos[1, 1] - cy
-    for t in range(steps):
-        s = t if keep else 0
-        c, sn = crank[t, 0], crank[t, 1]
-        out[1, s, 0] = cx + c * vx - sn * vy
-        out[1, s, 1] = cy + sn * vx + c * vy
+    place_fixed(fixed, pos, out, steps if keep else block)
+    for start in range(0, steps, block):
+        stop = min(start + block, steps)
+        # Rows of `out` for this block: absolute steps with `keep`, block-relative without.
+        lo = start if keep else 0
+        hi = lo + stop - start
+        place_crank(pos, crank, out, start, stop, lo)
+        lock_step, lock_node = -1, -1
         for k in range(order.shape[0]):
             j, a, b = order[k, 0], order[k, 1], order[k, 2]
-            x, y, ok = solve_dyad(
-                out[a, s, 0],
-                out[a, s, 1],
-                out[b, s, 0],
-                out[b, s, 1],
-                geometry[k, 0],
-                geometry[k, 1],
-                geometry[k, 2],
-            )
-            if not ok:
-                return t, j
-            out[j, s, 0] = x
-            out[j, s, 1] = y
+            r1, r2 = geometry[k, 0], geometry[k, 1]
+            if solve_span(out, j, a, b, r1, r2, geometry[k, 2], lo, hi):
+                # Later joints need only the rows before this joint's first lock.
+                hi = first_failure(out, a, b, r1, r2, lo, hi)
+                lock_step, lock_node = start + hi - lo, j
+        if lock_step >= 0:
+            return lock_step, lock_node
     return -1, -1
 
 
@@ -137,7 +188,7 @@ def simulate_candidates(
     """Simulate position sets (B, n, 2) of one topology, one thread.
 
     With `keep`, `out` is (B, n, steps, 2) and a locking candidate's rows become NaN; without,
-    `out` is scratch of shape (1, n, 1, 2) and only the lock results are produced.
+    `out` is scratch of shape (1, n, block, 2) and only the lock results are produced.
     """
     geometry = np.empty((order.shape[0], 3))
     for b in range(positions.shape[0]):
@@ -175,7 +226,7 @@ class TopologySimulator:
     def __init__(self, adjacency: ArrayLike, node_types: ArrayLike) -> None:
         self.topology: Topology = analyze_topology(adjacency, node_types)
         self._crank: dict[int, np.ndarray] = {}
-        self._scratch = np.empty((1, self.n_joints, 1, 2))
+        self._scratch = np.empty((1, self.n_joints, CHECK_BLOCK, 2))
 
     @classmethod
     def from_topology(cls, topology: Topology) -> TopologySimulator:
@@ -183,7 +234,7 @@ class TopologySimulator:
         simulator = cls.__new__(cls)
         simulator.topology = topology
         simulator._crank = {}
-        simulator._scratch = np.empty((1, topology.n_joints, 1, 2))
+        simulator._scratch = np.empty((1, topology.n_joints, CHECK_BLOCK, 2))
         return simulator
 
     @property

@@ -1,0 +1,249 @@
+"""Benchmarks behind `links bench`: the paper's Table 1 and the position samplers.
+
+Each function returns a plain dict (the `--json` output); `format_*` renders it as a table with
+the paper's figures beside ours. Timings are wall-clock on this machine, after compilation.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable
+
+import numba
+import numpy as np
+
+from links_ray.mechanism import CRANK_CENTER, CRANK_TIP
+from links_ray.reference import simulate_reference
+from links_ray.sampling import SAMPLERS, PositionSampler
+from links_ray.solver import DEFAULT_STEPS, TopologySimulator
+from links_ray.topology import random_topology
+
+#: Table 1 of the paper: seconds to simulate 10,000 random mechanisms (mean of 10 runs).
+PAPER_TABLE1_S = {
+    "non_vectorized_1_thread": 454.864,
+    "vectorized_1_thread": 10.994,
+    "parallel_80_threads": 0.5557,
+    "v100_gpu": 0.1823,
+}
+#: The paper's figure: more than 500 random position sets per valid mechanism, on average.
+PAPER_CANDIDATES_PER_VALID = 500
+
+Workload = list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+def random_candidates(node_types: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """`count` position sets drawn as the paper draws them: crank pose fixed, the rest uniform."""
+    positions = rng.random((count, len(node_types), 2))
+    positions[:, 0] = CRANK_CENTER
+    positions[:, 1] = CRANK_TIP
+    return positions
+
+
+def table1_workload(topologies: int = 100, per_topology: int = 100, seed: int = 0) -> Workload:
+    """Random topologies (8-20 joints) with random candidate positions each."""
+    rng = np.random.default_rng(seed)
+    workload = []
+    for _ in range(topologies):
+        adjacency, node_types = random_topology(rng)
+        workload.append((adjacency, node_types, random_candidates(node_types, per_topology, rng)))
+    return workload
+
+
+def _timed(run: Callable[[], object], repeats: int) -> list[float]:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - start)
+    return times
+
+
+def _simulate_workload(workload: Workload, steps: int, parallel: bool, buffer: np.ndarray) -> int:
+    """Simulate every candidate, the solution path found once per topology; returns valid count."""
+    valid = 0
+    for adjacency, node_types, positions in workload:
+        simulator = TopologySimulator(adjacency, node_types)
+        size = positions.shape[0] * simulator.n_joints * steps * 2
+        out = buffer[:size].reshape(positions.shape[0], simulator.n_joints, steps, 2)
+        _, lock_step, _ = simulator.run(positions, steps, parallel=parallel, out=out)
+        valid += int(np.count_nonzero(lock_step < 0))
+    return valid
+
+
+def _summary(times: list[float]) -> dict[str, float]:
+    return {
+        "mean_s": statistics.fmean(times),
+        "std_s": statistics.stdev(times) if len(times) > 1 else 0.0,
+        "best_s": min(times),
+    }
+
+
+def bench_simulate(
+    repeats: int = 5,
+    reference_subset: int = 200,
+    topologies: int = 100,
+    per_topology: int = 100,
+    seed: int = 0,
+) -> dict:
+    """Table 1 on this machine, plus full-turn throughput on valid mechanisms."""
+    steps = DEFAULT_STEPS
+    workload = table1_workload(topologies, per_topology, seed)
+    candidates = topologies * per_topology
+    buffer = np.empty(per_topology * 20 * steps * 2)
+
+    # Row 1: the plain-Python solver on a subset, spread over the topologies, scaled up.
+    per = max(1, reference_subset // topologies)
+    subset = [(a, t, p[:per]) for a, t, p in workload]
+    subset_size = per * topologies
+
+    def run_reference() -> None:
+        for adjacency, node_types, positions in subset:
+            for candidate in positions:
+                try:
+                    simulate_reference(adjacency, node_types, candidate, steps)
+                except ValueError:  # LockingError: counted, as the paper counts it
+                    pass
+
+    reference_time = _timed(run_reference, 1)[0]
+
+    _simulate_workload(workload[:2], steps, False, buffer)  # compile outside the timing
+    _simulate_workload(workload[:2], steps, True, buffer)
+    valid = _simulate_workload(workload, steps, False, buffer)
+    serial = _timed(lambda: _simulate_workload(workload, steps, False, buffer), repeats)
+    threads = numba.get_num_threads()
+    parallel = _timed(lambda: _simulate_workload(workload, steps, True, buffer), repeats)
+
+    # Full 200-step turns of valid mechanisms, the dataset's own workload.
+    rng = np.random.default_rng(seed + 1)
+    valid_sets = []
+    for adjacency, node_types, _ in workload:
+        simulator = TopologySimulator(adjacency, node_types)
+        found = PositionSampler(simulator).search(per_topology, rng, "sequential")
+        valid_sets.append((adjacency, node_types, found.positions))
+    full = _timed(lambda: _simulate_workload(valid_sets, steps, False, buffer), repeats)
+
+    return {
+        "benchmark": "simulate",
+        "machine": _machine(),
+        "candidates": candidates,
+        "valid_candidates": valid,
+        "steps": steps,
+        "topologies": topologies,
+        "non_vectorized_1_thread": {
+            "subset": subset_size,
+            "subset_s": reference_time,
+            "scaled_s": reference_time * candidates / subset_size,
+        },
+        "compiled_1_thread": _summary(serial),
+        "compiled_all_cores": {**_summary(parallel), "threads": threads},
+        "valid_full_turn": {
+            **_summary(full),
+            "mechanisms": topologies * per_topology,
+            "per_second_per_core": topologies * per_topology / min(full),
+        },
+        "paper_s": PAPER_TABLE1_S,
+        "targets": {"compiled_1_thread_s": 0.15, "valid_per_second_per_core": 60_000},
+    }
+
+
+def bench_sample(per_joint_count: int = 10, count: int = 5, seed: int = 0) -> dict:
+    """Valid mechanisms per core-second for each sampler, and candidates per valid by size."""
+    rng = np.random.default_rng(seed)
+    sizes = list(range(8, 21))
+    topologies = {n: [random_topology(rng, n) for _ in range(per_joint_count)] for n in sizes}
+    warm = TopologySimulator(*topologies[8][0])
+    for kind in SAMPLERS:  # compile outside the timing
+        PositionSampler(warm).search(1, rng, kind)
+
+    result: dict = {"benchmark": "sample", "machine": _machine(), "count": count, "samplers": {}}
+    for kind in SAMPLERS:
+        by_size = {}
+        total_time = total_valid = 0
+        for n in sizes:
+            start = time.perf_counter()
+            candidates = 0
+            for adjacency, node_types in topologies[n]:
+                sampler = PositionSampler(TopologySimulator(adjacency, node_types))
+                candidates += sampler.search(count, rng, kind).candidates
+            elapsed = time.perf_counter() - start
+            valid = count * len(topologies[n])
+            by_size[n] = {
+                "candidates_per_valid": candidates / valid,
+                "valid_per_second": valid / elapsed,
+            }
+            total_time += elapsed
+            total_valid += valid
+        result["samplers"][kind] = {
+            "valid_per_core_second": total_valid / total_time,
+            "by_joint_count": by_size,
+        }
+    result["paper_candidates_per_valid"] = PAPER_CANDIDATES_PER_VALID
+    result["targets"] = {"sequential_valid_per_core_second": 2000}
+    return result
+
+
+def _machine() -> dict:
+    return {
+        "cpus": os.cpu_count(),
+        "processor": platform.processor() or platform.machine(),
+        "python": platform.python_version(),
+        "numba": numba.__version__,
+    }
+
+
+def format_simulate(result: dict) -> str:
+    """Table 1 as text, ours beside the paper's."""
+    ref = result["non_vectorized_1_thread"]
+    one, allc, full = (
+        result["compiled_1_thread"],
+        result["compiled_all_cores"],
+        result["valid_full_turn"],
+    )
+    paper = result["paper_s"]
+    lines = [
+        f"Table 1: {result['candidates']:,} random candidates ({result['topologies']} topologies, "
+        f"8-20 joints, {result['steps']} steps; {result['valid_candidates']} valid)",
+        f"{'method':<42}{'this machine (s)':>20}{'paper (s)':>14}",
+        f"{'non-vectorized, 1 thread':<42}{ref['scaled_s']:>20.3f}"
+        f"{paper['non_vectorized_1_thread']:>14.3f}",
+        f"  (timed on {ref['subset']} candidates, {ref['subset_s']:.2f} s, scaled to all)",
+        f"{'compiled, 1 thread':<42}{_pm(one):>20}{paper['vectorized_1_thread']:>14.3f}",
+        f"{'compiled, all cores (' + str(allc['threads']) + ' threads)':<42}{_pm(allc):>20}"
+        f"{paper['parallel_80_threads']:>14.4f}  (80 threads)",
+        f"{'':<42}{'':>20}{paper['v100_gpu']:>14.4f}  (V100 GPU)",
+        "",
+        f"Full turns of valid mechanisms, 1 thread: {full['per_second_per_core']:,.0f} per second "
+        f"({full['mechanisms']:,} in {full['best_s']:.3f} s best); target 60,000",
+        f"Target: compiled 1 thread <= 0.15 s; measured {one['best_s']:.3f} s best",
+    ]
+    return "\n".join(lines)
+
+
+def format_sample(result: dict) -> str:
+    """Sampler throughput and candidates per valid mechanism by joint count."""
+    lines = []
+    for kind, data in result["samplers"].items():
+        lines.append(
+            f"{kind}: {data['valid_per_core_second']:,.0f} valid mechanisms per core-second "
+            f"({result['count']} variants per topology)"
+        )
+    lines.append("")
+    lines.append(f"{'joints':>6}" + "".join(f"{k + ' cand/valid':>24}" for k in result["samplers"]))
+    for n in result["samplers"]["rejection"]["by_joint_count"]:
+        row = "".join(
+            f"{result['samplers'][k]['by_joint_count'][n]['candidates_per_valid']:>24.1f}"
+            for k in result["samplers"]
+        )
+        lines.append(f"{n:>6}{row}")
+    lines.append(
+        f"Paper: more than {result['paper_candidates_per_valid']} candidates per valid on average "
+        "(rejection sampler); target: sequential >= 2,000 valid per core-second"
+    )
+    return "\n".join(lines)
+
+
+def _pm(summary: dict[str, float]) -> str:
+    return f"{summary['mean_s']:.4f} ± {summary['std_s']:.4f}"
