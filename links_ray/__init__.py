@@ -1,12 +1,31 @@
-"""links-ray: the LINKS dataset of planar linkage mechanisms, generated and served on Ray."""
+"""links-ray: the LINKS dataset of planar linkage mechanisms, generated and served on Ray.
 
-from links_ray.mechanism import InvalidMechanismError, LockingError
+The engine (this package's top level) is pure numpy/numba and imports no Ray.
+"""
+
+from links_ray.mechanism import (
+    InvalidMechanismError,
+    LockingError,
+    reduce_mechanism,
+)
+from links_ray.paths import chamfer, circle_variance, is_circle, normalize_path
+from links_ray.sampling import PositionSampler, PositionSearch, sample_positions
 from links_ray.solver import TopologySimulator, simulate, simulate_batch
+from links_ray.topology import random_topology
 
 __all__ = [
     "InvalidMechanismError",
     "LockingError",
+    "PositionSampler",
+    "PositionSearch",
     "TopologySimulator",
+    "chamfer",
+    "circle_variance",
+    "is_circle",
+    "normalize_path",
+    "random_topology",
+    "reduce_mechanism",
+    "sample_positions",
     "simulate",
     "simulate_batch",
 ]

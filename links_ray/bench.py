@@ -11,11 +11,12 @@ import platform
 import statistics
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
 
-from links_ray.mechanism import CRANK_CENTER, CRANK_TIP
+from links_ray.mechanism import CRANK_CENTER, CRANK_TIP, MAX_DATASET_JOINTS
 from links_ray.reference import simulate_reference
 from links_ray.sampling import SAMPLERS, PositionSampler
 from links_ray.solver import DEFAULT_STEPS, TopologySimulator
@@ -61,16 +62,29 @@ def _timed(run: Callable[[], object], repeats: int) -> list[float]:
     return times
 
 
-def _simulate_workload(workload: Workload, steps: int, parallel: bool, buffer: np.ndarray) -> int:
+def _simulate_workload(workload: Workload, steps: int, buffer: np.ndarray) -> int:
     """Simulate every candidate, the solution path found once per topology; returns valid count."""
     valid = 0
     for adjacency, node_types, positions in workload:
         simulator = TopologySimulator(adjacency, node_types)
         size = positions.shape[0] * simulator.n_joints * steps * 2
         out = buffer[:size].reshape(positions.shape[0], simulator.n_joints, steps, 2)
-        _, lock_step, _ = simulator.run(positions, steps, parallel=parallel, out=out)
+        _, lock_step, _ = simulator.run(positions, steps, out=out)
         valid += int(np.count_nonzero(lock_step < 0))
     return valid
+
+
+def _simulate_threaded(workload: Workload, steps: int, buffers: list[np.ndarray]) -> int:
+    """`_simulate_workload` split by topology over one thread per buffer (kernels drop the GIL)."""
+    threads = len(buffers)
+    with ThreadPoolExecutor(threads) as pool:
+        parts = pool.map(
+            _simulate_workload,
+            [workload[i::threads] for i in range(threads)],
+            [steps] * threads,
+            buffers,
+        )
+        return sum(parts)
 
 
 def _summary(times: list[float]) -> dict[str, float]:
@@ -92,7 +106,9 @@ def bench_simulate(
     steps = DEFAULT_STEPS
     workload = table1_workload(topologies, per_topology, seed)
     candidates = topologies * per_topology
-    buffer = np.empty(per_topology * 20 * steps * 2)
+    threads = os.cpu_count() or 1
+    buffers = [np.empty(per_topology * MAX_DATASET_JOINTS * steps * 2) for _ in range(threads)]
+    buffer = buffers[0]
 
     # Row 1: the plain-Python solver on a subset, spread over the topologies, scaled up.
     per = max(1, reference_subset // topologies)
@@ -109,12 +125,9 @@ def bench_simulate(
 
     reference_time = _timed(run_reference, 1)[0]
 
-    _simulate_workload(workload[:2], steps, False, buffer)  # compile outside the timing
-    _simulate_workload(workload[:2], steps, True, buffer)
-    valid = _simulate_workload(workload, steps, False, buffer)
-    serial = _timed(lambda: _simulate_workload(workload, steps, False, buffer), repeats)
-    threads = numba.get_num_threads()
-    parallel = _timed(lambda: _simulate_workload(workload, steps, True, buffer), repeats)
+    valid = _simulate_workload(workload, steps, buffer)  # also compiles outside the timing
+    serial = _timed(lambda: _simulate_workload(workload, steps, buffer), repeats)
+    parallel = _timed(lambda: _simulate_threaded(workload, steps, buffers), repeats)
 
     # Full 200-step turns of valid mechanisms, the dataset's own workload.
     rng = np.random.default_rng(seed + 1)
@@ -123,7 +136,7 @@ def bench_simulate(
         simulator = TopologySimulator(adjacency, node_types)
         found = PositionSampler(simulator).search(per_topology, rng, "sequential")
         valid_sets.append((adjacency, node_types, found.positions))
-    full = _timed(lambda: _simulate_workload(valid_sets, steps, False, buffer), repeats)
+    full = _timed(lambda: _simulate_workload(valid_sets, steps, buffer), repeats)
 
     return {
         "benchmark": "simulate",

@@ -183,9 +183,10 @@ def analyze_topology(adjacency: ArrayLike, node_types: ArrayLike) -> Topology:
         raise InvalidMechanismError("no crank: joints 0 and 1 are not linked")
 
     fixed = types == FIXED
-    ground_links = np.argwhere(np.triu(adj, 1) & fixed[:, None] & fixed[None, :])
+    ground = np.flatnonzero(fixed)
+    ground_links = np.argwhere(adj[np.ix_(ground, ground)])
     if len(ground_links):
-        i, j = ground_links[0]
+        i, j = ground[ground_links[0]]
         raise InvalidMechanismError(f"link ({i}, {j}) joins two fixed joints")
     extra = [int(j) for j in np.flatnonzero(adj[1] & fixed) if j != 0]
     if extra:
@@ -204,7 +205,10 @@ def analyze_topology(adjacency: ArrayLike, node_types: ArrayLike) -> Topology:
 def _solution_path(adj: np.ndarray, types: np.ndarray) -> np.ndarray:
     """Solve the lowest-index solvable joint first, each from exactly two known neighbours."""
     n = len(types)
-    neighbours = [np.flatnonzero(adj[j]).tolist() for j in range(n)]
+    rows, cols = np.nonzero(adj)
+    ends = np.cumsum(np.bincount(rows, minlength=n)).tolist()
+    cols = cols.tolist()
+    neighbours = [cols[start:end] for start, end in zip([0, *ends[:-1]], ends, strict=True)]
     known = (types != SIMPLE).tolist()
     known_count = [sum(known[k] for k in neighbours[j]) for j in range(n)]
     solvable = [j for j in range(n) if not known[j] and known_count[j] >= 2]
@@ -286,3 +290,36 @@ def dataset_rule_violations(
         if np.any((positions < 0) | (positions > 1)):
             problems.append("initial positions outside [0, 1]^2")
     return problems
+
+
+def reduce_mechanism(
+    adjacency: ArrayLike, node_types: ArrayLike, positions: ArrayLike, joint: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The sub-mechanism of only the joints `joint`'s motion needs.
+
+    Returns (adjacency, node_types, positions, index of `joint` in it). Joints keep their
+    relative order, so joints 0 and 1 stay the crank; the links kept are exactly those used to
+    solve the kept joints.
+    """
+    topology = analyze_topology(adjacency, node_types)
+    n = topology.n_joints
+    pos = as_positions(positions, n)
+    if isinstance(joint, bool) or not isinstance(joint, int | np.integer):
+        raise InvalidMechanismError(f"joint must be an integer, got {joint!r}")
+    if not 0 <= joint < n:
+        raise InvalidMechanismError(f"joint {joint} does not exist in a {n}-joint mechanism")
+    if topology.node_types[joint] == FIXED:
+        raise InvalidMechanismError(f"joint {joint} is fixed: it has no motion to reduce to")
+    keep = topology.ancestors(int(joint))
+    return (
+        topology.adjacency[np.ix_(keep, keep)].copy(),
+        topology.node_types[keep].copy(),
+        pos[keep].copy(),
+        int(np.searchsorted(keep, joint)),
+    )
+
+
+def arc_joints(topology: Topology) -> np.ndarray:
+    """(n,) bool: moving joints linked to a fixed joint, whose paths are arcs (SPEC section 3)."""
+    on_ground = topology.adjacency[:, topology.node_types == FIXED].any(axis=1)
+    return on_ground & (topology.node_types != FIXED)

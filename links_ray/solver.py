@@ -10,7 +10,7 @@ Pure numpy/numba: no Ray.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 from numpy.typing import ArrayLike
 
 from links_ray.mechanism import (
@@ -200,26 +200,6 @@ def simulate_candidates(
             out[b] = np.nan
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def simulate_candidates_parallel(
-    order: np.ndarray,
-    fixed: np.ndarray,
-    positions: np.ndarray,
-    crank: np.ndarray,
-    out: np.ndarray,
-    lock_step: np.ndarray,
-    lock_node: np.ndarray,
-) -> None:
-    """`simulate_candidates` with `keep`, spread over numba's threads."""
-    for b in prange(positions.shape[0]):
-        geometry = np.empty((order.shape[0], 3))
-        step, node = simulate_one(order, fixed, positions[b], crank, True, out[b], geometry)
-        lock_step[b] = step
-        lock_node[b] = node
-        if step >= 0:
-            out[b] = np.nan
-
-
 class TopologySimulator:
     """Simulates many position sets of one topology; its solution path is found once."""
 
@@ -254,18 +234,11 @@ class TopologySimulator:
         return positions, steps
 
     def simulate(
-        self,
-        positions: ArrayLike,
-        steps: int = DEFAULT_STEPS,
-        *,
-        parallel: bool = False,
+        self, positions: ArrayLike, steps: int = DEFAULT_STEPS
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Trajectories (B, n, steps, 2), NaN where invalid, and the valid mask (B,).
-
-        `parallel` spreads the batch over numba's threads.
-        """
+        """Trajectories (B, n, steps, 2), NaN where invalid, and the valid mask (B,)."""
         positions, steps = self._prepare(positions, steps)
-        trajectories, lock_step, _ = self.run(positions, steps, parallel=parallel)
+        trajectories, lock_step, _ = self.run(positions, steps)
         return trajectories, lock_step < 0
 
     def run(
@@ -273,7 +246,6 @@ class TopologySimulator:
         positions: np.ndarray,
         steps: int,
         *,
-        parallel: bool = False,
         out: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Unchecked fast path: (trajectories, lock_step, lock_node), -1 where valid.
@@ -287,28 +259,16 @@ class TopologySimulator:
             out = np.empty((batch, self.n_joints, steps, 2))
         lock_step = np.empty(batch, dtype=np.int64)
         lock_node = np.empty(batch, dtype=np.int64)
-        topology = self.topology
-        if parallel:
-            simulate_candidates_parallel(
-                topology.order,
-                topology.fixed_joints,
-                positions,
-                self.crank(steps),
-                out,
-                lock_step,
-                lock_node,
-            )
-        else:
-            simulate_candidates(
-                topology.order,
-                topology.fixed_joints,
-                positions,
-                self.crank(steps),
-                True,
-                out,
-                lock_step,
-                lock_node,
-            )
+        simulate_candidates(
+            self.topology.order,
+            self.topology.fixed_joints,
+            positions,
+            self.crank(steps),
+            True,
+            out,
+            lock_step,
+            lock_node,
+        )
         return out, lock_step, lock_node
 
     def first_lock(
