@@ -46,12 +46,16 @@ def _as_float_array(value: object, name: str) -> np.ndarray:
     return arr
 
 
+def _count(points: int) -> str:
+    return "1 point" if points == 1 else f"{points} points"
+
+
 def _as_points(points: object, name: str, min_points: int) -> np.ndarray:
     arr = _as_float_array(points, name)
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise ValueError(f"{name} must have shape (T, 2), got {arr.shape}")
     if arr.shape[0] < min_points:
-        raise ValueError(f"{name} must have at least {min_points} points, got {arr.shape[0]}")
+        raise ValueError(f"{name} must have at least {_count(min_points)}, got {arr.shape[0]}")
     arr = np.ascontiguousarray(arr, dtype=np.float64)
     if not np.isfinite(arr).all():
         raise ValueError(f"{name} must be finite (found NaN or inf)")
@@ -64,7 +68,7 @@ def _as_batch(paths: object, name: str, min_points: int) -> np.ndarray:
         raise ValueError(f"{name} must have shape (P, T, 2), got {arr.shape}")
     if arr.shape[1] < min_points:
         raise ValueError(
-            f"{name} must have at least {min_points} points per path, got {arr.shape[1]}"
+            f"{name} must have at least {_count(min_points)} per path, got {arr.shape[1]}"
         )
     # float32 (as stored in Parquet) is read as is: converting it is exact, copying it is not free.
     dtype = np.float32 if arr.dtype == np.float32 else np.float64
@@ -94,6 +98,7 @@ def _prescale_into(src: np.ndarray, dst: np.ndarray) -> bool:
 
 @numba.njit(cache=True)
 def _sq_dist(pts: np.ndarray, i: int, j: int) -> float:
+    """Squared distance; the same value whichever way round i and j are."""
     dx = pts[j, 0] - pts[i, 0]
     dy = pts[j, 1] - pts[i, 1]
     return dx * dx + dy * dy
@@ -219,6 +224,7 @@ def _place(pts: np.ndarray, i: int, j: int, out: np.ndarray) -> None:
 
 @numba.njit(cache=True)
 def _has_extent(pts: np.ndarray) -> bool:
+    """False if every point equals the first."""
     for k in range(1, pts.shape[0]):
         if pts[k, 0] != pts[0, 0] or pts[k, 1] != pts[0, 1]:
             return True
@@ -244,6 +250,7 @@ def _normalize_batch(paths: np.ndarray, out: np.ndarray) -> int:
 
 @numba.njit(cache=True)
 def _circle_variances(paths: np.ndarray, out: np.ndarray) -> None:
+    """out[p] = population variance of the distances of paths[p] from (0.5, 0.5)."""
     t = paths.shape[1]
     r = np.empty(t)
     for p in range(paths.shape[0]):
@@ -266,7 +273,6 @@ def _nearest_sq(
 ) -> None:
     """bmin[j] = least squared distance from b[j] to any a point."""
     bmin[:] = np.inf
-    # Inner loop is element-wise over b (no reduction), so LLVM vectorizes it.
     for i in range(ax.shape[0]):
         x = ax[i]
         y = ay[i]
@@ -297,6 +303,8 @@ def _chamfer_to_many(query: np.ndarray, cands: np.ndarray, out: np.ndarray) -> i
     cx = np.empty(t)
     cy = np.empty(t)
     cmin = np.empty(t)
+    # Two element-wise passes (vectorized by LLVM) beat one fused pass, whose running minimum
+    # over the inner loop is a reduction numba leaves scalar.
     for p in range(cands.shape[0]):
         for j in range(t):
             cx[j] = cands[p, j, 0]
