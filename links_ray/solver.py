@@ -65,7 +65,8 @@ def dyad_fails(d_sq: float, r1: float, r2: float) -> bool:
     """
     outer = r1 + r2
     inner = r1 - r2
-    return d_sq > outer * outer or d_sq < inner * inner or d_sq == 0.0
+    # Bitwise, not short-circuit: no branches in the solver's inner loop.
+    return (d_sq > outer * outer) | (d_sq < inner * inner) | (d_sq == 0.0)
 
 
 @njit(cache=True, nogil=True)

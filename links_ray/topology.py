@@ -1,4 +1,4 @@
-"""Random topologies from the J-operator (paper, "1-DOF Operator" and "Generating Valid Topologies").
+"""Random topologies from the J-operator (paper: "1-DOF Operator", "Generating Valid Topologies").
 
 The start is the simplest one-degree-of-freedom mechanism: joint 0 fixed, the crank tip joint 1,
 and a floating fixed joint 2. Each step applies one of two operators:

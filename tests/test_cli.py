@@ -1,4 +1,4 @@
-"""The `links` command: the demo writes valid mechanisms; benchmarks print JSON; bad input is one line."""
+"""The `links` command: the demo writes valid mechanisms, benchmarks print JSON, errors are short."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""reduce_mechanism keeps exactly what a joint's motion needs: re-simulating it traces the same path."""
+"""reduce_mechanism keeps what a joint needs: re-simulating it traces the same path."""
 
 from __future__ import annotations
 
