@@ -1,4 +1,4 @@
-"""The `links` command: the demo writes valid mechanisms, benchmarks print JSON, errors are short."""
+"""The `links` command: the demo writes valid mechanisms, benchmarks print JSON, errors are brief."""
 
 from __future__ import annotations
 
