@@ -1,4 +1,4 @@
-"""The `links` command: the demo writes valid mechanisms, benchmarks print JSON, errors are brief."""
+"""`links`: the demo writes valid mechanisms, benchmarks print JSON, errors are one line."""
 
 from __future__ import annotations
 
