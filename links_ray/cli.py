@@ -24,15 +24,42 @@ def _bench_sample(args: argparse.Namespace) -> None:
     print(json.dumps(result) if args.json else bench.format_sample(result))
 
 
+def _generate(args: argparse.Namespace) -> None:
+    from links_ray.generation import generate  # imports Ray: only when asked for
+
+    summary = generate(
+        args.out,
+        args.mechanisms,
+        seed=args.seed,
+        workers=args.workers,
+        sampler=args.sampler,
+        address=args.address,
+    )
+    print(json.dumps(summary, indent=2))
+
+
 def _demo(args: argparse.Namespace) -> None:
     summary = run_demo(args.out, mechanisms=args.mechanisms, seed=args.seed, sampler=args.sampler)
     print(json.dumps(summary, indent=2))
 
 
 def _positive_int(text: str) -> int:
-    value = int(text)
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text}")
     return value
 
 
@@ -47,9 +74,27 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--out", default="links-demo", help="output folder (default links-demo)")
     demo.add_argument("--mechanisms", type=_positive_int, default=100)
-    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--seed", type=_non_negative_int, default=0)
     demo.add_argument("--sampler", choices=["sequential", "rejection"], default="sequential")
     demo.set_defaults(run=_demo)
+
+    generate = commands.add_parser(
+        "generate", help="generate valid mechanisms on Ray into a folder or s3://bucket/prefix"
+    )
+    generate.add_argument("--out", required=True, help="dataset root: a folder or s3://...")
+    generate.add_argument("--mechanisms", type=_positive_int, required=True)
+    generate.add_argument("--seed", type=_non_negative_int, default=0)
+    generate.add_argument(
+        "--workers",
+        type=_positive_int,
+        default=None,
+        help="generator actors (default: one per CPU)",
+    )
+    generate.add_argument("--sampler", choices=["sequential", "rejection"], default="sequential")
+    generate.add_argument(
+        "--address", default=None, help="Ray cluster address (default: RAY_ADDRESS or a local one)"
+    )
+    generate.set_defaults(run=_generate)
 
     bench_parser = commands.add_parser("bench", help="benchmarks")
     benches = bench_parser.add_subparsers(dest="bench", required=True)

@@ -1,0 +1,77 @@
+"""A dependency-free progress meter: a live bar on a terminal, plain lines in logs."""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import TextIO
+
+#: Seconds between plain progress lines when the output is not a terminal.
+LINE_EVERY_S = 10.0
+
+
+class Progress:
+    """Counts work done towards `total` and shows the rate and the time left."""
+
+    def __init__(
+        self,
+        total: int,
+        done: int = 0,
+        unit: str = "items",
+        enabled: bool = True,
+        stream: TextIO | None = None,
+    ) -> None:
+        self.total = total
+        self.done = done
+        self.unit = unit
+        self.stream = stream or sys.stderr
+        self.enabled = enabled
+        self.live = enabled and self.stream.isatty()
+        self._start_done = done
+        self._start = time.monotonic()
+        self._shown = 0.0
+        if done and enabled:
+            self._show(force=True)
+
+    def advance(self, amount: int) -> None:
+        self.done += amount
+        self._show()
+
+    def _rate(self) -> float:
+        elapsed = time.monotonic() - self._start
+        return (self.done - self._start_done) / elapsed if elapsed > 0 else 0.0
+
+    def line(self) -> str:
+        rate = self._rate()
+        left = self.total - self.done
+        eta = f"{left / rate:,.0f} s left" if rate > 0 else "estimating"
+        share = self.done / self.total if self.total else 1.0
+        return (
+            f"{self.done:,}/{self.total:,} {self.unit} ({share:.0%}), "
+            f"{rate:,.0f} {self.unit}/s, {eta}"
+        )
+
+    def _show(self, force: bool = False) -> None:
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if self.live:
+            if force or now - self._shown >= 0.2:
+                width = 30
+                filled = int(width * self.done / self.total) if self.total else width
+                bar = "#" * filled + "-" * (width - filled)
+                self.stream.write(f"\r[{bar}] {self.line()}\033[K")
+                self.stream.flush()
+                self._shown = now
+        elif force or now - self._shown >= LINE_EVERY_S:
+            self.stream.write(self.line() + "\n")
+            self.stream.flush()
+            self._shown = now
+
+    def close(self) -> None:
+        if not self.enabled:
+            return
+        self._show(force=True)
+        if self.live:
+            self.stream.write("\n")
+            self.stream.flush()

@@ -1,0 +1,210 @@
+"""The generation plan and its work units (shards), and the work of one shard.
+
+Rows depend only on the seed and the mechanism count, never on workers, restarts or shard
+boundaries: topology `i` draws everything (its topology, five valid position variants and its
+negatives) from its own generator seeded by ``(seed, i)``. Its joint count is ``8 + i % 13``, so
+the 8-20 joint mix is uniform and every shard holds topologies of one joint count, writing one
+file per table into a single `n_joints` partition.
+
+Ids: ``mechanism_id = 5 i + variant``; a negative's id is ``NEGATIVE_ID_BASE + 5 i + k``.
+
+Pure numpy/pyarrow: no Ray.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import pyarrow as pa
+
+from links_ray.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
+from links_ray.sampling import SAMPLERS, PositionSampler
+from links_ray.solver import DEFAULT_STEPS, TopologySimulator
+from links_ray.storage import SCHEMAS
+from links_ray.topology import random_topology
+
+VARIANTS = 5
+JOINT_COUNTS = MAX_DATASET_JOINTS - MIN_DATASET_JOINTS + 1
+#: Topologies per shard: about five seconds of one core, so a lost shard costs little.
+TOPOLOGIES_PER_SHARD = 1000
+#: Topologies per written record batch: bounds a worker's memory whatever the shard size.
+TOPOLOGIES_PER_BATCH = 100
+NEGATIVE_ID_BASE = 1 << 62
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Shard:
+    """A work unit: topologies `first`, `first + 13`, ... (`count` of them), all `n_joints`."""
+
+    shard_id: int
+    n_joints: int
+    first: int
+    count: int
+
+    def topology_ids(self) -> range:
+        return range(self.first, self.first + JOINT_COUNTS * self.count, JOINT_COUNTS)
+
+
+@dataclass(frozen=True)
+class GenerationPlan:
+    """What a run produces; equal plans produce equal rows."""
+
+    seed: int
+    mechanisms: int
+    sampler: str = "sequential"
+    topologies_per_shard: int = TOPOLOGIES_PER_SHARD
+    variants: int = VARIANTS
+    steps: int = DEFAULT_STEPS
+    format: int = FORMAT_VERSION
+
+    def __post_init__(self) -> None:
+        for name in ("seed", "mechanisms", "topologies_per_shard"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer):
+                raise ValueError(f"{name} must be an integer, got {value!r}")
+        if self.mechanisms < 1:
+            raise ValueError(f"mechanisms must be at least 1, got {self.mechanisms}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be non-negative, got {self.seed}")
+        if self.topologies_per_shard < 1:
+            raise ValueError("topologies_per_shard must be at least 1")
+        if self.sampler not in SAMPLERS:
+            raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)}, got {self.sampler!r}")
+
+    @property
+    def topologies(self) -> int:
+        return -(-self.mechanisms // self.variants)
+
+    def config(self) -> dict:
+        return asdict(self)
+
+    def shards(self) -> list[Shard]:
+        """Every shard of the run, in a fixed order."""
+        shards = []
+        for residue in range(JOINT_COUNTS):
+            members = len(range(residue, self.topologies, JOINT_COUNTS))
+            for start in range(0, members, self.topologies_per_shard):
+                shards.append(
+                    Shard(
+                        shard_id=len(shards),
+                        n_joints=MIN_DATASET_JOINTS + residue,
+                        first=residue + JOINT_COUNTS * start,
+                        count=min(self.topologies_per_shard, members - start),
+                    )
+                )
+        return shards
+
+
+@dataclass
+class _Rows:
+    """Column buffers of one table, turned into a record batch on flush."""
+
+    columns: dict[str, list[np.ndarray]]
+
+    @classmethod
+    def empty(cls, table: str) -> _Rows:
+        return cls({name: [] for name in SCHEMAS[table].names})
+
+    def add(self, **values: np.ndarray) -> None:
+        for name, value in values.items():
+            self.columns[name].append(value)
+
+    def __len__(self) -> int:
+        first = next(iter(self.columns.values()))
+        return sum(len(part) for part in first)
+
+    def batch(self, table: str) -> pa.RecordBatch:
+        schema = SCHEMAS[table]
+        arrays = []
+        for field in schema:
+            parts = self.columns[field.name]
+            if pa.types.is_list(field.type):
+                rows = np.concatenate([p.reshape(len(p), -1) for p in parts])
+                width = rows.shape[1]
+                offsets = np.arange(0, (len(rows) + 1) * width, width, dtype=np.int32)
+                values = pa.array(rows.ravel(), type=field.type.value_type)
+                arrays.append(pa.ListArray.from_arrays(pa.array(offsets), values))
+            else:
+                arrays.append(pa.array(np.concatenate(parts), type=field.type))
+        return pa.RecordBatch.from_arrays(arrays, schema=schema)
+
+
+def topology_rng(seed: int, topology_id: int) -> np.random.Generator:
+    """The generator topology `topology_id` of a run draws everything from."""
+    return np.random.default_rng([seed, topology_id])
+
+
+def generate_shard(
+    plan: GenerationPlan, shard: Shard, write: Callable[[str, pa.RecordBatch], None]
+) -> dict:
+    """Generate a shard's rows, handing record batches to `write(table, batch)`.
+
+    Returns the shard's statistics: topologies, mechanisms, candidates tried, negatives, and
+    the seconds it took.
+    """
+    start = time.perf_counter()
+    stats = {"topologies": 0, "mechanisms": 0, "candidates": 0, "valid": 0, "negatives": 0}
+    for chunk in _chunks(shard.topology_ids(), TOPOLOGIES_PER_BATCH):
+        rows = {table: _Rows.empty(table) for table in SCHEMAS}
+        for topology_id in chunk:
+            _generate_topology(plan, shard.n_joints, topology_id, rows, stats)
+        for table, buffer in rows.items():
+            if len(buffer):
+                write(table, buffer.batch(table))
+    stats["seconds"] = time.perf_counter() - start
+    return stats
+
+
+def _generate_topology(
+    plan: GenerationPlan, n_joints: int, topology_id: int, rows: dict[str, _Rows], stats: dict
+) -> None:
+    rng = topology_rng(plan.seed, topology_id)
+    adjacency, node_types = random_topology(rng, n_joints=n_joints)
+    simulator = TopologySimulator(adjacency, node_types)
+    found = PositionSampler(simulator, plan.steps).search(
+        plan.variants, rng, plan.sampler, max_negatives=plan.variants
+    )
+    keep = min(plan.variants, plan.mechanisms - plan.variants * topology_id)
+    ids = plan.variants * topology_id + np.arange(keep, dtype=np.int64)
+    topology = {
+        "topology_id": np.full(keep, topology_id, dtype=np.int64),
+        "adjacency": np.broadcast_to(adjacency.ravel(), (keep, adjacency.size)),
+        "node_types": np.broadcast_to(node_types, (keep, n_joints)),
+    }
+    rows["mechanisms"].add(
+        mechanism_id=ids,
+        variant=np.arange(keep, dtype=np.int8),
+        positions=found.positions[:keep],
+        **topology,
+    )
+    rows["simulations"].add(
+        mechanism_id=ids,
+        steps=np.full(keep, plan.steps, dtype=np.int16),
+        trajectories=found.trajectories[:keep].astype(np.float32),
+    )
+    negatives = len(found.negatives)
+    if negatives:
+        rows["negatives"].add(
+            mechanism_id=NEGATIVE_ID_BASE + plan.variants * topology_id + np.arange(negatives),
+            topology_id=np.full(negatives, topology_id, dtype=np.int64),
+            variant=np.arange(negatives, dtype=np.int8),
+            adjacency=np.broadcast_to(adjacency.ravel(), (negatives, adjacency.size)),
+            node_types=np.broadcast_to(node_types, (negatives, n_joints)),
+            positions=found.negatives,
+            locked_step=found.negative_step.astype(np.int16),
+            locked_node=found.negative_node.astype(np.int16),
+        )
+    stats["topologies"] += 1
+    stats["mechanisms"] += keep
+    stats["candidates"] += found.candidates
+    stats["valid"] += plan.variants
+    stats["negatives"] += negatives
+
+
+def _chunks(ids: range, size: int) -> Iterator[range]:
+    for start in range(0, len(ids), size):
+        yield ids[start : start + size]
