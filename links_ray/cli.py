@@ -34,6 +34,7 @@ def _generate(args: argparse.Namespace) -> None:
         workers=args.workers,
         sampler=args.sampler,
         address=args.address,
+        topologies_per_shard=args.shard_topologies,
     )
     print(json.dumps(summary, indent=2))
 
@@ -93,6 +94,13 @@ def build_parser() -> argparse.ArgumentParser:
     generate.add_argument("--sampler", choices=["sequential", "rejection"], default="sequential")
     generate.add_argument(
         "--address", default=None, help="Ray cluster address (default: RAY_ADDRESS or a local one)"
+    )
+    generate.add_argument(
+        "--shard-topologies",
+        type=_positive_int,
+        default=None,
+        help="topologies per shard (default 1000); rows do not depend on it, but a resumed "
+        "run must use the same value",
     )
     generate.set_defaults(run=_generate)
 

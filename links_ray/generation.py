@@ -151,7 +151,8 @@ class _Pool:
     def submit(self, todo: deque[Shard]) -> None:
         load = {actor: 0 for actor in self.actors}
         for actor, _ in self.in_flight.values():
-            load[actor] += 1
+            if actor in load:  # a dead actor's other shards are still being reported
+                load[actor] += 1
         for actor in self.actors:
             while todo and load[actor] < SHARDS_IN_FLIGHT:
                 shard = todo.popleft()
