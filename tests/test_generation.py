@@ -131,7 +131,7 @@ def test_rerun_keeps_committed_shards(ray_cluster: str, reference_run: dict) -> 
 
 
 def test_another_run_in_the_same_place_is_refused(reference_run: dict) -> None:
-    with pytest.raises(StoreError, match="holds another run.*seed=3"):
+    with pytest.raises(StoreError, match=r"holds another run.*seed=3"):
         generate(reference_run["out"], 137, seed=4, progress=False, topologies_per_shard=2)
 
 
