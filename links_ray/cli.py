@@ -39,6 +39,11 @@ def _generate(args: argparse.Namespace) -> None:
     print(json.dumps(summary, indent=2))
 
 
+def _bench_generate(args: argparse.Namespace) -> None:
+    result = bench.bench_generate(mechanisms=args.mechanisms)
+    print(json.dumps(result) if args.json else bench.format_generate(result))
+
+
 def _demo(args: argparse.Namespace) -> None:
     summary = run_demo(args.out, mechanisms=args.mechanisms, seed=args.seed, sampler=args.sampler)
     print(json.dumps(summary, indent=2))
@@ -120,6 +125,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--topologies", type=_positive_int, default=10, help="topologies per joint count"
     )
     sample.set_defaults(run=_bench_sample)
+    generate_bench = benches.add_parser(
+        "generate", help="end-to-end generation on local Ray: valid mechanisms per core-second"
+    )
+    generate_bench.add_argument("--json", action="store_true", help="print one JSON object")
+    generate_bench.add_argument("--mechanisms", type=_positive_int, default=20_000)
+    generate_bench.set_defaults(run=_bench_generate)
     return parser
 
 

@@ -24,7 +24,7 @@ from links_ray.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
 from links_ray.sampling import SAMPLERS, PositionSampler
 from links_ray.solver import DEFAULT_STEPS, TopologySimulator
 from links_ray.storage import SCHEMAS
-from links_ray.topology import random_topology
+from links_ray.topology import grow_topology
 
 VARIANTS = 5
 JOINT_COUNTS = MAX_DATASET_JOINTS - MIN_DATASET_JOINTS + 1
@@ -163,14 +163,15 @@ def _generate_topology(
     plan: GenerationPlan, n_joints: int, topology_id: int, rows: dict[str, _Rows], stats: dict
 ) -> None:
     rng = topology_rng(plan.seed, topology_id)
-    adjacency, node_types = random_topology(rng, n_joints=n_joints)
-    simulator = TopologySimulator(adjacency, node_types)
+    topology = grow_topology(rng, n_joints)
+    adjacency, node_types = topology.adjacency, topology.node_types
+    simulator = TopologySimulator.from_topology(topology)
     found = PositionSampler(simulator, plan.steps).search(
         plan.variants, rng, plan.sampler, max_negatives=plan.variants
     )
     keep = min(plan.variants, plan.mechanisms - plan.variants * topology_id)
     ids = plan.variants * topology_id + np.arange(keep, dtype=np.int64)
-    topology = {
+    shared = {
         "topology_id": np.full(keep, topology_id, dtype=np.int64),
         "adjacency": np.broadcast_to(adjacency.ravel(), (keep, adjacency.size)),
         "node_types": np.broadcast_to(node_types, (keep, n_joints)),
@@ -179,7 +180,7 @@ def _generate_topology(
         mechanism_id=ids,
         variant=np.arange(keep, dtype=np.int8),
         positions=found.positions[:keep],
-        **topology,
+        **shared,
     )
     rows["simulations"].add(
         mechanism_id=ids,

@@ -12,12 +12,13 @@ linked to a fixed joint. In a graph grown by N_s every joint except the last mus
 parent of some later joint; the generator tracks the joints nobody depends on yet ("leaves") and
 only picks moves after which the remaining steps can still absorb them all.
 
-Pure numpy: no numba, no Ray.
+Pure numpy/numba: no Ray.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from links_ray.mechanism import (
     ACTUATED,
@@ -26,67 +27,93 @@ from links_ray.mechanism import (
     MAX_JOINTS,
     MIN_DATASET_JOINTS,
     SIMPLE,
+    Topology,
     analyze_topology,
     structure_violations,
 )
 
 #: The smallest mechanism the rules allow: crank, floating ground, two simple joints.
 MIN_TOPOLOGY_JOINTS = 5
-#: P(N_g) / P(N_s), as in the paper.
-GROUND_TO_SIMPLE = 1 / 3
+#: P(N_g) / P(N_s) = 1/3, as in the paper: N_g is a quarter of all steps.
+GROUND_SHARE = 0.25
 
 SeedLike = int | np.random.Generator | None
 
 
-def _can_finish(leaves: np.ndarray, fixed_leaves: np.ndarray, remaining: int) -> np.ndarray:
+@njit(cache=True, nogil=True, inline="always")
+def _can_finish(leaves: int, fixed_leaves: int, remaining: int) -> bool:
     """Whether `remaining` N_s steps can leave exactly one leaf, a simple joint not on ground.
 
     A step absorbs at most two leaves, at most one of them fixed, and adds one simple leaf; the
-    last step may not touch a fixed joint, so every fixed leaf must go before it. Elementwise.
+    last step may not touch a fixed joint, so every fixed leaf must go before it.
     """
-    leaves, fixed_leaves = np.asarray(leaves), np.asarray(fixed_leaves)
     if remaining == 0:
-        return (leaves == 1) & (fixed_leaves == 0)
+        return leaves == 1 and fixed_leaves == 0
     # With no simple leaf to pair it with, the first fixed leaf is absorbed without a gain.
-    wasted = (leaves == fixed_leaves) & (fixed_leaves > 0)
-    return (fixed_leaves <= remaining - 1) & (leaves - 1 <= remaining - wasted)
+    wasted = 1 if leaves == fixed_leaves and fixed_leaves > 0 else 0
+    return fixed_leaves <= remaining - 1 and leaves - 1 <= remaining - wasted
 
 
-def _grow(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
-    adjacency = np.zeros((n, n), dtype=np.uint8)
-    node_types = np.full(n, SIMPLE, dtype=np.int8)
-    node_types[[0, 2]] = FIXED
+@njit(cache=True, nogil=True)
+def _grow(uniforms: np.ndarray, adjacency: np.ndarray, node_types: np.ndarray) -> None:
+    """Apply the operators from the start mechanism until `adjacency` (n, n) is full.
+
+    `uniforms` holds two draws per step: one picks the operator, one picks among the joint
+    pairs the step may link (uniformly among those after which the rules can still be met).
+    """
+    n = node_types.shape[0]
+    node_types[:] = SIMPLE
+    node_types[0] = node_types[2] = FIXED
     node_types[1] = ACTUATED
+    adjacency[:] = 0
     adjacency[0, 1] = adjacency[1, 0] = 1
-    is_leaf = np.zeros(n, dtype=bool)
-    is_leaf[[1, 2]] = True
-    fixed = np.zeros(n, dtype=bool)
-    fixed[[0, 2]] = True
-    pairs_i, pairs_j = np.triu_indices(n, 1)
-
+    is_leaf = np.zeros(n, dtype=np.bool_)
+    is_leaf[1] = is_leaf[2] = True
+    fixed = node_types == FIXED
+    feasible_i = np.empty(n * n, dtype=np.int64)
+    feasible_j = np.empty(n * n, dtype=np.int64)
     for size in range(3, n):
         remaining = n - size - 1  # steps after this one
-        leaves = int(is_leaf[:size].sum())
-        fixed_leaves = int((is_leaf & fixed)[:size].sum())
-        want_ground = rng.random() < GROUND_TO_SIMPLE / (1 + GROUND_TO_SIMPLE)
-        if want_ground and _can_finish(leaves + 1, fixed_leaves + 1, remaining):
+        leaves = fixed_leaves = 0
+        for k in range(size):
+            leaves += is_leaf[k]
+            fixed_leaves += is_leaf[k] and fixed[k]
+        draw_operator, draw_pair = uniforms[2 * (size - 3)], uniforms[2 * (size - 3) + 1]
+        if draw_operator < GROUND_SHARE and _can_finish(leaves + 1, fixed_leaves + 1, remaining):
             node_types[size] = FIXED
             fixed[size] = is_leaf[size] = True
             continue
-        in_range = pairs_j < size
-        i, j = pairs_i[in_range], pairs_j[in_range]
-        allowed = ~(fixed[i] & fixed[j])
-        if remaining == 0:
-            allowed &= ~fixed[i] & ~fixed[j]
-        new_leaves = leaves + 1 - is_leaf[i].astype(int) - is_leaf[j].astype(int)
-        new_fixed_leaves = fixed_leaves - (is_leaf & fixed)[i] - (is_leaf & fixed)[j]
-        feasible = allowed & _can_finish(new_leaves, new_fixed_leaves, remaining)
-        choice = rng.choice(np.flatnonzero(feasible))
-        a, b = int(i[choice]), int(j[choice])
-        adjacency[size, [a, b]] = adjacency[[a, b], size] = 1
-        is_leaf[[a, b]] = False
+        count = 0
+        for i in range(size):
+            for j in range(i + 1, size):
+                if fixed[i] and fixed[j]:
+                    continue
+                if remaining == 0 and (fixed[i] or fixed[j]):
+                    continue
+                new_leaves = leaves + 1 - is_leaf[i] - is_leaf[j]
+                new_fixed = fixed_leaves - (is_leaf[i] and fixed[i]) - (is_leaf[j] and fixed[j])
+                if _can_finish(new_leaves, new_fixed, remaining):
+                    feasible_i[count] = i
+                    feasible_j[count] = j
+                    count += 1
+        pick = min(int(draw_pair * count), count - 1)
+        a, b = feasible_i[pick], feasible_j[pick]
+        adjacency[size, a] = adjacency[a, size] = 1
+        adjacency[size, b] = adjacency[b, size] = 1
+        is_leaf[a] = is_leaf[b] = False
         is_leaf[size] = True
-    return adjacency, node_types
+
+
+def grow_topology(rng: np.random.Generator, n_joints: int) -> Topology:
+    """A validated random topology of `n_joints` joints drawn from `rng` (see the module)."""
+    adjacency = np.empty((n_joints, n_joints), dtype=np.uint8)
+    node_types = np.empty(n_joints, dtype=np.int8)
+    _grow(rng.random(2 * (n_joints - 3)), adjacency, node_types)
+    topology = analyze_topology(adjacency, node_types)
+    problems = structure_violations(topology)
+    if problems:  # the construction rules this out; fail loudly rather than emit a bad row
+        raise AssertionError(f"generated topology breaks the dataset rules: {problems}")
+    return topology
 
 
 def random_topology(
@@ -108,8 +135,5 @@ def random_topology(
                 f"n_joints must be between {MIN_TOPOLOGY_JOINTS} and {MAX_JOINTS}, got {n_joints}"
             )
         n = int(n_joints)
-    adjacency, node_types = _grow(rng, n)
-    problems = structure_violations(analyze_topology(adjacency, node_types))
-    if problems:  # the construction rules this out; fail loudly rather than emit a bad row
-        raise AssertionError(f"generated topology breaks the dataset rules: {problems}")
-    return adjacency, node_types
+    topology = grow_topology(rng, n)
+    return topology.adjacency, topology.node_types
