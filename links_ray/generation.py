@@ -27,6 +27,10 @@ from links_ray.storage import META, ShardWriter, Store, StoreError
 SHARDS_IN_FLIGHT = 2
 #: How often the driver looks for new CPUs in the cluster.
 RESIZE_EVERY_S = 2.0
+#: Tries of each S3 request inside a shard, to ride out a store's brief refusals.
+WRITE_ATTEMPTS = 10
+#: Times a shard may fail with a storage error before the run stops.
+SHARD_ATTEMPTS = 3
 
 
 @ray.remote(num_cpus=1, max_restarts=0)
@@ -34,7 +38,7 @@ class GeneratorActor:
     """Generates and commits shards of one run."""
 
     def __init__(self, uri: str, plan: dict) -> None:
-        self.store = Store.open(uri)
+        self.store = Store.open(uri, attempts=WRITE_ATTEMPTS)
         self.plan = GenerationPlan(**plan)
 
     def run_shard(self, shard: Shard) -> dict:
@@ -131,6 +135,7 @@ class _Pool:
         self.actors: list[ray.actor.ActorHandle] = []
         self.in_flight: dict[ray.ObjectRef, tuple[ray.actor.ActorHandle, Shard]] = {}
         self.peak = 0
+        self.failures: dict[int, int] = {}
         self._resized = 0.0
 
     def busy(self) -> bool:
@@ -173,10 +178,16 @@ class _Pool:
                     self.actors.remove(actor)
                     ray.kill(actor, no_restart=True)
             except ray.exceptions.RayTaskError as exc:
-                cause = exc.as_instanceof_cause()
-                if isinstance(cause, ValueError | OSError):
-                    raise StoreError(f"shard {shard.shard_id} failed: {cause}") from None
-                raise
+                cause = exc.cause
+                if not isinstance(cause, OSError):
+                    raise
+                failures = self.failures[shard.shard_id] = self.failures.get(shard.shard_id, 0) + 1
+                if failures >= SHARD_ATTEMPTS:
+                    raise StoreError(
+                        f"shard {shard.shard_id} failed {failures} times writing to the store; "
+                        f"last: {str(cause).splitlines()[0]}"
+                    ) from None
+                todo.append(shard)
         return done
 
     def shutdown(self) -> None:

@@ -250,14 +250,25 @@ def _solution_path(adj: np.ndarray, types: np.ndarray) -> np.ndarray:
     return np.array(order, dtype=np.int64).reshape(-1, 3)
 
 
+#: Coordinates and link lengths the solver handles without its squares overflowing.
+MAX_COORDINATE = 1e12
+MIN_LINK_LENGTH = 1e-9
+
+
 def check_positions(topology: Topology, positions: np.ndarray) -> None:
-    """Refuse degenerate geometry: a linked pair of joints at one point (batch-aware)."""
+    """Refuse degenerate geometry (batch-aware): coordinates beyond +-1e12, and linked joints
+    closer than 1e-9, the crank included."""
+    if np.any(np.abs(positions) > MAX_COORDINATE):
+        raise InvalidMechanismError(f"positions must lie within +-{MAX_COORDINATE:g}")
     i, j = np.nonzero(np.triu(topology.adjacency, 1))
-    same = np.all(positions[..., i, :] == positions[..., j, :], axis=-1)
-    if np.any(same):
-        k = int(np.flatnonzero(same.reshape(-1, len(i)).any(axis=0))[0])
+    lengths = np.linalg.norm(positions[..., i, :] - positions[..., j, :], axis=-1)
+    short = lengths < MIN_LINK_LENGTH
+    if np.any(short):
+        k = int(np.flatnonzero(short.reshape(-1, len(i)).any(axis=0))[0])
         what = "the crank has zero length" if (i[k], j[k]) == (0, 1) else "a link has zero length"
-        raise InvalidMechanismError(f"{what}: joints {i[k]} and {j[k]} are at the same position")
+        raise InvalidMechanismError(
+            f"{what}: joints {i[k]} and {j[k]} are closer than {MIN_LINK_LENGTH:g}"
+        )
 
 
 def structure_violations(topology: Topology) -> list[str]:

@@ -29,7 +29,7 @@ BLOCK = 16
 CHECK_BLOCK = 4
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def crank_table(steps: int) -> np.ndarray:
     """cos and sin of the crank turn at each step, (steps, 2)."""
     table = np.empty((steps, 2))
@@ -40,7 +40,7 @@ def crank_table(steps: int) -> np.ndarray:
     return table
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def dyad_geometry(order: np.ndarray, pos: np.ndarray, geometry: np.ndarray) -> None:
     """Per solved joint: radius to each parent and the frozen branch sign, from the initial pose.
 
@@ -57,7 +57,7 @@ def dyad_geometry(order: np.ndarray, pos: np.ndarray, geometry: np.ndarray) -> N
         geometry[k, 2] = 1.0 if cross >= 0.0 else -1.0
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def dyad_fails(d_sq: float, r1: float, r2: float) -> bool:
     """Whether circles of radii r1 and r2 whose centres are sqrt(d_sq) apart fail to meet.
 
@@ -69,7 +69,7 @@ def dyad_fails(d_sq: float, r1: float, r2: float) -> bool:
     return (d_sq > outer * outer) | (d_sq < inner * inner) | (d_sq == 0.0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def solve_span(
     traj: np.ndarray, j: int, a: int, b: int, r1: float, r2: float, side: float, lo: int, hi: int
 ) -> int:
@@ -82,6 +82,7 @@ def solve_span(
     r1_sq = r1 * r1
     lever = r1_sq - r2 * r2
     failures = 0
+    # error_model="numpy": a zero d_sq (a lock) gives inf/NaN here instead of raising.
     for s in range(lo, hi):
         ax = traj[a, s, 0]
         ay = traj[a, s, 1]
@@ -99,7 +100,7 @@ def solve_span(
     return failures
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def first_failure(traj: np.ndarray, a: int, b: int, r1: float, r2: float, lo: int, hi: int) -> int:
     """The first row in lo:hi where a dyad on parents a and b cannot be assembled, else -1."""
     for s in range(lo, hi):
@@ -110,7 +111,7 @@ def first_failure(traj: np.ndarray, a: int, b: int, r1: float, r2: float, lo: in
     return -1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def place_crank(
     pos: np.ndarray, crank: np.ndarray, traj: np.ndarray, start: int, stop: int, row: int
 ) -> None:
@@ -123,7 +124,7 @@ def place_crank(
         traj[1, row + t - start, 1] = cy + s * vx + c * vy
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def place_fixed(fixed: np.ndarray, pos: np.ndarray, traj: np.ndarray, rows: int) -> None:
     """Fixed joints at their initial positions in the first `rows` rows of `traj`."""
     for i in range(fixed.shape[0]):
@@ -133,7 +134,7 @@ def place_fixed(fixed: np.ndarray, pos: np.ndarray, traj: np.ndarray, rows: int)
             traj[f, s, 1] = pos[f, 1]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def simulate_one(
     order: np.ndarray,
     fixed: np.ndarray,
@@ -175,7 +176,7 @@ def simulate_one(
     return -1, -1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def simulate_candidates(
     order: np.ndarray,
     fixed: np.ndarray,
@@ -207,7 +208,6 @@ class TopologySimulator:
     def __init__(self, adjacency: ArrayLike, node_types: ArrayLike) -> None:
         self.topology: Topology = analyze_topology(adjacency, node_types)
         self._crank: dict[int, np.ndarray] = {}
-        self._scratch = np.empty((1, self.n_joints, CHECK_BLOCK, 2))
 
     @classmethod
     def from_topology(cls, topology: Topology) -> TopologySimulator:
@@ -215,7 +215,6 @@ class TopologySimulator:
         simulator = cls.__new__(cls)
         simulator.topology = topology
         simulator._crank = {}
-        simulator._scratch = np.empty((1, topology.n_joints, CHECK_BLOCK, 2))
         return simulator
 
     @property
@@ -284,13 +283,15 @@ class TopologySimulator:
         batch = positions.shape[0]
         lock_step = np.empty(batch, dtype=np.int64)
         lock_node = np.empty(batch, dtype=np.int64)
+        # Scratch per call (it is tiny), so threads may share a simulator.
+        scratch = np.empty((1, self.n_joints, CHECK_BLOCK, 2))
         simulate_candidates(
             self.topology.order,
             self.topology.fixed_joints,
             positions,
             self.crank(steps),
             False,
-            self._scratch,
+            scratch,
             lock_step,
             lock_node,
         )

@@ -72,15 +72,14 @@ class StoreError(ValueError):
     """The dataset root cannot be used: unreachable, refused, or not a place to write."""
 
 
-def _s3_filesystem(bucket: str) -> pafs.S3FileSystem:
+def _s3_filesystem(bucket: str, attempts: int) -> pafs.S3FileSystem:
     """An S3 filesystem configured only from the standard AWS variables and chain."""
     endpoint = os.environ.get("AWS_ENDPOINT_URL_S3") or os.environ.get("AWS_ENDPOINT_URL")
     options: dict = {
         "region": os.environ.get("AWS_REGION") or os.environ.get("AWS_DEFAULT_REGION"),
-        # Fail within seconds on an unreachable store instead of the SDK's long retries.
-        "connect_timeout": 5,
+        "connect_timeout": 3,
         "request_timeout": 60,
-        "retry_strategy": pafs.AwsStandardS3RetryStrategy(max_attempts=3),
+        "retry_strategy": pafs.AwsStandardS3RetryStrategy(max_attempts=attempts),
     }
     if endpoint:
         parsed = urlparse(endpoint if "://" in endpoint else f"https://{endpoint}")
@@ -101,8 +100,12 @@ class Store:
     _made: set[str] = field(default_factory=set, repr=False)
 
     @classmethod
-    def open(cls, uri: str) -> Store:
-        """Resolve `uri` and prove it can be written, read and deleted; else `StoreError`."""
+    def open(cls, uri: str, attempts: int = 2) -> Store:
+        """Resolve `uri` and prove it can be written, read and deleted; else `StoreError`.
+
+        `attempts` bounds each S3 request's tries: few to fail fast when checking a root,
+        more for long runs that should ride out a store's brief refusals.
+        """
         if not isinstance(uri, str) or not uri.strip():
             raise StoreError(f"--out must be a folder or s3://bucket/prefix, got {uri!r}")
         uri = uri.strip().rstrip("/")
@@ -110,7 +113,7 @@ class Store:
         if parsed.scheme == "s3":
             if not parsed.netloc:
                 raise StoreError(f"{uri} names no bucket")
-            fs: pafs.FileSystem = _s3_filesystem(parsed.netloc)
+            fs: pafs.FileSystem = _s3_filesystem(parsed.netloc, attempts)
             root = f"{parsed.netloc}{parsed.path}"
         elif parsed.scheme in ("", "file"):
             fs = pafs.LocalFileSystem()
@@ -133,7 +136,7 @@ class Store:
         except StoreError:
             raise
         except (OSError, pa.ArrowException) as exc:
-            raise StoreError(f"cannot use {self.uri}: {_first_line(exc)}") from None
+            raise StoreError(f"cannot use {self.uri}: {_diagnose(exc)}") from None
 
     def path(self, relative: str) -> str:
         return f"{self.root}/{relative}"
@@ -266,6 +269,20 @@ class ShardWriter:
                 self.store.fs.delete_file(self.store.path(self._temporary(table)))
 
 
-def _first_line(exc: BaseException) -> str:
+#: AWS error codes in pyarrow's messages, and what they mean to a user.
+_S3_DIAGNOSES = {
+    "SIGNATURE_DOES_NOT_MATCH": "credentials refused (AWS_SECRET_ACCESS_KEY or the chain's)",
+    "INVALID_ACCESS_KEY_ID": "credentials refused (unknown AWS_ACCESS_KEY_ID)",
+    "ACCESS_DENIED": "access denied: check the credentials and the bucket's permissions",
+    "NETWORK_CONNECTION": "store unreachable: check AWS_ENDPOINT_URL and the network",
+    "NO_SUCH_BUCKET": "no such bucket",
+}
+
+
+def _diagnose(exc: BaseException) -> str:
+    """One line saying what went wrong, without secrets (pyarrow's messages carry none)."""
     text = str(exc).strip() or type(exc).__name__
+    for code, meaning in _S3_DIAGNOSES.items():
+        if code in text:
+            return f"{meaning} [{code}]"
     return text.splitlines()[0]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -19,7 +20,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as pads
 import pytest
-import ray
 
 import links_ray
 from links_ray.generation import generate
@@ -82,15 +82,6 @@ def assert_same_rows(a: dict[str, pa.Table], b: dict[str, pa.Table]) -> None:
         left = a[table].select(sorted(a[table].column_names))
         right = b[table].select(sorted(b[table].column_names))
         assert left.equals(right), f"{table} differs"
-
-
-@pytest.fixture(scope="module")
-def ray_cluster() -> str:
-    """A real local Ray cluster with two CPUs; yields its address for other drivers."""
-    os.environ["RAY_AUTH_MODE"] = "disabled"
-    ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING")
-    yield ray.get_runtime_context().gcs_address
-    ray.shutdown()
 
 
 @pytest.fixture(scope="module")
@@ -220,3 +211,30 @@ def test_killed_driver_run_is_finished_by_the_same_command(
     assert rerun.returncode == 0, rerun.stderr
     assert_same_rows(read_all(out), reference_run["tables"])
     assert not [f for t in TABLES for f in store.list_files(t) if "/_" in f]
+
+
+def test_s3_run_matches_the_local_one(ray_cluster: str, s3_env: str, reference_run: dict) -> None:
+    uri = f"{s3_env}/links/data"
+    summary = generate(uri, 137, seed=3, workers=2, progress=False, topologies_per_shard=2)
+    assert summary["complete"] and summary["out"] == uri
+    assert_same_rows(check_dataset(uri, 137), reference_run["tables"])
+    store = Store.open(uri)
+    assert not [f for t in TABLES for f in store.list_files(t) if "/_" in f]
+
+
+def test_s3_bad_credentials_and_unreachable_store_are_clear(
+    s3_env: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "not-the-secret")
+    with pytest.raises(StoreError, match="credentials") as refused:
+        generate(f"{s3_env}/data", 10, progress=False)
+    assert "not-the-secret" not in str(refused.value)
+    monkeypatch.undo()
+    with socket.socket() as closed:
+        closed.bind(("127.0.0.1", 0))
+        port = closed.getsockname()[1]
+    monkeypatch.setenv("AWS_ENDPOINT_URL", f"http://127.0.0.1:{port}")
+    start = time.monotonic()
+    with pytest.raises(StoreError, match="unreachable"):
+        generate(f"{s3_env}/data", 10, progress=False)
+    assert time.monotonic() - start < 15
