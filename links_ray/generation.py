@@ -132,68 +132,104 @@ class _Pool:
         self.uri = uri
         self.plan = asdict(plan)
         self.workers = workers
-        self.actors: list[ray.actor.ActorHandle] = []
+        self.load: dict[ray.actor.ActorHandle, int] = {}  # live actors: shards in flight
         self.in_flight: dict[ray.ObjectRef, tuple[ray.actor.ActorHandle, Shard]] = {}
         self.peak = 0
         self.failures: dict[int, int] = {}
+        self.deaths_since_progress = 0
         self._resized = 0.0
+        if workers:
+            _request_cpus(workers)  # lets an autoscaling cluster grow towards `workers`
 
     def busy(self) -> bool:
         return bool(self.in_flight)
 
     def resize(self, work_left: int) -> None:
-        """Add actors while the cluster has CPUs for them (it may have grown)."""
+        """Add actors while the cluster has CPUs for them (it may have grown).
+
+        Actors are only made for CPUs that exist: one waiting for a CPU would hold its shards.
+        """
         now = time.monotonic()
-        if now - self._resized < RESIZE_EVERY_S and self.actors:
+        if now - self._resized < RESIZE_EVERY_S and self.load:
             return
         self._resized = now
         cpus = int(ray.cluster_resources().get("CPU", 1))
         wanted = min(self.workers or cpus, cpus, work_left + len(self.in_flight))
-        while len(self.actors) < max(wanted, 1 if work_left else 0):
-            self.actors.append(GeneratorActor.remote(self.uri, self.plan))
-        self.peak = max(self.peak, len(self.actors))
+        while len(self.load) < max(wanted, 1 if work_left else 0):
+            self.load[GeneratorActor.remote(self.uri, self.plan)] = 0
+        self.peak = max(self.peak, len(self.load))
 
     def submit(self, todo: deque[Shard]) -> None:
-        load = {actor: 0 for actor in self.actors}
-        for actor, _ in self.in_flight.values():
-            if actor in load:  # a dead actor's other shards are still being reported
-                load[actor] += 1
-        for actor in self.actors:
-            while todo and load[actor] < SHARDS_IN_FLIGHT:
+        for actor, load in self.load.items():
+            while todo and load < SHARDS_IN_FLIGHT:
                 shard = todo.popleft()
                 self.in_flight[actor.run_shard.remote(shard)] = (actor, shard)
-                load[actor] += 1
+                load += 1
+            self.load[actor] = load
 
     def collect(self, todo: deque[Shard]) -> list[tuple[Shard, dict]]:
         """Finished shards; shards of dead actors go back to the front of `todo`."""
         ready, _ = ray.wait(list(self.in_flight), num_returns=1, timeout=1.0)
+        if ready:  # take every shard that has finished, not just the first
+            ready, _ = ray.wait(list(self.in_flight), num_returns=len(self.in_flight), timeout=0)
         done = []
         for ref in ready:
             actor, shard = self.in_flight.pop(ref)
             try:
                 done.append((shard, ray.get(ref)))
-            except (RayActorError, ActorDiedError, ActorUnavailableError):
+                self.load[actor] -= 1
+                self.deaths_since_progress = 0
+            except (RayActorError, ActorDiedError, ActorUnavailableError) as exc:
                 todo.appendleft(shard)
-                if actor in self.actors:
-                    self.actors.remove(actor)
-                    ray.kill(actor, no_restart=True)
+                self._bury(actor, exc)
             except ray.exceptions.RayTaskError as exc:
-                cause = exc.cause
-                if not isinstance(cause, OSError):
-                    raise
-                failures = self.failures[shard.shard_id] = self.failures.get(shard.shard_id, 0) + 1
-                if failures >= SHARD_ATTEMPTS:
-                    raise StoreError(
-                        f"shard {shard.shard_id} failed {failures} times writing to the store; "
-                        f"last: {str(cause).splitlines()[0]}"
-                    ) from None
-                todo.append(shard)
+                self.load[actor] -= 1
+                self._retry(shard, exc, todo)
         return done
 
+    def _bury(self, actor: ray.actor.ActorHandle, exc: Exception) -> None:
+        """Forget a dead actor; stop the run if actors die again and again with no progress."""
+        if actor not in self.load:
+            return  # its other shards report the same death
+        del self.load[actor]
+        ray.kill(actor, no_restart=True)
+        self.deaths_since_progress += 1
+        if self.deaths_since_progress > max(4, 2 * self.peak):
+            reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise RuntimeError(
+                f"{self.deaths_since_progress} generator actors died without finishing a shard; "
+                f"last: {reason}"
+            )
+
+    def _retry(self, shard: Shard, exc: ray.exceptions.RayTaskError, todo: deque[Shard]) -> None:
+        """Queue a shard again after a storage error; a bug or repeated failure ends the run."""
+        cause = exc.cause
+        if not isinstance(cause, OSError):
+            raise exc
+        failures = self.failures[shard.shard_id] = self.failures.get(shard.shard_id, 0) + 1
+        if failures >= SHARD_ATTEMPTS:
+            raise StoreError(
+                f"shard {shard.shard_id} failed {failures} times writing to the store; "
+                f"last: {str(cause).splitlines()[0]}"
+            ) from None
+        todo.append(shard)
+
     def shutdown(self) -> None:
-        for actor in self.actors:
+        for actor in self.load:
             ray.kill(actor, no_restart=True)
-        self.actors.clear()
+        self.load.clear()
+        if self.workers:
+            _request_cpus(0)
+
+
+def _request_cpus(cpus: int) -> None:
+    """Ask the cluster's autoscaler, if it has one, for `cpus` CPUs in all."""
+    try:
+        from ray.autoscaler.sdk import request_resources
+
+        request_resources(num_cpus=cpus)
+    except Exception:  # no autoscaler here: the request has no one to read it
+        pass
 
 
 def summarize(
