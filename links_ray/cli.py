@@ -129,7 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
         "generate", help="end-to-end generation on local Ray: valid mechanisms per core-second"
     )
     generate_bench.add_argument("--json", action="store_true", help="print one JSON object")
-    generate_bench.add_argument("--mechanisms", type=_positive_int, default=20_000)
+    generate_bench.add_argument("--mechanisms", type=_positive_int, default=50_000)
     generate_bench.set_defaults(run=_bench_generate)
     return parser
 

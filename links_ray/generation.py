@@ -242,10 +242,11 @@ def summarize(
     for marker in markers.values():
         stats = marker["stats"]
         entry = by_size.setdefault(
-            marker["n_joints"], {"topologies": 0, "mechanisms": 0, "candidates": 0, "valid": 0}
+            marker["n_joints"],
+            {"topologies": 0, "mechanisms": 0, "candidates": 0, "valid": 0, "abandoned": 0},
         )
         for key in entry:
-            entry[key] += stats[key]
+            entry[key] += stats.get(key, 0)
         for table, count in marker["rows"].items():
             rows[table] += count
         compute_s += stats["seconds"]

@@ -49,6 +49,10 @@ DRAWS_PER_JOINT = 32
 DEFAULT_MAX_CANDIDATES = 2_000_000
 
 
+class PositionSearchError(RuntimeError):
+    """No `count` valid position sets were found within the search's budget."""
+
+
 @dataclass(frozen=True)
 class PositionSearch:
     """The outcome of a position search for one topology."""
@@ -246,7 +250,7 @@ class PositionSampler:
                 later = topology.order[k + 1 :, 0]
                 row[later] = rng.random((len(later), 2))
         if found < count:
-            raise RuntimeError(
+            raise PositionSearchError(
                 f"found {found} of {count} valid position sets in {candidates} "
                 f"{'candidates' if sampler == 'rejection' else 'attempts'}; "
                 "the topology may be nearly impossible to assemble"

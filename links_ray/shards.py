@@ -21,7 +21,7 @@ import numpy as np
 import pyarrow as pa
 
 from links_ray.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
-from links_ray.sampling import SAMPLERS, PositionSampler
+from links_ray.sampling import SAMPLERS, PositionSampler, PositionSearchError
 from links_ray.solver import DEFAULT_STEPS, TopologySimulator
 from links_ray.storage import SCHEMAS
 from links_ray.topology import grow_topology
@@ -32,6 +32,9 @@ JOINT_COUNTS = MAX_DATASET_JOINTS - MIN_DATASET_JOINTS + 1
 TOPOLOGIES_PER_SHARD = 1000
 #: Topologies per written record batch: bounds a worker's memory whatever the shard size.
 TOPOLOGIES_PER_BATCH = 100
+#: Search budget per topology: candidates (rejection) or attempts (sequential). A topology that
+#: exhausts it is replaced by the next one its generator draws, and counted as abandoned.
+SEARCH_BUDGET = {"rejection": 1_000_000, "sequential": 10_000}
 NEGATIVE_ID_BASE = 1 << 62
 FORMAT_VERSION = 1
 
@@ -143,11 +146,18 @@ def generate_shard(
 ) -> dict:
     """Generate a shard's rows, handing record batches to `write(table, batch)`.
 
-    Returns the shard's statistics: topologies, mechanisms, candidates tried, negatives, and
-    the seconds it took.
+    Returns the shard's statistics: topologies, mechanisms, candidates tried (abandoned
+    topologies' included), negatives, topologies abandoned, and the seconds it took.
     """
     start = time.perf_counter()
-    stats = {"topologies": 0, "mechanisms": 0, "candidates": 0, "valid": 0, "negatives": 0}
+    stats = {
+        "topologies": 0,
+        "mechanisms": 0,
+        "candidates": 0,
+        "valid": 0,
+        "negatives": 0,
+        "abandoned": 0,
+    }
     for chunk in _chunks(shard.topology_ids(), TOPOLOGIES_PER_BATCH):
         rows = {table: _Rows.empty(table) for table in SCHEMAS}
         for topology_id in chunk:
@@ -163,12 +173,22 @@ def _generate_topology(
     plan: GenerationPlan, n_joints: int, topology_id: int, rows: dict[str, _Rows], stats: dict
 ) -> None:
     rng = topology_rng(plan.seed, topology_id)
-    topology = grow_topology(rng, n_joints)
+    while True:
+        topology = grow_topology(rng, n_joints)
+        simulator = TopologySimulator.from_topology(topology)
+        try:
+            found = PositionSampler(simulator, plan.steps).search(
+                plan.variants,
+                rng,
+                plan.sampler,
+                max_negatives=plan.variants,
+                max_candidates=SEARCH_BUDGET[plan.sampler],
+            )
+            break
+        except PositionSearchError:
+            stats["abandoned"] += 1
+            stats["candidates"] += SEARCH_BUDGET[plan.sampler]
     adjacency, node_types = topology.adjacency, topology.node_types
-    simulator = TopologySimulator.from_topology(topology)
-    found = PositionSampler(simulator, plan.steps).search(
-        plan.variants, rng, plan.sampler, max_negatives=plan.variants
-    )
     keep = min(plan.variants, plan.mechanisms - plan.variants * topology_id)
     ids = plan.variants * topology_id + np.arange(keep, dtype=np.int64)
     shared = {
