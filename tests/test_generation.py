@@ -142,7 +142,7 @@ def generator_pids() -> list[int]:
     pids = []
     for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
         try:
-            if b"ray::GeneratorActor" in cmdline.read_bytes():
+            if cmdline.read_bytes().startswith(b"ray::GeneratorActor"):
                 pids.append(int(cmdline.parent.name))
         except OSError:  # the process ended while we looked
             pass
