@@ -42,8 +42,13 @@ def test_bad_arguments_fail_with_one_line(tmp_path: Path) -> None:
     result = links("demo", "--out", str(blocker / "sub"))
     assert result.returncode != 0
     assert len(result.stderr.strip().splitlines()) == 1 and "error" in result.stderr
-    result = links("demo", "--mechanisms", "0")
-    assert result.returncode != 0 and "positive" in result.stderr
+    for bad in (["demo", "--mechanisms", "0"], ["generate", "--out", "x", "--mechanisms", "y"]):
+        result = links(*bad)
+        assert result.returncode == 2 and "positive" in result.stderr
+        assert len(result.stderr.strip().splitlines()) == 1
+    result = links("generate", "--out", "ftp://host/x", "--mechanisms", "5")
+    assert result.returncode == 2 and "unsupported scheme" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
 
 
 def test_bench_simulate_reports_table1() -> None:
