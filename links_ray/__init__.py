@@ -3,6 +3,7 @@
 The engine (this package's top level) is pure numpy/numba and imports no Ray.
 """
 
+from links_ray.dataset import load
 from links_ray.mechanism import (
     InvalidMechanismError,
     LockingError,
@@ -22,6 +23,7 @@ __all__ = [
     "chamfer",
     "circle_variance",
     "is_circle",
+    "load",
     "normalize_path",
     "random_topology",
     "reduce_mechanism",

@@ -18,7 +18,7 @@ import numpy as np
 
 from links_ray.mechanism import CRANK_CENTER, CRANK_TIP, MAX_DATASET_JOINTS
 from links_ray.reference import simulate_reference
-from links_ray.sampling import SAMPLERS, PositionSampler
+from links_ray.sampling import SAMPLERS, PositionSampler, measure_candidates_per_valid
 from links_ray.solver import DEFAULT_STEPS, TopologySimulator
 from links_ray.topology import random_topology
 
@@ -165,32 +165,18 @@ def bench_simulate(
 def bench_sample(per_joint_count: int = 10, count: int = 5, seed: int = 0) -> dict:
     """Valid mechanisms per core-second for each sampler, and candidates per valid by size."""
     rng = np.random.default_rng(seed)
-    sizes = list(range(8, 21))
-    topologies = {n: [random_topology(rng, n) for _ in range(per_joint_count)] for n in sizes}
-    warm = TopologySimulator(*topologies[8][0])
+    warm = TopologySimulator(*random_topology(rng, 8))
     for kind in SAMPLERS:  # compile outside the timing
         PositionSampler(warm).search(1, rng, kind)
-
     result: dict = {"benchmark": "sample", "machine": _machine(), "count": count, "samplers": {}}
     for kind in SAMPLERS:
-        by_size = {}
-        total_time = total_valid = 0
-        for n in sizes:
-            start = time.perf_counter()
-            candidates = 0
-            for adjacency, node_types in topologies[n]:
-                sampler = PositionSampler(TopologySimulator(adjacency, node_types))
-                candidates += sampler.search(count, rng, kind).candidates
-            elapsed = time.perf_counter() - start
-            valid = count * len(topologies[n])
-            by_size[n] = {
-                "candidates_per_valid": candidates / valid,
-                "valid_per_second": valid / elapsed,
-            }
-            total_time += elapsed
-            total_valid += valid
+        # Every sampler sees the same topologies.
+        by_size = measure_candidates_per_valid(
+            range(8, 21), per_joint_count, count, np.random.default_rng(seed), kind
+        )
+        seconds = sum(count * per_joint_count / s["valid_per_second"] for s in by_size.values())
         result["samplers"][kind] = {
-            "valid_per_core_second": total_valid / total_time,
+            "valid_per_core_second": count * per_joint_count * len(by_size) / seconds,
             "by_joint_count": by_size,
         }
     result["paper_candidates_per_valid"] = PAPER_CANDIDATES_PER_VALID

@@ -45,6 +45,24 @@ def _bench_generate(args: argparse.Namespace) -> None:
     print(json.dumps(result) if args.json else bench.format_generate(result))
 
 
+def _curate(args: argparse.Namespace) -> None:
+    from links_ray.curation import curate  # imports Ray: only when asked for
+
+    summary = curate(args.root, seed=args.seed, workers=args.workers, address=args.address)
+    print(json.dumps(summary, indent=2))
+
+
+def _stats(args: argparse.Namespace) -> None:
+    from links_ray.stats import dataset_stats
+
+    stats = dataset_stats(args.root, sample_topologies=args.sample_topologies)
+    if args.plots:
+        from links_ray.figures import write_figures
+
+        stats["plots"] = write_figures(args.root, args.plots, stats)
+    print(json.dumps(stats, indent=2))
+
+
 def _demo(args: argparse.Namespace) -> None:
     summary = run_demo(args.out, mechanisms=args.mechanisms, seed=args.seed, sampler=args.sampler)
     print(json.dumps(summary, indent=2))
@@ -113,6 +131,26 @@ def build_parser() -> argparse.ArgumentParser:
         "run must use the same value",
     )
     generate.set_defaults(run=_generate)
+
+    curate = commands.add_parser(
+        "curate", help="Ray Data pass: normalized paths and the curated subset, with statistics"
+    )
+    curate.add_argument("root", help="dataset root: a folder or s3://...")
+    curate.add_argument("--seed", type=_non_negative_int, default=0, help="curation draw seed")
+    curate.add_argument("--workers", type=_positive_int, default=None)
+    curate.add_argument("--address", default=None, help="Ray cluster address")
+    curate.set_defaults(run=_curate)
+
+    stats = commands.add_parser("stats", help="dataset statistics as JSON, figures as PNG")
+    stats.add_argument("root", help="dataset root: a folder or s3://...")
+    stats.add_argument("--plots", default=None, help="folder for the PNG figures")
+    stats.add_argument(
+        "--sample-topologies",
+        type=_positive_int,
+        default=3,
+        help="topologies per joint count when candidates per valid must be measured here",
+    )
+    stats.set_defaults(run=_stats)
 
     bench_parser = commands.add_parser("bench", help="benchmarks")
     benches = bench_parser.add_subparsers(dest="bench", required=True)

@@ -21,7 +21,7 @@ from ray.exceptions import ActorDiedError, ActorUnavailableError, RayActorError
 
 from links_ray.progress import Progress
 from links_ray.shards import GenerationPlan, Shard, generate_shard
-from links_ray.storage import META, ShardWriter, Store, StoreError
+from links_ray.storage import GENERATION_TABLES, META, ShardWriter, Store, StoreError
 
 #: Shards queued on an actor at once: one running, one ready, so no actor waits on the driver.
 SHARDS_IN_FLIGHT = 2
@@ -106,7 +106,7 @@ def generate(
     finally:
         pool.shutdown()
         meter.close()
-    store.remove_uncommitted()
+    store.remove_uncommitted(GENERATION_TABLES)
     summary = summarize(plan, committed, store.uri, time.perf_counter() - start, pool.peak)
     store.write_json(f"{META}/summary.json", summary)
     return summary
@@ -248,7 +248,7 @@ def summarize(
         for key in entry:
             entry[key] += stats.get(key, 0)
         for table, count in marker["rows"].items():
-            rows[table] += count
+            rows[table] += count  # a table with no rows in a shard is absent from its marker
         compute_s += stats["seconds"]
     for entry in by_size.values():
         entry["candidates_per_valid"] = entry["candidates"] / entry["valid"]

@@ -19,6 +19,7 @@ Pure numpy/numba: no Ray.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Literal
 
@@ -37,7 +38,7 @@ from links_ray.solver import (
     simulate_one,
     solve_span,
 )
-from links_ray.topology import SeedLike
+from links_ray.topology import SeedLike, grow_topology
 
 Sampler = Literal["sequential", "rejection"]
 SAMPLERS: tuple[str, ...] = ("sequential", "rejection")
@@ -279,3 +280,40 @@ def sample_positions(
     simulator = TopologySimulator(adjacency, node_types)
     rng = np.random.default_rng(seed)
     return PositionSampler(simulator).search(count, rng, sampler).positions
+
+
+def measure_candidates_per_valid(
+    sizes: range,
+    topologies_per_size: int,
+    count: int,
+    rng: np.random.Generator,
+    sampler: Sampler = "rejection",
+    max_candidates: int = DEFAULT_MAX_CANDIDATES,
+) -> dict[int, dict[str, float]]:
+    """Candidates tried per valid position set, and valid sets per second, by joint count.
+
+    Draws `topologies_per_size` random topologies of each size and finds `count` valid sets for
+    each; a topology that exhausts `max_candidates` counts them all and is abandoned.
+    """
+    result = {}
+    for n in sizes:
+        start = time.perf_counter()
+        candidates = valid = abandoned = 0
+        for _ in range(topologies_per_size):
+            simulator = TopologySimulator.from_topology(grow_topology(rng, n))
+            try:
+                found = PositionSampler(simulator).search(
+                    count, rng, sampler, max_candidates=max_candidates
+                )
+                candidates += found.candidates
+                valid += count
+            except PositionSearchError:
+                candidates += max_candidates
+                abandoned += 1
+        elapsed = time.perf_counter() - start
+        result[n] = {
+            "candidates_per_valid": candidates / valid if valid else float("inf"),
+            "valid_per_second": valid / elapsed,
+            "abandoned": abandoned,
+        }
+    return result

@@ -23,7 +23,7 @@ import pyarrow as pa
 from links_ray.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
 from links_ray.sampling import SAMPLERS, PositionSampler, PositionSearchError
 from links_ray.solver import DEFAULT_STEPS, TopologySimulator
-from links_ray.storage import SCHEMAS
+from links_ray.storage import GENERATION_TABLES, SCHEMAS
 from links_ray.topology import grow_topology
 
 VARIANTS = 5
@@ -159,7 +159,7 @@ def generate_shard(
         "abandoned": 0,
     }
     for chunk in _chunks(shard.topology_ids(), TOPOLOGIES_PER_BATCH):
-        rows = {table: _Rows.empty(table) for table in SCHEMAS}
+        rows = {table: _Rows.empty(table) for table in GENERATION_TABLES}
         for topology_id in chunk:
             _generate_topology(plan, shard.n_joints, topology_id, rows, stats)
         for table, buffer in rows.items():

@@ -35,7 +35,8 @@ import pyarrow as pa
 import pyarrow.fs as pafs
 import pyarrow.parquet as pq
 
-TABLES = ("mechanisms", "simulations", "negatives")
+GENERATION_TABLES = ("mechanisms", "simulations", "negatives")
+CURATION_TABLES = ("paths", "curated")
 META = "_links"
 
 _MECHANISM_FIELDS = [
@@ -46,6 +47,17 @@ _MECHANISM_FIELDS = [
     pa.field("node_types", pa.list_(pa.int8()), nullable=False),
     pa.field("positions", pa.list_(pa.float64()), nullable=False),
 ]
+_PATH_SCHEMA = pa.schema(
+    [
+        pa.field("path_id", pa.int64(), nullable=False),
+        pa.field("mechanism_id", pa.int64(), nullable=False),
+        pa.field("joint", pa.int8(), nullable=False),
+        pa.field("points", pa.list_(pa.float32()), nullable=False),
+        pa.field("is_arc", pa.bool_(), nullable=False),
+        pa.field("is_circle", pa.bool_(), nullable=False),
+        pa.field("circle_variance", pa.float32(), nullable=False),
+    ]
+)
 #: Columns of each table as written; `n_joints` is the Hive partition (the folder name).
 SCHEMAS: dict[str, pa.Schema] = {
     "mechanisms": pa.schema(_MECHANISM_FIELDS),
@@ -63,6 +75,8 @@ SCHEMAS: dict[str, pa.Schema] = {
             pa.field("locked_node", pa.int16(), nullable=False),
         ]
     ),
+    "paths": _PATH_SCHEMA,
+    "curated": _PATH_SCHEMA,
 }
 #: zstd, no dictionary: floats do not repeat, and dictionary pages only cost time and space.
 PARQUET_OPTIONS = {"compression": "zstd", "use_dictionary": False, "write_statistics": True}
@@ -179,19 +193,19 @@ class Store:
 
     # -- shards ---------------------------------------------------------------------------
 
-    def committed_shards(self) -> dict[int, dict]:
-        """Markers of committed shards, by shard id."""
+    def committed_shards(self, stage: str = "shards") -> dict[int, dict]:
+        """Markers of the shards a stage ("shards": generation, "curation") committed, by id."""
         markers = {}
-        for relative in self.list_files(f"{META}/shards"):
+        for relative in self.list_files(f"{META}/{stage}"):
             name = relative.rsplit("/", 1)[-1]
             if name.startswith("shard-") and name.endswith(".json"):
                 markers[int(name[6:-5])] = self.read_json(relative)
         return markers
 
-    def remove_uncommitted(self) -> int:
-        """Delete files that interrupted attempts left (names starting with `_shard-`)."""
+    def remove_uncommitted(self, tables: tuple[str, ...]) -> int:
+        """Delete files that interrupted attempts left in `tables` (names starting `_shard-`)."""
         removed = 0
-        for table in TABLES:
+        for table in tables:
             for relative in self.list_files(table):
                 if relative.rsplit("/", 1)[-1].startswith("_shard-"):
                     self.fs.delete_file(self.path(relative))
@@ -204,19 +218,20 @@ def shard_file(table: str, n_joints: int, shard_id: int) -> str:
     return f"{table}/n_joints={n_joints}/shard-{shard_id:06d}.parquet"
 
 
-def marker_file(shard_id: int) -> str:
-    return f"{META}/shards/shard-{shard_id:06d}.json"
+def marker_file(shard_id: int, stage: str = "shards") -> str:
+    return f"{META}/{stage}/shard-{shard_id:06d}.json"
 
 
 class ShardWriter:
     """Streams one shard's record batches into hidden files, then commits them together."""
 
-    def __init__(self, store: Store, shard_id: int, n_joints: int) -> None:
+    def __init__(self, store: Store, shard_id: int, n_joints: int, stage: str = "shards") -> None:
         self.store = store
         self.shard_id = shard_id
         self.n_joints = n_joints
+        self.stage = stage
         self.attempt = uuid.uuid4().hex[:12]
-        self.rows = dict.fromkeys(TABLES, 0)
+        self.rows: dict[str, int] = {}
         self._writers: dict[str, pq.ParquetWriter] = {}
         self._streams: dict[str, pa.NativeFile] = {}
 
@@ -234,7 +249,7 @@ class ShardWriter:
             self._streams[table] = stream
             self._writers[table] = pq.ParquetWriter(stream, SCHEMAS[table], **PARQUET_OPTIONS)
         self._writers[table].write_batch(batch)
-        self.rows[table] += batch.num_rows
+        self.rows[table] = self.rows.get(table, 0) + batch.num_rows
 
     def _close(self) -> None:
         for table, writer in self._writers.items():
@@ -256,7 +271,7 @@ class ShardWriter:
             "rows": self.rows,
             "stats": stats,
         }
-        self.store.write_json(marker_file(self.shard_id), marker)
+        self.store.write_json(marker_file(self.shard_id, self.stage), marker)
         return marker
 
     def abort(self) -> None:

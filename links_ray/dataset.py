@@ -1,0 +1,80 @@
+"""Reading the dataset: `load` a table as pandas or pyarrow, optionally one joint count.
+
+Only committed rows are read: files of unfinished shards are hidden (their names start with
+`_`), and pyarrow skips them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Literal
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.dataset as pads
+
+from links_ray.storage import CURATION_TABLES, GENERATION_TABLES, Store
+
+TABLE_NAMES = GENERATION_TABLES + CURATION_TABLES
+#: The partition column, typed (Hive folders carry no types).
+PARTITIONING = pads.partitioning(pa.schema([("n_joints", pa.int16())]), flavor="hive")
+
+
+def open_table(root: str | Store, table: str) -> pads.Dataset:
+    """The pyarrow dataset of one table at `root` (a folder, s3://bucket/prefix or a Store)."""
+    if table not in TABLE_NAMES:
+        raise ValueError(f"table must be one of {', '.join(TABLE_NAMES)}, got {table!r}")
+    store = root if isinstance(root, Store) else Store.open(root)
+    files = store.list_files(table)
+    if not files:
+        raise ValueError(f"{store.uri} has no {table} table yet")
+    return pads.dataset(store.path(table), filesystem=store.fs, partitioning=PARTITIONING)
+
+
+def load(
+    root: str | Store,
+    table: str,
+    n_joints: int | Iterable[int] | None = None,
+    columns: list[str] | None = None,
+    format: Literal["pandas", "arrow"] = "pandas",
+    reshape: bool = False,
+) -> pd.DataFrame | pa.Table:
+    """Rows of `table`, filtered by `n_joints`, as a pandas DataFrame or a pyarrow Table.
+
+    With `reshape` (pandas only) the flattened lists become arrays: `adjacency` (n, n),
+    `positions` (n, 2), `trajectories` (n, steps, 2), `points` (steps, 2).
+    """
+    if format not in ("pandas", "arrow"):
+        raise ValueError(f"format must be 'pandas' or 'arrow', got {format!r}")
+    if reshape and format != "pandas":
+        raise ValueError("reshape applies to format='pandas'")
+    dataset = open_table(root, table)
+    wanted = None
+    if n_joints is not None:
+        sizes = [n_joints] if isinstance(n_joints, int | np.integer) else list(n_joints)
+        wanted = pads.field("n_joints").isin([int(n) for n in sizes])
+    if columns is not None:
+        unknown = sorted(set(columns) - set(dataset.schema.names))
+        if unknown:
+            raise ValueError(f"{table} has no column {', '.join(unknown)}")
+    rows = dataset.to_table(columns=columns, filter=wanted)
+    if format == "arrow":
+        return rows
+    frame = rows.to_pandas()
+    if reshape:
+        _reshape(frame)
+    return frame
+
+
+def _reshape(frame: pd.DataFrame) -> None:
+    n = frame["n_joints"].to_numpy() if "n_joints" in frame else None
+    shapes = {
+        "adjacency": lambda k: (n[k], n[k]),
+        "positions": lambda k: (n[k], 2),
+        "trajectories": lambda k: (n[k], -1, 2),
+        "points": lambda k: (-1, 2),
+    }
+    for column, shape in shapes.items():
+        if column in frame and (n is not None or column == "points"):
+            frame[column] = [np.asarray(v).reshape(shape(k)) for k, v in enumerate(frame[column])]

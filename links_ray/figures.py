@@ -1,0 +1,114 @@
+"""The dataset's figures as PNG (`links stats --plots DIR`); needs matplotlib (extra `all`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.dataset as pads
+
+from links_ray.dataset import open_table
+from links_ray.storage import Store
+
+
+def _pyplot():
+    try:
+        import matplotlib
+    except ImportError:
+        raise ValueError("figures need matplotlib: pip install 'links-ray[all]'") from None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _sample(
+    store: Store, table: str, columns: list[str] | None, count: int, rng: np.random.Generator
+) -> list[dict]:
+    """Up to `count` random rows of `table` (read from a few random files)."""
+    dataset = open_table(store, table)
+    fragments = list(dataset.get_fragments())
+    picked = rng.choice(len(fragments), size=min(len(fragments), 4), replace=False)
+    table_rows = pa.concat_tables(fragments[k].to_table(columns=columns) for k in picked)
+    take = rng.choice(len(table_rows), size=min(count, len(table_rows)), replace=False)
+    return table_rows.take(np.sort(take)).to_pylist()
+
+
+def write_figures(root: str, folder: str | Path, stats: dict, seed: int = 0) -> list[str]:
+    """Write the figures for `stats` (from `dataset_stats`) into `folder`; returns their paths."""
+    plt = _pyplot()
+    store = Store.open(root)
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    written = []
+
+    sizes = sorted(int(n) for n in stats["candidates_per_valid"])
+    figure, axes = plt.subplots(figsize=(6, 4))
+    axes.semilogy(sizes, [stats["candidates_per_valid"][str(n)] for n in sizes], "o-")
+    axes.axhline(500, color="grey", linestyle="--", label="paper: >500 on average")
+    axes.set(xlabel="joints", ylabel="candidates per valid mechanism")
+    axes.set_title("Infeasibility of random initial positions", fontsize=10)
+    axes.legend()
+    written.append(_save(figure, out / "candidates_per_valid.png", plt))
+
+    mechanisms = stats["counts"]["mechanisms"]
+    if mechanisms:
+        by_size = mechanisms["by_joint_count"]
+        figure, axes = plt.subplots(figsize=(6, 4))
+        axes.bar([int(n) for n in by_size], list(by_size.values()))
+        axes.set(xlabel="joints", ylabel="mechanisms", title="Joint counts")
+        written.append(_save(figure, out / "joint_counts.png", plt))
+
+    if stats["counts"]["paths"] and stats["counts"]["curated"]:
+        figure, grids = plt.subplots(5, 10, figsize=(12, 6))
+        for half, table in enumerate(("paths", "curated")):
+            rows = _sample(store, table, ["points"], 25, rng)
+            for k, row in enumerate(rows):
+                axes = grids[k // 5, half * 5 + k % 5]
+                points = np.asarray(row["points"]).reshape(-1, 2)
+                axes.plot(points[:, 0], points[:, 1], linewidth=0.8)
+        for axes in grids.ravel():
+            axes.set(xlim=(0, 1), ylim=(0, 1), xticks=[], yticks=[], aspect="equal")
+        figure.suptitle("Random normalized paths: before (left) and after (right) curation")
+        written.append(_save(figure, out / "curation.png", plt))
+
+    if mechanisms and stats["counts"]["simulations"]:
+        rows = _sample(store, "mechanisms", None, 4, rng)
+        ids = [row["mechanism_id"] for row in rows]
+        simulations = {
+            row["mechanism_id"]: row
+            for row in open_table(store, "simulations")
+            .to_table(filter=pads.field("mechanism_id").isin(ids))
+            .to_pylist()
+        }
+        figure, grid = plt.subplots(1, len(rows), figsize=(4 * len(rows), 4))
+        for axes, row in zip(np.atleast_1d(grid), rows, strict=True):
+            _draw_mechanism(axes, row, simulations[row["mechanism_id"]])
+        written.append(_save(figure, out / "mechanisms.png", plt))
+    return written
+
+
+def _draw_mechanism(axes, mechanism: dict, simulation: dict) -> None:
+    n = len(mechanism["node_types"])
+    positions = np.asarray(mechanism["positions"]).reshape(n, 2)
+    adjacency = np.asarray(mechanism["adjacency"]).reshape(n, n)
+    types = np.asarray(mechanism["node_types"])
+    paths = np.asarray(simulation["trajectories"]).reshape(n, -1, 2)
+    for joint in range(n):
+        if types[joint] != 0:
+            axes.plot(paths[joint, :, 0], paths[joint, :, 1], linewidth=0.7, alpha=0.7)
+    for i, j in zip(*np.nonzero(np.triu(adjacency)), strict=True):
+        axes.plot(*positions[[i, j]].T, color="black", linewidth=1.2)
+    axes.scatter(*positions[types == 0].T, marker="^", color="black", zorder=3, label="fixed")
+    axes.scatter(*positions[types != 0].T, color="white", edgecolor="black", zorder=3)
+    axes.set(aspect="equal", xticks=[], yticks=[])
+    axes.set_title(f"mechanism {mechanism['mechanism_id']} ({n} joints)", fontsize=9)
+
+
+def _save(figure, path: Path, plt) -> str:
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return str(path)

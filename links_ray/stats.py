@@ -1,0 +1,103 @@
+"""What a dataset holds, beside the paper's own figures (`links stats`).
+
+Counts per table and joint count, the shares of circles and arcs before and after curation,
+candidates tried per valid mechanism by joint count (from the run when it used the paper's
+rejection sampler, otherwise measured here on a sample of topologies), and the throughput the
+runs recorded. Reads only small columns; no Ray.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow.compute as pc
+
+from links_ray.dataset import TABLE_NAMES, open_table
+from links_ray.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
+from links_ray.sampling import measure_candidates_per_valid
+from links_ray.storage import META, Store
+
+#: The paper's figures ("Dataset Curation & Processing", "Scale of Infeasibilities").
+PAPER = {
+    "shares": {"circle": 0.34, "arc": 0.28, "arc_or_circle": 0.62},
+    "candidates_per_valid_mean": ">500",
+}
+
+
+def _counts(store: Store, table: str) -> dict | None:
+    if not store.list_files(table):
+        return None
+    sizes = open_table(store, table).to_table(columns=["n_joints"]).column("n_joints")
+    by_size = pc.value_counts(sizes).to_pylist()
+    return {
+        "rows": len(sizes),
+        "by_joint_count": {str(c["values"]): c["counts"] for c in sorted(by_size, key=str)},
+    }
+
+
+def _shares(store: Store, table: str) -> dict | None:
+    if not store.list_files(table):
+        return None
+    flags = open_table(store, table).to_table(columns=["is_arc", "is_circle"])
+    arc = flags.column("is_arc").to_numpy(zero_copy_only=False)
+    circle = flags.column("is_circle").to_numpy(zero_copy_only=False)
+    total = max(len(arc), 1)
+    return {
+        "paths": len(arc),
+        "circle": float(circle.sum() / total),
+        "arc": float(arc.sum() / total),
+        "arc_or_circle": float((arc | circle).sum() / total),
+        "both": float((arc & circle).sum() / total),
+        "arc_not_circle": float((arc & ~circle).sum() / total),
+    }
+
+
+def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
+    """The statistics of the dataset at `root` as one JSON-ready dict."""
+    store = Store.open(root)
+    run = store.read_json(f"{META}/summary.json")
+    curation = store.read_json(f"{META}/curation_summary.json")
+    counts = {table: _counts(store, table) for table in TABLE_NAMES}
+    if not any(counts.values()):
+        raise ValueError(f"{store.uri} holds no dataset tables")
+
+    if run and run["plan"]["sampler"] == "rejection":
+        candidates = {
+            size: entry["candidates_per_valid"] for size, entry in run["by_joint_count"].items()
+        }
+        source = "the generation run (rejection sampler)"
+    else:
+        measured = measure_candidates_per_valid(
+            range(MIN_DATASET_JOINTS, MAX_DATASET_JOINTS + 1),
+            sample_topologies,
+            5,
+            np.random.default_rng(seed),
+            "rejection",
+            max_candidates=200_000,
+        )
+        candidates = {str(n): entry["candidates_per_valid"] for n, entry in measured.items()}
+        source = (
+            f"measured here: the rejection sampler on {sample_topologies} random topologies per "
+            "joint count, five variants each (the data itself was made by the sequential sampler)"
+        )
+    return {
+        "root": store.uri,
+        "counts": counts,
+        "shares": {"paths": _shares(store, "paths"), "curated": _shares(store, "curated")},
+        "candidates_per_valid": candidates,
+        "candidates_per_valid_source": source,
+        "throughput": {
+            "generation": run
+            and {
+                "mechanisms_per_second": run["mechanisms_per_second"],
+                "valid_per_core_second": run["valid_per_core_second"],
+                "workers": run["workers"],
+                "sampler": run["plan"]["sampler"],
+            },
+            "curation": curation
+            and {
+                "seconds": curation["seconds"],
+                "mechanisms_per_core_second": curation["mechanisms_per_core_second"],
+            },
+        },
+        "paper": PAPER,
+    }
