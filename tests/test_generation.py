@@ -25,7 +25,8 @@ import links_ray
 from links_ray.generation import generate
 from links_ray.mechanism import analyze_topology, dataset_rule_violations
 from links_ray.shards import NEGATIVE_ID_BASE
-from links_ray.storage import META, TABLES, Store, StoreError
+from links_ray.storage import GENERATION_TABLES as TABLES
+from links_ray.storage import META, Store, StoreError
 
 
 def read_table(store: Store, table: str) -> pa.Table:
