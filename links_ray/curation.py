@@ -90,7 +90,9 @@ def curate(
     generated = store.committed_shards("shards")
     if not generated:
         raise StoreError(f"{store.uri} holds no generated shards: run links generate first")
-    _claim(store, {"seed": seed, "keep_share": KEEP_SHARE, "format": CURATION_FORMAT})
+    store.claim(
+        f"{META}/curation.json", {"seed": seed, "keep_share": KEEP_SHARE, "format": CURATION_FORMAT}
+    )
     curated = store.committed_shards("curation")
     todo = [marker for shard, marker in sorted(generated.items()) if shard not in curated]
 
@@ -124,17 +126,6 @@ def curate(
     summary = summarize_curation(store, time.perf_counter() - start, len(todo))
     store.write_json(f"{META}/curation_summary.json", summary)
     return summary
-
-
-def _claim(store: Store, config: dict) -> None:
-    recorded = store.read_json(f"{META}/curation.json")
-    if recorded is None:
-        store.write_json(f"{META}/curation.json", config)
-    elif recorded != config:
-        raise StoreError(
-            f"{store.uri} was curated with seed={recorded.get('seed')}; "
-            "use the same --seed or a fresh copy of the data"
-        )
 
 
 def summarize_curation(store: Store, seconds: float, curated_now: int) -> dict:

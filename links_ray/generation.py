@@ -82,7 +82,7 @@ def generate(
     extra = {} if topologies_per_shard is None else {"topologies_per_shard": topologies_per_shard}
     plan = GenerationPlan(seed=seed, mechanisms=mechanisms, sampler=sampler, **extra)
     store = Store.open(out)
-    _claim(store, plan)
+    store.claim(f"{META}/run.json", plan.config())
     shards = plan.shards()
     committed = store.committed_shards()
     todo = deque(shard for shard in shards if shard.shard_id not in committed)
@@ -110,19 +110,6 @@ def generate(
     summary = summarize(plan, committed, store.uri, time.perf_counter() - start, pool.peak)
     store.write_json(f"{META}/summary.json", summary)
     return summary
-
-
-def _claim(store: Store, plan: GenerationPlan) -> None:
-    """Record the plan at the root, or check it matches the plan already recorded there."""
-    recorded = store.read_json(f"{META}/run.json")
-    if recorded is None:
-        store.write_json(f"{META}/run.json", plan.config())
-    elif recorded != plan.config():
-        differ = sorted(k for k in plan.config() if recorded.get(k) != plan.config()[k])
-        raise StoreError(
-            f"{store.uri} holds another run ({', '.join(f'{k}={recorded.get(k)}' for k in differ)}"
-            "); use a new --out or the same options"
-        )
 
 
 class _Pool:

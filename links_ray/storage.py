@@ -191,6 +191,22 @@ class Store:
             if info.type == pafs.FileType.File
         )
 
+    def claim(self, relative: str, config: dict) -> None:
+        """Record what a run asks for at `relative`, or check it matches what is recorded.
+
+        A root holds one dataset: resuming with other options would mix two datasets' rows.
+        """
+        recorded = self.read_json(relative)
+        if recorded is None:
+            self.write_json(relative, config)
+        elif recorded != config:
+            differ = ", ".join(
+                f"{k}={recorded.get(k)}" for k in config if recorded.get(k) != config[k]
+            )
+            raise StoreError(
+                f"{self.uri} holds another run ({differ}); use a new root or the same options"
+            )
+
     # -- shards ---------------------------------------------------------------------------
 
     def committed_shards(self, stage: str = "shards") -> dict[int, dict]:
