@@ -1,6 +1,6 @@
 """The generation service on Ray: a pool of actors turns shards into committed Parquet files.
 
-Each `GeneratorActor` owns the compiled engine (numba kernels loaded once per process) and
+Each `GeneratorActor` owns the compiled engine (its kernels loaded once per process) and
 handles one shard at a time: it draws the shard's topologies and positions, streams record
 batches into hidden files and commits them (`links_ray.storage`). The driver keeps the pool as
 large as the cluster's CPUs allow (up to `workers`), growing it when nodes join; a shard whose
