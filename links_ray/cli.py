@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from collections.abc import Callable, Sequence
 from typing import NoReturn
 
@@ -61,6 +62,27 @@ def _stats(args: argparse.Namespace) -> None:
 
         stats["plots"] = write_figures(args.root, args.plots, stats)
     print(json.dumps(stats, indent=2))
+
+
+def _serve(args: argparse.Namespace) -> None:
+    from links_ray.serve_app import run_server  # imports Ray Serve: only when asked for
+
+    run_server(args.root, host=args.host, port=args.port, replicas=args.replicas)
+
+
+def _retrieve(args: argparse.Namespace) -> None:
+    from links_ray.retrieval import RetrievalIndex, read_points
+
+    index = RetrievalIndex.open(args.root)
+    start = time.perf_counter()
+    results = index.retrieve(read_points(args.points), k=args.k)
+    took_ms = (time.perf_counter() - start) * 1e3
+    print(json.dumps({"results": results, "took_ms": took_ms}))
+
+
+def _bench_retrieve(args: argparse.Namespace) -> None:
+    result = bench.bench_retrieve(paths=args.paths)
+    print(json.dumps(result) if args.json else bench.format_retrieve(result))
 
 
 def _demo(args: argparse.Namespace) -> None:
@@ -152,6 +174,23 @@ def build_parser() -> argparse.ArgumentParser:
     )
     stats.set_defaults(run=_stats)
 
+    serve = commands.add_parser("serve", help="Ray Serve app: the HTTP API and the studio at /")
+    serve.add_argument("root", help="dataset root: a folder or s3://...")
+    serve.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
+    serve.add_argument("--port", type=_positive_int, default=8000)
+    serve.add_argument("--replicas", type=_positive_int, default=1)
+    serve.set_defaults(run=_serve)
+
+    retrieve = commands.add_parser(
+        "retrieve", help="find mechanisms whose path matches the points in FILE (offline)"
+    )
+    retrieve.add_argument("root", help="dataset root: a folder or s3://...")
+    retrieve.add_argument(
+        "--points", required=True, help='JSON file: [[x, y], ...] or {"points": [...]}'
+    )
+    retrieve.add_argument("-k", type=_positive_int, default=3, help="results (1-100, default 3)")
+    retrieve.set_defaults(run=_retrieve)
+
     bench_parser = commands.add_parser("bench", help="benchmarks")
     benches = bench_parser.add_subparsers(dest="bench", required=True)
     simulate = benches.add_parser(
@@ -174,6 +213,12 @@ def build_parser() -> argparse.ArgumentParser:
     generate_bench.add_argument("--json", action="store_true", help="print one JSON object")
     generate_bench.add_argument("--mechanisms", type=_positive_int, default=50_000)
     generate_bench.set_defaults(run=_bench_generate)
+    retrieve_bench = benches.add_parser(
+        "retrieve", help="retrieval latency and recall@3 on a cached curated dataset"
+    )
+    retrieve_bench.add_argument("--json", action="store_true", help="print one JSON object")
+    retrieve_bench.add_argument("--paths", type=_positive_int, default=1_000_000)
+    retrieve_bench.set_defaults(run=_bench_retrieve)
     return parser
 
 
