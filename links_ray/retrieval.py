@@ -1,0 +1,319 @@
+"""Retrieval: find curated paths whose shape matches a drawn curve, and the mechanisms that
+trace them where the curve was drawn (the paper's case study, as an index).
+
+Search has two stages:
+
+1. Candidates by descriptor. A normalized path's descriptor is its distance field: the
+   distance from each node of a 16 x 16 grid over [0, 1]^2 to the nearest path point. Two
+   paths whose fields are close have a small chamfer distance. The fields are reduced to 32
+   dimensions by PCA, and the query's four variants (as drawn, turned 180 degrees, mirrored,
+   both) each take their nearest `CANDIDATES` paths by plain L2 in that space.
+2. Exact re-ranking with the chamfer kernel, the best variant per path.
+
+The index (descriptors, ids, PCA) is saved at ``ROOT/_links/index.npz`` and reused while the
+curated tables are unchanged; the curated points are read from Parquet when it opens.
+
+No Ray: the Serve app and the CLI wrap this module.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow.dataset as pads
+from numba import njit, prange
+from numpy.typing import ArrayLike
+
+from links_ray.dataset import open_table
+from links_ray.mechanism import reduce_mechanism
+from links_ray.paths import chamfer_to_many, longest_chord
+from links_ray.solver import simulate
+from links_ray.storage import META, Store
+
+GRID = 16
+DIMENSIONS = 32
+#: Candidates per query variant for exact re-ranking (all paths when there are fewer).
+CANDIDATES = 400
+#: Points per path used for descriptors (every fourth of 200).
+DESCRIPTOR_STRIDE = 4
+MIN_POINTS, MAX_POINTS = 3, 10_000
+MAX_K = 100
+INDEX_FILE = f"{META}/index.npz"
+INDEX_FORMAT = 1
+#: The query's four readings, as maps of normalized coordinates (each its own inverse).
+VARIANTS = ("as drawn", "turned 180", "mirrored", "turned and mirrored")
+
+
+def validate_query(points: object, k: object = 3) -> tuple[np.ndarray, int]:
+    """The query as a float64 (T, 2) array and k, or ValueError naming the problem."""
+    if isinstance(k, bool) or not isinstance(k, int | np.integer):
+        raise ValueError(f"k must be an integer from 1 to {MAX_K}, got {k!r}")
+    if not 1 <= k <= MAX_K:
+        raise ValueError(f"k must be from 1 to {MAX_K}, got {k}")
+    try:
+        array = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("points must be a list of [x, y] number pairs") from None
+    if array.ndim != 2 or array.shape[1] != 2:
+        raise ValueError(f"points must be [x, y] pairs, got an array of shape {array.shape}")
+    if not MIN_POINTS <= len(array) <= MAX_POINTS:
+        raise ValueError(f"points must hold {MIN_POINTS} to {MAX_POINTS} pairs, got {len(array)}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError("points must be finite numbers")
+    if np.all(array == array[0]):
+        raise ValueError("points are all the same point: there is no curve")
+    return array, int(k)
+
+
+def read_points(path: str) -> np.ndarray:
+    """Points from a JSON file holding [[x, y], ...] or {"points": [[x, y], ...]}."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"cannot read points from {path}: {exc}") from None
+    return data["points"] if isinstance(data, dict) and "points" in data else data
+
+
+def normalization(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`normalize_path` with its map: (normalized, matrix, offset), normalized = p @ M.T + b."""
+    i, j = longest_chord(points)
+    vx, vy = points[j] - points[i]
+    matrix = np.array([[vx, vy], [-vy, vx]]) / (vx * vx + vy * vy)
+    turned = (points - points[i]) @ matrix.T
+    offset = 0.5 - (turned.min(axis=0) + turned.max(axis=0)) / 2 - points[i] @ matrix.T
+    return points @ matrix.T + offset, matrix, offset
+
+
+def variant_map(variant: int) -> tuple[np.ndarray, np.ndarray]:
+    """(matrix, offset) of a query variant in normalized coordinates."""
+    flip_x = variant in (1, 3)
+    flip_y = variant in (1, 2)
+    matrix = np.diag([-1.0 if flip_x else 1.0, -1.0 if flip_y else 1.0])
+    return matrix, np.array([1.0 if flip_x else 0.0, 1.0 if flip_y else 0.0])
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _distance_fields(paths: np.ndarray, stride: int, grid: np.ndarray, out: np.ndarray) -> None:
+    size = grid.shape[0]
+    for p in prange(paths.shape[0]):
+        for a in range(size):
+            for b in range(size):
+                best = np.inf
+                for t in range(0, paths.shape[1], stride):
+                    dx = paths[p, t, 0] - grid[a]
+                    dy = paths[p, t, 1] - grid[b]
+                    best = min(best, dx * dx + dy * dy)
+                out[p, a * size + b] = np.sqrt(best)
+
+
+def distance_fields(paths: np.ndarray, stride: int = DESCRIPTOR_STRIDE) -> np.ndarray:
+    """(P, GRID * GRID) float32 distance fields of normalized paths (P, T, 2)."""
+    grid = (np.arange(GRID) + 0.5) / GRID
+    out = np.empty((len(paths), GRID * GRID), dtype=np.float32)
+    _distance_fields(np.ascontiguousarray(paths), stride, grid, out)
+    return out
+
+
+@dataclass
+class RetrievalIndex:
+    """Curated paths, their descriptors, and the way back to their mechanisms."""
+
+    store: Store
+    path_id: np.ndarray
+    mechanism_id: np.ndarray
+    joint: np.ndarray
+    n_joints: np.ndarray
+    points: np.ndarray  # (N, T, 2) float32 normalized
+    descriptors: np.ndarray  # (N, DIMENSIONS) float32
+    mean: np.ndarray
+    components: np.ndarray  # (DIMENSIONS, GRID * GRID)
+    build_s: float = 0.0
+
+    def __len__(self) -> int:
+        return len(self.path_id)
+
+    @property
+    def nbytes(self) -> int:
+        """Memory the index holds."""
+        arrays = (self.path_id, self.mechanism_id, self.joint, self.n_joints, self.points)
+        return sum(a.nbytes for a in arrays) + self.descriptors.nbytes + self.components.nbytes
+
+    @classmethod
+    def open(cls, root: str | Store, rebuild: bool = False) -> RetrievalIndex:
+        """Load the index saved beside the data, or build (and save) it from `curated/`."""
+        store = root if isinstance(root, Store) else Store.open(root)
+        curated = open_table(store, "curated")
+        table = curated.to_table(columns=["path_id", "mechanism_id", "joint", "points", "n_joints"])
+        table = table.sort_by("path_id")
+        path_id = table.column("path_id").to_numpy()
+        points = (
+            table.column("points").combine_chunks().flatten().to_numpy().reshape(len(table), -1, 2)
+        )
+        columns = {
+            "store": store,
+            "path_id": path_id,
+            "mechanism_id": table.column("mechanism_id").to_numpy(),
+            "joint": table.column("joint").to_numpy(),
+            "n_joints": table.column("n_joints").to_numpy(),
+            "points": points,
+        }
+        fingerprint = _fingerprint(store)
+        saved = None if rebuild else store.read_bytes(INDEX_FILE)
+        if saved is not None:
+            arrays = np.load(io.BytesIO(saved))
+            if (
+                int(arrays["format"]) == INDEX_FORMAT
+                and str(arrays["fingerprint"]) == fingerprint
+                and np.array_equal(arrays["path_id"], path_id)
+            ):
+                return cls(
+                    **columns,
+                    descriptors=arrays["descriptors"],
+                    mean=arrays["mean"],
+                    components=arrays["components"],
+                )
+        start = time.perf_counter()
+        fields = distance_fields(points)
+        sample = fields[np.random.default_rng(0).permutation(len(fields))[:50_000]]
+        mean = sample.mean(axis=0)
+        _, _, vt = np.linalg.svd(sample - mean, full_matrices=False)
+        components = vt[:DIMENSIONS].astype(np.float32)
+        descriptors = ((fields - mean) @ components.T).astype(np.float32)
+        index = cls(
+            **columns,
+            descriptors=descriptors,
+            mean=mean.astype(np.float32),
+            components=components,
+            build_s=time.perf_counter() - start,
+        )
+        buffer = io.BytesIO()
+        np.savez(
+            buffer,
+            format=INDEX_FORMAT,
+            fingerprint=fingerprint,
+            path_id=path_id,
+            descriptors=descriptors,
+            mean=index.mean,
+            components=components,
+        )
+        store.write_bytes(INDEX_FILE, buffer.getvalue())
+        return index
+
+    def candidates(self, variants: np.ndarray, count: int) -> np.ndarray:
+        """Rows of the nearest `count` paths by descriptor, per variant: (4, count)."""
+        if count >= len(self):
+            return np.tile(np.arange(len(self)), (len(variants), 1))
+        query = (distance_fields(variants, stride=1) - self.mean) @ self.components.T
+        scores = (self.descriptors**2).sum(axis=1)[None] - 2 * query @ self.descriptors.T
+        return np.argpartition(scores, count, axis=1)[:, :count]
+
+    def ranked(
+        self, points: ArrayLike, k: int = 3, candidates: int = CANDIDATES
+    ) -> list[tuple[int, float, int]]:
+        """The k best (row, chamfer, variant), best first, for a validated query."""
+        normalized, _, _ = normalization(np.asarray(points, dtype=np.float64))
+        variants = np.stack([normalized @ m.T + b for m, b in map(variant_map, range(4))])
+        # Long queries are re-ranked on 200 of their points, then the finalists exactly.
+        coarse = variants[
+            :, np.linspace(0, len(normalized) - 1, min(len(normalized), 200)).astype(int)
+        ]
+        rows = self.candidates(variants, candidates)
+        best: dict[int, tuple[float, int]] = {}
+        for variant in range(4):
+            distances = chamfer_to_many(coarse[variant], self.points[rows[variant]])
+            for row, distance in zip(rows[variant].tolist(), distances.tolist(), strict=True):
+                if distance < best.get(row, (np.inf, 0))[0]:
+                    best[row] = (distance, variant)
+        finalists = sorted(best, key=lambda row: best[row][0])[: max(3 * k, 20)]
+        if len(normalized) > coarse.shape[1]:
+            exact = {}
+            for row in finalists:
+                scores = [
+                    float(chamfer_to_many(variants[v], self.points[row][None])[0]) for v in range(4)
+                ]
+                exact[row] = (min(scores), int(np.argmin(scores)))
+            best = exact
+        ordered = sorted(finalists, key=lambda row: best[row][0])[:k]
+        return [(row, best[row][0], best[row][1]) for row in ordered]
+
+    def retrieve(self, points: object, k: int = 3) -> list[dict]:
+        """SPEC section 5 results for a query: best first, mechanisms in the query's frame."""
+        query, k = validate_query(points, k)
+        _, query_matrix, query_offset = normalization(query)
+        ranked = self.ranked(query, k)
+        mechanisms = self._mechanisms([self.mechanism_id[row] for row, _, _ in ranked])
+        results = []
+        for row, distance, variant in ranked:
+            mechanism_id = int(self.mechanism_id[row])
+            joint = int(self.joint[row])
+            adjacency, node_types, positions, index = reduce_mechanism(
+                *mechanisms[mechanism_id], joint
+            )
+            placed = _into_query_frame(
+                adjacency, node_types, positions, index, variant, query_matrix, query_offset
+            )
+            results.append(
+                {
+                    "path_id": int(self.path_id[row]),
+                    "mechanism_id": mechanism_id,
+                    "joint": joint,
+                    "chamfer": distance,
+                    "points": self.points[row].astype(float).tolist(),
+                    "mechanism": {
+                        "adjacency": adjacency.tolist(),
+                        "node_types": node_types.tolist(),
+                        "positions": placed.tolist(),
+                    },
+                    "mechanism_joint": index,
+                }
+            )
+        return results
+
+    def _mechanisms(self, ids: list[int]) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        table = open_table(self.store, "mechanisms").to_table(
+            filter=pads.field("mechanism_id").isin([int(i) for i in ids])
+        )
+        found = {}
+        for row in table.to_pylist():
+            n = len(row["node_types"])
+            found[row["mechanism_id"]] = (
+                np.array(row["adjacency"], dtype=np.uint8).reshape(n, n),
+                np.array(row["node_types"], dtype=np.int8),
+                np.array(row["positions"]).reshape(n, 2),
+            )
+        return found
+
+    def brute_force(self, points: ArrayLike, k: int = 3) -> list[tuple[int, float, int]]:
+        """Exact k best over every path and variant (for tests and the recall benchmark)."""
+        return self.ranked(points, k, candidates=len(self))
+
+
+def _into_query_frame(
+    adjacency: np.ndarray,
+    node_types: np.ndarray,
+    positions: np.ndarray,
+    joint: int,
+    variant: int,
+    query_matrix: np.ndarray,
+    query_offset: np.ndarray,
+) -> np.ndarray:
+    """Move, turn, scale and (if the match was mirrored) mirror a mechanism so that `joint`
+    traces its path where the query was drawn."""
+    traced = simulate(adjacency, node_types, positions)[joint]
+    _, matrix, offset = normalization(traced)
+    variant_matrix, variant_offset = variant_map(variant)
+    normalized = positions @ matrix.T + offset  # the candidate's normalized frame
+    as_query = normalized @ variant_matrix.T + variant_offset  # undo the query's variant
+    return (as_query - query_offset) @ np.linalg.inv(query_matrix).T
+
+
+def _fingerprint(store: Store) -> str:
+    """Changes whenever curated shards are added or redone."""
+    markers = store.committed_shards("curation")
+    rows = sorted((shard, m["rows"].get("curated", 0)) for shard, m in markers.items())
+    return json.dumps(rows)
