@@ -6,8 +6,10 @@ the paper's figures beside ours. Timings are wall-clock on this machine, after c
 
 from __future__ import annotations
 
+import json
 import os
 import platform
+import shutil
 import statistics
 import time
 from collections.abc import Callable
@@ -242,6 +244,157 @@ def bench_generate(
         "rejection_valid_per_core_second": runs[-1]["valid_per_core_second"],
         "target_valid_per_core_second": 1000,
     }
+
+
+def retrieval_dataset(paths: int, folder: str | None = None) -> str:
+    """A cached dataset with at least `paths` curated paths (made once, then reused)."""
+    from links_ray.curation import curate
+    from links_ray.generation import generate
+
+    root = folder or os.path.join(
+        os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")),
+        "links-ray",
+        f"retrieve-{paths}",
+    )
+    # About three curated paths per mechanism (measured); top up if a run falls short.
+    mechanisms = max(1000, paths // 3)
+    while True:
+        generate(root, mechanisms, seed=2024, progress=False)
+        summary = curate(root, progress=False)
+        if summary["curated"] >= paths:
+            return root
+        shutil.rmtree(root)
+        mechanisms = int(mechanisms * 1.2 * paths / max(summary["curated"], 1))
+
+
+def bench_retrieve(paths: int = 1_000_000, queries: int = 100, recall_queries: int = 10) -> dict:
+    """Index build, latency in process and over HTTP, recall@3 against exact brute force.
+
+    Queries are paths of mechanisms drawn afresh (held out of the dataset), neither arcs nor
+    circles, given in a random frame: moved, turned, scaled and sometimes mirrored.
+    """
+    import threading
+    import urllib.request
+
+    from links_ray.generation import connect
+    from links_ray.retrieval import RetrievalIndex
+
+    root = retrieval_dataset(paths)
+    start = time.perf_counter()
+    index = RetrievalIndex.open(root, rebuild=True)
+    build_s = time.perf_counter() - start
+    start = time.perf_counter()
+    RetrievalIndex.open(root)
+    load_s = time.perf_counter() - start
+    held_out = _held_out_queries(queries, seed=99)
+    index.retrieve(held_out[0])  # first-call costs out of the timing
+    in_process = []
+    for query in held_out:
+        start = time.perf_counter()
+        index.retrieve(query)
+        in_process.append(time.perf_counter() - start)
+
+    # Exact brute force for recall, two queries at a time (the kernels release the GIL).
+    truth: dict[int, set[int]] = {}
+
+    def exact(number: int) -> None:
+        truth[number] = {row for row, _, _ in index.brute_force(held_out[number])}
+
+    for first in range(0, recall_queries, 2):
+        pair = [threading.Thread(target=exact, args=(n,)) for n in (first, first + 1)]
+        [t.start() for t in pair]
+        [t.join() for t in pair]
+    hits = 0
+    for number in range(recall_queries):
+        normalized = _normalized(held_out[number])
+        hits += len({row for row, _, _ in index.ranked(normalized)} & truth[number])
+
+    over_http = []
+    from ray import serve
+
+    from links_ray.serve_app import build_app
+
+    connect()
+    port = 8765
+    serve.start(http_options={"host": "127.0.0.1", "port": port})
+    serve.run(build_app(root), name="links-bench", route_prefix="/")
+    try:
+        for query in [held_out[0], *held_out]:
+            body = json.dumps({"points": query.tolist(), "k": 3}).encode()
+            request = urllib.request.Request(
+                f"http://127.0.0.1:{port}/api/retrieve",
+                data=body,
+                headers={"Content-Type": "application/json"},
+            )
+            start = time.perf_counter()
+            with urllib.request.urlopen(request, timeout=60) as response:
+                response.read()
+            over_http.append(time.perf_counter() - start)
+    finally:
+        serve.shutdown()
+    over_http = over_http[1:]
+    return {
+        "benchmark": "retrieve",
+        "machine": _machine(),
+        "paths": len(index),
+        "build_s": build_s,
+        "load_s": load_s,
+        "index_bytes": index.nbytes,
+        "p50_ms": float(np.percentile(over_http, 50) * 1e3),
+        "p99_ms": float(np.percentile(over_http, 99) * 1e3),
+        "in_process_p50_ms": float(np.percentile(in_process, 50) * 1e3),
+        "in_process_p99_ms": float(np.percentile(in_process, 99) * 1e3),
+        "recall_at_3": hits / (3 * recall_queries),
+        "recall_queries": recall_queries,
+        "queries": queries,
+        "targets": {"p50_ms": 50, "p99_ms": 200, "recall_at_3": 0.95},
+    }
+
+
+def _normalized(points: np.ndarray) -> np.ndarray:
+    from links_ray.retrieval import normalization
+
+    return normalization(points)[0]
+
+
+def _held_out_queries(count: int, seed: int) -> list[np.ndarray]:
+    """Paths of fresh random mechanisms in random frames (not arcs, not circles)."""
+    from links_ray.mechanism import analyze_topology, arc_joints
+    from links_ray.paths import is_circle, normalize_path
+
+    rng = np.random.default_rng(seed)
+    queries = []
+    while len(queries) < count:
+        adjacency, node_types = random_topology(rng)
+        simulator = TopologySimulator(adjacency, node_types)
+        found = PositionSampler(simulator).search(1, rng, "sequential")
+        arcs = arc_joints(analyze_topology(adjacency, node_types))
+        joint = int(rng.choice(np.flatnonzero((node_types != 0) & ~arcs)))
+        path = found.trajectories[0, joint]
+        if is_circle(normalize_path(path)):
+            continue
+        angle = rng.uniform(0, 2 * np.pi)
+        turn = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        if rng.random() < 0.5:
+            turn = turn @ np.diag([1.0, -1.0])
+        queries.append(path @ turn.T * rng.uniform(0.5, 20) + rng.uniform(-10, 10, 2))
+    return queries
+
+
+def format_retrieve(result: dict) -> str:
+    """Retrieval latency, recall and memory beside the targets."""
+    return "\n".join(
+        [
+            f"{result['paths']:,} curated paths; index built in {result['build_s']:.1f} s, "
+            f"loaded in {result['load_s']:.1f} s, {result['index_bytes'] / 1e9:.2f} GB in memory",
+            f"over HTTP: p50 {result['p50_ms']:.1f} ms, p99 {result['p99_ms']:.1f} ms "
+            "(targets 50 / 200 ms)",
+            f"in process: p50 {result['in_process_p50_ms']:.1f} ms, "
+            f"p99 {result['in_process_p99_ms']:.1f} ms",
+            f"recall@3 against exact brute force: {result['recall_at_3']:.3f} on "
+            f"{result['recall_queries']} held-out queries (target 0.95)",
+        ]
+    )
 
 
 def _folder_bytes(folder: str) -> int:

@@ -78,7 +78,7 @@ def _as_batch(paths: object, name: str, min_points: int) -> np.ndarray:
 # --------------------------------------------------------------------------- kernels
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _prescale_into(src: np.ndarray, dst: np.ndarray) -> bool:
     """Copy src to dst times a power of two, max |coordinate| in [0.5, 1); False if not finite."""
     m = 0.0
@@ -96,7 +96,7 @@ def _prescale_into(src: np.ndarray, dst: np.ndarray) -> bool:
     return True
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _sq_dist(pts: np.ndarray, i: int, j: int) -> float:
     """Squared distance; the same value whichever way round i and j are."""
     dx = pts[j, 0] - pts[i, 0]
@@ -104,7 +104,7 @@ def _sq_dist(pts: np.ndarray, i: int, j: int) -> float:
     return dx * dx + dy * dy
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _farthest(pts: np.ndarray, idx: np.ndarray, start: int) -> int:
     """Position in idx of the point farthest from pts[start]."""
     best = -1.0
@@ -117,7 +117,7 @@ def _farthest(pts: np.ndarray, idx: np.ndarray, start: int) -> int:
     return pos
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _longest_chord(pts: np.ndarray, idx: np.ndarray) -> tuple[int, int]:
     """(i, j), i < j, of the farthest pair among pts[idx]; the lowest (i, j) on ties."""
     n = idx.shape[0]
@@ -163,7 +163,7 @@ def _longest_chord(pts: np.ndarray, idx: np.ndarray) -> tuple[int, int]:
     return lo, hi
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _surely_not_left(pts: np.ndarray, o: int, a: int, b: int) -> bool:
     """True only if o -> a -> b is certainly a clockwise turn despite rounding."""
     left = (pts[a, 0] - pts[o, 0]) * (pts[b, 1] - pts[o, 1])
@@ -171,7 +171,7 @@ def _surely_not_left(pts: np.ndarray, o: int, a: int, b: int) -> bool:
     return left - right < -_ORIENT_EPS * (abs(left) + abs(right))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _hull(pts: np.ndarray, order: np.ndarray) -> np.ndarray:
     """Convex hull indices, counter-clockwise, of distinct pts[order] sorted by (x, y).
 
@@ -195,7 +195,7 @@ def _hull(pts: np.ndarray, order: np.ndarray) -> np.ndarray:
     return hull[: k - 1]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _place(pts: np.ndarray, i: int, j: int, out: np.ndarray) -> None:
     """Write pts with chord (i, j) turned to +x, scaled to length 1 and the box centred at 0.5."""
     vx = pts[j, 0] - pts[i, 0]
@@ -222,7 +222,7 @@ def _place(pts: np.ndarray, i: int, j: int, out: np.ndarray) -> None:
         out[k, 1] += sy
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _has_extent(pts: np.ndarray) -> bool:
     """False if every point equals the first."""
     for k in range(1, pts.shape[0]):
@@ -231,7 +231,7 @@ def _has_extent(pts: np.ndarray) -> bool:
     return False
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _normalize_batch(paths: np.ndarray, out: np.ndarray) -> int:
     """Normalize each path into out (NaN rows where no extent); index of a non-finite path or -1."""
     t = paths.shape[1]
@@ -248,7 +248,7 @@ def _normalize_batch(paths: np.ndarray, out: np.ndarray) -> int:
     return -1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _circle_variances(paths: np.ndarray, out: np.ndarray) -> None:
     """out[p] = population variance of the distances of paths[p] from (0.5, 0.5)."""
     t = paths.shape[1]
@@ -267,7 +267,7 @@ def _circle_variances(paths: np.ndarray, out: np.ndarray) -> None:
         out[p] = s / t
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _nearest_sq(
     ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray, bmin: np.ndarray
 ) -> None:
@@ -284,7 +284,7 @@ def _nearest_sq(
             bmin[j] = d if d < m else m
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _mean_sqrt(v: np.ndarray) -> float:
     s = 0.0
     for k in range(v.shape[0]):
@@ -292,7 +292,7 @@ def _mean_sqrt(v: np.ndarray) -> float:
     return s / v.shape[0]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _chamfer_to_many(query: np.ndarray, cands: np.ndarray, out: np.ndarray) -> int:
     """Chamfer from query to each candidate into out; index of a non-finite candidate or -1."""
     tq = query.shape[0]

@@ -6,9 +6,10 @@ Search has two stages:
 1. Candidates by descriptor. A normalized path's descriptor is its distance field: the
    distance from each node of a 16 x 16 grid over [0, 1]^2 to the nearest path point. Two
    paths whose fields are close have a small chamfer distance. The fields are reduced to 32
-   dimensions by PCA, and the query's four variants (as drawn, turned 180 degrees, mirrored,
-   both) each take their nearest `CANDIDATES` paths by plain L2 in that space.
-2. Exact re-ranking with the chamfer kernel, the best variant per path.
+   dimensions by PCA; each path is scored by plain L2 against the nearest of the query's four
+   variants (as drawn, turned 180 degrees, mirrored, both), and the best `CANDIDATES` go on.
+2. Exact re-ranking with the chamfer kernel against that variant. On the exhaustive path
+   (small datasets, and `brute_force`) every path meets every variant.
 
 The index (descriptors, ids, PCA) is saved at ``ROOT/_links/index.npz`` and reused while the
 curated tables are unchanged; the curated points are read from Parquet when it opens.
@@ -37,8 +38,11 @@ from links_ray.storage import META, Store
 
 GRID = 16
 DIMENSIONS = 32
-#: Candidates per query variant for exact re-ranking (all paths when there are fewer).
-CANDIDATES = 400
+#: Paths taken by descriptor, then re-ranked by chamfer on COARSE_POINTS points each.
+CANDIDATES = 10_000
+COARSE_POINTS = 50
+#: Paths re-ranked exactly, on all their points, against all four query variants.
+FINALISTS = 200
 #: Points per path used for descriptors (every fourth of 200).
 DESCRIPTOR_STRIDE = 4
 MIN_POINTS, MAX_POINTS = 3, 10_000
@@ -133,6 +137,9 @@ class RetrievalIndex:
     mean: np.ndarray
     components: np.ndarray  # (DIMENSIONS, GRID * GRID)
     build_s: float = 0.0
+    _mechanism_table: pads.Dataset | None = None
+    _norms: np.ndarray | None = None
+    _coarse: np.ndarray | None = None  # (N, COARSE_POINTS, 2) subsampled points
 
     def __len__(self) -> int:
         return len(self.path_id)
@@ -204,49 +211,53 @@ class RetrievalIndex:
         store.write_bytes(INDEX_FILE, buffer.getvalue())
         return index
 
-    def candidates(self, variants: np.ndarray, count: int) -> np.ndarray:
-        """Rows of the nearest `count` paths by descriptor, per variant: (4, count)."""
+    def candidates(self, variants: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+        """The `count` paths nearest by descriptor to any query variant: (rows, variant)."""
         if count >= len(self):
-            return np.tile(np.arange(len(self)), (len(variants), 1))
-        query = (distance_fields(variants, stride=1) - self.mean) @ self.components.T
-        scores = (self.descriptors**2).sum(axis=1)[None] - 2 * query @ self.descriptors.T
-        return np.argpartition(scores, count, axis=1)[:, :count]
+            rows = np.arange(len(self))
+            return np.repeat(rows, 4), np.tile(np.arange(4), len(self))
+        if self._norms is None:
+            self._norms = (self.descriptors**2).sum(axis=1)
+        # The same point density as the index's descriptors: about 200 / DESCRIPTOR_STRIDE.
+        stride = max(1, round(variants.shape[1] * DESCRIPTOR_STRIDE / self.points.shape[1]))
+        fields = distance_fields(variants, stride=stride)
+        query = ((fields - self.mean) @ self.components.T).astype(np.float32)
+        scores = self._norms[:, None] - 2 * (self.descriptors @ query.T)  # (N, 4)
+        variant = scores.argmin(axis=1)
+        best = scores[np.arange(len(scores)), variant]
+        rows = np.argpartition(best, count)[:count]
+        return rows, variant[rows]
 
     def ranked(
-        self, points: ArrayLike, k: int = 3, candidates: int = CANDIDATES
+        self, normalized: np.ndarray, k: int = 3, candidates: int = CANDIDATES
     ) -> list[tuple[int, float, int]]:
-        """The k best (row, chamfer, variant), best first, for a validated query."""
-        normalized, _, _ = normalization(np.asarray(points, dtype=np.float64))
+        """The k best (row, chamfer, variant), best first, for a normalized query."""
         variants = np.stack([normalized @ m.T + b for m, b in map(variant_map, range(4))])
-        # Long queries are re-ranked on 200 of their points, then the finalists exactly.
-        coarse = variants[
-            :, np.linspace(0, len(normalized) - 1, min(len(normalized), 200)).astype(int)
-        ]
-        rows = self.candidates(variants, candidates)
-        best: dict[int, tuple[float, int]] = {}
+        rows, row_variants = self.candidates(variants, candidates)
+        if self._coarse is None:
+            picks = np.linspace(0, self.points.shape[1] - 1, COARSE_POINTS).astype(int)
+            self._coarse = np.ascontiguousarray(self.points[:, picks])
+        picks = np.linspace(0, len(normalized) - 1, min(len(normalized), COARSE_POINTS))
+        coarse_query = variants[:, picks.astype(int)]
+        coarse = np.empty(len(rows))
         for variant in range(4):
-            distances = chamfer_to_many(coarse[variant], self.points[rows[variant]])
-            for row, distance in zip(rows[variant].tolist(), distances.tolist(), strict=True):
-                if distance < best.get(row, (np.inf, 0))[0]:
-                    best[row] = (distance, variant)
-        finalists = sorted(best, key=lambda row: best[row][0])[: max(3 * k, 20)]
-        if len(normalized) > coarse.shape[1]:
-            exact = {}
-            for row in finalists:
-                scores = [
-                    float(chamfer_to_many(variants[v], self.points[row][None])[0]) for v in range(4)
-                ]
-                exact[row] = (min(scores), int(np.argmin(scores)))
-            best = exact
-        ordered = sorted(finalists, key=lambda row: best[row][0])[:k]
-        return [(row, best[row][0], best[row][1]) for row in ordered]
+            chosen = row_variants == variant
+            if chosen.any():
+                coarse[chosen] = chamfer_to_many(coarse_query[variant], self._coarse[rows[chosen]])
+        finalists = rows[np.argsort(coarse)[:FINALISTS]]
+        finalists = np.unique(finalists)  # the exhaustive path lists each row four times
+        exact = np.stack([chamfer_to_many(variants[v], self.points[finalists]) for v in range(4)])
+        best_variant = exact.argmin(axis=0)
+        best = exact[best_variant, np.arange(len(finalists))]
+        order = np.argsort(best, kind="stable")[:k]
+        return [(int(finalists[i]), float(best[i]), int(best_variant[i])) for i in order]
 
     def retrieve(self, points: object, k: int = 3) -> list[dict]:
         """SPEC section 5 results for a query: best first, mechanisms in the query's frame."""
         query, k = validate_query(points, k)
-        _, query_matrix, query_offset = normalization(query)
-        ranked = self.ranked(query, k)
-        mechanisms = self._mechanisms([self.mechanism_id[row] for row, _, _ in ranked])
+        normalized, query_matrix, query_offset = normalization(query)
+        ranked = self.ranked(normalized, k)
+        mechanisms = self._mechanisms([row for row, _, _ in ranked])
         results = []
         for row, distance, variant in ranked:
             mechanism_id = int(self.mechanism_id[row])
@@ -274,10 +285,14 @@ class RetrievalIndex:
             )
         return results
 
-    def _mechanisms(self, ids: list[int]) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        table = open_table(self.store, "mechanisms").to_table(
-            filter=pads.field("mechanism_id").isin([int(i) for i in ids])
-        )
+    def _mechanisms(self, rows: list[int]) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """The mechanism rows of index rows `rows`, by mechanism id."""
+        if self._mechanism_table is None:
+            self._mechanism_table = open_table(self.store, "mechanisms")
+        wanted = pads.field("n_joints").isin([int(self.n_joints[r]) for r in rows]) & pads.field(
+            "mechanism_id"
+        ).isin([int(self.mechanism_id[r]) for r in rows])
+        table = self._mechanism_table.to_table(filter=wanted)
         found = {}
         for row in table.to_pylist():
             n = len(row["node_types"])
@@ -289,8 +304,14 @@ class RetrievalIndex:
         return found
 
     def brute_force(self, points: ArrayLike, k: int = 3) -> list[tuple[int, float, int]]:
-        """Exact k best over every path and variant (for tests and the recall benchmark)."""
-        return self.ranked(points, k, candidates=len(self))
+        """Exact k best over every path and variant, all points (tests, recall benchmark)."""
+        normalized, _, _ = normalization(validate_query(points, k)[0])
+        variants = np.stack([normalized @ m.T + b for m, b in map(variant_map, range(4))])
+        exact = np.stack([chamfer_to_many(variant, self.points) for variant in variants])
+        best_variant = exact.argmin(axis=0)
+        best = exact[best_variant, np.arange(len(self))]
+        order = np.argsort(best, kind="stable")[:k]
+        return [(int(i), float(best[i]), int(best_variant[i])) for i in order]
 
 
 def _into_query_frame(

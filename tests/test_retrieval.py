@@ -1,0 +1,142 @@
+"""Retrieval against exact brute force, and the returned mechanisms re-simulated in the
+query's own frame."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import links_ray
+from links_ray.bench import _held_out_queries
+from links_ray.curation import curate
+from links_ray.generation import generate
+from links_ray.paths import chamfer
+from links_ray.retrieval import INDEX_FILE, RetrievalIndex, normalization, validate_query
+from links_ray.storage import Store
+
+
+@pytest.fixture(scope="module")
+def index(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> RetrievalIndex:
+    out = str(tmp_path_factory.mktemp("retrieval") / "data")
+    generate(out, 400, seed=21, progress=False, topologies_per_shard=20)
+    curate(out, progress=False)
+    return RetrievalIndex.open(out)
+
+
+def hand_drawn(rng: np.random.Generator) -> np.ndarray:
+    """A wobbly closed stroke of 40 points, as a mouse would draw a bean."""
+    angle = np.linspace(0, 2 * np.pi, 40)
+    radius = 1 + 0.3 * np.cos(2 * angle) + rng.normal(0, 0.01, 40)
+    return np.column_stack([3 * radius * np.cos(angle) + 7, 2 * radius * np.sin(angle) - 4])
+
+
+def queries() -> list[np.ndarray]:
+    rng = np.random.default_rng(3)
+    return [*_held_out_queries(6, seed=7), hand_drawn(rng), hand_drawn(rng)[::-1] * [-1, 1]]
+
+
+def test_top3_is_exactly_the_brute_force_top3(index: RetrievalIndex) -> None:
+    assert len(index) > 0
+    for query in queries():
+        results = index.retrieve(query, k=3)
+        exact = index.brute_force(query, k=3)
+        assert [r["path_id"] for r in results] == [int(index.path_id[row]) for row, _, _ in exact]
+        chamfers = [r["chamfer"] for r in results]
+        assert chamfers == sorted(chamfers)
+        np.testing.assert_allclose(chamfers, [c for _, c, _ in exact], rtol=1e-9)
+
+
+def test_descriptor_search_finds_a_stored_path_in_any_frame(index: RetrievalIndex) -> None:
+    """With few candidates the descriptor stage must still bring the path itself back."""
+    rng = np.random.default_rng(5)
+    for row in rng.choice(len(index), 10, replace=False):
+        angle = rng.uniform(0, 2 * np.pi)
+        turn = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        if rng.random() < 0.5:
+            turn = turn @ np.diag([1.0, -1.0])
+        query = index.points[row].astype(float) @ turn.T * 4.0 + [2, 3]
+        best_row, distance, _ = index.ranked(normalization(query)[0], k=1, candidates=50)[0]
+        assert distance < 1e-5
+        assert np.allclose(index.points[best_row], index.points[row], atol=1e-6)
+
+
+def test_returned_mechanism_traces_the_query_where_it_was_drawn(index: RetrievalIndex) -> None:
+    for query in queries():
+        i, j = links_ray.paths.longest_chord(query)
+        chord = np.linalg.norm(query[j] - query[i])
+        for result in index.retrieve(query, k=3):
+            mechanism = result["mechanism"]
+            traced = links_ray.simulate(
+                mechanism["adjacency"], mechanism["node_types"], mechanism["positions"]
+            )[result["mechanism_joint"]]
+            # Chamfer scales with the frame: the normalized distance times the query's chord.
+            assert chamfer(traced, query) == pytest.approx(result["chamfer"] * chord, rel=1e-4)
+            full = links_ray.load(index.store, "mechanisms", columns=["mechanism_id", "node_types"])
+            stored = full[full.mechanism_id == result["mechanism_id"]].iloc[0]
+            assert len(mechanism["node_types"]) <= len(stored.node_types)
+            assert result["path_id"] == 32 * result["mechanism_id"] + result["joint"]
+            assert np.array(result["points"]).shape == (200, 2)
+
+
+@pytest.mark.parametrize(
+    ("points", "k", "message"),
+    [
+        ([[0, 0], [1, 1]], 3, "3 to 10000"),
+        ([[0, 0]] * 10_001, 3, "3 to 10000"),
+        ([[1, 1]] * 5, 3, "same point"),
+        ([[0, 0], [1, float("nan")], [2, 2]], 3, "finite"),
+        ([[0, 0], [1, 1], [2, 2]], 0, "k must be"),
+        ([[0, 0], [1, 1], [2, 2]], 101, "k must be"),
+        ([[0, 0], [1, 1], [2, 2]], True, "k must be"),
+        ([[0, 0], [1, 1, 1], [2, 2]], 3, "pairs"),
+        ("zigzag", 3, "pairs"),
+    ],
+)
+def test_bad_queries_are_refused(points: object, k: object, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        validate_query(points, k)
+
+
+def test_saved_index_is_reused(index: RetrievalIndex) -> None:
+    assert Store.open(index.store.uri).read_bytes(INDEX_FILE) is not None
+    again = RetrievalIndex.open(index.store.uri)
+    np.testing.assert_array_equal(again.descriptors, index.descriptors)
+    assert again.build_s == 0.0, "loaded, not rebuilt"
+
+
+def test_offline_cli(index: RetrievalIndex, tmp_path: Path) -> None:
+    query = tmp_path / "query.json"
+    query.write_text(json.dumps({"points": hand_drawn(np.random.default_rng(1)).tolist()}))
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "links_ray.cli",
+            "retrieve",
+            index.store.uri,
+            "--points",
+            str(query),
+            "-k",
+            "2",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    answer = json.loads(result.stdout)
+    assert len(answer["results"]) == 2 and answer["took_ms"] > 0
+    bad = tmp_path / "bad.json"
+    bad.write_text("[[0, 0], [1, 1]]")
+    result = subprocess.run(
+        [sys.executable, "-m", "links_ray.cli", "retrieve", index.store.uri, "--points", str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 2 and "3 to 10000" in result.stderr
