@@ -42,8 +42,10 @@ def _generate(args: argparse.Namespace) -> None:
 
 
 def _bench_generate(args: argparse.Namespace) -> None:
-    result = bench.bench_generate(mechanisms=args.mechanisms)
-    print(json.dumps(result) if args.json else bench.format_generate(result))
+    from links_ray import bench_services
+
+    result = bench_services.bench_generate(mechanisms=args.mechanisms)
+    print(json.dumps(result) if args.json else bench_services.format_generate(result))
 
 
 def _curate(args: argparse.Namespace) -> None:
@@ -81,8 +83,10 @@ def _retrieve(args: argparse.Namespace) -> None:
 
 
 def _bench_retrieve(args: argparse.Namespace) -> None:
-    result = bench.bench_retrieve(paths=args.paths)
-    print(json.dumps(result) if args.json else bench.format_retrieve(result))
+    from links_ray import bench_services
+
+    result = bench_services.bench_retrieve(paths=args.paths)
+    print(json.dumps(result) if args.json else bench_services.format_retrieve(result))
 
 
 def _demo(args: argparse.Namespace) -> None:

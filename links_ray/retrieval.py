@@ -47,6 +47,8 @@ FINALISTS = 200
 DESCRIPTOR_STRIDE = 4
 MIN_POINTS, MAX_POINTS = 3, 10_000
 MAX_K = 100
+#: Query coordinates and extent the normalization handles without overflow.
+MAX_COORDINATE, MIN_EXTENT = 1e12, 1e-9
 INDEX_FILE = f"{META}/index.npz"
 INDEX_FORMAT = 1
 #: The query's four readings, as maps of normalized coordinates (each its own inverse).
@@ -60,17 +62,24 @@ def validate_query(points: object, k: object = 3) -> tuple[np.ndarray, int]:
     if not 1 <= k <= MAX_K:
         raise ValueError(f"k must be from 1 to {MAX_K}, got {k}")
     try:
-        array = np.asarray(points, dtype=np.float64)
+        array = np.asarray(points)
     except (TypeError, ValueError):
         raise ValueError("points must be a list of [x, y] number pairs") from None
+    if array.dtype.kind not in "iuf":
+        raise ValueError("points must be a list of [x, y] number pairs")
+    array = array.astype(np.float64)
     if array.ndim != 2 or array.shape[1] != 2:
         raise ValueError(f"points must be [x, y] pairs, got an array of shape {array.shape}")
     if not MIN_POINTS <= len(array) <= MAX_POINTS:
         raise ValueError(f"points must hold {MIN_POINTS} to {MAX_POINTS} pairs, got {len(array)}")
     if not np.all(np.isfinite(array)):
         raise ValueError("points must be finite numbers")
+    if np.any(np.abs(array) > MAX_COORDINATE):
+        raise ValueError(f"points must lie within +-{MAX_COORDINATE:g}")
     if np.all(array == array[0]):
         raise ValueError("points are all the same point: there is no curve")
+    if np.ptp(array, axis=0).max() < MIN_EXTENT:
+        raise ValueError(f"points span less than {MIN_EXTENT:g}: there is no curve to match")
     return array, int(k)
 
 
@@ -208,7 +217,10 @@ class RetrievalIndex:
             mean=index.mean,
             components=components,
         )
-        store.write_bytes(INDEX_FILE, buffer.getvalue())
+        try:
+            store.write_bytes(INDEX_FILE, buffer.getvalue())
+        except OSError:  # a read-only root: serve from memory, build again next time
+            pass
         return index
 
     def candidates(self, variants: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -244,8 +256,10 @@ class RetrievalIndex:
             chosen = row_variants == variant
             if chosen.any():
                 coarse[chosen] = chamfer_to_many(coarse_query[variant], self._coarse[rows[chosen]])
-        finalists = rows[np.argsort(coarse)[:FINALISTS]]
-        finalists = np.unique(finalists)  # the exhaustive path lists each row four times
+        # Each row once, at its best variant (the exhaustive path lists every row four times).
+        order = np.argsort(coarse, kind="stable")
+        unique_rows, first = np.unique(rows[order], return_index=True)
+        finalists = unique_rows[np.argsort(first)][: max(FINALISTS, k)]
         exact = np.stack([chamfer_to_many(variants[v], self.points[finalists]) for v in range(4)])
         best_variant = exact.argmin(axis=0)
         best = exact[best_variant, np.arange(len(finalists))]

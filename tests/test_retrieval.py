@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import links_ray
-from links_ray.bench import _held_out_queries
+from links_ray.bench_services import _held_out_queries
 from links_ray.curation import curate
 from links_ray.generation import generate
 from links_ray.paths import chamfer

@@ -1,0 +1,476 @@
+"""The Ray Serve application behind `links serve`: the HTTP API of SPEC section 5.
+
+| route | answers |
+|---|---|
+| `GET /api/health` | `{"status": "ok", "paths": <indexed paths>}` |
+| `POST /api/simulate` | 200 `{"trajectories"}`, 422 `{"error": "locking", "step", "node"}` |
+| `POST /api/retrieve` | 200 `{"results", "took_ms"}`, best first |
+| `GET /` | a placeholder page until the web studio arrives |
+
+Every bad request gets a 4xx with a JSON `{"error": "<what is wrong>"}`: 400 for malformed
+input, 404/405 for unknown routes and methods, 413 for a body over `MAX_BODY_BYTES` or a
+simulation over `MAX_JOINT_STEPS`, 415 for a body that is declared as something other than
+JSON. Anything unexpected is logged by exception type and location only (never a request
+body) and answered 500 `{"error": "internal error"}`; the replica keeps serving.
+
+Each replica opens the retrieval index once, in its constructor. Retrievals run one at a time
+per replica (the index's compiled kernels are parallel, and the JIT's workqueue threading layer,
+its fallback without TBB or OpenMP, cannot take concurrent callers), in a worker thread, so
+health checks and simulations are answered meanwhile.
+"""
+
+import json
+import logging
+import math
+import threading
+import time
+from typing import Any
+
+import numpy as np
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import HTMLResponse, JSONResponse, Response
+from ray import serve
+from ray.serve.deployment import Application
+from starlette.concurrency import run_in_threadpool
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from links_ray.dataset import open_table
+from links_ray.mechanism import LockingError
+from links_ray.retrieval import RetrievalIndex
+from links_ray.solver import simulate
+
+logger = logging.getLogger("ray.serve")
+
+#: Largest request body accepted, in bytes (10,000 points take about 0.5 MB).
+MAX_BODY_BYTES = 2 * 1024 * 1024
+#: Largest mechanism /api/simulate takes, in joints.
+MAX_JOINTS = 100
+#: Largest simulation /api/simulate runs: joints x steps (the answer holds twice as many numbers).
+MAX_JOINT_STEPS = 100_000
+DEFAULT_STEPS = 200
+MAX_STEPS = 100_000
+MIN_POINTS, MAX_POINTS = 3, 10_000
+DEFAULT_K, MAX_K = 3, 100
+#: Query coordinates are refused beyond this magnitude (their squares would overflow).
+MAX_COORDINATE = 1e12
+#: The smallest extent (bounding-box width or height) a query may have.
+MIN_EXTENT = 1e-9
+
+STUDIO_PLACEHOLDER = """<!doctype html>
+<html lang="en">
+<head><meta charset="utf-8"><title>links-ray</title></head>
+<body>
+<h1>links-ray</h1>
+<p>links-ray: the studio arrives here; API under <code>/api</code>
+(<a href="/api/health">/api/health</a>, <code>POST /api/simulate</code>,
+<code>POST /api/retrieve</code>).</p>
+</body>
+</html>
+"""
+
+
+class ApiError(Exception):
+    """A request the API refuses: its HTTP status and the JSON body's `error` message."""
+
+    def __init__(self, status: int, message: str, **extra: Any) -> None:
+        super().__init__(message)
+        self.status = status
+        self.message = message
+        self.extra = extra
+
+
+def _jsonable(value: object) -> object:
+    """`json.dumps` fallback for numpy scalars and arrays."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON serializable")
+
+
+class JsonResponse(JSONResponse):
+    """Compact JSON that refuses NaN and infinity and accepts numpy values."""
+
+    def render(self, content: Any) -> bytes:
+        """The body: compact JSON, NaN and infinity refused."""
+        return json.dumps(
+            content, allow_nan=False, separators=(",", ":"), default=_jsonable
+        ).encode("utf-8")
+
+
+def _error(status: int, message: str, **extra: Any) -> JsonResponse:
+    return JsonResponse({"error": message, **extra}, status_code=status)
+
+
+class InternalErrorGuard:
+    """ASGI middleware: an exception no handler took becomes 500 `{"error": "internal error"}`.
+
+    Only the exception's type and where it was raised are logged: never its message, which
+    may quote the request.
+    """
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        """Run the app; answer 500 if it raises before it has started its response."""
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def tracked_send(message: Message) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, receive, tracked_send)
+        except Exception as exc:
+            frame = exc.__traceback__
+            while frame is not None and frame.tb_next is not None:
+                frame = frame.tb_next
+            where = f"{frame.tb_frame.f_code.co_filename}:{frame.tb_lineno}" if frame else "unknown"
+            logger.error(
+                "links-ray API: unexpected %s at %s on %s %s",
+                type(exc).__name__,
+                where,
+                scope.get("method"),
+                scope.get("path"),
+            )
+            if started:
+                raise
+            await _error(500, "internal error")(scope, receive, send)
+
+
+api = FastAPI(
+    title="links-ray",
+    docs_url=None,
+    redoc_url=None,
+    openapi_url=None,
+    default_response_class=JsonResponse,
+)
+api.add_middleware(InternalErrorGuard)
+
+
+@api.exception_handler(ApiError)
+async def _api_error(request: Request, exc: ApiError) -> JsonResponse:
+    return _error(exc.status, exc.message, **exc.extra)
+
+
+@api.exception_handler(StarletteHTTPException)
+async def _http_error(request: Request, exc: StarletteHTTPException) -> JsonResponse:
+    response = _error(exc.status_code, str(exc.detail).lower())
+    if exc.headers:
+        response.headers.update(exc.headers)
+    return response
+
+
+@api.exception_handler(RequestValidationError)
+async def _validation_error(request: Request, exc: RequestValidationError) -> JsonResponse:
+    problems = [
+        f"{'.'.join(str(part) for part in error.get('loc', ()))}: {error.get('msg', 'invalid')}"
+        for error in exc.errors()[:5]
+    ]
+    return _error(400, "invalid request: " + "; ".join(problems))
+
+
+# -- reading and checking request bodies ------------------------------------------------------
+
+
+def _kind(value: object) -> str:
+    """The JSON type of `value` for messages (never the value: it may be huge)."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "a boolean"
+    if isinstance(value, int | float):
+        return "a number"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, list):
+        return "an array"
+    if isinstance(value, dict):
+        return "an object"
+    return type(value).__name__
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _is_finite(value: int | float) -> bool:
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:  # an integer beyond float64
+        return False
+
+
+def _refuse_constant(name: str) -> float:
+    raise ValueError(f"{name} is not a JSON number (numbers must be finite)")
+
+
+async def read_json_object(request: Request) -> dict[str, Any]:
+    """The request body as a JSON object, or ApiError (400, 413 or 415) naming the problem."""
+    content_type = request.headers.get("content-type")
+    if content_type is not None:
+        media = content_type.split(";", 1)[0].strip().lower()
+        if media and media != "application/json" and not media.endswith("+json"):
+            raise ApiError(
+                415, f"the body must be JSON (Content-Type application/json), got {media[:80]!r}"
+            )
+    declared = request.headers.get("content-length")
+    if declared is not None:
+        if not declared.strip().isdigit():
+            raise ApiError(400, "Content-Length is not a byte count")
+        if int(declared) > MAX_BODY_BYTES:
+            raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
+    chunks: list[bytes] = []
+    size = 0
+    try:
+        async for chunk in request.stream():
+            size += len(chunk)
+            if size > MAX_BODY_BYTES:
+                raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
+            chunks.append(chunk)
+    except ClientDisconnect:  # nobody is left to answer; not a server error
+        raise ApiError(400, "the client disconnected before sending the whole body") from None
+    body = b"".join(chunks)
+    if not body.strip():
+        raise ApiError(400, "the body is empty: expected a JSON object")
+    try:
+        data = json.loads(body, parse_constant=_refuse_constant)
+    except UnicodeDecodeError:
+        raise ApiError(400, "the body is not UTF-8 text") from None
+    except json.JSONDecodeError as exc:
+        raise ApiError(
+            400, f"the body is not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})"
+        ) from None
+    except ValueError as exc:  # NaN / Infinity, or an integer with too many digits
+        raise ApiError(400, f"the body is not valid JSON: {exc}") from None
+    except RecursionError:
+        raise ApiError(400, "the body is not valid JSON: nested too deeply") from None
+    if not isinstance(data, dict):
+        raise ApiError(400, f"the body must be a JSON object, got {_kind(data)}")
+    return data
+
+
+def _required(body: dict[str, Any], name: str) -> Any:
+    if name not in body:
+        raise ApiError(400, f"missing field {name!r}")
+    return body[name]
+
+
+def _integer(body: dict[str, Any], name: str, default: int, low: int, high: int) -> int:
+    """An optional integer field (absent or null: `default`) within [low, high]."""
+    value = body.get(name)
+    if value is None:
+        return default
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ApiError(400, f"{name} must be an integer from {low} to {high}, got {_kind(value)}")
+    if not low <= value <= high:
+        raise ApiError(400, f"{name} must be from {low} to {high}, got {value}")
+    return value
+
+
+def _pairs(name: str, value: object, count: int | None = None) -> list[list[float]]:
+    """`value` as a list of finite [x, y] number pairs (`count` of them if given)."""
+    if not isinstance(value, list):
+        raise ApiError(400, f"{name} must be an array of [x, y] pairs, got {_kind(value)}")
+    if count is not None and len(value) != count:
+        raise ApiError(
+            400, f"{name} must hold {count} [x, y] pairs (one per joint), got {len(value)}"
+        )
+    for i, pair in enumerate(value):
+        if not isinstance(pair, list) or len(pair) != 2:
+            what = f"{len(pair)} entries" if isinstance(pair, list) else _kind(pair)
+            raise ApiError(400, f"{name}[{i}] must be an [x, y] pair, got {what}")
+        for coordinate in pair:
+            if not _is_number(coordinate):
+                raise ApiError(400, f"{name}[{i}] must hold two numbers, got {_kind(coordinate)}")
+            if not _is_finite(coordinate):
+                raise ApiError(400, f"{name}[{i}] must hold finite numbers")
+    return value
+
+
+def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int]:
+    """The query points (T, 2) and k of a /api/retrieve body, or ApiError naming the problem."""
+    points = _required(body, "points")
+    if isinstance(points, list) and not MIN_POINTS <= len(points) <= MAX_POINTS:
+        raise ApiError(
+            400, f"points must hold {MIN_POINTS} to {MAX_POINTS} [x, y] pairs, got {len(points)}"
+        )
+    array = np.array(_pairs("points", points), dtype=np.float64)
+    if np.abs(array).max() > MAX_COORDINATE:
+        raise ApiError(400, f"points must lie within +-{MAX_COORDINATE:g}")
+    extent = array.max(axis=0) - array.min(axis=0)
+    if not extent.any():
+        raise ApiError(400, "points are all the same point: there is no curve")
+    if extent.max() < MIN_EXTENT:
+        raise ApiError(400, f"points span less than {MIN_EXTENT:g}: too small to be a curve")
+    return array, _integer(body, "k", DEFAULT_K, 1, MAX_K)
+
+
+def simulate_args(body: dict[str, Any]) -> tuple[list, list, list, int]:
+    """(adjacency, node_types, positions, steps) of a /api/simulate body, shapes checked.
+
+    The engine checks the rest (0/1 links, symmetry, joint types, solvability) and names
+    what is wrong.
+    """
+    adjacency = _required(body, "adjacency")
+    node_types = _required(body, "node_types")
+    positions = _required(body, "positions")
+    if not isinstance(adjacency, list) or not adjacency:
+        raise ApiError(400, f"adjacency must be an n x n array of 0/1, got {_kind(adjacency)}")
+    n = len(adjacency)
+    if n > MAX_JOINTS:
+        raise ApiError(413, f"at most {MAX_JOINTS} joints per simulation, got {n}")
+    for i, row in enumerate(adjacency):
+        if not isinstance(row, list):
+            raise ApiError(400, f"adjacency[{i}] must be an array, got {_kind(row)}")
+        if len(row) != n:
+            raise ApiError(
+                400, f"adjacency must be square: row {i} has {len(row)} entries, expected {n}"
+            )
+        for j, entry in enumerate(row):
+            if not _is_number(entry):
+                raise ApiError(400, f"adjacency[{i}][{j}] must be 0 or 1, got {_kind(entry)}")
+    if not isinstance(node_types, list):
+        raise ApiError(400, f"node_types must be an array of n integers, got {_kind(node_types)}")
+    if len(node_types) != n:
+        raise ApiError(
+            400, f"node_types must hold one entry per joint ({n}), got {len(node_types)}"
+        )
+    for i, entry in enumerate(node_types):
+        if not _is_number(entry):
+            raise ApiError(400, f"node_types[{i}] must be 0, 1 or 2, got {_kind(entry)}")
+    _pairs("positions", positions, count=n)
+    steps = _integer(body, "steps", DEFAULT_STEPS, 1, MAX_STEPS)
+    if n * steps > MAX_JOINT_STEPS:
+        raise ApiError(
+            413,
+            f"simulation too large: {n} joints x {steps} steps = {n * steps}, "
+            f"the limit is {MAX_JOINT_STEPS} joint-steps",
+        )
+    return adjacency, node_types, positions, steps
+
+
+def _simulate_lists(adjacency: list, node_types: list, positions: list, steps: int) -> list:
+    return simulate(adjacency, node_types, positions, steps).tolist()
+
+
+# -- the deployment -----------------------------------------------------------------------------
+
+
+@serve.deployment(name="LinksApi", ray_actor_options={"num_cpus": 1})
+@serve.ingress(api)
+class LinksApi:
+    """The HTTP API of one replica: the retrieval index of `root`, opened once."""
+
+    def __init__(self, root: str) -> None:
+        self.root = root
+        self.index = RetrievalIndex.open(root)
+        self._retrieving = threading.Lock()
+
+    @api.get("/", response_class=HTMLResponse)
+    async def api_studio(self) -> HTMLResponse:
+        """Placeholder page where the web studio will be."""
+        return HTMLResponse(STUDIO_PLACEHOLDER)
+
+    @api.get("/api/health")
+    async def api_health(self) -> JsonResponse:
+        """`{"status": "ok", "paths": <indexed paths>}`."""
+        return JsonResponse({"status": "ok", "paths": len(self.index)})
+
+    @api.post("/api/simulate")
+    async def api_simulate(self, request: Request) -> Response:
+        """Trajectories [n][steps][2] of a mechanism, 422 if it locks, 4xx if malformed."""
+        args = simulate_args(await read_json_object(request))
+        try:
+            trajectories = await run_in_threadpool(_simulate_lists, *args)
+        except LockingError as exc:
+            return _error(422, "locking", step=exc.step, node=exc.node)
+        except ValueError as exc:  # InvalidMechanismError names the problem
+            raise ApiError(400, str(exc)) from None
+        return JsonResponse({"trajectories": trajectories})
+
+    @api.post("/api/retrieve")
+    async def api_retrieve(self, request: Request) -> JsonResponse:
+        """The k curated paths nearest to a drawn curve, best first, with their mechanisms."""
+        points, k = retrieve_args(await read_json_object(request))
+        start = time.perf_counter()
+        try:
+            results = await run_in_threadpool(self._retrieve, points, k)
+        except ValueError as exc:
+            raise ApiError(400, str(exc)) from None
+        took_ms = (time.perf_counter() - start) * 1e3
+        return JsonResponse({"results": results, "took_ms": round(took_ms, 3)})
+
+    def _retrieve(self, points: np.ndarray, k: int) -> list[dict]:
+        with self._retrieving:
+            return self.index.retrieve(points, k)
+
+
+def check_root(root: str) -> None:
+    """Fail early, with ValueError naming the problem, if `root` has no curated table."""
+    open_table(root, "curated")
+
+
+def build_app(root: str, replicas: int = 1) -> Application:
+    """The Serve application for dataset `root` with `replicas` replicas (not yet running)."""
+    if isinstance(replicas, bool) or not isinstance(replicas, int) or replicas < 1:
+        raise ValueError(f"replicas must be a positive integer, got {replicas!r}")
+    return LinksApi.options(num_replicas=replicas).bind(root)
+
+
+def app_builder(args: dict[str, Any]) -> Application:
+    """Application builder for Serve config files: args `root` (required) and `replicas`."""
+    if "root" not in args or not str(args["root"]).strip():
+        raise ValueError("the links application needs args.root: a dataset folder or s3://...")
+    unknown = sorted(set(args) - {"root", "replicas"})
+    if unknown:
+        raise ValueError(f"unknown args for the links application: {unknown}")
+    replicas = args.get("replicas", 1)
+    if isinstance(replicas, str) and replicas.strip().isdigit():
+        replicas = int(replicas)  # `serve run ... replicas=2` passes strings
+    if isinstance(replicas, bool) or not isinstance(replicas, int):
+        raise ValueError(f"args.replicas must be a positive integer, got {replicas!r}")
+    check_root(str(args["root"]))
+    return build_app(str(args["root"]), replicas)
+
+
+def run_server(
+    root: str,
+    host: str = "127.0.0.1",
+    port: int = 8000,
+    replicas: int = 1,
+    blocking: bool = True,
+) -> None:
+    """Serve `root` on http://host:port/ (Ray local unless RAY_ADDRESS) until Ctrl-C."""
+    from links_ray.generation import connect
+
+    check_root(root)  # a wrong ROOT is one line here, not a replica failing to start
+    app = build_app(root, replicas)
+    connect()
+    no_access_log = {"enable_access_log": False}
+    serve.start(http_options={"host": host, "port": port}, logging_config=no_access_log)
+    try:
+        serve.run(app, name="links", route_prefix="/", logging_config=no_access_log)
+    except BaseException:
+        serve.shutdown()
+        raise
+    shown = f"[{host}]" if ":" in host else host
+    print(f"links-ray: serving {root} at http://{shown}:{port}/ (API under /api)", flush=True)
+    if not blocking:
+        return
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        print("links-ray: shutting down", flush=True)
+    finally:
+        serve.shutdown()

@@ -1,0 +1,539 @@
+"""The Ray Serve app (SPEC section 5) on real Ray, over real HTTP on loopback.
+
+One small dataset (300 mechanisms, generated and curated) and one Serve application serve the
+whole module; every request goes through Serve's HTTP proxy with `http.client`.
+"""
+
+import http.client
+import importlib
+import json
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+import links_ray
+
+REPO = Path(__file__).resolve().parents[1]
+FOUR_BAR = {
+    "adjacency": [[0, 1, 0, 0], [1, 0, 0, 1], [0, 0, 0, 1], [0, 1, 1, 0]],
+    "node_types": [0, 2, 0, 1],
+    "positions": [[0.5, 0.5], [0.55, 0.5], [0.8, 0.5], [0.6, 0.7]],
+}
+#: The coupler (1-3) and rocker (2-3) are too short to span joints 1 and 2 over a full turn.
+LOCKING_FOUR_BAR = {**FOUR_BAR, "positions": [[0.5, 0.5], [0.55, 0.5], [0.62, 0.5], [0.585, 0.52]]}
+RESULT_FIELDS = {
+    "path_id",
+    "mechanism_id",
+    "joint",
+    "chamfer",
+    "points",
+    "mechanism",
+    "mechanism_joint",
+}
+
+
+class Client:
+    """A tiny JSON client for one server: a fresh connection per request unless given one."""
+
+    def __init__(self, port: int) -> None:
+        self.port = port
+
+    def request(
+        self,
+        method: str,
+        path: str,
+        body: bytes | Any = None,
+        headers: dict[str, str] | None = None,
+        connection: http.client.HTTPConnection | None = None,
+        chunked: bool = False,
+    ) -> tuple[int, dict[str, str], Any]:
+        """(status, headers, JSON body or text) of one request."""
+        headers = dict(headers or {})
+        if body is not None and not isinstance(body, bytes):
+            body = json.dumps(body).encode()
+        if body is not None:
+            headers.setdefault("Content-Type", "application/json")
+        conn = connection or http.client.HTTPConnection("127.0.0.1", self.port, timeout=60)
+        try:
+            if chunked:
+                pieces = [body[i : i + 65536] for i in range(0, len(body), 65536)]
+                conn.request(method, path, body=iter(pieces), headers=headers, encode_chunked=True)
+            else:
+                conn.request(method, path, body=body, headers=headers)
+            response = conn.getresponse()
+            raw = response.read()
+            reply_headers = {k.lower(): v for k, v in response.getheaders()}
+        finally:
+            if connection is None:
+                conn.close()
+        if reply_headers.get("content-type", "").startswith("application/json"):
+            return response.status, reply_headers, json.loads(raw)
+        return response.status, reply_headers, raw.decode()
+
+    def get(self, path: str) -> tuple[int, Any]:
+        status, _, data = self.request("GET", path)
+        return status, data
+
+    def post(self, path: str, body: Any) -> tuple[int, Any]:
+        status, _, data = self.request("POST", path, body)
+        return status, data
+
+
+@pytest.fixture(scope="module")
+def dataset(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> str:
+    """300 mechanisms, generated and curated."""
+    from links_ray.curation import curate
+    from links_ray.generation import generate
+
+    out = str(tmp_path_factory.mktemp("serve") / "links")
+    generate(out, 300, seed=5, progress=False, topologies_per_shard=10)
+    curate(out, progress=False)
+    return out
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def client(dataset: str) -> Iterator[Client]:
+    """The links app on a free loopback port for the whole module; Serve shut down after."""
+    from ray import serve
+
+    from links_ray.serve_app import build_app
+
+    port = _free_port()
+    no_access_log = {"enable_access_log": False}
+    start = time.perf_counter()
+    serve.start(http_options={"host": "127.0.0.1", "port": port}, logging_config=no_access_log)
+    try:
+        serve.run(build_app(dataset), name="links", route_prefix="/", logging_config=no_access_log)
+        print(f"\nServe app ready on 127.0.0.1:{port} in {time.perf_counter() - start:.1f} s")
+        yield Client(port)
+    finally:
+        serve.shutdown()
+
+
+@pytest.fixture(scope="module")
+def curated(dataset: str) -> Any:
+    return links_ray.load(dataset, "curated", columns=["path_id", "points"], reshape=True)
+
+
+def _post(client: Client, path: str, body: Any) -> tuple[int, Any]:
+    status, data = client.post(path, body)
+    assert status == 200, data
+    return status, data
+
+
+# -- routes ---------------------------------------------------------------------------------
+
+
+def test_health_counts_the_curated_paths(client: Client, curated: Any) -> None:
+    assert client.get("/api/health") == (200, {"status": "ok", "paths": len(curated)})
+
+
+def test_root_is_a_placeholder_page(client: Client) -> None:
+    status, headers, text = client.request("GET", "/")
+    assert status == 200
+    assert headers["content-type"].startswith("text/html")
+    assert "links-ray" in text and "/api" in text
+
+
+@pytest.mark.parametrize("steps", [None, 50, 1])
+def test_simulate_matches_the_engine(client: Client, steps: int | None) -> None:
+    body = FOUR_BAR if steps is None else {**FOUR_BAR, "steps": steps}
+    _, data = _post(client, "/api/simulate", body)
+    expected = links_ray.simulate(
+        FOUR_BAR["adjacency"], FOUR_BAR["node_types"], FOUR_BAR["positions"], steps or 200
+    )
+    got = np.array(data["trajectories"])
+    assert got.shape == expected.shape == (4, steps or 200, 2)
+    np.testing.assert_array_equal(got, expected)  # JSON round-trips float64 exactly
+
+
+def test_simulate_locking_is_422_with_step_and_node(client: Client) -> None:
+    with pytest.raises(links_ray.LockingError) as locked:
+        links_ray.simulate(**LOCKING_FOUR_BAR)
+    status, data = client.post("/api/simulate", LOCKING_FOUR_BAR)
+    assert status == 422
+    assert data == {"error": "locking", "step": locked.value.step, "node": locked.value.node}
+
+
+def _check_result(result: dict[str, Any]) -> None:
+    assert set(result) >= RESULT_FIELDS
+    mechanism = result["mechanism"]
+    assert set(mechanism) >= {"adjacency", "node_types", "positions"}
+    n = len(mechanism["node_types"])
+    assert np.array(mechanism["adjacency"]).shape == (n, n)
+    assert np.array(mechanism["positions"]).shape == (n, 2)
+    assert 0 <= result["mechanism_joint"] < n
+    assert np.array(result["points"]).shape == (200, 2)
+    assert isinstance(result["chamfer"], float) and result["chamfer"] >= 0
+
+
+@pytest.mark.parametrize("where", ["as stored", "moved and scaled", "turned", "mirrored"])
+def test_retrieve_finds_a_stored_path_and_a_mechanism_that_traces_it(
+    client: Client, curated: Any, where: str
+) -> None:
+    row = 17 % len(curated)
+    stored = curated.points.iloc[row].astype(np.float64)
+    query = {
+        "as stored": stored,
+        "moved and scaled": stored * 3.0 + 7.0,
+        "turned": (stored - 0.5) @ np.array([[0.0, -1.0], [1.0, 0.0]]) * 0.2 + 1.0,
+        "mirrored": stored * np.array([1.0, -1.0]) + 2.0,
+    }[where]
+    _, data = _post(client, "/api/retrieve", {"points": query.tolist(), "k": 5})
+    results = data["results"]
+    assert isinstance(data["took_ms"], float) and data["took_ms"] >= 0
+    assert len(results) == 5
+    for result in results:
+        _check_result(result)
+    chamfers = [result["chamfer"] for result in results]
+    assert chamfers == sorted(chamfers), "best first"
+    assert chamfers[0] < 1e-6
+    best = results[0]
+    assert best["path_id"] == int(curated.path_id.iloc[row]) or chamfers[1] < 1e-6
+    # The mechanism comes back in the query's frame: its joint traces the query itself.
+    _, traced = _post(client, "/api/simulate", best["mechanism"])
+    path = np.array(traced["trajectories"])[best["mechanism_joint"]]
+    size = np.ptp(query, axis=0).max()
+    assert links_ray.chamfer(path, query) < 1e-4 * size
+
+
+def test_retrieve_default_k_and_longest_query(client: Client, curated: Any) -> None:
+    stored = curated.points.iloc[0].astype(np.float64)
+    _, data = _post(client, "/api/retrieve", {"points": stored.tolist()})
+    assert len(data["results"]) == 3
+    many = np.tile(stored, (50, 1))  # exactly 10,000 pairs
+    _, data = _post(client, "/api/retrieve", {"points": many.tolist(), "k": 1})
+    assert data["results"][0]["chamfer"] < 1e-6
+
+
+@pytest.mark.parametrize("length", [200, 3])
+def test_retrieve_gives_k_results_when_the_index_has_them(
+    client: Client, curated: Any, length: int
+) -> None:
+    stored = curated.points.iloc[0].astype(np.float64)[:length]
+    _, data = _post(client, "/api/retrieve", {"points": stored.tolist(), "k": 100})
+    assert len(curated) >= 100
+    chamfers = [result["chamfer"] for result in data["results"]]
+    assert len(chamfers) == 100
+    assert chamfers == sorted(chamfers)
+    assert len({result["path_id"] for result in data["results"]}) == 100
+
+
+# -- bad input: always a 4xx with a JSON error, never a 5xx -------------------------------------
+
+LIMIT = 2 * 1024 * 1024
+POINTS = [[0.0, 0.0], [1.0, 0.5], [2.0, 0.0], [3.0, 1.0]]
+FOUR_BAR_JSON = json.dumps(FOUR_BAR)
+
+
+def bad(name: str, path: str, body: Any, status: int = 400, **request: Any) -> Any:
+    """One bad request: a JSON-able body, or raw bytes sent as they are."""
+    method = request.pop("method", "POST")
+    return pytest.param(method, path, body, request.pop("headers", {}), status, id=name)
+
+
+def sim(name: str, status: int = 400, **changes: Any) -> Any:
+    """A four-bar simulation with some fields replaced."""
+    return bad(name, "/api/simulate", {**FOUR_BAR, **changes}, status)
+
+
+def ret(name: str, status: int = 400, **body: Any) -> Any:
+    """A retrieval with this body."""
+    return bad(name, "/api/retrieve", body, status)
+
+
+def sim_raw(name: str, text: str) -> Any:
+    """The four-bar's JSON with 0.8 (a coordinate of joint 2) replaced by `text`."""
+    return bad(name, "/api/simulate", FOUR_BAR_JSON.replace("0.8", text).encode())
+
+
+def ret_raw(name: str, text: str, status: int = 400) -> Any:
+    """A retrieval body written out by hand."""
+    return bad(name, "/api/retrieve", text.encode(), status)
+
+
+NESTED = "[" * 50_000 + "]" * 50_000
+JUNK_ROWS = [[[0], {"a": [1]}, "x", None]] * 4
+PAD = "x" * LIMIT
+BAD_REQUESTS = [
+    # Not a JSON object.
+    bad("invalid JSON", "/api/simulate", b"{adjacency: ["),
+    ret_raw("truncated JSON", '{"points": [[0, 0],'),
+    ret_raw("empty body", ""),
+    bad("not UTF-8", "/api/retrieve", b'{"points": "\xff\xfe"}'),
+    ret_raw("array body", json.dumps([POINTS])),
+    ret_raw("null body", "null"),
+    bad("number body", "/api/simulate", 3),
+    bad("string body", "/api/simulate", "adjacency"),
+    ret_raw("deep nesting", '{"k": ' + NESTED + "}"),
+    bad("text/plain", "/api/retrieve", b"{}", 415, headers={"Content-Type": "text/plain"}),
+    bad("form", "/api/simulate", b"a=1", 415, headers={"Content-Type": "multipart/form-data"}),
+    # /api/simulate: missing fields, wrong types, wrong shapes, limits.
+    bad("missing all", "/api/simulate", {}),
+    bad(
+        "missing positions", "/api/simulate", {k: FOUR_BAR[k] for k in ("adjacency", "node_types")}
+    ),
+    sim("adjacency string", adjacency="0110"),
+    sim("adjacency strings", adjacency=[["0", "1"], ["1", "0"]]),
+    sim("adjacency nested junk", adjacency=JUNK_ROWS),
+    sim("adjacency not square", adjacency=[row[:3] for row in FOUR_BAR["adjacency"]]),
+    sim("adjacency empty", adjacency=[]),
+    sim("adjacency asymmetric", adjacency=[[0, 1, 0, 0], [1, 0, 0, 1], [0, 0, 0, 1], [0, 1, 0, 0]]),
+    sim("adjacency booleans", adjacency=[[x == 1 for x in r] for r in FOUR_BAR["adjacency"]]),
+    sim("node_types object", node_types={"0": 0}),
+    sim("node_types short", node_types=[0, 2, 0]),
+    sim("no actuated joint", node_types=[0, 1, 0, 1]),
+    sim("positions triples", positions=[[0.5, 0.5, 0.0]] * 4),
+    sim("positions null", positions=[[0.5, None]] * 4),
+    sim("positions too few", positions=FOUR_BAR["positions"][:3]),
+    sim("zero-length crank", positions=[[0.5, 0.5], [0.5, 0.5], [0.8, 0.5], [0.6, 0.7]]),
+    sim_raw("NaN literal", "NaN"),
+    sim_raw("Infinity literal", "Infinity"),
+    sim_raw("overflow to inf", "1e999"),
+    sim_raw("integer beyond float", "9" * 400),
+    sim("steps string", steps="200"),
+    sim("steps true", steps=True),
+    sim("steps float", steps=200.5),
+    sim("steps 0", steps=0),
+    sim("steps huge", steps=10**12),
+    sim("huge simulation", 413, steps=100_000),
+    bad(
+        "too many joints",
+        "/api/simulate",
+        {"adjacency": [[0] * 101] * 101, "node_types": [0] * 101, "positions": [[0, 0]] * 101},
+        413,
+    ),
+    # /api/retrieve: points and k.
+    ret("missing points", k=3),
+    ret("points string", points="0,0 1,1 2,0"),
+    ret("points strings", points=[["0", "0"], ["1", "1"], ["2", "0"]]),
+    ret("points nested junk", points=[[[0, 0]], {"x": 1}, [None, []]]),
+    ret("points objects", points=[{"x": 0, "y": 0}] * 3),
+    ret("points triples", points=[[0, 0, 0], [1, 1, 1], [2, 0, 0]]),
+    ret("points booleans", points=[[True, False], [1, 1], [2, 0]]),
+    ret("2 pairs", points=POINTS[:2]),
+    ret("10,001 pairs", points=[[i, i % 7] for i in range(10_001)]),
+    ret("all one point", points=[[0.3, 0.4]] * 50),
+    ret_raw("NaN", '{"points": [[NaN, 0], [1, 1], [2, 0]]}'),
+    ret_raw("Infinity", '{"points": [[0, 0], [1, Infinity], [2, 0]]}'),
+    ret_raw("-Infinity", '{"points": [[0, 0], [1, -Infinity], [2, 0]]}'),
+    ret_raw("overflow to inf", '{"points": [[0, 0], [1, 1e999], [2, 0]]}'),
+    ret_raw("integer beyond float", '{"points": [[0, 0], [1, ' + "9" * 400 + "], [2, 0]]}"),
+    ret("coordinates huge", points=[[0, 0], [1e300, 0], [0, 1e300]]),
+    ret("extent tiny", points=[[0, 0], [1e-300, 0], [0, 1e-300]]),
+    ret("k 0", points=POINTS, k=0),
+    ret("k 101", points=POINTS, k=101),
+    ret("k -1", points=POINTS, k=-1),
+    ret("k true", points=POINTS, k=True),
+    ret("k string", points=POINTS, k="3"),
+    ret("k float", points=POINTS, k=2.5),
+    ret("k array", points=POINTS, k=[3]),
+    # Size limits and routes.
+    ret("oversized body", 413, points=POINTS, pad=PAD),
+    ret("oversized points", 413, points=[[0.123456789012345678, i * 1e-3] for i in range(80_000)]),
+    bad("unknown route", "/api/nothing", None, 404, method="GET"),
+    bad("GET simulate", "/api/simulate", None, 405, method="GET"),
+    bad("POST health", "/api/health", {}, 405),
+]
+
+
+def _check_error(status: int, headers: dict[str, str], data: Any, expected: int) -> None:
+    assert status < 500, (status, data)
+    assert status == expected, (status, data)
+    assert headers.get("content-type", "").startswith("application/json")
+    assert isinstance(data, dict) and isinstance(data.get("error"), str) and data["error"]
+
+
+@pytest.mark.parametrize(("method", "path", "body", "headers", "expected"), BAD_REQUESTS)
+def test_bad_requests_get_a_4xx_json_error(
+    client: Client, method: str, path: str, body: Any, headers: dict[str, str], expected: int
+) -> None:
+    status, reply_headers, data = client.request(method, path, body, headers)
+    _check_error(status, reply_headers, data, expected)
+
+
+def test_error_messages_name_the_problem(client: Client) -> None:
+    cases = [
+        ({"points": POINTS[:2]}, "3 to 10000"),
+        ({"points": POINTS, "k": 101}, "k"),
+        ({"points": [[0.3, 0.4]] * 5}, "same point"),
+        ({"k": 3}, "points"),
+    ]
+    for body, words in cases:
+        status, data = client.post("/api/retrieve", body)
+        assert status == 400 and words in data["error"], data
+    status, data = client.post("/api/simulate", {**FOUR_BAR, "node_types": [0, 1, 0, 1]})
+    assert status == 400 and "actuated" in data["error"]
+    status, data = client.post("/api/simulate", {**FOUR_BAR, "steps": 100_000})
+    assert status == 413 and "100000" in data["error"]
+
+
+def test_oversized_body_without_content_length(client: Client) -> None:
+    """A chunked body is counted as it arrives."""
+    body = json.dumps({"points": POINTS, "pad": PAD}).encode()
+    status, headers, data = client.request("POST", "/api/retrieve", body, chunked=True)
+    _check_error(status, headers, data, 413)
+    small = json.dumps({"points": POINTS, "k": 2}).encode()
+    status, _, data = client.request("POST", "/api/retrieve", small, chunked=True)
+    assert status == 200 and len(data["results"]) == 2
+
+
+def test_lying_content_length_is_refused(client: Client) -> None:
+    status, headers, data = client.request(
+        "POST", "/api/retrieve", b'{"points": []}', {"Content-Length": str(10 * LIMIT)}
+    )
+    # The header is checked before the body is read: refused at once, no waiting.
+    _check_error(status, headers, data, 413)
+
+
+def test_still_serving_after_bad_requests(client: Client, curated: Any) -> None:
+    from ray import serve
+
+    assert client.get("/api/health") == (200, {"status": "ok", "paths": len(curated)})
+    app = serve.status().applications["links"]
+    assert app.status == "RUNNING"
+    assert _post(client, "/api/simulate", FOUR_BAR)[0] == 200
+
+
+# -- load -----------------------------------------------------------------------------------
+
+
+def test_concurrent_clients(client: Client, curated: Any) -> None:
+    """8 threads x 25 requests (retrieve, simulate, health), each thread on a kept-alive
+    connection: every answer is 200 and correct, within a time limit."""
+    queries = [curated.points.iloc[i % len(curated)].astype(float).tolist() for i in range(8)]
+    expected_sim = links_ray.simulate(**FOUR_BAR).tolist()
+    failures: list[str] = []
+    latencies: list[float] = []
+    lock = threading.Lock()
+
+    def worker(t: int) -> None:
+        conn = http.client.HTTPConnection("127.0.0.1", client.port, timeout=60)
+        try:
+            for i in range(25):
+                kind = ("retrieve", "simulate", "health")[(t + i) % 3]
+                start = time.perf_counter()
+                if kind == "retrieve":
+                    status, _, data = client.request(
+                        "POST", "/api/retrieve", {"points": queries[t], "k": 3}, connection=conn
+                    )
+                    ok = status == 200 and data["results"][0]["chamfer"] < 1e-6
+                elif kind == "simulate":
+                    status, _, data = client.request(
+                        "POST", "/api/simulate", FOUR_BAR, connection=conn
+                    )
+                    ok = status == 200 and data["trajectories"] == expected_sim
+                else:
+                    status, _, data = client.request("GET", "/api/health", connection=conn)
+                    ok = status == 200 and data["paths"] == len(curated)
+                with lock:
+                    latencies.append(time.perf_counter() - start)
+                    if not ok:
+                        failures.append(f"thread {t} request {i} {kind}: {status}")
+        except Exception as exc:  # a dropped connection is a failure too
+            with lock:
+                failures.append(f"thread {t}: {type(exc).__name__}: {exc}")
+        finally:
+            conn.close()
+
+    start = time.perf_counter()
+    threads = [threading.Thread(target=worker, args=(t,)) for t in range(8)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=120)
+    elapsed = time.perf_counter() - start
+    assert not any(thread.is_alive() for thread in threads)
+    assert not failures, failures[:5]
+    assert len(latencies) == 200
+    print(
+        f"\n200 requests from 8 threads in {elapsed:.2f} s "
+        f"(p50 {np.median(latencies) * 1e3:.0f} ms, max {max(latencies) * 1e3:.0f} ms)"
+    )
+    assert elapsed < 60
+
+
+# -- deployment configs ---------------------------------------------------------------------
+
+
+def test_app_builder_args(dataset: str, tmp_path: Path) -> None:
+    from ray.serve.deployment import Application
+
+    from links_ray.serve_app import app_builder, build_app
+
+    assert isinstance(app_builder({"root": dataset, "replicas": "2"}), Application)
+    for bad in (
+        {},
+        {"root": ""},
+        {"root": str(tmp_path)},  # no curated table
+        {"root": dataset, "replicas": "two"},
+        {"root": dataset, "replicas": True},
+        {"root": dataset, "x": 1},
+    ):
+        with pytest.raises(ValueError):
+            app_builder(bad)
+    with pytest.raises(ValueError):
+        build_app(dataset, replicas=0)
+
+
+def test_serve_cli_refuses_a_root_without_curated_paths(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """One line and exit status 2, before Ray or Serve is touched."""
+    from links_ray.cli import main
+
+    assert main(["serve", str(tmp_path / "nothing"), "--port", str(_free_port())]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "no curated table" in err
+
+
+def _check_serve_config(config: dict[str, Any]) -> Any:
+    from ray.serve.schema import ServeDeploySchema
+
+    from links_ray.serve_app import app_builder
+
+    schema = ServeDeploySchema.model_validate(config)
+    (app,) = schema.applications
+    assert app.name == "links" and app.route_prefix == "/"
+    module, _, name = app.import_path.partition(":")
+    assert getattr(importlib.import_module(module), name) is app_builder
+    assert schema.logging_config.enable_access_log is False
+    return schema
+
+
+def test_serve_config_file() -> None:
+    config = yaml.safe_load((REPO / "deploy/serve/serve_config.yaml").read_text())
+    schema = _check_serve_config(config)
+    assert schema.http_options.host == "127.0.0.1"
+    assert schema.http_options.port == 8000
+
+
+def test_rayservice_manifest() -> None:
+    manifest = yaml.safe_load((REPO / "deploy/kuberay/rayservice.yaml").read_text())
+    assert manifest["apiVersion"] == "ray.io/v1" and manifest["kind"] == "RayService"
+    spec = manifest["spec"]
+    schema = _check_serve_config(yaml.safe_load(spec["serveConfigV2"]))
+    assert schema.applications[0].args["root"] == "s3://links/dataset"
+    cluster = spec["rayClusterConfig"]
+    pods = [cluster["headGroupSpec"]] + cluster["workerGroupSpecs"]
+    for pod in pods:
+        (container,) = pod["template"]["spec"]["containers"]
+        assert container["image"] == "links-ray:latest"
+        env = {item["name"]: item for item in container["env"]}
+        for key in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY"):
+            ref = env[key]["valueFrom"]["secretKeyRef"]
+            assert ref == {"name": "links-s3-credentials", "key": key}
+            assert "value" not in env[key]
