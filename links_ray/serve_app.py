@@ -39,7 +39,14 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from links_ray.dataset import open_table
 from links_ray.mechanism import LockingError
-from links_ray.retrieval import RetrievalIndex
+from links_ray.retrieval import (
+    MAX_COORDINATE,
+    MAX_K,
+    MAX_POINTS,
+    MIN_EXTENT,
+    MIN_POINTS,
+    RetrievalIndex,
+)
 from links_ray.solver import simulate
 
 logger = logging.getLogger("ray.serve")
@@ -52,12 +59,7 @@ MAX_JOINTS = 100
 MAX_JOINT_STEPS = 100_000
 DEFAULT_STEPS = 200
 MAX_STEPS = 100_000
-MIN_POINTS, MAX_POINTS = 3, 10_000
-DEFAULT_K, MAX_K = 3, 100
-#: Query coordinates are refused beyond this magnitude (their squares would overflow).
-MAX_COORDINATE = 1e12
-#: The smallest extent (bounding-box width or height) a query may have.
-MIN_EXTENT = 1e-9
+DEFAULT_K = 3
 
 STUDIO_PLACEHOLDER = """<!doctype html>
 <html lang="en">
