@@ -25,11 +25,14 @@ def open_table(root: str | Store, table: str) -> pads.Dataset:
     """The pyarrow dataset of one table at `root` (a folder, s3://bucket/prefix or a Store)."""
     if table not in TABLE_NAMES:
         raise ValueError(f"table must be one of {', '.join(TABLE_NAMES)}, got {table!r}")
-    store = root if isinstance(root, Store) else Store.open(root)
-    files = store.list_files(table)
-    if not files:
+    store = root if isinstance(root, Store) else Store.open(root, writable=False)
+    try:
+        dataset = pads.dataset(store.path(table), filesystem=store.fs, partitioning=PARTITIONING)
+    except FileNotFoundError:
+        dataset = None
+    if dataset is None or not dataset.files:
         raise ValueError(f"{store.uri} has no {table} table yet")
-    return pads.dataset(store.path(table), filesystem=store.fs, partitioning=PARTITIONING)
+    return dataset
 
 
 def load(

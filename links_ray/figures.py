@@ -35,10 +35,10 @@ def _sample(
     return table_rows.take(np.sort(take)).to_pylist()
 
 
-def write_figures(root: str, folder: str | Path, stats: dict, seed: int = 0) -> list[str]:
+def write_figures(root: str | Store, folder: str | Path, stats: dict, seed: int = 0) -> list[str]:
     """Write the figures for `stats` (from `dataset_stats`) into `folder`; returns their paths."""
     plt = _pyplot()
-    store = Store.open(root)
+    store = root if isinstance(root, Store) else Store.open(root, writable=False)
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)

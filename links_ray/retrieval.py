@@ -162,7 +162,7 @@ class RetrievalIndex:
     @classmethod
     def open(cls, root: str | Store, rebuild: bool = False) -> RetrievalIndex:
         """Load the index saved beside the data, or build (and save) it from `curated/`."""
-        store = root if isinstance(root, Store) else Store.open(root)
+        store = root if isinstance(root, Store) else Store.open(root, writable=False)
         curated = open_table(store, "curated")
         table = curated.to_table(columns=["path_id", "mechanism_id", "joint", "points", "n_joints"])
         table = table.sort_by("path_id")

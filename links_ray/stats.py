@@ -9,12 +9,13 @@ runs recorded. Reads only small columns; no Ray.
 from __future__ import annotations
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.compute as pc
 
 from links_ray.dataset import TABLE_NAMES, open_table
 from links_ray.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
 from links_ray.sampling import measure_candidates_per_valid
-from links_ray.storage import META, Store
+from links_ray.storage import CURATION_TABLES, META, Store
 
 #: The paper's figures ("Dataset Curation & Processing", "Scale of Infeasibilities").
 PAPER = {
@@ -23,21 +24,27 @@ PAPER = {
 }
 
 
-def _counts(store: Store, table: str) -> dict | None:
-    if not store.list_files(table):
+def _read(store: Store, table: str, columns: list[str]) -> pa.Table | None:
+    """Some columns of a table, or None when the dataset has no such table yet."""
+    try:
+        return open_table(store, table).to_table(columns=columns)
+    except ValueError:
         return None
-    sizes = open_table(store, table).to_table(columns=["n_joints"]).column("n_joints")
-    by_size = pc.value_counts(sizes).to_pylist()
+
+
+def _counts(rows: pa.Table | None) -> dict | None:
+    if rows is None:
+        return None
+    by_size = pc.value_counts(rows.column("n_joints")).to_pylist()
     return {
-        "rows": len(sizes),
+        "rows": len(rows),
         "by_joint_count": {str(c["values"]): c["counts"] for c in sorted(by_size, key=str)},
     }
 
 
-def _shares(store: Store, table: str) -> dict | None:
-    if not store.list_files(table):
+def _shares(flags: pa.Table | None) -> dict | None:
+    if flags is None:
         return None
-    flags = open_table(store, table).to_table(columns=["is_arc", "is_circle"])
     arc = flags.column("is_arc").to_numpy(zero_copy_only=False)
     circle = flags.column("is_circle").to_numpy(zero_copy_only=False)
     total = max(len(arc), 1)
@@ -53,10 +60,16 @@ def _shares(store: Store, table: str) -> dict | None:
 
 def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
     """The statistics of the dataset at `root` as one JSON-ready dict."""
-    store = Store.open(root)
+    store = Store.open(root, writable=False)
     run = store.read_json(f"{META}/summary.json")
     curation = store.read_json(f"{META}/curation_summary.json")
-    counts = {table: _counts(store, table) for table in TABLE_NAMES}
+    tables = {
+        table: _read(store, table, ["n_joints", "is_arc", "is_circle"])
+        if table in CURATION_TABLES
+        else _read(store, table, ["n_joints"])
+        for table in TABLE_NAMES
+    }
+    counts = {table: _counts(rows) for table, rows in tables.items()}
     if not any(counts.values()):
         raise ValueError(f"{store.uri} holds no dataset tables")
 
@@ -82,7 +95,7 @@ def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
     return {
         "root": store.uri,
         "counts": counts,
-        "shares": {"paths": _shares(store, "paths"), "curated": _shares(store, "curated")},
+        "shares": {table: _shares(tables[table]) for table in CURATION_TABLES},
         "candidates_per_valid": candidates,
         "candidates_per_valid_source": source,
         "throughput": {

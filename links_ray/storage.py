@@ -114,8 +114,9 @@ class Store:
     _made: set[str] = field(default_factory=set, repr=False)
 
     @classmethod
-    def open(cls, uri: str, attempts: int = 2) -> Store:
-        """Resolve `uri` and prove it can be written, read and deleted; else `StoreError`.
+    def open(cls, uri: str, attempts: int = 2, writable: bool = True) -> Store:
+        """Resolve `uri` and prove it usable, else `StoreError`: for writers, that a file can be
+        written, read and deleted there; for readers (`writable=False`), that it exists.
 
         `attempts` bounds each S3 request's tries: few to fail fast when checking a root,
         more for long runs that should ride out a store's brief refusals.
@@ -137,20 +138,25 @@ class Store:
                 f"unsupported scheme {parsed.scheme!r} in {uri}: use a folder or s3://"
             )
         store = cls(uri=uri, fs=fs, root=root)
-        store._probe()
-        return store
-
-    def _probe(self) -> None:
-        probe = f"{META}/_probe-{uuid.uuid4().hex}"
         try:
-            self.write_bytes(probe, b"ok")
-            if self.read_bytes(probe) != b"ok":
-                raise StoreError(f"{self.uri}: a probe file read back different bytes")
-            self.fs.delete_file(self.path(probe))
+            store._probe_writes() if writable else store._probe_reads()
         except StoreError:
             raise
         except (OSError, pa.ArrowException) as exc:
-            raise StoreError(f"cannot use {self.uri}: {_diagnose(exc)}") from None
+            raise StoreError(f"cannot use {uri}: {_diagnose(exc)}") from None
+        return store
+
+    def _probe_writes(self) -> None:
+        probe = f"{META}/_probe-{uuid.uuid4().hex}"
+        self.write_bytes(probe, b"ok")
+        if self.read_bytes(probe) != b"ok":
+            raise StoreError(f"{self.uri}: a probe file read back different bytes")
+        self.fs.delete_file(self.path(probe))
+
+    def _probe_reads(self) -> None:
+        # Listing the root asks the store (and its credentials) for something real; what is
+        # missing there is for the reader to say.
+        self.fs.get_file_info(pafs.FileSelector(self.root, allow_not_found=True))
 
     def path(self, relative: str) -> str:
         return f"{self.root}/{relative}"
