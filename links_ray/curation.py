@@ -19,7 +19,7 @@ import ray
 from links_ray.generation import connect
 from links_ray.pathset import KEEP_SHARE, curated_mask, path_table
 from links_ray.progress import Progress
-from links_ray.storage import CURATION_TABLES, META, ShardWriter, Store, StoreError, marker_file
+from links_ray.storage import CURATION_TABLES, META, ShardWriter, Store, StoreError
 
 CURATION_FORMAT = 1
 
@@ -33,8 +33,14 @@ class ShardCurator:
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         markers = [
-            self.curate(int(s), int(n))
-            for s, n in zip(batch["shard"], batch["n_joints"], strict=True)
+            self.curate(int(shard), int(n), str(mechanisms), str(simulations))
+            for shard, n, mechanisms, simulations in zip(
+                batch["shard"],
+                batch["n_joints"],
+                batch["mechanisms_file"],
+                batch["simulations_file"],
+                strict=True,
+            )
         ]
         return {
             "shard": batch["shard"],
@@ -46,13 +52,12 @@ class ShardCurator:
         with self.store.fs.open_input_file(self.store.path(relative)) as source:
             return pq.read_table(source)
 
-    def curate(self, shard_id: int, n_joints: int) -> dict:
+    def curate(
+        self, shard_id: int, n_joints: int, mechanisms_file: str, simulations_file: str
+    ) -> dict:
         """Write one shard's paths and curated paths, then its marker; returns the marker."""
         start = time.perf_counter()
-        files = self.store.read_json(marker_file(shard_id))["files"]
-        paths = path_table(
-            self._read(files["mechanisms"]), self._read(files["simulations"]), n_joints
-        )
+        paths = path_table(self._read(mechanisms_file), self._read(simulations_file), n_joints)
         keep = curated_mask(paths, self.seed)
         is_arc = paths.column("is_arc").to_numpy()
         is_circle = paths.column("is_circle").to_numpy()
@@ -104,7 +109,15 @@ def curate(
         cpus = int(ray.cluster_resources().get("CPU", 1))
         actors = max(1, min(workers or cpus, cpus, len(todo)))
         shards = ray.data.from_items(
-            [{"shard": m["shard"], "n_joints": m["n_joints"]} for m in todo],
+            [
+                {
+                    "shard": m["shard"],
+                    "n_joints": m["n_joints"],
+                    "mechanisms_file": m["files"]["mechanisms"],
+                    "simulations_file": m["files"]["simulations"],
+                }
+                for m in todo
+            ],
             override_num_blocks=len(todo),
         )
         results = shards.map_batches(
