@@ -16,7 +16,7 @@ from links_ray.mechanism import analyze_topology, dataset_rule_violations
 
 def links(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "links_ray.cli", *args], capture_output=True, text=True, timeout=300
+        [sys.executable, "-m", "links_ray.cli", *args], capture_output=True, text=True, timeout=600
     )
 
 

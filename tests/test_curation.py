@@ -9,12 +9,11 @@ from __future__ import annotations
 import json
 import math
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from test_cli import links
 from test_generation import read_table
 
 import links_ray
@@ -164,22 +163,7 @@ def test_load_filters_and_reshapes(curated_run: dict) -> None:
 
 def test_stats_cli_reports_and_draws(curated_run: dict, tmp_path: Path) -> None:
     plots = tmp_path / "plots"
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "links_ray.cli",
-            "stats",
-            curated_run["out"],
-            "--plots",
-            str(plots),
-            "--sample-topologies",
-            "1",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    result = links("stats", curated_run["out"], "--plots", str(plots), "--sample-topologies", "1")
     assert result.returncode == 0, result.stderr
     stats = json.loads(result.stdout)
     assert stats["counts"]["mechanisms"]["rows"] == MECHANISMS

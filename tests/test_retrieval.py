@@ -4,12 +4,11 @@ query's own frame."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from test_cli import links
 
 import links_ray
 from links_ray.bench_services import _held_out_queries
@@ -112,31 +111,11 @@ def test_saved_index_is_reused(index: RetrievalIndex) -> None:
 def test_offline_cli(index: RetrievalIndex, tmp_path: Path) -> None:
     query = tmp_path / "query.json"
     query.write_text(json.dumps({"points": hand_drawn(np.random.default_rng(1)).tolist()}))
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "links_ray.cli",
-            "retrieve",
-            index.store.uri,
-            "--points",
-            str(query),
-            "-k",
-            "2",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    result = links("retrieve", index.store.uri, "--points", str(query), "-k", "2")
     assert result.returncode == 0, result.stderr
     answer = json.loads(result.stdout)
     assert len(answer["results"]) == 2 and answer["took_ms"] > 0
     bad = tmp_path / "bad.json"
     bad.write_text("[[0, 0], [1, 1]]")
-    result = subprocess.run(
-        [sys.executable, "-m", "links_ray.cli", "retrieve", index.store.uri, "--points", str(bad)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    result = links("retrieve", index.store.uri, "--points", str(bad))
     assert result.returncode == 2 and "3 to 10000" in result.stderr
