@@ -1,0 +1,124 @@
+"""The notebooks run top to bottom on small sizes, and are stored without outputs.
+
+Each runs in its own kernel (a separate process with its own private Ray) in a temporary
+working directory, so the data it makes stays out of the repository. The environment is this
+one without Ray addresses or S3 settings: the notebooks start their own Ray and store.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import time
+from pathlib import Path
+
+import pytest
+
+nbformat = pytest.importorskip("nbformat")
+nbclient = pytest.importorskip("nbclient")
+
+NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
+NAMES = ("01_quickstart", "02_paper_figures", "03_cluster_and_s3")
+#: Seconds one cell may take (the whole notebook should take one or two minutes).
+CELL_TIMEOUT_S = 600
+#: Settings that would point a notebook at a Ray or an S3 store other than its own.
+FOREIGN = ("RAY_ADDRESS", "LINKS_NB_RAY_ADDRESS", "LINKS_NB_S3_URI")
+
+
+def notebook_env(**extra: str) -> dict[str, str]:
+    env = {
+        name: value
+        for name, value in os.environ.items()
+        if name not in FOREIGN and not name.startswith("AWS_")
+    }
+    env.update(extra)
+    return env
+
+
+def run_notebook(name: str, workdir: Path, env: dict[str, str]) -> tuple[object, float]:
+    """Execute a notebook in `workdir`; returns it with its outputs, and the seconds taken."""
+    notebook = nbformat.read(NOTEBOOKS / f"{name}.ipynb", as_version=4)
+    client = nbclient.NotebookClient(
+        notebook,
+        kernel_name="python3",
+        timeout=CELL_TIMEOUT_S,
+        resources={"metadata": {"path": str(workdir)}},
+    )
+    start = time.perf_counter()
+    client.execute(env=env)
+    return notebook, time.perf_counter() - start
+
+
+def outputs_text(notebook) -> str:
+    return "\n".join(
+        output.get("text", "") + str(output.get("data", {}).get("text/plain", ""))
+        for cell in notebook.cells
+        if cell.cell_type == "code"
+        for output in cell.outputs
+    )
+
+
+@pytest.mark.parametrize("name", ["01_quickstart", "02_paper_figures"])
+def test_notebook_runs(name: str, tmp_path: Path) -> None:
+    notebook, seconds = run_notebook(name, tmp_path, notebook_env())
+    print(f"{name}: {seconds:.1f} s")
+    # A failing cell raises CellExecutionError above. The dataset lands in the working directory.
+    datasets = list(tmp_path.glob("links-*/_links/summary.json"))
+    assert len(datasets) == 1, "the notebook made no dataset in its working directory"
+    assert "Traceback" not in outputs_text(notebook)
+    assert not list(NOTEBOOKS.glob("*/_links")), "a notebook wrote a dataset into the repository"
+
+
+def test_s3_notebook_starts_and_stops_its_own_store(tmp_path: Path) -> None:
+    notebook, seconds = run_notebook("03_cluster_and_s3", tmp_path, notebook_env())
+    print(f"03_cluster_and_s3: {seconds:.1f} s")
+    text = outputs_text(notebook)
+    started = re.findall(r"SeaweedFS \(pid (\d+)\) at http://127\.0\.0\.1:\d+", text)
+    stopped = re.findall(r"SeaweedFS \(pid (\d+)\) stopped, exit code", text)
+    assert started and started == stopped, text
+    with pytest.raises(ProcessLookupError):  # stopped by its PID, and reaped
+        os.kill(int(stopped[0]), 0)
+    assert "s3://links/run-" in text
+    assert not list(tmp_path.iterdir()), "the S3 notebook wrote into its working directory"
+
+
+def test_s3_notebook_uses_a_store_from_the_environment(s3_server, tmp_path: Path) -> None:
+    """With AWS_ENDPOINT_URL set, notebook 03 uses that store instead of starting its own."""
+    import boto3
+
+    bucket = f"notebook-{os.getpid()}"
+    env = notebook_env(
+        AWS_ENDPOINT_URL=s3_server.endpoint,
+        AWS_ACCESS_KEY_ID=s3_server.access_key,
+        AWS_SECRET_ACCESS_KEY=s3_server.secret_key,
+        AWS_REGION=s3_server.region,
+        AWS_EC2_METADATA_DISABLED="true",
+        LINKS_NB_S3_URI=f"s3://{bucket}/run",
+        LINKS_NB_MECHANISMS="100",
+    )
+    notebook, seconds = run_notebook("03_cluster_and_s3", tmp_path, env)
+    print(f"03_cluster_and_s3 on the session's store: {seconds:.1f} s")
+    client = boto3.client(
+        "s3",
+        endpoint_url=s3_server.endpoint,
+        aws_access_key_id=s3_server.access_key,
+        aws_secret_access_key=s3_server.secret_key,
+        region_name=s3_server.region,
+    )
+    listed = client.list_objects_v2(Bucket=bucket, Prefix="run/_links/")
+    names = {item["Key"].rsplit("/", 1)[-1] for item in listed.get("Contents", [])}
+    assert {"run.json", "summary.json", "curation_summary.json"} <= names
+    assert s3_server.secret_key not in outputs_text(notebook)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_notebook_is_stored_without_outputs(name: str) -> None:
+    notebook = nbformat.read(NOTEBOOKS / f"{name}.ipynb", as_version=4)
+    nbformat.validate(notebook)
+    code = [cell for cell in notebook.cells if cell.cell_type == "code"]
+    assert code, "a notebook without code"
+    for cell in code:
+        assert cell.outputs == [], f"cell {cell.get('id')} has outputs"
+        assert cell.execution_count is None, f"cell {cell.get('id')} has an execution count"
+    # The first code cell holds the sizes, read from the environment for real runs.
+    assert "LINKS_NB_MECHANISMS" in code[0].source
