@@ -5,7 +5,9 @@
 | `GET /api/health` | `{"status": "ok", "paths": <indexed paths>}` |
 | `POST /api/simulate` | 200 `{"trajectories"}`, 422 `{"error": "locking", "step", "node"}` |
 | `POST /api/retrieve` | 200 `{"results", "took_ms"}`, best first |
-| `GET /` | a placeholder page until the web studio arrives |
+| `POST /api/analyze` | 200 the studio's analysis: mobility, dyadic solvability, where it locks |
+| `GET /` | the web studio (`links_ray/studio/index.html`) |
+| `GET /studio/<file>` | the studio's scripts and style sheet, from the package |
 
 Every bad request gets a 4xx with a JSON `{"error": "<what is wrong>"}`: 400 for malformed
 input, 404/405 for unknown routes and methods, 413 for a body over `MAX_BODY_BYTES` or a
@@ -19,6 +21,8 @@ its fallback without TBB or OpenMP, cannot take concurrent callers), in a worker
 health checks and simulations are answered meanwhile.
 """
 
+import functools
+import importlib.resources
 import json
 import logging
 import math
@@ -38,7 +42,13 @@ from starlette.requests import ClientDisconnect
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from links_ray.dataset import open_table
-from links_ray.mechanism import LockingError
+from links_ray.mechanism import (
+    FIXED,
+    InvalidMechanismError,
+    LockingError,
+    analyze_topology,
+    dataset_rule_violations,
+)
 from links_ray.retrieval import (
     MAX_COORDINATE,
     MAX_K,
@@ -47,7 +57,7 @@ from links_ray.retrieval import (
     MIN_POINTS,
     RetrievalIndex,
 )
-from links_ray.solver import simulate
+from links_ray.solver import simulate, simulate_until_lock
 
 logger = logging.getLogger("ray.serve")
 
@@ -61,17 +71,43 @@ DEFAULT_STEPS = 200
 MAX_STEPS = 100_000
 DEFAULT_K = 3
 
-STUDIO_PLACEHOLDER = """<!doctype html>
-<html lang="en">
-<head><meta charset="utf-8"><title>links-ray</title></head>
-<body>
-<h1>links-ray</h1>
-<p>links-ray: the studio arrives here; API under <code>/api</code>
-(<a href="/api/health">/api/health</a>, <code>POST /api/simulate</code>,
-<code>POST /api/retrieve</code>).</p>
-</body>
-</html>
-"""
+#: The studio's files (plain HTML, CSS and JavaScript modules; no build step) and their types.
+STUDIO_MEDIA_TYPES = {
+    ".html": "text/html; charset=utf-8",
+    ".css": "text/css; charset=utf-8",
+    ".js": "text/javascript; charset=utf-8",
+}
+#: Same-origin only: no inline scripts or styles, no third-party requests.
+STUDIO_CSP = (
+    "default-src 'self'; img-src 'self' data: blob:; object-src 'none'; base-uri 'none'; "
+    "form-action 'none'; frame-ancestors 'none'"
+)
+
+
+@functools.cache
+def studio_files() -> dict[str, tuple[bytes, str]]:
+    """The studio's files by name, as (content, media type), read once from the package."""
+    folder = importlib.resources.files("links_ray") / "studio"
+    files = {}
+    for entry in folder.iterdir():
+        media_type = STUDIO_MEDIA_TYPES.get("." + entry.name.rpartition(".")[2])
+        if entry.is_file() and media_type is not None:
+            files[entry.name] = (entry.read_bytes(), media_type)
+    if "index.html" not in files:
+        raise FileNotFoundError(f"the studio's index.html is missing from {folder}")
+    return files
+
+
+def studio_response(name: str) -> Response:
+    """One studio file, or 404 `{"error"}` for a name the studio does not have."""
+    found = studio_files().get(name)
+    if found is None:
+        raise ApiError(404, f"the studio has no file {name[:80]!r}")
+    content, media_type = found
+    headers = {"Cache-Control": "no-cache", "X-Content-Type-Options": "nosniff"}
+    if name.endswith(".html"):
+        headers["Content-Security-Policy"] = STUDIO_CSP
+    return Response(content, media_type=media_type, headers=headers)
 
 
 class ApiError(Exception):
@@ -317,15 +353,10 @@ def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int]:
     return array, _integer(body, "k", DEFAULT_K, 1, MAX_K)
 
 
-def simulate_args(body: dict[str, Any]) -> tuple[list, list, list, int]:
-    """(adjacency, node_types, positions, steps) of a /api/simulate body, shapes checked.
-
-    The engine checks the rest (0/1 links, symmetry, joint types, solvability) and names
-    what is wrong.
-    """
+def topology_args(body: dict[str, Any]) -> tuple[list, list]:
+    """(adjacency, node_types) of a /api/simulate or /api/analyze body, shapes checked."""
     adjacency = _required(body, "adjacency")
     node_types = _required(body, "node_types")
-    positions = _required(body, "positions")
     if not isinstance(adjacency, list) or not adjacency:
         raise ApiError(400, f"adjacency must be an n x n array of 0/1, got {_kind(adjacency)}")
     n = len(adjacency)
@@ -350,7 +381,18 @@ def simulate_args(body: dict[str, Any]) -> tuple[list, list, list, int]:
     for i, entry in enumerate(node_types):
         if not _is_number(entry):
             raise ApiError(400, f"node_types[{i}] must be 0, 1 or 2, got {_kind(entry)}")
-    _pairs("positions", positions, count=n)
+    return adjacency, node_types
+
+
+def simulate_args(body: dict[str, Any]) -> tuple[list, list, list, int]:
+    """(adjacency, node_types, positions, steps) of a /api/simulate body, shapes checked.
+
+    The engine checks the rest (0/1 links, symmetry, joint types, solvability) and names
+    what is wrong.
+    """
+    adjacency, node_types = topology_args(body)
+    n = len(adjacency)
+    positions = _pairs("positions", _required(body, "positions"), count=n)
     steps = _integer(body, "steps", DEFAULT_STEPS, 1, MAX_STEPS)
     if n * steps > MAX_JOINT_STEPS:
         raise ApiError(
@@ -359,6 +401,38 @@ def simulate_args(body: dict[str, Any]) -> tuple[list, list, list, int]:
             f"the limit is {MAX_JOINT_STEPS} joint-steps",
         )
     return adjacency, node_types, positions, steps
+
+
+def analyze_mechanism(
+    adjacency: list, node_types: list, positions: list | None, steps: int
+) -> dict[str, Any]:
+    """The studio's analysis of a mechanism, from the engine's own checks.
+
+    Always: `joints`, `moving`, `links`, `dof` (2 x moving - links), `solvable` (dyadic),
+    `problem` (the engine's message, or None), `order` (the solution path as [joint, a, b]
+    rows) and `dataset_rules` (the SPEC section 1 rules it breaks). With positions and a
+    solvable topology also `lock` (None, or `step`, `node` and `angle`, the crank's turn in
+    degrees) and, when it locks, `trajectories` [n][step][2] of the steps before the lock.
+    Raises InvalidMechanismError for degenerate positions, as /api/simulate does.
+    """
+    n = len(node_types)
+    moving = sum(1 for kind in node_types if kind != FIXED)
+    links = sum(1 for i in range(n) for j in range(i + 1, n) if adjacency[i][j])
+    found: dict[str, Any] = {"joints": n, "moving": moving, "links": links}
+    found["dof"] = 2 * moving - links
+    try:
+        topology = analyze_topology(adjacency, node_types)
+    except InvalidMechanismError as exc:
+        return {**found, "solvable": False, "problem": str(exc), "order": [], "lock": None}
+    found.update(solvable=True, problem=None, order=topology.order.tolist(), lock=None)
+    pose = None if positions is None else np.asarray(positions, dtype=np.float64)
+    found["dataset_rules"] = dataset_rule_violations(topology, pose)
+    if positions is not None:
+        trajectories, step, node = simulate_until_lock(adjacency, node_types, positions, steps)
+        if step >= 0:
+            found["lock"] = {"step": step, "node": node, "angle": 360.0 * step / steps}
+            found["trajectories"] = trajectories.tolist()
+    return found
 
 
 def _simulate_lists(adjacency: list, node_types: list, positions: list, steps: int) -> list:
@@ -377,11 +451,17 @@ class LinksApi:
         self.root = root
         self.index = RetrievalIndex.open(root)
         self._retrieving = threading.Lock()
+        studio_files()  # a package without the studio fails here, not on a user's first visit
 
     @api.get("/", response_class=HTMLResponse)
-    async def api_studio(self) -> HTMLResponse:
-        """Placeholder page where the web studio will be."""
-        return HTMLResponse(STUDIO_PLACEHOLDER)
+    async def api_studio(self) -> Response:
+        """The web studio's page."""
+        return studio_response("index.html")
+
+    @api.get("/studio/{name}")
+    async def api_studio_file(self, name: str) -> Response:
+        """One of the studio's scripts or its style sheet; 404 for any other name."""
+        return studio_response(name)
 
     @api.get("/api/health")
     async def api_health(self) -> JsonResponse:
@@ -399,6 +479,21 @@ class LinksApi:
         except ValueError as exc:  # InvalidMechanismError names the problem
             raise ApiError(400, str(exc)) from None
         return JsonResponse({"trajectories": trajectories})
+
+    @api.post("/api/analyze")
+    async def api_analyze(self, request: Request) -> JsonResponse:
+        """Degree of freedom, dyadic solvability and, given positions, where it locks."""
+        body = await read_json_object(request)
+        if body.get("positions") is None:
+            adjacency, node_types = topology_args(body)
+            args = (adjacency, node_types, None, DEFAULT_STEPS)
+        else:
+            args = simulate_args(body)
+        try:
+            found = await run_in_threadpool(analyze_mechanism, *args)
+        except ValueError as exc:  # degenerate positions: named as /api/simulate names them
+            raise ApiError(400, str(exc)) from None
+        return JsonResponse(found)
 
     @api.post("/api/retrieve")
     async def api_retrieve(self, request: Request) -> JsonResponse:

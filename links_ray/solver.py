@@ -322,3 +322,37 @@ def simulate(
     if lock_step[0] >= 0:
         raise LockingError(int(lock_step[0]), int(lock_node[0]))
     return trajectories[0]
+
+
+def simulate_until_lock(
+    adjacency: ArrayLike,
+    node_types: ArrayLike,
+    positions: ArrayLike,
+    steps: int = DEFAULT_STEPS,
+) -> tuple[np.ndarray, int, int]:
+    """Trajectories (n, s, 2) of the steps before the first lock, and that lock's (step, joint).
+
+    Without a lock, s = steps and the lock is (-1, -1). Malformed input raises
+    `InvalidMechanismError` as `simulate` does.
+    """
+    simulator = TopologySimulator(adjacency, node_types)
+    positions = as_positions(positions, simulator.n_joints)[None]
+    positions, steps = simulator._prepare(positions, steps)
+    trajectories, lock_step, lock_node = simulator.run(positions, steps)
+    step, node = int(lock_step[0]), int(lock_node[0])
+    if step < 0:
+        return trajectories[0], -1, -1
+    # Every step before the first lock assembles: solve just those, on the same crank angles.
+    before = np.empty((1, simulator.n_joints, step, 2))
+    topology = simulator.topology
+    simulate_candidates(
+        topology.order,
+        topology.fixed_joints,
+        positions,
+        simulator.crank(steps)[:step],
+        True,
+        before,
+        np.empty(1, dtype=np.int64),
+        np.empty(1, dtype=np.int64),
+    )
+    return before[0], step, node

@@ -22,8 +22,10 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
+from typing import Any
 
 import pytest
+from serving import Client, free_port
 
 S3_REGION = "us-east-1"
 STARTUP_TIMEOUT_S = 30.0
@@ -337,3 +339,45 @@ def ray_cluster(s3_server: S3Server) -> Iterator[str]:
     ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING")
     yield ray.get_runtime_context().gcs_address
     ray.shutdown()
+
+
+# -- the Serve app (test_serve.py, test_studio.py) -------------------------------------------
+
+
+@pytest.fixture(scope="session")
+def dataset(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> str:
+    """300 mechanisms, generated and curated, for the Serve app's tests."""
+    from links_ray.curation import curate
+    from links_ray.generation import generate
+
+    out = str(tmp_path_factory.mktemp("serve") / "links")
+    generate(out, 300, seed=5, progress=False, topologies_per_shard=10)
+    curate(out, progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def client(dataset: str) -> Iterator[Client]:
+    """The links app on a free loopback port for one test module; Serve shut down after."""
+    from ray import serve
+
+    from links_ray.serve_app import build_app
+
+    port = free_port()
+    no_access_log = {"enable_access_log": False}
+    start = time.perf_counter()
+    serve.start(http_options={"host": "127.0.0.1", "port": port}, logging_config=no_access_log)
+    try:
+        serve.run(build_app(dataset), name="links", route_prefix="/", logging_config=no_access_log)
+        print(f"\nServe app ready on 127.0.0.1:{port} in {time.perf_counter() - start:.1f} s")
+        yield Client(port)
+    finally:
+        serve.shutdown()
+
+
+@pytest.fixture(scope="session")
+def curated(dataset: str) -> Any:
+    """The curated paths of `dataset`: path ids and their points (steps, 2)."""
+    import links_ray
+
+    return links_ray.load(dataset, "curated", columns=["path_id", "points"], reshape=True)

@@ -1,33 +1,26 @@
 """The Ray Serve app (SPEC section 5) on real Ray, over real HTTP on loopback.
 
-One small dataset (300 mechanisms, generated and curated) and one Serve application serve the
-whole module; every request goes through Serve's HTTP proxy with `http.client`.
+One small dataset (300 mechanisms, generated and curated; `dataset` in conftest.py) and one
+Serve application (`client`) serve the whole module; every request goes through Serve's HTTP
+proxy with `http.client`. The studio's page and files are tested in test_studio.py.
 """
 
 import http.client
 import importlib
 import json
-import socket
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 import yaml
+from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client, free_port
 
 import links_ray
 
 REPO = Path(__file__).resolve().parents[1]
-FOUR_BAR = {
-    "adjacency": [[0, 1, 0, 0], [1, 0, 0, 1], [0, 0, 0, 1], [0, 1, 1, 0]],
-    "node_types": [0, 2, 0, 1],
-    "positions": [[0.5, 0.5], [0.55, 0.5], [0.8, 0.5], [0.6, 0.7]],
-}
-#: The coupler (1-3) and rocker (2-3) are too short to span joints 1 and 2 over a full turn.
-LOCKING_FOUR_BAR = {**FOUR_BAR, "positions": [[0.5, 0.5], [0.55, 0.5], [0.62, 0.5], [0.585, 0.52]]}
 RESULT_FIELDS = {
     "path_id",
     "mechanism_id",
@@ -37,95 +30,6 @@ RESULT_FIELDS = {
     "mechanism",
     "mechanism_joint",
 }
-
-
-class Client:
-    """A tiny JSON client for one server: a fresh connection per request unless given one."""
-
-    def __init__(self, port: int) -> None:
-        self.port = port
-
-    def request(
-        self,
-        method: str,
-        path: str,
-        body: bytes | Any = None,
-        headers: dict[str, str] | None = None,
-        connection: http.client.HTTPConnection | None = None,
-        chunked: bool = False,
-    ) -> tuple[int, dict[str, str], Any]:
-        """(status, headers, JSON body or text) of one request."""
-        headers = dict(headers or {})
-        if body is not None and not isinstance(body, bytes):
-            body = json.dumps(body).encode()
-        if body is not None:
-            headers.setdefault("Content-Type", "application/json")
-        conn = connection or http.client.HTTPConnection("127.0.0.1", self.port, timeout=60)
-        try:
-            if chunked:
-                pieces = [body[i : i + 65536] for i in range(0, len(body), 65536)]
-                conn.request(method, path, body=iter(pieces), headers=headers, encode_chunked=True)
-            else:
-                conn.request(method, path, body=body, headers=headers)
-            response = conn.getresponse()
-            raw = response.read()
-            reply_headers = {k.lower(): v for k, v in response.getheaders()}
-        finally:
-            if connection is None:
-                conn.close()
-        if reply_headers.get("content-type", "").startswith("application/json"):
-            return response.status, reply_headers, json.loads(raw)
-        return response.status, reply_headers, raw.decode()
-
-    def get(self, path: str) -> tuple[int, Any]:
-        status, _, data = self.request("GET", path)
-        return status, data
-
-    def post(self, path: str, body: Any) -> tuple[int, Any]:
-        status, _, data = self.request("POST", path, body)
-        return status, data
-
-
-@pytest.fixture(scope="module")
-def dataset(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> str:
-    """300 mechanisms, generated and curated."""
-    from links_ray.curation import curate
-    from links_ray.generation import generate
-
-    out = str(tmp_path_factory.mktemp("serve") / "links")
-    generate(out, 300, seed=5, progress=False, topologies_per_shard=10)
-    curate(out, progress=False)
-    return out
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-@pytest.fixture(scope="module")
-def client(dataset: str) -> Iterator[Client]:
-    """The links app on a free loopback port for the whole module; Serve shut down after."""
-    from ray import serve
-
-    from links_ray.serve_app import build_app
-
-    port = _free_port()
-    no_access_log = {"enable_access_log": False}
-    start = time.perf_counter()
-    serve.start(http_options={"host": "127.0.0.1", "port": port}, logging_config=no_access_log)
-    try:
-        serve.run(build_app(dataset), name="links", route_prefix="/", logging_config=no_access_log)
-        print(f"\nServe app ready on 127.0.0.1:{port} in {time.perf_counter() - start:.1f} s")
-        yield Client(port)
-    finally:
-        serve.shutdown()
-
-
-@pytest.fixture(scope="module")
-def curated(dataset: str) -> Any:
-    return links_ray.load(dataset, "curated", columns=["path_id", "points"], reshape=True)
 
 
 def _post(client: Client, path: str, body: Any) -> tuple[int, Any]:
@@ -139,13 +43,6 @@ def _post(client: Client, path: str, body: Any) -> tuple[int, Any]:
 
 def test_health_counts_the_curated_paths(client: Client, curated: Any) -> None:
     assert client.get("/api/health") == (200, {"status": "ok", "paths": len(curated)})
-
-
-def test_root_is_a_placeholder_page(client: Client) -> None:
-    status, headers, text = client.request("GET", "/")
-    assert status == 200
-    assert headers["content-type"].startswith("text/html")
-    assert "links-ray" in text and "/api" in text
 
 
 @pytest.mark.parametrize("steps", [None, 50, 1])
@@ -495,7 +392,7 @@ def test_serve_cli_refuses_a_root_without_curated_paths(
     """One line and exit status 2, before Ray or Serve is touched."""
     from links_ray.cli import main
 
-    assert main(["serve", str(tmp_path / "nothing"), "--port", str(_free_port())]) == 2
+    assert main(["serve", str(tmp_path / "nothing"), "--port", str(free_port())]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "no curated table" in err
 

@@ -1,0 +1,83 @@
+// Talking to the links-ray HTTP API (SPEC section 5). Every failure becomes a sentence the page
+// can show: the server's own `error` message when it sent one.
+
+/** POST a JSON body; resolves to {status, data, ms} for any HTTP answer, rejects on no answer. */
+export async function postJson(path, body) {
+  const started = performance.now();
+  const response = await send(path, {
+    method: "POST",
+    headers: { "Content-Type": "application/json" },
+    body: JSON.stringify(body),
+  });
+  const data = await readJson(response);
+  return { status: response.status, data, ms: performance.now() - started };
+}
+
+/** GET a JSON document; as postJson. */
+export async function getJson(path) {
+  const started = performance.now();
+  const response = await send(path, {});
+  const data = await readJson(response);
+  return { status: response.status, data, ms: performance.now() - started };
+}
+
+async function send(path, options) {
+  try {
+    return await fetch(path, options);
+  } catch (err) {
+    throw new Error(`cannot reach the links-ray server (${err.message})`);
+  }
+}
+
+async function readJson(response) {
+  const text = await response.text();
+  try {
+    return text ? JSON.parse(text) : null;
+  } catch {
+    return null; // not JSON: `explain` says so with the status
+  }
+}
+
+/** The words for an answer that is not a success. */
+export function explain(answer) {
+  const message = answer.data && typeof answer.data.error === "string" ? answer.data.error : "";
+  if (message) return `${message} (HTTP ${answer.status})`;
+  return answer.status === 200
+    ? "the server's answer was not the JSON expected"
+    : `the server answered HTTP ${answer.status} without an explanation`;
+}
+
+/**
+ * Runs jobs one at a time, keeping only the newest waiting job. While a request is in flight,
+ * newer jobs replace each other; when it returns, the latest one is sent. A drag then lags by
+ * at most one round trip and never builds a queue of stale requests.
+ */
+export class Latest {
+  constructor(run) {
+    this.run = run; // async (job) => void; must handle its own errors
+    this.waiting = null;
+    this.busy = false;
+  }
+
+  push(job) {
+    this.waiting = job;
+    if (!this.busy) this.next();
+  }
+
+  get idle() {
+    return !this.busy && this.waiting === null;
+  }
+
+  async next() {
+    const job = this.waiting;
+    this.waiting = null;
+    if (job === null) return;
+    this.busy = true;
+    try {
+      await this.run(job);
+    } finally {
+      this.busy = false;
+      if (this.waiting !== null) this.next();
+    }
+  }
+}

@@ -1,0 +1,281 @@
+// Draw to retrieve: the user draws a curve, POST /api/retrieve finds curated paths of that
+// shape, and a chosen result's mechanism (already moved into the drawing's frame by the
+// server) is simulated and animated over the curve.
+
+import { explain, postJson } from "./api.js";
+import { parseMechanism } from "./mechanism.js";
+import {
+  COLORS,
+  View,
+  bounds,
+  drawGrid,
+  drawMechanism,
+  drawPaths,
+  drawPolyline,
+  trackSize,
+} from "./view.js";
+
+const STEPS = 200;
+const STEPS_PER_SECOND = 50;
+const MIN_SPACING_PX = 2; // finer than this only adds points, not shape
+const MAX_DRAWN_POINTS = 5000; // the API takes up to 10,000
+const UNIT = { minX: 0, minY: 0, maxX: 1, maxY: 1 };
+
+export class Retriever {
+  /** `ui`: retrieve, clear, open, k, status, list; `editor` receives "Open in editor". */
+  constructor({ canvas, ui, notify, editor }) {
+    this.canvas = canvas;
+    this.ui = ui;
+    this.notify = notify;
+    this.editor = editor;
+    this.view = new View();
+    this.points = []; // the drawn curve, world coordinates (the editor's frame)
+    this.drawing = null; // pointer id while a stroke is under way
+    this.results = [];
+    this.chosen = null; // {index, result, trajectories}
+    this.frame = 0;
+    this.ctx = trackSize(canvas, (width, height) => {
+      this.view.width = width;
+      this.view.height = height;
+      this.fitView();
+      this.paint();
+    });
+    canvas.addEventListener("pointerdown", (e) => this.pointerDown(e));
+    canvas.addEventListener("pointermove", (e) => this.pointerMove(e));
+    canvas.addEventListener("pointerup", (e) => this.pointerUp(e));
+    canvas.addEventListener("pointercancel", (e) => this.pointerUp(e));
+    ui.retrieve.addEventListener("click", () => this.retrieve());
+    ui.clear.addEventListener("click", () => this.clear());
+    ui.open.addEventListener("click", () => this.openInEditor());
+  }
+
+  say(text, bad = false) {
+    this.ui.status.textContent = text;
+    this.ui.status.classList.toggle("bad", bad);
+  }
+
+  /** The unit square while drawing; the curve and the chosen mechanism once there is one. */
+  fitView() {
+    if (this.chosen) {
+      this.view.fit(bounds(this.points, ...this.chosen.trajectories), 0.2, 0.06);
+    } else {
+      this.view.fit(UNIT, 1, 0.04);
+    }
+  }
+
+  // -- drawing the curve --------------------------------------------------------------------
+
+  local(e) {
+    const rect = this.canvas.getBoundingClientRect();
+    return [e.clientX - rect.left, e.clientY - rect.top];
+  }
+
+  pointerDown(e) {
+    if (e.button !== undefined && e.button > 0) return;
+    if (this.drawing !== null) return; // one finger draws; a second is ignored
+    this.canvas.setPointerCapture(e.pointerId);
+    this.drawing = e.pointerId;
+    this.stop();
+    this.results = [];
+    this.renderResults();
+    this.fitView(); // back to the drawing frame if a result had zoomed out
+    const [sx, sy] = this.local(e);
+    this.points = [this.view.toWorld(sx, sy)];
+    this.lastScreen = [sx, sy];
+    this.say("Drawing…");
+    this.paint();
+  }
+
+  pointerMove(e) {
+    if (e.pointerId !== this.drawing) return;
+    // Coalesced events carry the points a fast stroke would otherwise skip.
+    const events = e.getCoalescedEvents ? e.getCoalescedEvents() : [];
+    for (const event of events.length ? events : [e]) {
+      const [sx, sy] = this.local(event);
+      const [lx, ly] = this.lastScreen;
+      if (Math.hypot(sx - lx, sy - ly) < MIN_SPACING_PX) continue;
+      if (this.points.length >= MAX_DRAWN_POINTS) break;
+      this.points.push(this.view.toWorld(sx, sy));
+      this.lastScreen = [sx, sy];
+    }
+    this.paint();
+  }
+
+  pointerUp(e) {
+    if (e.pointerId !== this.drawing) return;
+    this.drawing = null;
+    this.say(`${this.points.length} points drawn: press “Find mechanisms”.`);
+    this.paint();
+  }
+
+  clear() {
+    this.stop();
+    this.points = [];
+    this.results = [];
+    this.renderResults();
+    this.fitView();
+    this.say("");
+    this.paint();
+  }
+
+  // -- retrieval ----------------------------------------------------------------------------
+
+  async retrieve() {
+    if (!this.points.length) {
+      this.say("Draw a curve first: press and drag on the drawing area.", true);
+      return;
+    }
+    const k = this.ui.k.valueAsNumber;
+    const body = { points: this.points, ...(Number.isFinite(k) ? { k } : {}) };
+    this.ui.retrieve.disabled = true;
+    this.say("Searching…");
+    try {
+      const answer = await postJson("/api/retrieve", body);
+      if (answer.status !== 200 || !answer.data || !Array.isArray(answer.data.results)) {
+        this.say(`Retrieval failed: ${explain(answer)}`, true);
+        return;
+      }
+      this.stop();
+      this.results = answer.data.results;
+      this.renderResults();
+      const count = this.results.length;
+      this.say(
+        count
+          ? `${count} mechanisms, best first (search ${answer.data.took_ms.toFixed(0)} ms, ` +
+              `round trip ${answer.ms.toFixed(0)} ms). Choose one to watch it trace your curve.`
+          : "No curated paths to compare with: the dataset is empty.",
+      );
+    } catch (err) {
+      this.say(`Retrieval failed: ${err.message}`, true);
+      this.notify(`Retrieval failed: ${err.message}`, "network");
+    } finally {
+      this.ui.retrieve.disabled = false;
+    }
+  }
+
+  renderResults() {
+    const list = this.ui.list;
+    list.replaceChildren();
+    this.results.forEach((result, i) => {
+      const item = document.createElement("li");
+      item.dataset.testid = "result";
+      item.dataset.chamfer = String(result.chamfer);
+      const button = document.createElement("button");
+      button.type = "button";
+      button.setAttribute("aria-pressed", "false");
+      const thumb = document.createElement("canvas");
+      thumb.setAttribute("aria-hidden", "true");
+      const text = document.createElement("span");
+      const chamfer = document.createElement("span");
+      chamfer.className = "chamfer";
+      chamfer.textContent = `#${i + 1}  chamfer ${result.chamfer.toPrecision(4)}`;
+      const meta = document.createElement("span");
+      meta.className = "meta";
+      const n = result.mechanism.node_types.length;
+      meta.textContent =
+        ` · mechanism ${result.mechanism_id}, joint ${result.joint} ` +
+        `(${n} joints after reduction)`;
+      text.append(chamfer, meta);
+      button.append(thumb, text);
+      button.addEventListener("click", () => this.choose(i));
+      item.append(button);
+      list.append(item);
+      drawThumbnail(thumb, result.points);
+    });
+    this.ui.open.disabled = true;
+  }
+
+  /** Simulate result `i`'s mechanism and animate it over the drawn curve. */
+  async choose(i) {
+    const result = this.results[i];
+    this.ui.list.querySelectorAll("button").forEach((button, j) => {
+      button.setAttribute("aria-pressed", String(i === j));
+    });
+    this.say(`Simulating result #${i + 1}…`);
+    try {
+      const answer = await postJson("/api/simulate", { ...result.mechanism, steps: STEPS });
+      if (answer.status !== 200 || !answer.data || !answer.data.trajectories) {
+        this.say(`Cannot animate result #${i + 1}: ${explain(answer)}`, true);
+        return;
+      }
+      if (this.results[i] !== result) return; // a newer search replaced the list meanwhile
+      this.chosen = { index: i, result, trajectories: answer.data.trajectories };
+    } catch (err) {
+      this.say(`Cannot animate result #${i + 1}: ${err.message}`, true);
+      return;
+    }
+    this.ui.open.disabled = false;
+    this.fitView();
+    this.say(
+      `Result #${i + 1}: joint ${result.mechanism_joint} (thick) traces your curve ` +
+        `(grey) with chamfer ${result.chamfer.toPrecision(4)}.`,
+    );
+    this.start();
+  }
+
+  openInEditor() {
+    if (!this.chosen) return;
+    try {
+      this.editor.load(parseMechanism(this.chosen.result.mechanism));
+    } catch (err) {
+      this.say(`Cannot open it: ${err.message}`, true);
+      return;
+    }
+    this.editor.canvas.scrollIntoView({ behavior: "smooth", block: "center" });
+    this.editor.canvas.focus({ preventScroll: true });
+  }
+
+  // -- animation ----------------------------------------------------------------------------
+
+  start() {
+    const chosen = this.chosen;
+    let last = performance.now();
+    this.frame = 0;
+    this.canvas.dataset.animating = "true";
+    const tick = (now) => {
+      if (this.chosen !== chosen) return; // stopped, or another result was chosen
+      // rAF's timestamp can precede `last`, taken when the loop started: never step back.
+      this.frame = (this.frame + (Math.max(now - last, 0) / 1000) * STEPS_PER_SECOND) % STEPS;
+      last = now;
+      this.canvas.dataset.frame = String(Math.floor(this.frame));
+      this.paint();
+      requestAnimationFrame(tick);
+    };
+    requestAnimationFrame(tick);
+  }
+
+  stop() {
+    this.chosen = null;
+    this.canvas.dataset.animating = "false";
+    this.ui.open.disabled = true;
+  }
+
+  paint() {
+    const { ctx, view } = this;
+    ctx.clearRect(0, 0, view.width, view.height);
+    drawGrid(ctx, view);
+    drawPolyline(ctx, view, this.points, COLORS.curve, 7);
+    if (!this.chosen) return;
+    const { result, trajectories } = this.chosen;
+    const mech = result.mechanism;
+    const t = Math.floor(this.frame);
+    drawPaths(ctx, view, mech, trajectories, { emphasize: result.mechanism_joint });
+    const pose = trajectories.map((path) => path[t]);
+    drawMechanism(ctx, view, mech, pose, { selected: result.mechanism_joint, labels: false });
+  }
+}
+
+/** A result's normalized path in a small canvas. */
+function drawThumbnail(canvas, points) {
+  const size = 56;
+  const ratio = window.devicePixelRatio || 1;
+  canvas.width = size * ratio;
+  canvas.height = size * ratio;
+  const ctx = canvas.getContext("2d");
+  ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
+  const view = new View();
+  view.width = size;
+  view.height = size;
+  view.fit(bounds(points), 0.05, 0.1);
+  drawPolyline(ctx, view, points, COLORS.select, 1.5);
+}

@@ -1,0 +1,155 @@
+// The studio page: wires the editor, the draw-to-retrieve panel and the save/share buttons,
+// and shows every failure in words in the error banner or next to what failed.
+
+import { explain, getJson } from "./api.js";
+import { Editor } from "./editor.js";
+import { download, mechanismJson, mechanismSvg, readMechanismFile, sharedMechanism, shareUrl } from "./files.js";
+import { Retriever } from "./retrieve.js";
+
+const $ = (id) => document.getElementById(id);
+
+// The banner holds one message per source, so clearing a network error does not hide another.
+const banner = $("error");
+const messages = new Map();
+function notify(message, source = "page") {
+  if (message) messages.set(source, message);
+  else messages.delete(source);
+  banner.textContent = [...messages.values()].join(" ");
+  banner.hidden = messages.size === 0;
+}
+banner.addEventListener("click", () => {
+  messages.clear();
+  notify("");
+});
+
+// Nothing fails silently: whatever escapes a handler reaches the banner too.
+window.addEventListener("error", (e) => notify(`Unexpected error: ${e.message}`, "unexpected"));
+window.addEventListener("unhandledrejection", (e) => {
+  const reason = e.reason && e.reason.message ? e.reason.message : String(e.reason);
+  notify(`Unexpected error: ${reason}`, "unexpected");
+});
+
+const editor = new Editor({
+  canvas: $("studio-canvas"),
+  notify,
+  ui: {
+    hint: $("hint"),
+    play: $("play"),
+    crank: $("crank"),
+    crankValue: $("crank-value"),
+    dof: $("dof"),
+    solvable: $("solvable"),
+    status: $("status"),
+    latency: $("latency"),
+    rules: $("rules"),
+    lock: $("lock"),
+    undo: $("undo"),
+    redo: $("redo"),
+    tools: [...document.querySelectorAll("[data-tool]")],
+  },
+});
+
+const retriever = new Retriever({
+  canvas: $("draw-canvas"),
+  notify,
+  editor,
+  ui: {
+    retrieve: $("retrieve"),
+    clear: $("clear-drawing"),
+    open: $("open-in-editor"),
+    k: $("k"),
+    status: $("retrieve-status"),
+    list: $("results"),
+  },
+});
+
+for (const button of document.querySelectorAll("[data-tool]")) {
+  button.addEventListener("click", () => editor.setTool(button.dataset.tool));
+}
+$("undo").addEventListener("click", () => editor.undo());
+$("redo").addEventListener("click", () => editor.redo());
+$("new").addEventListener("click", () => editor.reset());
+$("fit").addEventListener("click", () => editor.fit());
+$("play").addEventListener("click", () => editor.setPlaying(!editor.playing));
+$("crank").addEventListener("input", (e) => {
+  editor.setPlaying(false); // the user has taken the crank
+  editor.setStep(Number(e.target.value));
+});
+
+// -- save and share ---------------------------------------------------------------------------
+
+$("export-json").addEventListener("click", () => {
+  download("mechanism.json", mechanismJson(editor.current()), "application/json");
+});
+$("export-svg").addEventListener("click", () => {
+  const sim = editor.sim;
+  const trajectories = sim.version === editor.version ? editor.trajectories() : null;
+  const lock = sim.state === "locking" ? sim.lock : null;
+  download("mechanism.svg", mechanismSvg(editor.current(), trajectories, lock), "image/svg+xml");
+  if (!trajectories) notify("The SVG has no paths: the mechanism is not simulated yet.", "export");
+  else notify("", "export");
+});
+$("import-json").addEventListener("click", () => $("import-file").click());
+$("import-file").addEventListener("change", async (e) => {
+  const file = e.target.files[0];
+  e.target.value = ""; // choosing the same file again still fires a change
+  if (!file) return;
+  try {
+    editor.load(await readMechanismFile(file));
+    notify("", "import");
+  } catch (err) {
+    notify(`Import failed: ${err.message}`, "import");
+  }
+});
+$("share").addEventListener("click", async () => {
+  const url = shareUrl(editor.current());
+  history.replaceState(null, "", url);
+  try {
+    await navigator.clipboard.writeText(url);
+    editor.refuse("Link copied: it opens this mechanism in the studio.");
+  } catch {
+    editor.refuse("The page address now holds this mechanism: copy it from the address bar.");
+  }
+});
+
+// -- keyboard ---------------------------------------------------------------------------------
+
+document.addEventListener("keydown", (e) => {
+  const target = e.target;
+  if (target instanceof HTMLInputElement || target instanceof HTMLTextAreaElement) return;
+  if (target instanceof HTMLButtonElement && (e.key === " " || e.key === "Enter")) return;
+  if (editor.key(e)) e.preventDefault();
+});
+
+// -- start ------------------------------------------------------------------------------------
+
+try {
+  const shared = sharedMechanism();
+  if (shared) editor.load(shared);
+} catch (err) {
+  notify(`The shared link could not be opened: ${err.message}`, "share");
+}
+
+getJson("/api/health")
+  .then((answer) => {
+    const health = $("health");
+    if (answer.status === 200) {
+      health.textContent = `${answer.data.paths.toLocaleString("en")} curated paths to search`;
+    } else {
+      health.textContent = "server unhealthy";
+      notify(`Health check failed: ${explain(answer)}`, "health");
+    }
+  })
+  .catch((err) => notify(`Health check failed: ${err.message}`, "health"));
+
+// For scripts and the browser tests: the live state, read-only by convention.
+window.studio = {
+  editor,
+  retriever,
+  mechanism: () => editor.current(),
+  trajectories: () => editor.trajectories(),
+  toScreen: (p) => editor.view.toScreen(p),
+  drawToScreen: (p) => retriever.view.toScreen(p),
+  latencies: () => editor.latencies.slice(),
+  idle: () => editor.idle,
+};

@@ -1,0 +1,578 @@
+"""The web studio, in a real browser against the real Serve app.
+
+Debian's Chromium (`/usr/bin/chromium`, or LINKS_CHROMIUM) is driven by Playwright with real
+mouse events on the page the `client` fixture serves (a 300-mechanism dataset, see conftest.py).
+Numbers the page shows are read from `window.studio` and checked against `links_ray` in Python.
+
+Screenshots go to pytest's temporary folder, or to the folder LINKS_STUDIO_SCREENSHOTS names:
+`LINKS_STUDIO_SCREENSHOTS=docs python -m pytest -q tests/test_studio.py` refreshes the README's.
+"""
+
+import json
+import math
+import os
+import time
+import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
+
+import links_ray
+from links_ray.mechanism import analyze_topology
+
+CHROMIUM = os.environ.get("LINKS_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
+VIEWPORT = {"width": 1400, "height": 1000}
+STEPS = 200
+
+
+# -- the browser and a page helper --------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    """One headless Chromium for the module (never a downloaded browser)."""
+    from playwright.sync_api import sync_playwright
+
+    if not Path(CHROMIUM).is_file():
+        pytest.fail(f"no Chromium at {CHROMIUM}: apt-get install -y chromium", pytrace=False)
+    with sync_playwright() as playwright:
+        chromium = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            yield chromium
+        finally:
+            chromium.close()
+
+
+class Studio:
+    """The studio page in one browser tab, with helpers that act as a user would."""
+
+    def __init__(self, page: Any, base: str) -> None:
+        self.page = page
+        self.base = base
+        self.errors: list[str] = []
+        self.allowed: list[str] = []
+        self.requests: list[str] = []
+        page.on("console", lambda m: self.errors.append(m.text) if m.type == "error" else None)
+        page.on("pageerror", lambda exc: self.errors.append(f"page error: {exc}"))
+        page.on("request", lambda r: self.requests.append(r.url.removeprefix(base)))
+
+    def allow(self, *fragments: str) -> None:
+        """Expect console errors containing any of `fragments`.
+
+        Chromium itself logs "Failed to load resource" for every 4xx answer and aborted
+        request; tests that provoke those on purpose (a locking mechanism gets 422) say so.
+        """
+        self.allowed.extend(fragments)
+
+    def unexpected_errors(self) -> list[str]:
+        """Console errors and uncaught exceptions that no `allow` covers."""
+        return [e for e in self.errors if not any(f in e for f in self.allowed)]
+
+    def open(self, path: str = "/") -> None:
+        """Load the page and wait until its first simulation and analysis are shown."""
+        self.page.goto(self.base + path)
+        self.wait_idle()
+
+    def js(self, expression: str, arg: Any = None) -> Any:
+        """Evaluate an arrow function in the page (the page's CSP forbids evaluating strings)."""
+        return self.page.evaluate(expression, arg)
+
+    def wait(self, predicate: str, arg: Any = None, timeout: float = 30_000) -> None:
+        self.page.wait_for_function(predicate, arg=arg, timeout=timeout)
+
+    def wait_idle(self) -> None:
+        """Every edit simulated and analysed."""
+        self.wait("() => window.studio && window.studio.idle()")
+
+    def text(self, testid: str) -> str:
+        return self.page.get_by_test_id(testid).inner_text()
+
+    def click(self, testid: str) -> None:
+        self.page.get_by_test_id(testid).click()
+
+    def mechanism(self) -> dict[str, Any]:
+        return self.js("() => window.studio.mechanism()")
+
+    def trajectories(self) -> np.ndarray | None:
+        data = self.js("() => window.studio.trajectories()")
+        return None if data is None else np.array(data, dtype=np.float64)
+
+    def screen(self, testid: str, local: list[float]) -> tuple[float, float]:
+        """Page coordinates of a point given in a canvas's own CSS pixels."""
+        box = self.page.get_by_test_id(testid).bounding_box()
+        return box["x"] + local[0], box["y"] + local[1]
+
+    def editor_point(self, world: list[float]) -> tuple[float, float]:
+        """Where world point `world` is drawn in the editor, in page coordinates."""
+        return self.screen("studio-canvas", self.js("(p) => window.studio.toScreen(p)", world))
+
+    def click_world(self, world: list[float]) -> None:
+        """A real mouse click on the editor at a world point."""
+        self.page.mouse.click(*self.editor_point(world))
+
+    def pixel(self) -> float:
+        """One screen pixel in world units, in the editor."""
+        return 1.0 / self.js("() => window.studio.editor.view.scale")
+
+    def build_four_bar(self) -> None:
+        """FOUR_BAR by clicks: the J-operator on joints 1 and 2, placed at joint 3's spot."""
+        self.click("tool-joint")
+        self.click_world(FOUR_BAR["positions"][1])
+        self.click_world(FOUR_BAR["positions"][2])
+        self.click_world(FOUR_BAR["positions"][3])
+        self.wait_idle()
+
+    def import_mechanism(self, tmp_path: Path, mechanism: dict[str, Any], name: str) -> None:
+        """Import a mechanism through the page's file input, as a user picking a file."""
+        path = tmp_path / name
+        path.write_text(json.dumps(mechanism))
+        self.page.get_by_test_id("import-file").set_input_files(str(path))
+        self.wait_idle()
+
+    def shot(self, name: str, folder: Path) -> None:
+        """A screenshot of the whole page."""
+        self.page.screenshot(path=str(folder / name), full_page=True)
+
+
+@pytest.fixture
+def studio(browser: Any, client: Client) -> Iterator[Studio]:
+    """A fresh browser context on the studio; fails the test if the page logged any error."""
+    context = browser.new_context(viewport=VIEWPORT, accept_downloads=True)
+    page = context.new_page()
+    page.set_default_timeout(30_000)
+    studio = Studio(page, f"http://127.0.0.1:{client.port}")
+    try:
+        studio.open()
+        yield studio
+        assert studio.unexpected_errors() == []
+    finally:
+        context.close()
+
+
+@pytest.fixture
+def shots(tmp_path: Path) -> Path:
+    """Where screenshots go: LINKS_STUDIO_SCREENSHOTS, else this test's temporary folder."""
+    folder = Path(os.environ.get("LINKS_STUDIO_SCREENSHOTS") or tmp_path)
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def assert_same_mechanism(got: dict[str, Any], expected: dict[str, Any], atol: float) -> None:
+    assert got["adjacency"] == expected["adjacency"]
+    assert got["node_types"] == expected["node_types"]
+    np.testing.assert_allclose(got["positions"], expected["positions"], rtol=0, atol=atol)
+
+
+def simulate(mechanism: dict[str, Any]) -> np.ndarray:
+    return links_ray.simulate(
+        mechanism["adjacency"], mechanism["node_types"], mechanism["positions"], STEPS
+    )
+
+
+# -- serving the page ---------------------------------------------------------------------------
+
+
+def test_page_and_files_are_served_from_the_package(client: Client) -> None:
+    status, headers, html = client.request("GET", "/")
+    assert status == 200 and headers["content-type"].startswith("text/html")
+    assert "default-src 'self'" in headers["content-security-policy"]
+    for testid in ("studio-canvas", "draw-canvas", "retrieve-button", "error"):
+        assert f'data-testid="{testid}"' in html
+    for name, kind in [
+        ("studio.js", "text/javascript"),
+        ("editor.js", "text/javascript"),
+        ("studio.css", "text/css"),
+    ]:
+        status, headers, body = client.request("GET", f"/studio/{name}")
+        assert status == 200 and headers["content-type"].startswith(kind), (name, headers)
+        assert headers["x-content-type-options"] == "nosniff"
+        assert body == (Path(links_ray.__file__).parent / "studio" / name).read_text()
+    for name in ("missing.js", "..%2Fserve_app.py", "index.py"):
+        status, headers, data = client.request("GET", f"/studio/{name}")
+        assert status == 404 and headers["content-type"] == "application/json"
+        assert data["error"]
+
+
+def test_analyze_route_reports_the_engines_verdicts(client: Client) -> None:
+    status, data = client.post(
+        "/api/analyze", {k: FOUR_BAR[k] for k in FOUR_BAR if k != "positions"}
+    )
+    assert status == 200, data
+    assert (data["dof"], data["moving"], data["links"], data["solvable"]) == (1, 2, 3, True)
+    order = analyze_topology(FOUR_BAR["adjacency"], FOUR_BAR["node_types"]).order.tolist()
+    assert data["order"] == order and data["lock"] is None and "trajectories" not in data
+
+    # A third link on joint 3 over-constrains it: the engine's own message comes back.
+    adjacency = [row[:] for row in FOUR_BAR["adjacency"]]
+    adjacency[0][3] = adjacency[3][0] = 1
+    status, data = client.post(
+        "/api/analyze", {"adjacency": adjacency, "node_types": FOUR_BAR["node_types"]}
+    )
+    assert status == 200 and data["dof"] == 0 and data["solvable"] is False
+    with pytest.raises(links_ray.InvalidMechanismError) as raised:
+        analyze_topology(adjacency, FOUR_BAR["node_types"])
+    assert data["problem"] == str(raised.value)
+
+    with pytest.raises(links_ray.LockingError) as locked:
+        simulate(LOCKING_FOUR_BAR)
+    status, data = client.post("/api/analyze", LOCKING_FOUR_BAR)
+    assert status == 200
+    step = locked.value.step
+    assert data["lock"] == {"step": step, "node": locked.value.node, "angle": 360 * step / STEPS}
+    partial = np.array(data["trajectories"])
+    assert partial.shape == (4, step, 2)
+    assert_assembled(LOCKING_FOUR_BAR, partial)
+
+    for body, words in [
+        ({"node_types": [0, 2]}, "adjacency"),
+        ({**FOUR_BAR, "positions": [[0.5, 0.5]] * 4}, "zero length"),
+        ({**FOUR_BAR, "steps": 0}, "steps"),
+    ]:
+        status, data = client.post("/api/analyze", body)
+        assert status == 400 and words in data["error"], data
+
+
+def assert_assembled(mechanism: dict[str, Any], trajectories: np.ndarray) -> None:
+    """Every pose keeps every link's length, the crank turns by 2 pi / STEPS a step, and each
+    solved joint stays on its starting side of its two parents: the dyad has one solution."""
+    start = np.array(mechanism["positions"])
+    topology = analyze_topology(mechanism["adjacency"], mechanism["node_types"])
+    steps = trajectories.shape[1]
+    for i, j in zip(*np.nonzero(np.triu(topology.adjacency)), strict=True):
+        lengths = np.linalg.norm(trajectories[i] - trajectories[j], axis=1)
+        np.testing.assert_allclose(lengths, np.linalg.norm(start[i] - start[j]), atol=1e-9)
+    crank = trajectories[1] - start[0]
+    turned = np.unwrap(np.arctan2(crank[:, 1], crank[:, 0]))
+    np.testing.assert_allclose(turned - turned[0], 2 * np.pi * np.arange(steps) / STEPS)
+
+    def side(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.sign(
+            (b[..., 0] - a[..., 0]) * (p[..., 1] - a[..., 1])
+            - (b[..., 1] - a[..., 1]) * (p[..., 0] - a[..., 0])
+        )
+
+    for j, a, b in topology.order:
+        expected = side(start[j], start[a], start[b])
+        assert np.all(side(trajectories[j], trajectories[a], trajectories[b]) == expected)
+
+
+# -- the editor ---------------------------------------------------------------------------------
+
+
+def test_page_loads_without_console_errors(studio: Studio, client: Client) -> None:
+    _, health = client.get("/api/health")
+    assert studio.text("health").startswith(f"{health['paths']:,}")
+    assert studio.mechanism() == {
+        "adjacency": [[0, 1, 0], [1, 0, 0], [0, 0, 0]],
+        "node_types": [0, 2, 0],
+        "positions": [[0.5, 0.5], [0.55, 0.5], [0.8, 0.5]],
+    }
+    assert studio.text("dof").startswith("1 (2 x 1 moving joints - 1 links)")
+    assert studio.text("solvable") == "yes"
+    assert "every joint assembles" in studio.text("status")
+    assert not studio.page.get_by_test_id("error").is_visible()
+    time.sleep(0.5)  # anything logged late still fails the fixture's check
+    assert studio.errors == []
+
+
+def test_four_bar_built_by_clicks_simulates_as_links_ray(studio: Studio, shots: Path) -> None:
+    studio.build_four_bar()
+    mechanism = studio.mechanism()
+    # The click landed within a pixel of where it was aimed.
+    assert_same_mechanism(mechanism, FOUR_BAR, atol=1.5 * studio.pixel())
+    # The page shows exactly what the Python engine computes for what the page holds...
+    np.testing.assert_array_equal(studio.trajectories(), simulate(mechanism))
+    # ... which is the intended four-bar's motion, to within the click's rounding.
+    np.testing.assert_allclose(studio.trajectories(), simulate(FOUR_BAR), atol=20 * studio.pixel())
+    assert studio.text("dof").startswith("1 (2 x 2 moving joints - 3 links)")
+    assert studio.text("solvable") == "yes"
+    assert "4 joints, outside 8-20" in studio.text("rules")
+
+    # The crank slider and play both move the drawn pose.
+    studio.page.get_by_test_id("crank-slider").fill("50")
+    assert studio.text("crank-value") == "90.0°"
+    assert studio.js("() => window.studio.editor.pose()") == studio.trajectories()[:, 50].tolist()
+    studio.click("play")
+    first = int(studio.page.get_by_test_id("studio-canvas").get_attribute("data-step"))
+    studio.wait(
+        "(s) => +document.querySelector('[data-testid=studio-canvas]').dataset.step !== s", first
+    )
+    studio.shot("studio-four-bar.png", shots)
+    studio.click("play")
+
+
+def test_dragging_resimulates_live_with_one_request_in_flight(studio: Studio) -> None:
+    studio.build_four_bar()
+    studio.click("tool-move")
+    before = studio.mechanism()
+    studio.requests.clear()
+    studio.js("() => { window.studio.editor.latencies.length = 0; }")
+    in_flight = [0, 0]  # now, most ever
+
+    def track(request: Any, change: int) -> None:
+        if request.url.endswith("/api/simulate"):
+            in_flight[0] += change
+            in_flight[1] = max(in_flight)
+
+    studio.page.on("request", lambda r: track(r, 1))
+    studio.page.on("requestfinished", lambda r: track(r, -1))
+    studio.page.on("requestfailed", lambda r: track(r, -1))
+    # Drag joint 3 along an arc in 60 mouse moves, as fast as the browser takes them.
+    x, y = studio.editor_point(before["positions"][3])
+    studio.page.mouse.move(x, y)
+    studio.page.mouse.down()
+    for k in range(1, 61):
+        studio.page.mouse.move(x + 40 * math.sin(k / 20), y - 30 * (1 - math.cos(k / 20)))
+    studio.page.mouse.up()
+    studio.wait_idle()
+    after = studio.mechanism()
+    assert after["positions"][3] != before["positions"][3]
+    assert after["positions"][:3] == before["positions"][:3]
+    np.testing.assert_array_equal(studio.trajectories(), simulate(after))
+
+    sent = [url for url in studio.requests if url == "/api/simulate"]
+    latencies = studio.js("() => window.studio.latencies()")
+    assert len(latencies) == len(sent)
+    # Coalesced: one request in flight at a time, and never more requests than moves.
+    assert in_flight == [0, 1]
+    assert 2 <= len(sent) <= 60
+    median = float(np.median(latencies))
+    print(
+        f"\n/api/simulate while dragging: {len(sent)} requests for 60 moves, round trip "
+        f"median {median:.1f} ms, p90 {np.percentile(latencies, 90):.1f} ms, "
+        f"max {max(latencies):.1f} ms"
+    )
+    assert median < 250, latencies
+    assert "/api/simulate" in studio.text("latency")
+
+    # The whole drag is one undo step.
+    studio.click("undo")
+    studio.wait_idle()
+    assert studio.mechanism() == before
+    np.testing.assert_array_equal(studio.trajectories(), simulate(before))
+    studio.page.keyboard.press("Control+Shift+Z")
+    studio.wait_idle()
+    assert studio.mechanism() == after
+
+
+def test_locking_mechanism_shows_where_and_at_which_angle(
+    studio: Studio, tmp_path: Path, shots: Path
+) -> None:
+    with pytest.raises(links_ray.LockingError) as locked:
+        simulate(LOCKING_FOUR_BAR)
+    step, node = locked.value.step, locked.value.node
+    studio.allow("status of 422")  # /api/simulate's answer for a locking mechanism
+    studio.import_mechanism(tmp_path, LOCKING_FOUR_BAR, "locking.json")
+    lock = studio.page.get_by_test_id("lock")
+    assert lock.is_visible()
+    angle = f"{360 * step / STEPS:.1f}°"
+    assert f"crank angle {angle} (step {step} of {STEPS})" in lock.inner_text()
+    assert f"joint {node}" in lock.inner_text()
+    assert f"locks after {angle}" in studio.text("status")
+    # The paths drawn stop where it locks and are real assemblies of the mechanism.
+    partial = studio.trajectories()
+    assert partial.shape == (4, step, 2)
+    assert_assembled(LOCKING_FOUR_BAR, partial)
+    assert studio.page.get_by_test_id("crank-slider").get_attribute("max") == str(step - 1)
+    studio.click("fit")
+    studio.shot("studio-locking.png", shots)
+
+
+def test_edits_undo_redo_and_errors_in_words(studio: Studio) -> None:
+    studio.allow("status of 400")  # the over-constrained and 2-DOF states below
+    studio.build_four_bar()
+    # Link joint 3 to joint 0: three known neighbours, so over-constrained (0 DOF).
+    studio.click("tool-link")
+    studio.click_world(FOUR_BAR["positions"][3])
+    studio.click_world(FOUR_BAR["positions"][0])
+    studio.wait_idle()
+    assert studio.mechanism()["adjacency"][0][3] == 1
+    assert studio.text("dof").startswith("0 (2 x 2 moving joints - 4 links)")
+    assert studio.text("solvable").startswith("no: over-constrained")
+    assert "cannot simulate: over-constrained" in studio.text("status")
+    assert "(HTTP 400)" in studio.text("status")
+    assert studio.trajectories() is None
+
+    # Delete that link again; then refuse to delete the crank, in words.
+    studio.click("tool-delete")
+    a = np.array(studio.editor_point(FOUR_BAR["positions"][3]))
+    b = np.array(studio.editor_point(FOUR_BAR["positions"][0]))
+    studio.page.mouse.click(*(0.6 * a + 0.4 * b))
+    studio.wait_idle()
+    assert studio.mechanism()["adjacency"][0][3] == 0
+    studio.click_world(FOUR_BAR["positions"][1])
+    assert "cannot be deleted" in studio.text("hint")
+    assert len(studio.mechanism()["node_types"]) == 4
+
+    # Add a ground joint and delete joint 2: two degrees of freedom, not solvable.
+    studio.click("tool-ground")
+    studio.click_world([0.7, 0.3])
+    studio.wait_idle()
+    assert studio.mechanism()["node_types"] == [0, 2, 0, 1, 0]
+    studio.click("tool-delete")
+    studio.click_world(FOUR_BAR["positions"][2])
+    studio.wait_idle()
+    assert studio.mechanism()["node_types"] == [0, 2, 1, 0]
+    assert studio.text("dof").startswith("2 ")
+    assert "more than one degree of freedom" in studio.text("solvable")
+    for _ in range(2):
+        studio.click("undo")
+    studio.wait_idle()
+    assert_same_mechanism(studio.mechanism(), FOUR_BAR, atol=1.5 * studio.pixel())
+    assert "every joint assembles" in studio.text("status")
+
+    # A server that cannot be reached is said so, in the status and the banner.
+    studio.allow("net::ERR_FAILED")
+    studio.page.route("**/api/simulate", lambda route: route.abort())
+    studio.click("redo")
+    studio.wait("() => window.studio.editor.sim.version === window.studio.editor.version")
+    assert "cannot reach the links-ray server" in studio.text("status")
+    assert "Simulation failed" in studio.text("error")
+    studio.page.unroute("**/api/simulate")
+
+
+def test_export_import_svg_and_share_link(studio: Studio, tmp_path: Path, browser: Any) -> None:
+    studio.build_four_bar()
+    mechanism = studio.mechanism()
+    with studio.page.expect_download() as download:
+        studio.click("export-json")
+    exported = json.loads(Path(download.value.path()).read_text())
+    assert exported == mechanism
+    assert set(exported) == {"adjacency", "node_types", "positions"}
+
+    with studio.page.expect_download() as download:
+        studio.click("export-svg")
+    svg = ET.parse(download.value.path()).getroot()
+    ns = {"svg": "http://www.w3.org/2000/svg"}
+    assert svg.tag == "{http://www.w3.org/2000/svg}svg"
+    assert len(svg.findall("svg:polygon[@class='path']", ns)) == 2  # joints 1 and 3 move
+    assert len(svg.findall("svg:line[@class='link']", ns)) == 3
+    assert len(svg.findall("svg:circle[@class='joint']", ns)) == 4
+
+    studio.click("new")
+    studio.wait_idle()
+    assert len(studio.mechanism()["node_types"]) == 3
+    (tmp_path / "four-bar.json").write_text(json.dumps(exported))
+    studio.page.get_by_test_id("import-file").set_input_files(str(tmp_path / "four-bar.json"))
+    studio.wait_idle()
+    assert studio.mechanism() == mechanism
+
+    # A file that is not a mechanism is refused in words; the mechanism stays.
+    (tmp_path / "bad.json").write_text('{"adjacency": [[0]], "node_types": [0]}')
+    studio.page.get_by_test_id("import-file").set_input_files(str(tmp_path / "bad.json"))
+    studio.wait("() => !document.querySelector('[data-testid=error]').hidden")
+    assert "Import failed: bad.json is not a mechanism" in studio.text("error")
+    (tmp_path / "broken.json").write_text("{not json")
+    studio.page.get_by_test_id("import-file").set_input_files(str(tmp_path / "broken.json"))
+    studio.wait(
+        "() => document.querySelector('[data-testid=error]').textContent.includes('broken')"
+    )
+    assert "broken.json is not valid JSON" in studio.text("error")
+    assert studio.mechanism() == mechanism
+
+    # The share link opens the same mechanism in a fresh tab.
+    studio.click("share")
+    url = studio.page.url
+    assert "#mechanism=" in url
+    other = Studio(browser.new_page(viewport=VIEWPORT), studio.base)
+    try:
+        other.open(url.removeprefix(studio.base))
+        assert other.mechanism() == mechanism
+        assert other.unexpected_errors() == []
+    finally:
+        other.page.close()
+
+
+# -- draw to retrieve ---------------------------------------------------------------------------
+
+
+def draw(studio: Studio, points: list[list[float]]) -> None:
+    """Draw through world points on the draw canvas with the mouse."""
+    local = [studio.js("(p) => window.studio.drawToScreen(p)", p) for p in points]
+    page_points = [studio.screen("draw-canvas", p) for p in local]
+    studio.page.mouse.move(*page_points[0])
+    studio.page.mouse.down()
+    for p in page_points[1:]:
+        studio.page.mouse.move(*p, steps=2)
+    studio.page.mouse.up()
+
+
+def test_draw_retrieve_animate_and_open_in_editor(
+    studio: Studio, client: Client, shots: Path
+) -> None:
+    # A bean-shaped loop across the drawing area.
+    t = np.linspace(0, 2 * np.pi, 90)
+    curve = np.stack([0.5 + 0.32 * np.cos(t), 0.5 + 0.18 * np.sin(t) + 0.08 * np.cos(2 * t)], 1)
+    draw(studio, curve.tolist())
+    drawn = studio.js("() => window.studio.retriever.points")
+    assert len(drawn) > 50
+    np.testing.assert_allclose(np.min(drawn, 0), curve.min(0), atol=0.01)
+    np.testing.assert_allclose(np.max(drawn, 0), curve.max(0), atol=0.01)
+
+    studio.page.get_by_test_id("k").fill("5")
+    studio.click("retrieve-button")
+    results = studio.page.get_by_test_id("result")
+    results.nth(4).wait_for()
+    assert results.count() == 5
+    # The list is the API's answer for the drawn points, best first, chamfer shown.
+    _, expected = client.post("/api/retrieve", {"points": drawn, "k": 5})
+    chamfers = [float(results.nth(i).get_attribute("data-chamfer")) for i in range(5)]
+    assert chamfers == [r["chamfer"] for r in expected["results"]]
+    assert chamfers == sorted(chamfers)
+    for i, result in enumerate(expected["results"]):
+        shown = results.nth(i).inner_text().split("chamfer ", 1)[1].split()[0]
+        assert float(shown) == pytest.approx(result["chamfer"], rel=1e-3)
+
+    # Choosing one animates it: the frame advances, over the drawn curve, in the user's frame.
+    results.nth(0).click()
+    canvas = studio.page.get_by_test_id("draw-canvas")
+    studio.wait(
+        "() => document.querySelector('[data-testid=draw-canvas]').dataset.animating === 'true'"
+    )
+    frames = set()
+    for _ in range(6):
+        frames.add(canvas.get_attribute("data-frame"))
+        time.sleep(0.12)
+    assert len(frames) >= 3, frames
+    chosen = studio.js("() => window.studio.retriever.chosen")
+    best = expected["results"][0]
+    assert chosen["result"]["mechanism"] == best["mechanism"]
+    traced = np.array(chosen["trajectories"])[best["mechanism_joint"]]
+    np.testing.assert_array_equal(traced, simulate(best["mechanism"])[best["mechanism_joint"]])
+    # The server moved the mechanism onto the curve: their boxes share a centre, roughly.
+    size = np.ptp(curve, axis=0).max()
+    centre = (traced.min(0) + traced.max(0)) / 2
+    assert np.linalg.norm(centre - (curve.min(0) + curve.max(0)) / 2) < 0.5 * size
+    studio.shot("studio-retrieve.png", shots)
+
+    # Open it in the editor and keep going from there.
+    studio.click("open-in-editor")
+    studio.wait_idle()
+    assert studio.mechanism() == best["mechanism"]
+    np.testing.assert_array_equal(studio.trajectories(), simulate(best["mechanism"]))
+    studio.click("play")
+    time.sleep(1.0)
+    studio.page.get_by_test_id("studio-canvas").scroll_into_view_if_needed()
+    studio.shot("studio-editor.png", shots)
+    studio.click("play")
+
+
+def test_retrieval_errors_are_shown_in_words(studio: Studio) -> None:
+    studio.allow("status of 400")
+    studio.click("retrieve-button")
+    assert "Draw a curve first" in studio.text("retrieve-status")
+    # A click is a curve of one point: the API refuses it and the page says why.
+    box = studio.page.get_by_test_id("draw-canvas").bounding_box()
+    studio.page.mouse.click(box["x"] + 100, box["y"] + 100)
+    studio.click("retrieve-button")
+    studio.wait(
+        "() => document.querySelector('[data-testid=retrieve-status]').textContent.includes('HTTP')"
+    )
+    status = studio.text("retrieve-status")
+    assert "Retrieval failed" in status and "3 to 10000" in status and "(HTTP 400)" in status
+    assert studio.page.get_by_test_id("result").count() == 0
