@@ -435,6 +435,38 @@ def test_edits_undo_redo_and_errors_in_words(studio: Studio) -> None:
     studio.page.unroute("**/api/simulate")
 
 
+def test_touch_builds_and_drags_on_a_phone_sized_screen(browser: Any, client: Client) -> None:
+    """Taps build the four-bar and a finger drags a joint (touch events through the browser's
+    input pipeline, as a touch screen sends them), on a narrow one-column layout."""
+    context = browser.new_context(viewport={"width": 412, "height": 915}, has_touch=True)
+    try:
+        studio = Studio(context.new_page(), f"http://127.0.0.1:{client.port}")
+        studio.open()
+        studio.click("tool-joint")
+        for position in FOUR_BAR["positions"][1:]:
+            studio.page.touchscreen.tap(*studio.editor_point(position))
+        studio.wait_idle()
+        assert_same_mechanism(studio.mechanism(), FOUR_BAR, atol=1.5 * studio.pixel())
+
+        studio.click("tool-move")
+        cdp = context.new_cdp_session(studio.page)
+        x, y = studio.editor_point(FOUR_BAR["positions"][3])
+        # A fingertip lands a little off the joint: touch gets a larger target than a mouse.
+        touch = [("touchStart", x + 9, y + 9)]
+        touch += [("touchMove", x + 9 + 2 * k, y + 9 + k) for k in range(1, 21)]
+        for kind, tx, ty in [*touch, ("touchEnd", 0, 0)]:
+            points = [] if kind == "touchEnd" else [{"x": tx, "y": ty, "id": 1}]
+            cdp.send("Input.dispatchTouchEvent", {"type": kind, "touchPoints": points})
+        studio.wait_idle()
+        moved = studio.mechanism()
+        expected = np.add(FOUR_BAR["positions"][3], np.array([40, -20]) * studio.pixel())
+        np.testing.assert_allclose(moved["positions"][3], expected, atol=2 * studio.pixel())
+        np.testing.assert_array_equal(studio.trajectories(), simulate(moved))
+        assert studio.unexpected_errors() == []
+    finally:
+        context.close()
+
+
 def test_export_import_svg_and_share_link(studio: Studio, tmp_path: Path, browser: Any) -> None:
     studio.build_four_bar()
     mechanism = studio.mechanism()
