@@ -1,17 +1,22 @@
 """Retrieval: find curated paths whose shape matches a drawn curve, and the mechanisms that
 trace them where the curve was drawn (the paper's case study, as an index).
 
-Search has two stages:
+The distance is the bidirectional chamfer distance between normalized paths, least over the
+query's four variants (as drawn, turned 180 degrees, mirrored, both). Search has three stages:
 
-1. Candidates by descriptor. A normalized path's descriptor is its distance field: the
-   distance from each node of a 16 x 16 grid over [0, 1]^2 to the nearest path point. Two
-   paths whose fields are close have a small chamfer distance. The fields are reduced to 32
-   dimensions by PCA; each path is scored by plain L2 against the nearest of the query's four
-   variants (as drawn, turned 180 degrees, mirrored, both), and the best `CANDIDATES` go on.
-2. Exact re-ranking with the chamfer kernel against that variant. On the exhaustive path
-   (small datasets, and `brute_force`) every path meets every variant.
+1. Scan. Chamfer's two halves are, on a grid, dot products: the query's point mass against a
+   path's distance field, and the path's point mass against the query's distance field. With
+   the fields reduced by PCA to `DIMENSIONS` (and int8 codes), every path gets a linear
+   estimate of its chamfer distance to each variant in one pass; the best `CANDIDATES` go on.
+2. Estimate. For each candidate and its `ESTIMATED_VARIANTS` likeliest variants: exact nearest-point
+   distances from `QUERY_SAMPLE` query points, plus the query's distance table interpolated at
+   every path point (`search_kernels.estimate_chamfer`).
+3. Exact. The best `FINALISTS` by estimate get the exact chamfer distance for all four variants.
 
-The index (descriptors, ids, PCA) is saved at ``ROOT/_links/index.npz`` and reused while the
+`brute_force` is exact over every path: a lower bound prunes the paths that cannot beat the
+k-th best, and the rest get the exact distance.
+
+The index (codes, PCA basis, ids) is saved at ``ROOT/_links/index.npz`` and reused while the
 curated tables are unchanged; the curated points are read from Parquet when it opens.
 
 No Ray: the Serve app and the CLI wrap this module.
@@ -26,31 +31,38 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.dataset as pads
-from numba import njit, prange
 from numpy.typing import ArrayLike
 
+from links_ray import search_kernels as kernels
 from links_ray.dataset import open_table
 from links_ray.mechanism import reduce_mechanism
 from links_ray.paths import chamfer_to_many, longest_chord
 from links_ray.solver import simulate
 from links_ray.storage import META, Store
 
-GRID = 16
-DIMENSIONS = 32
-#: Paths taken by descriptor, then re-ranked by chamfer on COARSE_POINTS points each.
-CANDIDATES = 10_000
-COARSE_POINTS = 50
-#: Paths re-ranked exactly, on all their points, against all four query variants.
-FINALISTS = 200
-#: Points per path used for descriptors (every fourth of 200).
-DESCRIPTOR_STRIDE = 4
+#: PCA components of the distance fields; a path's code holds two sets (2 * DIMENSIONS int8).
+DIMENSIONS = 64
+#: Paths passed from the scan to the estimate.
+CANDIDATES = 20_000
+#: Query points used for the estimate's query-to-path half: a rough pass over every
+#: candidate pair, then a fine pass over the best REFINED pairs.
+ROUGH_SAMPLE, REFINED, QUERY_SAMPLE = 8, 2_000, 50
+#: Variants estimated per candidate: its likeliest by the scan.
+ESTIMATED_VARIANTS = 2
+#: Paths given the exact chamfer distance.
+FINALISTS = 32
+#: Every second point of a stored path makes its distance field.
+FIELD_STRIDE = 2
+#: Distance fields used to fit the PCA basis, and rows featurized per block while building.
+PCA_SAMPLE, BUILD_BLOCK = 50_000, 50_000
 MIN_POINTS, MAX_POINTS = 3, 10_000
 MAX_K = 100
 #: Query coordinates and extent the normalization handles without overflow.
 MAX_COORDINATE, MIN_EXTENT = 1e12, 1e-9
 INDEX_FILE = f"{META}/index.npz"
-INDEX_FORMAT = 1
+INDEX_FORMAT = 2
 #: The query's four readings, as maps of normalized coordinates (each its own inverse).
 VARIANTS = ("as drawn", "turned 180", "mirrored", "turned and mirrored")
 
@@ -110,31 +122,60 @@ def variant_map(variant: int) -> tuple[np.ndarray, np.ndarray]:
     return matrix, np.array([1.0 if flip_x else 0.0, 1.0 if flip_y else 0.0])
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _distance_fields(paths: np.ndarray, stride: int, grid: np.ndarray, out: np.ndarray) -> None:
-    size = grid.shape[0]
-    for p in prange(paths.shape[0]):
-        for a in range(size):
-            for b in range(size):
-                best = np.inf
-                for t in range(0, paths.shape[1], stride):
-                    dx = paths[p, t, 0] - grid[a]
-                    dy = paths[p, t, 1] - grid[b]
-                    best = min(best, dx * dx + dy * dy)
-                out[p, a * size + b] = np.sqrt(best)
+def path_features(paths: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Distance fields and point masses (P, GRID * GRID) float32 of normalized paths (P, T, 2)."""
+    cells = kernels.GRID * kernels.GRID
+    fields = np.empty((len(paths), cells), dtype=np.float32)
+    mass = np.empty((len(paths), cells), dtype=np.float32)
+    kernels.path_features(np.ascontiguousarray(paths), stride, fields, mass)
+    return fields, mass
 
 
-def distance_fields(paths: np.ndarray, stride: int = DESCRIPTOR_STRIDE) -> np.ndarray:
-    """(P, GRID * GRID) float32 distance fields of normalized paths (P, T, 2)."""
-    grid = (np.arange(GRID) + 0.5) / GRID
-    out = np.empty((len(paths), GRID * GRID), dtype=np.float32)
-    _distance_fields(np.ascontiguousarray(paths), stride, grid, out)
-    return out
+def query_variants(normalized: np.ndarray) -> np.ndarray:
+    """(4, T, 2): the normalized query as drawn, turned 180 degrees, mirrored, and both."""
+    return np.stack([normalized @ m.T + b for m, b in map(variant_map, range(4))])
+
+
+@dataclass
+class Basis:
+    """The PCA basis of distance fields, and the int8 scale of the codes."""
+
+    mean: np.ndarray  # (GRID * GRID,) float32
+    components: np.ndarray  # (GRID * GRID, DIMENSIONS) float32
+    scale: np.ndarray  # (2 * DIMENSIONS,) float32
+
+    @classmethod
+    def fit(cls, fields: np.ndarray) -> Basis:
+        mean = fields.mean(axis=0)
+        _, _, vt = np.linalg.svd(fields - mean, full_matrices=False)
+        components = np.ascontiguousarray(vt[:DIMENSIONS].T, dtype=np.float32)
+        return cls(mean.astype(np.float32), components, np.ones(2 * DIMENSIONS, np.float32))
+
+    def project(self, fields: np.ndarray, mass: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Unquantized codes (P, 2 * DIMENSIONS) and biases (P,) of paths.
+
+        The bias subtracts what the estimate gives a path against itself (its mass against
+        its own field, which the grid makes positive), so that near matches are not ranked by
+        how well their own curve happens to sit on the grid.
+        """
+        codes = np.concatenate(
+            [(fields - self.mean) @ self.components, mass @ self.components], axis=1
+        )
+        return codes, mass @ self.mean - (fields * mass).sum(axis=1)
+
+    def query(self, variants: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Scan weights (4, 2 * DIMENSIONS) against int8 codes, and offsets (4,), of the
+        query's variants: code . weight + offset + bias estimates the chamfer distance."""
+        fields, mass = path_features(variants)
+        weights = np.concatenate(
+            [mass @ self.components, (fields - self.mean) @ self.components], axis=1
+        )
+        return (weights * self.scale).astype(np.float32), (mass @ self.mean).astype(np.float32)
 
 
 @dataclass
 class RetrievalIndex:
-    """Curated paths, their descriptors, and the way back to their mechanisms."""
+    """Curated paths, their codes, and the way back to their mechanisms."""
 
     store: Store
     path_id: np.ndarray
@@ -142,13 +183,12 @@ class RetrievalIndex:
     joint: np.ndarray
     n_joints: np.ndarray
     points: np.ndarray  # (N, T, 2) float32 normalized
-    descriptors: np.ndarray  # (N, DIMENSIONS) float32
-    mean: np.ndarray
-    components: np.ndarray  # (DIMENSIONS, GRID * GRID)
+    codes: np.ndarray  # (N, 2 * DIMENSIONS) int8
+    bias: np.ndarray  # (N,) float32
+    basis: Basis
+    mechanisms: pa.Table  # the mechanisms the paths come from, sorted by mechanism_id
     build_s: float = 0.0
-    _mechanism_table: pads.Dataset | None = None
-    _norms: np.ndarray | None = None
-    _coarse: np.ndarray | None = None  # (N, COARSE_POINTS, 2) subsampled points
+    _scores: np.ndarray | None = None  # the scan's output, reused across queries
 
     def __len__(self) -> int:
         return len(self.path_id)
@@ -156,8 +196,18 @@ class RetrievalIndex:
     @property
     def nbytes(self) -> int:
         """Memory the index holds."""
-        arrays = (self.path_id, self.mechanism_id, self.joint, self.n_joints, self.points)
-        return sum(a.nbytes for a in arrays) + self.descriptors.nbytes + self.components.nbytes
+        arrays = (
+            self.path_id,
+            self.mechanism_id,
+            self.joint,
+            self.n_joints,
+            self.points,
+            self.codes,
+            self.bias,
+            self.basis.components,
+        )
+        # And the scan's scores.
+        return sum(a.nbytes for a in arrays) + self.mechanisms.nbytes + 4 * len(self)
 
     @classmethod
     def open(cls, root: str | Store, rebuild: bool = False) -> RetrievalIndex:
@@ -178,6 +228,7 @@ class RetrievalIndex:
             "n_joints": table.column("n_joints").to_numpy(),
             "points": points,
         }
+        columns["mechanisms"] = _source_mechanisms(store, columns["mechanism_id"])
         fingerprint = _fingerprint(store)
         saved = None if rebuild else store.read_bytes(INDEX_FILE)
         if saved is not None:
@@ -187,25 +238,12 @@ class RetrievalIndex:
                 and str(arrays["fingerprint"]) == fingerprint
                 and np.array_equal(arrays["path_id"], path_id)
             ):
-                return cls(
-                    **columns,
-                    descriptors=arrays["descriptors"],
-                    mean=arrays["mean"],
-                    components=arrays["components"],
-                )
+                basis = Basis(arrays["mean"], arrays["components"], arrays["scale"])
+                return cls(**columns, codes=arrays["codes"], bias=arrays["bias"], basis=basis)
         start = time.perf_counter()
-        fields = distance_fields(points)
-        sample = fields[np.random.default_rng(0).permutation(len(fields))[:50_000]]
-        mean = sample.mean(axis=0)
-        _, _, vt = np.linalg.svd(sample - mean, full_matrices=False)
-        components = vt[:DIMENSIONS].astype(np.float32)
-        descriptors = ((fields - mean) @ components.T).astype(np.float32)
+        codes, bias, basis = _encode(points)
         index = cls(
-            **columns,
-            descriptors=descriptors,
-            mean=mean.astype(np.float32),
-            components=components,
-            build_s=time.perf_counter() - start,
+            **columns, codes=codes, bias=bias, basis=basis, build_s=time.perf_counter() - start
         )
         buffer = io.BytesIO()
         np.savez(
@@ -213,9 +251,11 @@ class RetrievalIndex:
             format=INDEX_FORMAT,
             fingerprint=fingerprint,
             path_id=path_id,
-            descriptors=descriptors,
-            mean=index.mean,
-            components=components,
+            codes=codes,
+            bias=bias,
+            mean=basis.mean,
+            components=basis.components,
+            scale=basis.scale,
         )
         try:
             store.write_bytes(INDEX_FILE, buffer.getvalue())
@@ -223,48 +263,49 @@ class RetrievalIndex:
             pass
         return index
 
-    def candidates(self, variants: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
-        """The `count` paths nearest by descriptor to any query variant: (rows, variant)."""
+    def candidates(self, weights: np.ndarray, offsets: np.ndarray, count: int) -> np.ndarray:
+        """Rows of the `count` paths whose scanned estimate, at their best variant, is least,
+        for the query weights and offsets of `Basis.query`."""
         if count >= len(self):
-            rows = np.arange(len(self))
-            return np.repeat(rows, 4), np.tile(np.arange(4), len(self))
-        if self._norms is None:
-            self._norms = (self.descriptors**2).sum(axis=1)
-        # The same point density as the index's descriptors: about 200 / DESCRIPTOR_STRIDE.
-        stride = max(1, round(variants.shape[1] * DESCRIPTOR_STRIDE / self.points.shape[1]))
-        fields = distance_fields(variants, stride=stride)
-        query = ((fields - self.mean) @ self.components.T).astype(np.float32)
-        scores = self._norms[:, None] - 2 * (self.descriptors @ query.T)  # (N, 4)
-        variant = scores.argmin(axis=1)
-        best = scores[np.arange(len(scores)), variant]
-        rows = np.argpartition(best, count)[:count]
-        return rows, variant[rows]
+            return np.arange(len(self))
+        if self._scores is None:
+            self._scores = np.empty(len(self), dtype=np.float32)
+        kernels.scan(self.codes, weights, offsets, self.bias, self._scores)
+        # A threshold from a strided sample selects a little more than `count` rows at once;
+        # a partition of the whole array would cost more than the scan.
+        sample = self._scores[::SELECTION_STRIDE]
+        want = min(len(sample) - 1, int(count / SELECTION_STRIDE * 1.5) + 1)
+        threshold = np.partition(sample, want)[want]
+        rows = np.flatnonzero(self._scores <= threshold)
+        if len(rows) < count:
+            rows = np.argpartition(self._scores, count)[:count]
+        scores = self._scores[rows]
+        return rows[np.argpartition(scores, count - 1)[:count]] if len(rows) > count else rows
 
     def ranked(
         self, normalized: np.ndarray, k: int = 3, candidates: int = CANDIDATES
     ) -> list[tuple[int, float, int]]:
         """The k best (row, chamfer, variant), best first, for a normalized query."""
-        variants = np.stack([normalized @ m.T + b for m, b in map(variant_map, range(4))])
-        rows, row_variants = self.candidates(variants, candidates)
-        if self._coarse is None:
-            picks = np.linspace(0, self.points.shape[1] - 1, COARSE_POINTS).astype(int)
-            self._coarse = np.ascontiguousarray(self.points[:, picks])
-        picks = np.linspace(0, len(normalized) - 1, min(len(normalized), COARSE_POINTS))
-        coarse_query = variants[:, picks.astype(int)]
-        coarse = np.empty(len(rows))
-        for variant in range(4):
-            chosen = row_variants == variant
-            if chosen.any():
-                coarse[chosen] = chamfer_to_many(coarse_query[variant], self._coarse[rows[chosen]])
-        # Each row once, at its best variant (the exhaustive path lists every row four times).
-        order = np.argsort(coarse, kind="stable")
-        unique_rows, first = np.unique(rows[order], return_index=True)
-        finalists = unique_rows[np.argsort(first)][: max(FINALISTS, k)]
-        exact = np.stack([chamfer_to_many(variants[v], self.points[finalists]) for v in range(4)])
-        best_variant = exact.argmin(axis=0)
-        best = exact[best_variant, np.arange(len(finalists))]
-        order = np.argsort(best, kind="stable")[:k]
-        return [(int(finalists[i]), float(best[i]), int(best_variant[i])) for i in order]
+        variants = query_variants(normalized)
+        weights, offsets = self.basis.query(variants)
+        rows = self.candidates(weights, offsets, candidates)
+        # Each candidate's likeliest variants by the scan's linear estimate.
+        linear = self.codes[rows].astype(np.float32) @ weights.T + offsets
+        likely = np.argsort(linear, axis=1, kind="stable")[:, :ESTIMATED_VARIANTS]
+        pair_rows = np.repeat(rows, ESTIMATED_VARIANTS)
+        pair_variants = likely.ravel().astype(np.int64)
+        table = np.empty((kernels.TABLE_CELLS + 1,) * 2)
+        kernels.distance_table(normalized, table)
+        if len(pair_rows) > REFINED:  # a rough estimate of every pair first
+            rough = self._estimate(normalized, table, ROUGH_SAMPLE, pair_rows, pair_variants)
+            best = np.argpartition(rough, REFINED)[:REFINED]
+            pair_rows, pair_variants = pair_rows[best], pair_variants[best]
+        fine = self._estimate(normalized, table, QUERY_SAMPLE, pair_rows, pair_variants)
+        # Rows by their best estimate (a row may come twice, once per variant).
+        by_estimate = pair_rows[np.argsort(fine, kind="stable")]
+        _, first = np.unique(by_estimate, return_index=True)
+        finalists = by_estimate[np.sort(first)][: max(FINALISTS, k)]
+        return _exact_best(variants, self.points, np.sort(finalists), k)
 
     def retrieve(self, points: object, k: int = 3) -> list[dict]:
         """SPEC section 5 results for a query: best first, mechanisms in the query's frame."""
@@ -300,15 +341,11 @@ class RetrievalIndex:
         return results
 
     def _mechanisms(self, rows: list[int]) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """The mechanism rows of index rows `rows`, by mechanism id."""
-        if self._mechanism_table is None:
-            self._mechanism_table = open_table(self.store, "mechanisms")
-        wanted = pads.field("n_joints").isin([int(self.n_joints[r]) for r in rows]) & pads.field(
-            "mechanism_id"
-        ).isin([int(self.mechanism_id[r]) for r in rows])
-        table = self._mechanism_table.to_table(filter=wanted)
+        """The mechanisms of index rows `rows`, by mechanism id."""
+        ids = self.mechanisms.column("mechanism_id").to_numpy()
+        at = np.searchsorted(ids, self.mechanism_id[rows])
         found = {}
-        for row in table.to_pylist():
+        for row in self.mechanisms.take(at).to_pylist():
             n = len(row["node_types"])
             found[row["mechanism_id"]] = (
                 np.array(row["adjacency"], dtype=np.uint8).reshape(n, n),
@@ -317,15 +354,44 @@ class RetrievalIndex:
             )
         return found
 
+    def _estimate(
+        self,
+        normalized: np.ndarray,
+        table: np.ndarray,
+        sample_size: int,
+        rows: np.ndarray,
+        variants: np.ndarray,
+    ) -> np.ndarray:
+        """Estimated chamfer distances of (row, variant) pairs, with `sample_size` query points
+        evenly along the query for its query-to-path half."""
+        picks = np.unique(np.linspace(0, len(normalized) - 1, sample_size).round().astype(int))
+        out = np.empty(len(rows))
+        kernels.estimate_chamfer(
+            normalized,
+            np.ascontiguousarray(normalized[picks]),
+            table,
+            self.points,
+            rows,
+            variants,
+            out,
+        )
+        return out
+
     def brute_force(self, points: ArrayLike, k: int = 3) -> list[tuple[int, float, int]]:
-        """Exact k best over every path and variant, all points (tests, recall benchmark)."""
+        """Exact k best (row, chamfer, variant) over every path and variant, best first.
+
+        The exact distances of `ranked`'s answer bound the k-th best from above; a path whose
+        path-to-query half alone is bounded below by more than that cannot be among the best.
+        """
         normalized, _, _ = normalization(validate_query(points, k)[0])
-        variants = np.stack([normalized @ m.T + b for m, b in map(variant_map, range(4))])
-        exact = np.stack([chamfer_to_many(variant, self.points) for variant in variants])
-        best_variant = exact.argmin(axis=0)
-        best = exact[best_variant, np.arange(len(self))]
-        order = np.argsort(best, kind="stable")[:k]
-        return [(int(i), float(best[i]), int(best_variant[i])) for i in order]
+        k = min(k, len(self))
+        limit = self.ranked(normalized, k)[-1][1] + 1e-9  # rounding of the two computations
+        table = np.empty((kernels.TABLE_CELLS + 1,) * 2)
+        kernels.distance_table(normalized, table)
+        bounds = np.empty((len(self), 4))
+        kernels.path_to_query_bounds(table, self.points, bounds)
+        pairs = np.flatnonzero(bounds.ravel() <= limit)
+        return _exact_best(query_variants(normalized), self.points, pairs // 4, k, pairs % 4)
 
 
 def _into_query_frame(
@@ -352,3 +418,66 @@ def _fingerprint(store: Store) -> str:
     markers = store.committed_shards("curation")
     rows = sorted((shard, m["rows"].get("curated", 0)) for shard, m in markers.items())
     return json.dumps(rows)
+
+
+#: One score in this many makes the sample that sets the scan's selection threshold.
+SELECTION_STRIDE = 64
+
+
+def _source_mechanisms(store: Store, mechanism_ids: np.ndarray) -> pa.Table:
+    """The mechanisms with these ids, sorted by id: answers need them at once, and a Parquet
+    lookup per answer would cost more than the search."""
+    wanted = pa.array(np.unique(mechanism_ids))
+    table = open_table(store, "mechanisms").to_table(
+        columns=["mechanism_id", "adjacency", "node_types", "positions"],
+        filter=pads.field("mechanism_id").isin(wanted),
+    )
+    return table.sort_by("mechanism_id").combine_chunks()
+
+
+def _encode(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, Basis]:
+    """int8 codes (N, 2 * DIMENSIONS), biases and the basis of normalized paths (N, T, 2)."""
+    sample = np.sort(np.random.default_rng(0).permutation(len(points))[:PCA_SAMPLE])
+    basis = Basis.fit(path_features(points[sample], FIELD_STRIDE)[0])
+    raw = np.empty((len(points), 2 * DIMENSIONS), dtype=np.float32)
+    bias = np.empty(len(points), dtype=np.float32)
+    for start in range(0, len(points), BUILD_BLOCK):
+        block = slice(start, start + BUILD_BLOCK)
+        raw[block], bias[block] = basis.project(*path_features(points[block], FIELD_STRIDE))
+    basis.scale = np.maximum(np.abs(raw).max(axis=0), 1e-12) / 127
+    codes = np.round(raw / basis.scale).astype(np.int8)
+    return codes, bias, basis
+
+
+def _exact_best(
+    variants: np.ndarray,
+    points: np.ndarray,
+    rows: np.ndarray,
+    k: int,
+    only: np.ndarray | None = None,
+) -> list[tuple[int, float, int]]:
+    """The k best (row, chamfer, variant) among `rows` (ascending), each against every
+    variant, or only against `only[i]` for rows[i] (rows may then repeat)."""
+    best = np.full(len(rows), np.inf)
+    best_variant = np.zeros(len(rows), dtype=np.int64)
+    for variant in range(4):
+        chosen = np.arange(len(rows)) if only is None else np.flatnonzero(only == variant)
+        for block in np.array_split(chosen, max(1, len(chosen) // 8192)):
+            if len(block) == 0:
+                continue
+            distance = chamfer_to_many(variants[variant], points[rows[block]])
+            better = distance < best[block]
+            best[block[better]] = distance[better]
+            best_variant[block[better]] = variant
+    # Each row once at its best variant, ties to the lower row.
+    order = np.lexsort((rows, best))
+    answer: list[tuple[int, float, int]] = []
+    seen: set[int] = set()
+    for i in order:
+        if int(rows[i]) in seen:
+            continue
+        seen.add(int(rows[i]))
+        answer.append((int(rows[i]), float(best[i]), int(best_variant[i])))
+        if len(answer) == k:
+            break
+    return answer

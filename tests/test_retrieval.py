@@ -11,11 +11,19 @@ import pytest
 from test_cli import links
 
 import links_ray
+from links_ray import search_kernels as kernels
 from links_ray.bench_services import _held_out_queries
 from links_ray.curation import curate
 from links_ray.generation import generate
-from links_ray.paths import chamfer
-from links_ray.retrieval import INDEX_FILE, RetrievalIndex, normalization, validate_query
+from links_ray.paths import chamfer, chamfer_to_many, normalize_path
+from links_ray.retrieval import (
+    INDEX_FILE,
+    RetrievalIndex,
+    normalization,
+    query_variants,
+    validate_query,
+    variant_map,
+)
 from links_ray.storage import Store
 
 
@@ -50,8 +58,9 @@ def test_top3_is_exactly_the_brute_force_top3(index: RetrievalIndex) -> None:
         np.testing.assert_allclose(chamfers, [c for _, c, _ in exact], rtol=1e-9)
 
 
-def test_descriptor_search_finds_a_stored_path_in_any_frame(index: RetrievalIndex) -> None:
-    """With few candidates the descriptor stage must still bring the path itself back."""
+def test_scan_brings_a_stored_path_back_in_any_frame(index: RetrievalIndex) -> None:
+    """Passing only a tenth of the paths on from the scan, a stored path drawn in another
+    frame still finds itself."""
     rng = np.random.default_rng(5)
     for row in rng.choice(len(index), 10, replace=False):
         angle = rng.uniform(0, 2 * np.pi)
@@ -59,9 +68,45 @@ def test_descriptor_search_finds_a_stored_path_in_any_frame(index: RetrievalInde
         if rng.random() < 0.5:
             turn = turn @ np.diag([1.0, -1.0])
         query = index.points[row].astype(float) @ turn.T * 4.0 + [2, 3]
-        best_row, distance, _ = index.ranked(normalization(query)[0], k=1, candidates=50)[0]
+        normalized = normalization(query)[0]
+        best_row, distance, _ = index.ranked(normalized, k=1, candidates=len(index) // 10)[0]
         assert distance < 1e-5
         assert np.allclose(index.points[best_row], index.points[row], atol=1e-6)
+
+
+def test_brute_force_equals_every_path_against_every_variant(index: RetrievalIndex) -> None:
+    """The pruned exact search against the plain one: chamfer to all paths, four variants."""
+    for query in queries():
+        normalized = normalization(query)[0]
+        plain = np.stack([chamfer_to_many(v, index.points) for v in query_variants(normalized)])
+        best = plain.min(axis=0)
+        expected = np.lexsort((np.arange(len(best)), best))[:5]
+        found = index.brute_force(query, k=5)
+        assert [row for row, _, _ in found] == expected.tolist()
+        np.testing.assert_allclose([c for _, c, _ in found], best[expected], rtol=1e-12)
+        assert [v for _, _, v in found] == plain[:, expected].argmin(axis=0).tolist()
+
+
+def test_path_to_query_bounds_never_exceed_the_true_distance() -> None:
+    rng = np.random.default_rng(11)
+    query = normalize_path(np.cumsum(rng.normal(size=(150, 2)), axis=0))
+    paths = np.stack(
+        [normalize_path(np.cumsum(rng.normal(size=(200, 2)), axis=0)) for _ in range(40)]
+    )
+    on_query = query[np.linspace(0, len(query) - 1, 200).round().astype(int)]
+    paths = np.concatenate([paths, on_query[None]]).astype(np.float32)  # lies on the query
+    table = np.empty((kernels.TABLE_CELLS + 1,) * 2)
+    kernels.distance_table(query, table)
+    bounds = np.empty((len(paths), 4))
+    cell = (kernels.TABLE_HI - kernels.TABLE_LO) / kernels.TABLE_CELLS
+    kernels.path_to_query_bounds(table, paths, bounds)
+    for variant, (matrix, offset) in enumerate(map(variant_map, range(4))):
+        moved = query @ matrix.T + offset
+        for p, path in enumerate(paths.astype(np.float64)):
+            nearest = np.sqrt(((path[:, None] - moved[None]) ** 2).sum(-1)).min(axis=1).mean()
+            assert bounds[p, variant] <= nearest + 1e-12
+            assert bounds[p, variant] >= nearest - 2 * cell  # and tight
+    assert bounds[-1, 0] < 1e-6
 
 
 def test_returned_mechanism_traces_the_query_where_it_was_drawn(index: RetrievalIndex) -> None:
@@ -104,7 +149,8 @@ def test_bad_queries_are_refused(points: object, k: object, message: str) -> Non
 def test_saved_index_is_reused(index: RetrievalIndex) -> None:
     assert Store.open(index.store.uri).read_bytes(INDEX_FILE) is not None
     again = RetrievalIndex.open(index.store.uri)
-    np.testing.assert_array_equal(again.descriptors, index.descriptors)
+    np.testing.assert_array_equal(again.codes, index.codes)
+    np.testing.assert_array_equal(again.basis.components, index.basis.components)
     assert again.build_s == 0.0, "loaded, not rebuilt"
 
 

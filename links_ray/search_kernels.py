@@ -1,0 +1,212 @@
+"""Compiled kernels of retrieval: path descriptors, the descriptor scan, and the chamfer
+estimate and lower bound against one query. Pure numpy/numba; `retrieval` orchestrates them.
+
+Every kernel compares candidates with the query *as drawn*: a query variant (turned 180
+degrees, mirrored, both) is an isometry that is its own inverse, so the distance from a
+candidate point to a variant of the query equals the distance from the same-variant image of
+that point to the query. Variant v flips x when v is 1 or 3 and y when v is 1 or 2, in
+normalized coordinates (x -> 1 - x, y -> 1 - y).
+
+A query's *distance table* holds its exact distance from every node of a fine grid over
+[TABLE_LO, TABLE_HI]^2. Between nodes the distance is estimated by bilinear interpolation, and
+bounded below by the distance being 1-Lipschitz: d(p) >= d(node) - |p - node| for each node.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+#: Descriptor grid: GRID x GRID nodes spanning [0, 1]^2 (node spacing 1 / (GRID - 1)).
+GRID = 24
+#: Query distance table: TABLE_CELLS x TABLE_CELLS cells over [TABLE_LO, TABLE_HI]^2.
+TABLE_CELLS = 128
+TABLE_LO, TABLE_HI = -0.05, 1.05
+#: Rows per parallel chunk: large enough that scheduling costs nothing.
+_CHUNK = 4096
+
+
+@njit(cache=True, inline="always")
+def _flip(x: float, y: float, variant: int) -> tuple[float, float]:
+    if variant == 1 or variant == 3:
+        x = 1.0 - x
+    if variant == 1 or variant == 2:
+        y = 1.0 - y
+    return x, y
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def path_features(paths: np.ndarray, stride: int, fields: np.ndarray, mass: np.ndarray) -> None:
+    """Per path: its distance field at the GRID x GRID nodes (using every `stride`-th point),
+    and its point mass spread bilinearly over the same nodes (summing to one)."""
+    step = 1.0 / (GRID - 1)
+    count = paths.shape[1]
+    for p in prange(paths.shape[0]):
+        for a in range(GRID):
+            for b in range(GRID):
+                best = np.inf
+                for t in range(0, count, stride):
+                    dx = paths[p, t, 0] - a * step
+                    dy = paths[p, t, 1] - b * step
+                    best = min(best, dx * dx + dy * dy)
+                fields[p, a * GRID + b] = math.sqrt(best)
+        mass[p, :] = 0.0
+        for t in range(count):
+            # Clamped into the grid: a normalized path lies in [0, 1]^2 up to rounding.
+            x = min(max(paths[p, t, 0] / step, 0.0), GRID - 1.000001)
+            y = min(max(paths[p, t, 1] / step, 0.0), GRID - 1.000001)
+            i = int(x)
+            j = int(y)
+            fx = x - i
+            fy = y - j
+            mass[p, i * GRID + j] += (1 - fx) * (1 - fy) / count
+            mass[p, (i + 1) * GRID + j] += fx * (1 - fy) / count
+            mass[p, i * GRID + j + 1] += (1 - fx) * fy / count
+            mass[p, (i + 1) * GRID + j + 1] += fx * fy / count
+
+
+@njit(cache=True, nogil=True, parallel=True, fastmath=True)
+def scan(
+    codes: np.ndarray, weights: np.ndarray, offsets: np.ndarray, bias: np.ndarray, out: np.ndarray
+) -> None:
+    """out[i] = bias[i] + min over the four variants v of (codes[i] . weights[v] + offsets[v])."""
+    rows, width = codes.shape
+    for chunk in prange((rows + _CHUNK - 1) // _CHUNK):
+        for i in range(chunk * _CHUNK, min(rows, (chunk + 1) * _CHUNK)):
+            s0 = offsets[0]
+            s1 = offsets[1]
+            s2 = offsets[2]
+            s3 = offsets[3]
+            for k in range(width):
+                code = np.float32(codes[i, k])
+                s0 += code * weights[0, k]
+                s1 += code * weights[1, k]
+                s2 += code * weights[2, k]
+                s3 += code * weights[3, k]
+            out[i] = bias[i] + min(min(s0, s1), min(s2, s3))
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def distance_table(query: np.ndarray, out: np.ndarray) -> None:
+    """out[a, b] = distance from node (TABLE_LO + a * size, TABLE_LO + b * size) to the query."""
+    size = (TABLE_HI - TABLE_LO) / TABLE_CELLS
+    for a in prange(TABLE_CELLS + 1):
+        x = TABLE_LO + a * size
+        for b in range(TABLE_CELLS + 1):
+            y = TABLE_LO + b * size
+            best = np.inf
+            for i in range(query.shape[0]):
+                dx = query[i, 0] - x
+                dy = query[i, 1] - y
+                best = min(best, dx * dx + dy * dy)
+            out[a, b] = math.sqrt(best)
+
+
+@njit(cache=True, inline="always")
+def _cell(x: float, y: float) -> tuple[int, int, float, float]:
+    """The table cell holding (x, y) and the position inside it in [0, 1); a = -1 if outside."""
+    scale = TABLE_CELLS / (TABLE_HI - TABLE_LO)
+    fx = (x - TABLE_LO) * scale
+    fy = (y - TABLE_LO) * scale
+    if not (0.0 <= fx < TABLE_CELLS and 0.0 <= fy < TABLE_CELLS):
+        return -1, -1, 0.0, 0.0
+    a = int(fx)
+    b = int(fy)
+    return a, b, fx - a, fy - b
+
+
+@njit(cache=True, inline="always")
+def _nearest(query: np.ndarray, x: float, y: float) -> float:
+    best = np.inf
+    for i in range(query.shape[0]):
+        dx = query[i, 0] - x
+        dy = query[i, 1] - y
+        best = min(best, dx * dx + dy * dy)
+    return math.sqrt(best)
+
+
+@njit(cache=True, nogil=True, parallel=True, fastmath=True)
+def estimate_chamfer(
+    query: np.ndarray,
+    sample: np.ndarray,
+    table: np.ndarray,
+    points: np.ndarray,
+    rows: np.ndarray,
+    variants: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """out[r] estimates chamfer(query variant `variants[r]`, path `rows[r]`).
+
+    Query to path: exact nearest-point distances from the query points `sample` (a subset
+    evenly along the query), averaged. Path to query: the distance table, interpolated at
+    every path point.
+    """
+    count = points.shape[1]
+    taken = sample.shape[0]
+    qx = sample[:, 0].astype(np.float32)
+    qy = sample[:, 1].astype(np.float32)
+    for chunk in prange((rows.shape[0] + 255) // 256):
+        nearest = np.empty(taken, dtype=np.float32)
+        for r in range(chunk * 256, min(rows.shape[0], (chunk + 1) * 256)):
+            p = rows[r]
+            nearest[:] = np.inf
+            to_query = 0.0
+            for t in range(count):
+                x, y = _flip(np.float64(points[p, t, 0]), np.float64(points[p, t, 1]), variants[r])
+                a, b, fx, fy = _cell(x, y)
+                if a < 0:
+                    to_query += _nearest(query, x, y)
+                else:
+                    to_query += (
+                        table[a, b] * (1 - fx) * (1 - fy)
+                        + table[a + 1, b] * fx * (1 - fy)
+                        + table[a, b + 1] * (1 - fx) * fy
+                        + table[a + 1, b + 1] * fx * fy
+                    )
+                px = np.float32(x)
+                py = np.float32(y)
+                # Over the query sample, so the loop vectorizes (a minimum over the inner
+                # loop would be a scalar reduction).
+                for i in range(taken):
+                    dx = qx[i] - px
+                    dy = qy[i] - py
+                    nearest[i] = min(nearest[i], dx * dx + dy * dy)
+            to_path = 0.0
+            for i in range(taken):
+                to_path += math.sqrt(nearest[i])
+            out[r] = to_path / taken + to_query / count
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def path_to_query_bounds(table: np.ndarray, points: np.ndarray, out: np.ndarray) -> None:
+    """out[p, v] <= the mean distance from path p, as variant v, to the query: a lower bound
+    of the chamfer distance (its path-to-query half)."""
+    size = (TABLE_HI - TABLE_LO) / TABLE_CELLS
+    count = points.shape[1]
+    for chunk in prange((points.shape[0] + 255) // 256):
+        for p in range(chunk * 256, min(points.shape[0], (chunk + 1) * 256)):
+            for v in range(4):
+                total = 0.0
+                for t in range(count):
+                    x, y = _flip(np.float64(points[p, t, 0]), np.float64(points[p, t, 1]), v)
+                    a, b, fx, fy = _cell(x, y)
+                    if a < 0:
+                        continue  # outside the table: bounded by zero
+                    ux = fx * size
+                    uy = fy * size
+                    vx = size - ux
+                    vy = size - uy
+                    bound = max(
+                        max(
+                            table[a, b] - math.sqrt(ux * ux + uy * uy),
+                            table[a + 1, b] - math.sqrt(vx * vx + uy * uy),
+                        ),
+                        max(
+                            table[a, b + 1] - math.sqrt(ux * ux + vy * vy),
+                            table[a + 1, b + 1] - math.sqrt(vx * vx + vy * vy),
+                        ),
+                    )
+                    total += max(bound, 0.0)
+                out[p, v] = total / count
