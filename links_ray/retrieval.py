@@ -8,7 +8,7 @@ query's four variants (as drawn, turned 180 degrees, mirrored, both). Search has
    path's distance field, and the path's point mass against the query's distance field. With
    the fields reduced by PCA to `DIMENSIONS` (and int8 codes), every path gets a linear
    estimate of its chamfer distance to each variant in one pass; the best `CANDIDATES` go on.
-2. Estimate. For each candidate and its `ESTIMATED_VARIANTS` likeliest variants: exact nearest-point
+2. Estimate. For each candidate and its two likeliest variants: exact nearest-point
    distances from `QUERY_SAMPLE` query points, plus the query's distance table interpolated at
    every path point (`search_kernels.estimate_chamfer`).
 3. Exact. The best `FINALISTS` by estimate get the exact chamfer distance for all four variants.
@@ -45,12 +45,13 @@ from links_ray.storage import META, Store
 #: PCA components of the distance fields; a path's code holds two sets (2 * DIMENSIONS int8).
 DIMENSIONS = 64
 #: Paths passed from the scan to the estimate.
-CANDIDATES = 20_000
+CANDIDATES = 15_000
 #: Query points used for the estimate's query-to-path half: a rough pass over every
 #: candidate pair, then a fine pass over the best REFINED pairs.
 ROUGH_SAMPLE, REFINED, QUERY_SAMPLE = 8, 2_000, 50
-#: Variants estimated per candidate: its likeliest by the scan.
-ESTIMATED_VARIANTS = 2
+#: The rough pass measures from every ROUGH_STRIDES[0]-th path point to the query sample,
+#: and reads the distance table at every ROUGH_STRIDES[1]-th.
+ROUGH_STRIDES = (2, 4)
 #: Paths given the exact chamfer distance.
 FINALISTS = 32
 #: Every second point of a stored path makes its distance field.
@@ -127,7 +128,8 @@ def path_features(paths: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.nd
     cells = kernels.GRID * kernels.GRID
     fields = np.empty((len(paths), cells), dtype=np.float32)
     mass = np.empty((len(paths), cells), dtype=np.float32)
-    kernels.path_features(np.ascontiguousarray(paths), stride, fields, mass)
+    compute = kernels.path_features if len(paths) > 4 else kernels.path_features_serial
+    compute(np.ascontiguousarray(paths), stride, fields, mass)
     return fields, mass
 
 
@@ -175,7 +177,11 @@ class Basis:
 
 @dataclass
 class RetrievalIndex:
-    """Curated paths, their codes, and the way back to their mechanisms."""
+    """Curated paths, their codes, and the way back to their mechanisms.
+
+    One query at a time: the scan writes into buffers the index keeps (callers that serve
+    concurrent requests hold a lock, as the Serve app does).
+    """
 
     store: Store
     path_id: np.ndarray
@@ -188,7 +194,9 @@ class RetrievalIndex:
     basis: Basis
     mechanisms: pa.Table  # the mechanisms the paths come from, sorted by mechanism_id
     build_s: float = 0.0
-    _scores: np.ndarray | None = None  # the scan's output, reused across queries
+    # The scan's output, reused across queries.
+    _scores: np.ndarray | None = None
+    _likely: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.path_id)
@@ -270,7 +278,8 @@ class RetrievalIndex:
             return np.arange(len(self))
         if self._scores is None:
             self._scores = np.empty(len(self), dtype=np.float32)
-        kernels.scan(self.codes, weights, offsets, self.bias, self._scores)
+            self._likely = np.empty(len(self), dtype=np.int8)
+        kernels.scan(self.codes, weights, offsets, self.bias, self._scores, self._likely)
         # A threshold from a strided sample selects a little more than `count` rows at once;
         # a partition of the whole array would cost more than the scan.
         sample = self._scores[::SELECTION_STRIDE]
@@ -289,15 +298,19 @@ class RetrievalIndex:
         variants = query_variants(normalized)
         weights, offsets = self.basis.query(variants)
         rows = self.candidates(weights, offsets, candidates)
-        # Each candidate's likeliest variants by the scan's linear estimate.
-        linear = self.codes[rows].astype(np.float32) @ weights.T + offsets
-        likely = np.argsort(linear, axis=1, kind="stable")[:, :ESTIMATED_VARIANTS]
-        pair_rows = np.repeat(rows, ESTIMATED_VARIANTS)
-        pair_variants = likely.ravel().astype(np.int64)
+        # Each candidate with its two likeliest variants by the scan's linear estimate.
+        if len(rows) == len(self):  # the exhaustive path: every variant
+            pair_rows, pair_variants = np.repeat(rows, 4), np.tile(np.arange(4), len(rows))
+        else:
+            likely = self._likely[rows].astype(np.int64)
+            pair_rows = np.repeat(rows, 2)
+            pair_variants = np.column_stack([likely // 4, likely % 4]).ravel()
         table = np.empty((kernels.TABLE_CELLS + 1,) * 2)
         kernels.distance_table(normalized, table)
         if len(pair_rows) > REFINED:  # a rough estimate of every pair first
-            rough = self._estimate(normalized, table, ROUGH_SAMPLE, pair_rows, pair_variants)
+            rough = self._estimate(
+                normalized, table, ROUGH_SAMPLE, pair_rows, pair_variants, *ROUGH_STRIDES
+            )
             best = np.argpartition(rough, REFINED)[:REFINED]
             pair_rows, pair_variants = pair_rows[best], pair_variants[best]
         fine = self._estimate(normalized, table, QUERY_SAMPLE, pair_rows, pair_variants)
@@ -361,9 +374,11 @@ class RetrievalIndex:
         sample_size: int,
         rows: np.ndarray,
         variants: np.ndarray,
+        near_stride: int = 1,
+        table_stride: int = 1,
     ) -> np.ndarray:
         """Estimated chamfer distances of (row, variant) pairs, with `sample_size` query points
-        evenly along the query for its query-to-path half."""
+        evenly along the query (see `search_kernels.estimate_chamfer` for the strides)."""
         picks = np.unique(np.linspace(0, len(normalized) - 1, sample_size).round().astype(int))
         out = np.empty(len(rows))
         kernels.estimate_chamfer(
@@ -373,6 +388,8 @@ class RetrievalIndex:
             self.points,
             rows,
             variants,
+            near_stride,
+            table_stride,
             out,
         )
         return out

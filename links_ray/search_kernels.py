@@ -37,8 +37,7 @@ def _flip(x: float, y: float, variant: int) -> tuple[float, float]:
     return x, y
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def path_features(paths: np.ndarray, stride: int, fields: np.ndarray, mass: np.ndarray) -> None:
+def _path_features(paths: np.ndarray, stride: int, fields: np.ndarray, mass: np.ndarray) -> None:
     """Per path: its distance field at the GRID x GRID nodes (using every `stride`-th point),
     and its point mass spread bilinearly over the same nodes (summing to one)."""
     step = 1.0 / (GRID - 1)
@@ -67,11 +66,36 @@ def path_features(paths: np.ndarray, stride: int, fields: np.ndarray, mass: np.n
             mass[p, (i + 1) * GRID + j + 1] += fx * fy / count
 
 
+#: For many paths; the serial twin serves a single query without waking threads.
+path_features = njit(cache=True, nogil=True, parallel=True)(_path_features)
+path_features_serial = njit(cache=True, nogil=True)(_path_features)
+
+
+@njit(cache=True, inline="always")
+def _least_two(
+    a: int, sa: float, b: int, sb: float, c: int, sc: float, d: int, sd: float
+) -> tuple[int, float, int, float]:
+    """(index, score) of the least and of the second least of four scores."""
+    if sb < sa:
+        a, sa, b, sb = b, sb, a, sa
+    if sd < sc:
+        c, sc, d, sd = d, sd, c, sc
+    if sa <= sc:
+        return (a, sa, b, sb) if sb <= sc else (a, sa, c, sc)
+    return (c, sc, d, sd) if sd < sa else (c, sc, a, sa)
+
+
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
 def scan(
-    codes: np.ndarray, weights: np.ndarray, offsets: np.ndarray, bias: np.ndarray, out: np.ndarray
+    codes: np.ndarray,
+    weights: np.ndarray,
+    offsets: np.ndarray,
+    bias: np.ndarray,
+    out: np.ndarray,
+    likely: np.ndarray,
 ) -> None:
-    """out[i] = bias[i] + min over the four variants v of (codes[i] . weights[v] + offsets[v])."""
+    """out[i] = bias[i] + min over the four variants v of (codes[i] . weights[v] + offsets[v]);
+    likely[i] = 4 * (the least variant) + (the second least)."""
     rows, width = codes.shape
     for chunk in prange((rows + _CHUNK - 1) // _CHUNK):
         for i in range(chunk * _CHUNK, min(rows, (chunk + 1) * _CHUNK)):
@@ -85,23 +109,29 @@ def scan(
                 s1 += code * weights[1, k]
                 s2 += code * weights[2, k]
                 s3 += code * weights[3, k]
-            out[i] = bias[i] + min(min(s0, s1), min(s2, s3))
+            first, low, second, _ = _least_two(0, s0, 1, s1, 2, s2, 3, s3)
+            out[i] = bias[i] + low
+            likely[i] = 4 * first + second
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True, fastmath=True)
 def distance_table(query: np.ndarray, out: np.ndarray) -> None:
     """out[a, b] = distance from node (TABLE_LO + a * size, TABLE_LO + b * size) to the query."""
     size = (TABLE_HI - TABLE_LO) / TABLE_CELLS
-    for a in prange(TABLE_CELLS + 1):
+    nodes = TABLE_CELLS + 1
+    for a in prange(nodes):
         x = TABLE_LO + a * size
-        for b in range(TABLE_CELLS + 1):
-            y = TABLE_LO + b * size
-            best = np.inf
-            for i in range(query.shape[0]):
-                dx = query[i, 0] - x
-                dy = query[i, 1] - y
-                best = min(best, dx * dx + dy * dy)
-            out[a, b] = math.sqrt(best)
+        nearest = np.full(nodes, np.inf)
+        # Over the column of nodes innermost, so the loop vectorizes.
+        for i in range(query.shape[0]):
+            dx = query[i, 0] - x
+            dx2 = dx * dx
+            qy = query[i, 1]
+            for b in range(nodes):
+                dy = qy - (TABLE_LO + b * size)
+                nearest[b] = min(nearest[b], dx2 + dy * dy)
+        for b in range(nodes):
+            out[a, b] = math.sqrt(nearest[b])
 
 
 @njit(cache=True, inline="always")
@@ -135,13 +165,15 @@ def estimate_chamfer(
     points: np.ndarray,
     rows: np.ndarray,
     variants: np.ndarray,
+    near_stride: int,
+    table_stride: int,
     out: np.ndarray,
 ) -> None:
     """out[r] estimates chamfer(query variant `variants[r]`, path `rows[r]`).
 
     Query to path: exact nearest-point distances from the query points `sample` (a subset
-    evenly along the query), averaged. Path to query: the distance table, interpolated at
-    every path point.
+    evenly along the query) to every `near_stride`-th path point, averaged. Path to query: the
+    distance table, interpolated at every `table_stride`-th path point.
     """
     count = points.shape[1]
     taken = sample.shape[0]
@@ -151,10 +183,14 @@ def estimate_chamfer(
         nearest = np.empty(taken, dtype=np.float32)
         for r in range(chunk * 256, min(rows.shape[0], (chunk + 1) * 256)):
             p = rows[r]
-            nearest[:] = np.inf
+            # The variant's flip as x -> sign_x * x + shift_x, without branches in the loops.
+            shift_x, shift_y = _flip(0.0, 0.0, variants[r])
+            sign_x = 1.0 - 2.0 * shift_x
+            sign_y = 1.0 - 2.0 * shift_y
             to_query = 0.0
-            for t in range(count):
-                x, y = _flip(np.float64(points[p, t, 0]), np.float64(points[p, t, 1]), variants[r])
+            for t in range(0, count, table_stride):
+                x = shift_x + sign_x * points[p, t, 0]
+                y = shift_y + sign_y * points[p, t, 1]
                 a, b, fx, fy = _cell(x, y)
                 if a < 0:
                     to_query += _nearest(query, x, y)
@@ -165,8 +201,14 @@ def estimate_chamfer(
                         + table[a, b + 1] * (1 - fx) * fy
                         + table[a + 1, b + 1] * fx * fy
                     )
-                px = np.float32(x)
-                py = np.float32(y)
+            nearest[:] = np.inf
+            fsx = np.float32(sign_x)
+            fsy = np.float32(sign_y)
+            fox = np.float32(shift_x)
+            foy = np.float32(shift_y)
+            for t in range(0, count, near_stride):
+                px = fox + fsx * points[p, t, 0]
+                py = foy + fsy * points[p, t, 1]
                 # Over the query sample, so the loop vectorizes (a minimum over the inner
                 # loop would be a scalar reduction).
                 for i in range(taken):
@@ -176,7 +218,7 @@ def estimate_chamfer(
             to_path = 0.0
             for i in range(taken):
                 to_path += math.sqrt(nearest[i])
-            out[r] = to_path / taken + to_query / count
+            out[r] = to_path / taken + to_query / ((count + table_stride - 1) // table_stride)
 
 
 @njit(cache=True, nogil=True, parallel=True)
