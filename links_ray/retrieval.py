@@ -6,11 +6,13 @@ query's four variants (as drawn, turned 180 degrees, mirrored, both). Search has
 
 1. Scan. Chamfer's two halves are, on a grid, dot products: the query's point mass against a
    path's distance field, and the path's point mass against the query's distance field. With
-   the fields reduced by PCA to `DIMENSIONS` (and int8 codes), every path gets a linear
-   estimate of its chamfer distance to each variant in one pass; the best `CANDIDATES` go on.
-2. Estimate. For each candidate and its two likeliest variants: exact nearest-point
-   distances from `QUERY_SAMPLE` query points, plus the query's distance table interpolated at
-   every path point (`search_kernels.estimate_chamfer`).
+   the fields reduced by PCA to `DIMENSIONS` per half (and int8 codes), every path gets a
+   linear estimate of its chamfer distance to each variant. One pass over the leading
+   `HEAD_COMPONENTS` of every code keeps `HEAD_KEEP` rows; their whole codes keep the best
+   `CANDIDATES`, each with its likeliest variant (and the second, if within `VARIANT_MARGIN`).
+2. Estimate. Each candidate pair gets exact nearest-point distances from a sample of query
+   points, plus the query's distance table interpolated along the path
+   (`search_kernels.estimate_chamfer`): roughly for all, finely for the best `REFINED`.
 3. Exact. The best `FINALISTS` by estimate get the exact chamfer distance for all four variants.
 
 `brute_force` is exact over every path: a lower bound prunes the paths that cannot beat the
@@ -44,8 +46,14 @@ from links_ray.storage import META, Store
 
 #: PCA components of the distance fields; a path's code holds two sets (2 * DIMENSIONS int8).
 DIMENSIONS = 64
-#: Paths passed from the scan to the estimate.
-CANDIDATES = 15_000
+#: Components per half in the head of a code; rows the head scan passes on to the whole code;
+#: paths passed from the whole code to the estimate.
+HEAD_COMPONENTS, HEAD_KEEP, CANDIDATES = 24, 90_000, 15_000
+HEAD_COLUMNS = np.r_[0:HEAD_COMPONENTS, DIMENSIONS : DIMENSIONS + HEAD_COMPONENTS]
+TAIL_COLUMNS = np.r_[HEAD_COMPONENTS:DIMENSIONS, DIMENSIONS + HEAD_COMPONENTS : 2 * DIMENSIONS]
+#: A candidate's second likeliest variant is estimated too when its linear estimate is within
+#: this of the likeliest.
+VARIANT_MARGIN = 0.002
 #: Query points used for the estimate's query-to-path half: a rough pass over every
 #: candidate pair, then a fine pass over the best REFINED pairs.
 ROUGH_SAMPLE, REFINED, QUERY_SAMPLE = 8, 2_000, 50
@@ -63,7 +71,7 @@ MAX_K = 100
 #: Query coordinates and extent the normalization handles without overflow.
 MAX_COORDINATE, MIN_EXTENT = 1e12, 1e-9
 INDEX_FILE = f"{META}/index.npz"
-INDEX_FORMAT = 2
+INDEX_FORMAT = 3
 #: The query's four readings, as maps of normalized coordinates (each its own inverse).
 VARIANTS = ("as drawn", "turned 180", "mirrored", "turned and mirrored")
 
@@ -189,14 +197,15 @@ class RetrievalIndex:
     joint: np.ndarray
     n_joints: np.ndarray
     points: np.ndarray  # (N, T, 2) float32 normalized
-    codes: np.ndarray  # (N, 2 * DIMENSIONS) int8
+    # Each path's int8 code, split in two: the leading HEAD_COMPONENTS of each half, scanned
+    # for every query, and the rest, read only for the rows the head ranks best.
+    head: np.ndarray  # (N, 2 * HEAD_COMPONENTS) int8
+    tail: np.ndarray  # (N, 2 * (DIMENSIONS - HEAD_COMPONENTS)) int8
     bias: np.ndarray  # (N,) float32
     basis: Basis
     mechanisms: pa.Table  # the mechanisms the paths come from, sorted by mechanism_id
     build_s: float = 0.0
-    # The scan's output, reused across queries.
-    _scores: np.ndarray | None = None
-    _likely: np.ndarray | None = None
+    _scores: np.ndarray | None = None  # the scan's output, reused across queries
 
     def __len__(self) -> int:
         return len(self.path_id)
@@ -210,7 +219,8 @@ class RetrievalIndex:
             self.joint,
             self.n_joints,
             self.points,
-            self.codes,
+            self.head,
+            self.tail,
             self.bias,
             self.basis.components,
         )
@@ -247,11 +257,20 @@ class RetrievalIndex:
                 and np.array_equal(arrays["path_id"], path_id)
             ):
                 basis = Basis(arrays["mean"], arrays["components"], arrays["scale"])
-                return cls(**columns, codes=arrays["codes"], bias=arrays["bias"], basis=basis)
+                head, tail = arrays["head"], arrays["tail"]
+                return cls(**columns, head=head, tail=tail, bias=arrays["bias"], basis=basis)
         start = time.perf_counter()
         codes, bias, basis = _encode(points)
+        head = np.ascontiguousarray(codes[:, HEAD_COLUMNS])
+        tail = np.ascontiguousarray(codes[:, TAIL_COLUMNS])
+        del codes
         index = cls(
-            **columns, codes=codes, bias=bias, basis=basis, build_s=time.perf_counter() - start
+            **columns,
+            head=head,
+            tail=tail,
+            bias=bias,
+            basis=basis,
+            build_s=time.perf_counter() - start,
         )
         buffer = io.BytesIO()
         np.savez(
@@ -259,7 +278,8 @@ class RetrievalIndex:
             format=INDEX_FORMAT,
             fingerprint=fingerprint,
             path_id=path_id,
-            codes=codes,
+            head=head,
+            tail=tail,
             bias=bias,
             mean=basis.mean,
             components=basis.components,
@@ -271,25 +291,35 @@ class RetrievalIndex:
             pass
         return index
 
-    def candidates(self, weights: np.ndarray, offsets: np.ndarray, count: int) -> np.ndarray:
-        """Rows of the `count` paths whose scanned estimate, at their best variant, is least,
-        for the query weights and offsets of `Basis.query`."""
+    def candidates(
+        self, weights: np.ndarray, offsets: np.ndarray, count: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The `count` rows whose scanned estimate, at their best variant, is least, for the
+        query weights and offsets of `Basis.query`; and for each, its likeliest variant and
+        the second likeliest if nearly as likely (`score_rows`)."""
         if count >= len(self):
-            return np.arange(len(self))
+            return np.arange(len(self)), np.full(len(self), -1, dtype=np.int8)
         if self._scores is None:
             self._scores = np.empty(len(self), dtype=np.float32)
-            self._likely = np.empty(len(self), dtype=np.int8)
-        kernels.scan(self.codes, weights, offsets, self.bias, self._scores, self._likely)
-        # A threshold from a strided sample selects a little more than `count` rows at once;
-        # a partition of the whole array would cost more than the scan.
-        sample = self._scores[::SELECTION_STRIDE]
-        want = min(len(sample) - 1, int(count / SELECTION_STRIDE * 1.5) + 1)
-        threshold = np.partition(sample, want)[want]
-        rows = np.flatnonzero(self._scores <= threshold)
-        if len(rows) < count:
-            rows = np.argpartition(self._scores, count)[:count]
-        scores = self._scores[rows]
-        return rows[np.argpartition(scores, count - 1)[:count]] if len(rows) > count else rows
+        head_weights = np.ascontiguousarray(weights[:, HEAD_COLUMNS])
+        kernels.scan(self.head, head_weights, offsets, self.bias, self._scores)
+        wide = _least(self._scores, max(count, HEAD_KEEP))
+        scores = np.empty(len(wide), dtype=np.float32)
+        likely = np.empty(len(wide), dtype=np.int8)
+        kernels.score_rows(
+            self.head,
+            self.tail,
+            wide,
+            head_weights,
+            np.ascontiguousarray(weights[:, TAIL_COLUMNS]),
+            offsets,
+            self.bias,
+            VARIANT_MARGIN,
+            scores,
+            likely,
+        )
+        best = _least(scores, count)
+        return wide[best], likely[best]
 
     def ranked(
         self, normalized: np.ndarray, k: int = 3, candidates: int = CANDIDATES
@@ -297,14 +327,15 @@ class RetrievalIndex:
         """The k best (row, chamfer, variant), best first, for a normalized query."""
         variants = query_variants(normalized)
         weights, offsets = self.basis.query(variants)
-        rows = self.candidates(weights, offsets, candidates)
-        # Each candidate with its two likeliest variants by the scan's linear estimate.
-        if len(rows) == len(self):  # the exhaustive path: every variant
+        rows, likely = self.candidates(weights, offsets, candidates)
+        # Each candidate with its likely variants (every variant on the exhaustive path).
+        if len(rows) == len(self):
             pair_rows, pair_variants = np.repeat(rows, 4), np.tile(np.arange(4), len(rows))
         else:
-            likely = self._likely[rows].astype(np.int64)
-            pair_rows = np.repeat(rows, 2)
-            pair_variants = np.column_stack([likely // 4, likely % 4]).ravel()
+            first, second = likely // 4, likely % 4
+            both = second != first
+            pair_rows = np.concatenate([rows, rows[both]])
+            pair_variants = np.concatenate([first, second[both]]).astype(np.int64)
         table = np.empty((kernels.TABLE_CELLS + 1,) * 2)
         kernels.distance_table(normalized, table)
         if len(pair_rows) > REFINED:  # a rough estimate of every pair first
@@ -319,6 +350,13 @@ class RetrievalIndex:
         _, first = np.unique(by_estimate, return_index=True)
         finalists = by_estimate[np.sort(first)][: max(FINALISTS, k)]
         return _exact_best(variants, self.points, np.sort(finalists), k)
+
+    def warm(self) -> None:
+        """Answer one query (an ellipse), so that the first user's answer does not pay for
+        loading the compiled kernels and touching the index's memory."""
+        if len(self):
+            angle = np.linspace(0, 2 * np.pi, 100)
+            self.retrieve(np.column_stack([np.cos(angle), 0.5 * np.sin(angle)]))
 
     def retrieve(self, points: object, k: int = 3) -> list[dict]:
         """SPEC section 5 results for a query: best first, mechanisms in the query's frame."""
@@ -437,8 +475,25 @@ def _fingerprint(store: Store) -> str:
     return json.dumps(rows)
 
 
-#: One score in this many makes the sample that sets the scan's selection threshold.
+#: One score in this many makes the sample that sets a selection threshold.
 SELECTION_STRIDE = 64
+
+
+def _least(values: np.ndarray, count: int, exactly: bool = True) -> np.ndarray:
+    """Ascending indices of the `count` least values (of all, if there are fewer); with
+    `exactly` false, of at least the `count` least (about half as many again)."""
+    if count >= len(values):
+        return np.arange(len(values))
+    # A threshold from a strided sample selects a little more than `count` at once; a
+    # partition of the whole array would cost more than the scan.
+    sample = values[::SELECTION_STRIDE]
+    want = min(len(sample) - 1, int(count / SELECTION_STRIDE * 1.5) + 1)
+    chosen = np.flatnonzero(values <= np.partition(sample, want)[want])
+    if len(chosen) < count:
+        return np.sort(np.argpartition(values, count - 1)[:count])
+    if not exactly:
+        return chosen
+    return np.sort(chosen[np.argpartition(values[chosen], count - 1)[:count]])
 
 
 def _source_mechanisms(store: Store, mechanism_ids: np.ndarray) -> pa.Table:

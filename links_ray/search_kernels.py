@@ -85,33 +85,70 @@ def _least_two(
     return (c, sc, d, sd) if sd < sa else (c, sc, a, sa)
 
 
+@njit(cache=True, inline="always")
+def _scores(
+    codes: np.ndarray, i: int, weights: np.ndarray
+) -> tuple[np.float32, np.float32, np.float32, np.float32]:
+    """codes[i] . weights[v] for the four variants v."""
+    s0 = np.float32(0.0)
+    s1 = np.float32(0.0)
+    s2 = np.float32(0.0)
+    s3 = np.float32(0.0)
+    for k in range(codes.shape[1]):
+        code = np.float32(codes[i, k])
+        s0 += code * weights[0, k]
+        s1 += code * weights[1, k]
+        s2 += code * weights[2, k]
+        s3 += code * weights[3, k]
+    return s0, s1, s2, s3
+
+
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
 def scan(
-    codes: np.ndarray,
-    weights: np.ndarray,
+    codes: np.ndarray, weights: np.ndarray, offsets: np.ndarray, bias: np.ndarray, out: np.ndarray
+) -> None:
+    """out[i] = bias[i] + min over the four variants v of (codes[i] . weights[v] + offsets[v])."""
+    rows = codes.shape[0]
+    for chunk in prange((rows + _CHUNK - 1) // _CHUNK):
+        for i in range(chunk * _CHUNK, min(rows, (chunk + 1) * _CHUNK)):
+            s0, s1, s2, s3 = _scores(codes, i, weights)
+            out[i] = bias[i] + min(
+                min(s0 + offsets[0], s1 + offsets[1]), min(s2 + offsets[2], s3 + offsets[3])
+            )
+
+
+@njit(cache=True, nogil=True, parallel=True, fastmath=True)
+def score_rows(
+    head: np.ndarray,
+    tail: np.ndarray,
+    rows: np.ndarray,
+    head_weights: np.ndarray,
+    tail_weights: np.ndarray,
     offsets: np.ndarray,
     bias: np.ndarray,
+    margin: float,
     out: np.ndarray,
     likely: np.ndarray,
 ) -> None:
-    """out[i] = bias[i] + min over the four variants v of (codes[i] . weights[v] + offsets[v]);
-    likely[i] = 4 * (the least variant) + (the second least)."""
-    rows, width = codes.shape
-    for chunk in prange((rows + _CHUNK - 1) // _CHUNK):
-        for i in range(chunk * _CHUNK, min(rows, (chunk + 1) * _CHUNK)):
-            s0 = offsets[0]
-            s1 = offsets[1]
-            s2 = offsets[2]
-            s3 = offsets[3]
-            for k in range(width):
-                code = np.float32(codes[i, k])
-                s0 += code * weights[0, k]
-                s1 += code * weights[1, k]
-                s2 += code * weights[2, k]
-                s3 += code * weights[3, k]
-            first, low, second, _ = _least_two(0, s0, 1, s1, 2, s2, 3, s3)
-            out[i] = bias[i] + low
-            likely[i] = 4 * first + second
+    """The whole code's score of `rows` (the least over variants, as `scan`) into out, and
+    likely[r] = 4 * (the least variant) + (the second least if within `margin` of it, else
+    the least again)."""
+    for r in prange(rows.shape[0]):
+        i = rows[r]
+        h0, h1, h2, h3 = _scores(head, i, head_weights)
+        t0, t1, t2, t3 = _scores(tail, i, tail_weights)
+        first, low, second, high = _least_two(
+            0,
+            h0 + t0 + offsets[0],
+            1,
+            h1 + t1 + offsets[1],
+            2,
+            h2 + t2 + offsets[2],
+            3,
+            h3 + t3 + offsets[3],
+        )
+        out[r] = bias[i] + low
+        likely[r] = 4 * first + (second if high - low < margin else first)
 
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)

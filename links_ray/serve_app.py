@@ -450,6 +450,7 @@ class LinksApi:
     def __init__(self, root: str) -> None:
         self.root = root
         self.index = RetrievalIndex.open(root)
+        self.index.warm()  # also loads the solver /api/simulate uses
         self._retrieving = threading.Lock()
         studio_files()  # a package without the studio fails here, not on a user's first visit
 

@@ -19,6 +19,7 @@ from links_ray.paths import chamfer, chamfer_to_many, normalize_path
 from links_ray.retrieval import (
     INDEX_FILE,
     RetrievalIndex,
+    _least,
     normalization,
     query_variants,
     validate_query,
@@ -149,7 +150,8 @@ def test_bad_queries_are_refused(points: object, k: object, message: str) -> Non
 def test_saved_index_is_reused(index: RetrievalIndex) -> None:
     assert Store.open(index.store.uri).read_bytes(INDEX_FILE) is not None
     again = RetrievalIndex.open(index.store.uri)
-    np.testing.assert_array_equal(again.codes, index.codes)
+    np.testing.assert_array_equal(again.head, index.head)
+    np.testing.assert_array_equal(again.tail, index.tail)
     np.testing.assert_array_equal(again.basis.components, index.basis.components)
     assert again.build_s == 0.0, "loaded, not rebuilt"
 
@@ -165,3 +167,46 @@ def test_offline_cli(index: RetrievalIndex, tmp_path: Path) -> None:
     bad.write_text("[[0, 0], [1, 1]]")
     result = links("retrieve", index.store.uri, "--points", str(bad))
     assert result.returncode == 2 and "3 to 10000" in result.stderr
+
+
+def test_scan_scores_and_selection_match_numpy() -> None:
+    rng = np.random.default_rng(2)
+    head = rng.integers(-127, 128, (5000, 8), dtype=np.int8)
+    tail = rng.integers(-127, 128, (5000, 12), dtype=np.int8)
+    head_weights = rng.normal(size=(4, 8)).astype(np.float32)
+    tail_weights = rng.normal(size=(4, 12)).astype(np.float32)
+    offsets = rng.normal(size=4).astype(np.float32)
+    bias = rng.normal(size=5000).astype(np.float32)
+
+    scanned = np.empty(5000, dtype=np.float32)
+    kernels.scan(head, head_weights, offsets, bias, scanned)
+    expected = bias + (head @ head_weights.T.astype(np.float64) + offsets).min(axis=1)
+    np.testing.assert_allclose(scanned, expected, rtol=1e-5, atol=1e-2)
+
+    rows = np.arange(0, 5000, 3)
+    scores = np.empty(len(rows), dtype=np.float32)
+    likely = np.empty(len(rows), dtype=np.int8)
+    margin = 20.0
+    kernels.score_rows(
+        head, tail, rows, head_weights, tail_weights, offsets, bias, margin, scores, likely
+    )
+    whole = head[rows] @ head_weights.T.astype(np.float64) + tail[rows] @ tail_weights.T + offsets
+    np.testing.assert_allclose(scores, bias[rows] + whole.min(axis=1), rtol=1e-5, atol=1e-2)
+    order = np.argsort(whole, axis=1)
+    ranked = np.sort(whole, axis=1)
+    gap = ranked[:, 1] - ranked[:, 0]
+    # Rows whose order float32 sums cannot flip.
+    clear = (gap > 0.01) & (np.abs(gap - margin) > 0.01) & (ranked[:, 2] - ranked[:, 1] > 0.01)
+    first, second = likely // 4, likely % 4
+    assert clear.sum() > 1000
+    assert (first[clear] == order[clear, 0]).all()
+    near = gap < margin
+    assert (second[clear & near] == order[clear & near, 1]).all()
+    assert (second[clear & ~near] == first[clear & ~near]).all()
+    assert 0 < (clear & near).sum() < clear.sum()  # both cases occur
+
+    values = rng.normal(size=100_000).astype(np.float32)
+    for count in (1, 500, 20_000, 100_000, 200_000):
+        chosen = _least(values, count)
+        assert chosen.tolist() == sorted(np.argsort(values)[:count].tolist())
+    assert set(np.argsort(values)[:500]) <= set(_least(values, 500, exactly=False).tolist())
