@@ -8,8 +8,9 @@ query's four variants (as drawn, turned 180 degrees, mirrored, both). Search has
    path's distance field, and the path's point mass against the query's distance field. With
    the fields reduced by PCA to `DIMENSIONS` per half (and int8 codes), every path gets a
    linear estimate of its chamfer distance to each variant. One pass over the leading
-   `HEAD_COMPONENTS` of every code keeps `HEAD_KEEP` rows; their whole codes keep the best
-   `CANDIDATES`, each with its likeliest variant (and the second, if within `VARIANT_MARGIN`).
+   `HEAD_COMPONENTS` of every code keeps `HEAD_KEEP` times as many rows as there are
+   candidates; their whole codes keep the candidates (`CANDIDATE_SHARE` of the paths, at least
+   `MIN_CANDIDATES`), each with its likeliest variant (and the second, if within `VARIANT_MARGIN`).
 2. Estimate. Each candidate pair gets exact nearest-point distances from a sample of query
    points, plus the query's distance table interpolated along the path
    (`search_kernels.estimate_chamfer`): roughly for all, finely for the best `REFINED`.
@@ -46,9 +47,12 @@ from links_ray.storage import META, Store
 
 #: PCA components of the distance fields; a path's code holds two sets (2 * DIMENSIONS int8).
 DIMENSIONS = 64
-#: Components per half in the head of a code; rows the head scan passes on to the whole code;
-#: paths passed from the whole code to the estimate.
-HEAD_COMPONENTS, HEAD_KEEP, CANDIDATES = 24, 90_000, 15_000
+#: Paths passed from the scan to the estimate: this share of all, and at least MIN_CANDIDATES
+#: (every path, in every variant, when there are no more than that).
+CANDIDATE_SHARE, MIN_CANDIDATES = 0.015, 3_000
+#: Components per half in the head of a code; the head scan keeps HEAD_KEEP times as many rows
+#: as there are candidates, for the whole codes to rank.
+HEAD_COMPONENTS, HEAD_KEEP = 24, 6
 HEAD_COLUMNS = np.r_[0:HEAD_COMPONENTS, DIMENSIONS : DIMENSIONS + HEAD_COMPONENTS]
 TAIL_COLUMNS = np.r_[HEAD_COMPONENTS:DIMENSIONS, DIMENSIONS + HEAD_COMPONENTS : 2 * DIMENSIONS]
 #: A candidate's second likeliest variant is estimated too when its linear estimate is within
@@ -303,7 +307,7 @@ class RetrievalIndex:
             self._scores = np.empty(len(self), dtype=np.float32)
         head_weights = np.ascontiguousarray(weights[:, HEAD_COLUMNS])
         kernels.scan(self.head, head_weights, offsets, self.bias, self._scores)
-        wide = _least(self._scores, max(count, HEAD_KEEP))
+        wide = _least(self._scores, HEAD_KEEP * count)
         scores = np.empty(len(wide), dtype=np.float32)
         likely = np.empty(len(wide), dtype=np.int8)
         kernels.score_rows(
@@ -322,9 +326,12 @@ class RetrievalIndex:
         return wide[best], likely[best]
 
     def ranked(
-        self, normalized: np.ndarray, k: int = 3, candidates: int = CANDIDATES
+        self, normalized: np.ndarray, k: int = 3, candidates: int | None = None
     ) -> list[tuple[int, float, int]]:
-        """The k best (row, chamfer, variant), best first, for a normalized query."""
+        """The k best (row, chamfer, variant), best first, for a normalized query; the scan
+        passes on `candidates` paths (by default `CANDIDATE_SHARE` of them)."""
+        if candidates is None:
+            candidates = max(MIN_CANDIDATES, round(CANDIDATE_SHARE * len(self)))
         variants = query_variants(normalized)
         weights, offsets = self.basis.query(variants)
         rows, likely = self.candidates(weights, offsets, candidates)
