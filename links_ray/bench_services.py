@@ -137,13 +137,12 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 100, recall_queries: i
         hits += len({row for row, _, _ in index.ranked(normalized)} & truth[number])
 
     over_http = []
-    import ray
     from ray import serve
 
+    from links_ray.generation import connect
     from links_ray.serve_app import build_app
 
-    if not ray.is_initialized():  # quiet: --json output must stay one JSON document
-        ray.init(include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+    connect()
     with socket.socket() as probe:  # a free loopback port
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]

@@ -6,6 +6,7 @@ Errors a user can cause end as one line on stderr and exit status 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
@@ -44,7 +45,8 @@ def _generate(args: argparse.Namespace) -> None:
 def _bench_generate(args: argparse.Namespace) -> None:
     from links_ray import bench_services
 
-    result = bench_services.bench_generate(mechanisms=args.mechanisms)
+    with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
+        result = bench_services.bench_generate(mechanisms=args.mechanisms)
     print(json.dumps(result) if args.json else bench_services.format_generate(result))
 
 
@@ -85,7 +87,8 @@ def _retrieve(args: argparse.Namespace) -> None:
 def _bench_retrieve(args: argparse.Namespace) -> None:
     from links_ray import bench_services
 
-    result = bench_services.bench_retrieve(paths=args.paths)
+    with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
+        result = bench_services.bench_retrieve(paths=args.paths)
     print(json.dumps(result) if args.json else bench_services.format_retrieve(result))
 
 
