@@ -76,8 +76,6 @@ MAX_K = 100
 MAX_COORDINATE, MIN_EXTENT = 1e12, 1e-9
 INDEX_FILE = f"{META}/index.npz"
 INDEX_FORMAT = 3
-#: The query's four readings, as maps of normalized coordinates (each its own inverse).
-VARIANTS = ("as drawn", "turned 180", "mirrored", "turned and mirrored")
 
 
 def validate_query(points: object, k: object = 3) -> tuple[np.ndarray, int]:
@@ -145,6 +143,13 @@ def path_features(paths: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.nd
     return fields, mass
 
 
+def distance_table(normalized: np.ndarray) -> np.ndarray:
+    """The query's exact distance from each node of the `search_kernels` table grid."""
+    table = np.empty((kernels.TABLE_CELLS + 1,) * 2)
+    kernels.distance_table(normalized, table)
+    return table
+
+
 def query_variants(normalized: np.ndarray) -> np.ndarray:
     """(4, T, 2): the normalized query as drawn, turned 180 degrees, mirrored, and both."""
     return np.stack([normalized @ m.T + b for m, b in map(variant_map, range(4))])
@@ -199,7 +204,6 @@ class RetrievalIndex:
     path_id: np.ndarray
     mechanism_id: np.ndarray
     joint: np.ndarray
-    n_joints: np.ndarray
     points: np.ndarray  # (N, T, 2) float32 normalized
     # Each path's int8 code, split in two: the leading HEAD_COMPONENTS of each half, scanned
     # for every query, and the rest, read only for the rows the head ranks best.
@@ -221,7 +225,6 @@ class RetrievalIndex:
             self.path_id,
             self.mechanism_id,
             self.joint,
-            self.n_joints,
             self.points,
             self.head,
             self.tail,
@@ -236,7 +239,7 @@ class RetrievalIndex:
         """Load the index saved beside the data, or build (and save) it from `curated/`."""
         store = root if isinstance(root, Store) else Store.open(root, writable=False)
         curated = open_table(store, "curated")
-        table = curated.to_table(columns=["path_id", "mechanism_id", "joint", "points", "n_joints"])
+        table = curated.to_table(columns=["path_id", "mechanism_id", "joint", "points"])
         table = table.sort_by("path_id")
         path_id = table.column("path_id").to_numpy()
         points = (
@@ -247,7 +250,6 @@ class RetrievalIndex:
             "path_id": path_id,
             "mechanism_id": table.column("mechanism_id").to_numpy(),
             "joint": table.column("joint").to_numpy(),
-            "n_joints": table.column("n_joints").to_numpy(),
             "points": points,
         }
         columns["mechanisms"] = _source_mechanisms(store, columns["mechanism_id"])
@@ -264,10 +266,7 @@ class RetrievalIndex:
                 head, tail = arrays["head"], arrays["tail"]
                 return cls(**columns, head=head, tail=tail, bias=arrays["bias"], basis=basis)
         start = time.perf_counter()
-        codes, bias, basis = _encode(points)
-        head = np.ascontiguousarray(codes[:, HEAD_COLUMNS])
-        tail = np.ascontiguousarray(codes[:, TAIL_COLUMNS])
-        del codes
+        head, tail, bias, basis = _encode(points)
         index = cls(
             **columns,
             head=head,
@@ -343,8 +342,7 @@ class RetrievalIndex:
             both = second != first
             pair_rows = np.concatenate([rows, rows[both]])
             pair_variants = np.concatenate([first, second[both]]).astype(np.int64)
-        table = np.empty((kernels.TABLE_CELLS + 1,) * 2)
-        kernels.distance_table(normalized, table)
+        table = distance_table(normalized)
         if len(pair_rows) > REFINED:  # a rough estimate of every pair first
             rough = self._estimate(
                 normalized, table, ROUGH_SAMPLE, pair_rows, pair_variants, *ROUGH_STRIDES
@@ -356,7 +354,7 @@ class RetrievalIndex:
         by_estimate = pair_rows[np.argsort(fine, kind="stable")]
         _, first = np.unique(by_estimate, return_index=True)
         finalists = by_estimate[np.sort(first)][: max(FINALISTS, k)]
-        return _exact_best(variants, self.points, np.sort(finalists), k)
+        return _exact_best(variants, self.points, finalists, k)
 
     def warm(self) -> None:
         """Answer one query (an ellipse), so that the first user's answer does not pay for
@@ -448,8 +446,7 @@ class RetrievalIndex:
         normalized, _, _ = normalization(validate_query(points, k)[0])
         k = min(k, len(self))
         limit = self.ranked(normalized, k)[-1][1] + 1e-9  # rounding of the two computations
-        table = np.empty((kernels.TABLE_CELLS + 1,) * 2)
-        kernels.distance_table(normalized, table)
+        table = distance_table(normalized)
         bounds = np.empty((len(self), 4))
         kernels.path_to_query_bounds(table, self.points, bounds)
         pairs = np.flatnonzero(bounds.ravel() <= limit)
@@ -514,8 +511,9 @@ def _source_mechanisms(store: Store, mechanism_ids: np.ndarray) -> pa.Table:
     return table.sort_by("mechanism_id").combine_chunks()
 
 
-def _encode(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, Basis]:
-    """int8 codes (N, 2 * DIMENSIONS), biases and the basis of normalized paths (N, T, 2)."""
+def _encode(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, Basis]:
+    """The int8 codes of normalized paths (N, T, 2), split into head (N, 2 * HEAD_COMPONENTS)
+    and tail, their biases, and the basis."""
     sample = np.sort(np.random.default_rng(0).permutation(len(points))[:PCA_SAMPLE])
     basis = Basis.fit(path_features(points[sample], FIELD_STRIDE)[0])
     raw = np.empty((len(points), 2 * DIMENSIONS), dtype=np.float32)
@@ -525,7 +523,8 @@ def _encode(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, Basis]:
         raw[block], bias[block] = basis.project(*path_features(points[block], FIELD_STRIDE))
     basis.scale = np.maximum(np.abs(raw).max(axis=0), 1e-12) / 127
     codes = np.round(raw / basis.scale).astype(np.int8)
-    return codes, bias, basis
+    head = np.ascontiguousarray(codes[:, HEAD_COLUMNS])
+    return head, np.ascontiguousarray(codes[:, TAIL_COLUMNS]), bias, basis
 
 
 def _exact_best(
@@ -535,8 +534,8 @@ def _exact_best(
     k: int,
     only: np.ndarray | None = None,
 ) -> list[tuple[int, float, int]]:
-    """The k best (row, chamfer, variant) among `rows` (ascending), each against every
-    variant, or only against `only[i]` for rows[i] (rows may then repeat)."""
+    """The k best (row, chamfer, variant) among `rows`, each against every variant, or only
+    against `only[i]` for rows[i] (rows may then repeat); ties go to the lower row."""
     best = np.full(len(rows), np.inf)
     best_variant = np.zeros(len(rows), dtype=np.int64)
     for variant in range(4):
@@ -548,7 +547,7 @@ def _exact_best(
             better = distance < best[block]
             best[block[better]] = distance[better]
             best_variant[block[better]] = variant
-    # Each row once at its best variant, ties to the lower row.
+    # Each row once, at its best variant.
     order = np.lexsort((rows, best))
     answer: list[tuple[int, float, int]] = []
     seen: set[int] = set()

@@ -20,6 +20,7 @@ from links_ray.retrieval import (
     INDEX_FILE,
     RetrievalIndex,
     _least,
+    distance_table,
     normalization,
     query_variants,
     validate_query,
@@ -96,8 +97,7 @@ def test_path_to_query_bounds_never_exceed_the_true_distance() -> None:
     )
     on_query = query[np.linspace(0, len(query) - 1, 200).round().astype(int)]
     paths = np.concatenate([paths, on_query[None]]).astype(np.float32)  # lies on the query
-    table = np.empty((kernels.TABLE_CELLS + 1,) * 2)
-    kernels.distance_table(query, table)
+    table = distance_table(query)
     bounds = np.empty((len(paths), 4))
     cell = (kernels.TABLE_HI - kernels.TABLE_LO) / kernels.TABLE_CELLS
     kernels.path_to_query_bounds(table, paths, bounds)
