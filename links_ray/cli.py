@@ -17,14 +17,17 @@ from links_ray import bench
 from links_ray.demo import run_demo
 
 
+def _report(args: argparse.Namespace, result: dict, formatted: Callable[[dict], str]) -> None:
+    """A benchmark's result: one JSON object with --json, else the human-readable table."""
+    print(json.dumps(result) if args.json else formatted(result))
+
+
 def _bench_simulate(args: argparse.Namespace) -> None:
-    result = bench.bench_simulate(repeats=args.repeats)
-    print(json.dumps(result) if args.json else bench.format_simulate(result))
+    _report(args, bench.bench_simulate(repeats=args.repeats), bench.format_simulate)
 
 
 def _bench_sample(args: argparse.Namespace) -> None:
-    result = bench.bench_sample(per_joint_count=args.topologies)
-    print(json.dumps(result) if args.json else bench.format_sample(result))
+    _report(args, bench.bench_sample(per_joint_count=args.topologies), bench.format_sample)
 
 
 def _generate(args: argparse.Namespace) -> None:
@@ -47,7 +50,7 @@ def _bench_generate(args: argparse.Namespace) -> None:
 
     with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
         result = bench_services.bench_generate(mechanisms=args.mechanisms)
-    print(json.dumps(result) if args.json else bench_services.format_generate(result))
+    _report(args, result, bench_services.format_generate)
 
 
 def _curate(args: argparse.Namespace) -> None:
@@ -89,7 +92,7 @@ def _bench_retrieve(args: argparse.Namespace) -> None:
 
     with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
         result = bench_services.bench_retrieve(paths=args.paths)
-    print(json.dumps(result) if args.json else bench_services.format_retrieve(result))
+    _report(args, result, bench_services.format_retrieve)
 
 
 def _demo(args: argparse.Namespace) -> None:
