@@ -127,6 +127,13 @@ def as_steps(steps: object) -> int:
     return int(steps)
 
 
+def mobility(adjacency: ArrayLike, node_types: ArrayLike) -> tuple[int, int, int]:
+    """(moving joints, links, degrees of freedom = 2 x moving - links) of a mechanism graph."""
+    moving = int(np.count_nonzero(np.asarray(node_types) != FIXED))
+    links = int(np.count_nonzero(np.triu(np.asarray(adjacency), 1)))
+    return moving, links, 2 * moving - links
+
+
 def analyze_topology(adjacency: ArrayLike, node_types: ArrayLike) -> Topology:
     """Validate a topology and find its solution path.
 
@@ -230,9 +237,7 @@ def _solution_path(adj: np.ndarray, types: np.ndarray) -> np.ndarray:
                 heapq.heappush(solvable, k)
     if not all(known):
         unsolved = [j for j in range(n) if not known[j]]
-        moving = int(np.count_nonzero(types != FIXED))
-        links = int(np.count_nonzero(np.triu(adj, 1)))
-        dof = 2 * moving - links
+        moving, links, dof = mobility(adj, types)
         if dof > 1:
             raise InvalidMechanismError(
                 f"more than one degree of freedom: 2 x {moving} moving joints - {links} links "

@@ -43,11 +43,11 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from links_ray.dataset import open_table
 from links_ray.mechanism import (
-    FIXED,
     InvalidMechanismError,
     LockingError,
     analyze_topology,
     dataset_rule_violations,
+    mobility,
 )
 from links_ray.retrieval import (
     MAX_COORDINATE,
@@ -415,11 +415,9 @@ def analyze_mechanism(
     degrees) and, when it locks, `trajectories` [n][step][2] of the steps before the lock.
     Raises InvalidMechanismError for degenerate positions, as /api/simulate does.
     """
-    n = len(node_types)
-    moving = sum(1 for kind in node_types if kind != FIXED)
-    links = sum(1 for i in range(n) for j in range(i + 1, n) if adjacency[i][j])
-    found: dict[str, Any] = {"joints": n, "moving": moving, "links": links}
-    found["dof"] = 2 * moving - links
+    moving, links, dof = mobility(adjacency, node_types)
+    found: dict[str, Any] = {"joints": len(node_types), "moving": moving, "links": links}
+    found["dof"] = dof
     try:
         topology = analyze_topology(adjacency, node_types)
     except InvalidMechanismError as exc:
