@@ -90,15 +90,20 @@ $("export-svg").addEventListener("click", () => {
   else notify("", "export");
 });
 $("import-json").addEventListener("click", () => $("import-file").click());
+// Files being read: the page is not idle until an import has reached the editor.
+let importing = 0;
 $("import-file").addEventListener("change", async (e) => {
   const file = e.target.files[0];
   e.target.value = ""; // choosing the same file again still fires a change
   if (!file) return;
+  importing += 1;
   try {
     editor.load(await readMechanismFile(file));
     notify("", "import");
   } catch (err) {
     notify(`Import failed: ${err.message}`, "import");
+  } finally {
+    importing -= 1;
   }
 });
 $("share").addEventListener("click", async () => {
@@ -151,5 +156,5 @@ window.studio = {
   toScreen: (p) => editor.view.toScreen(p),
   drawToScreen: (p) => retriever.view.toScreen(p),
   latencies: () => editor.latencies.slice(),
-  idle: () => editor.idle,
+  idle: () => importing === 0 && editor.idle,
 };
