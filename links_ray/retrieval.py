@@ -11,16 +11,18 @@ query's four variants (as drawn, turned 180 degrees, mirrored, both). Search has
    `HEAD_COMPONENTS` of every code keeps `HEAD_KEEP` times as many rows as there are
    candidates; their whole codes keep the candidates (`CANDIDATE_SHARE` of the paths, at least
    `MIN_CANDIDATES`), each with its likeliest variant (and the second, if within `VARIANT_MARGIN`).
-2. Estimate. Each candidate pair gets exact nearest-point distances from a sample of query
-   points, plus the query's distance table interpolated along the path
-   (`search_kernels.estimate_chamfer`): roughly for all, finely for the best `REFINED`.
+2. Estimate. Each candidate pair gets nearest-point distances from a sample of query points,
+   plus the query's distance table read along the path: roughly for all, from the paths'
+   128-byte sketches (`search_kernels.rough_chamfer`), then finely for the best `REFINED`,
+   from the whole paths (`search_kernels.estimate_chamfer`).
 3. Exact. The best `FINALISTS` by estimate get the exact chamfer distance for all four variants.
 
 `brute_force` is exact over every path: a lower bound prunes the paths that cannot beat the
 k-th best, and the rest get the exact distance.
 
 The index (codes, PCA basis, ids) is saved at ``ROOT/_links/index.npz`` and reused while the
-curated tables are unchanged; the curated points are read from Parquet when it opens.
+curated tables are unchanged; the curated points are read from Parquet when it opens, and
+sketched then.
 
 No Ray: the Serve app and the CLI wrap this module.
 """
@@ -58,12 +60,9 @@ TAIL_COLUMNS = np.r_[HEAD_COMPONENTS:DIMENSIONS, DIMENSIONS + HEAD_COMPONENTS : 
 #: A candidate's second likeliest variant is estimated too when its linear estimate is within
 #: this of the likeliest.
 VARIANT_MARGIN = 0.002
-#: Query points used for the estimate's query-to-path half: a rough pass over every
-#: candidate pair, then a fine pass over the best REFINED pairs.
-ROUGH_SAMPLE, REFINED, QUERY_SAMPLE = 8, 2_000, 50
-#: The rough pass measures from every ROUGH_STRIDES[0]-th path point to the query sample,
-#: and reads the distance table at every ROUGH_STRIDES[1]-th.
-ROUGH_STRIDES = (2, 4)
+#: Candidate pairs given the fine estimate, and the query points it measures from (the rough
+#: estimate measures from `search_kernels.ROUGH_SAMPLE`).
+REFINED, QUERY_SAMPLE = 2_000, 50
 #: Paths given the exact chamfer distance.
 FINALISTS = 32
 #: Every second point of a stored path makes its distance field.
@@ -212,6 +211,7 @@ class RetrievalIndex:
     bias: np.ndarray  # (N,) float32
     basis: Basis
     mechanisms: pa.Table  # the mechanisms the paths come from, sorted by mechanism_id
+    sketches: np.ndarray  # (N, 2 * SKETCH_POINTS) uint8, see `search_kernels`
     build_s: float = 0.0
     _scores: np.ndarray | None = None  # the scan's output, reused across queries
 
@@ -226,6 +226,7 @@ class RetrievalIndex:
             self.mechanism_id,
             self.joint,
             self.points,
+            self.sketches,
             self.head,
             self.tail,
             self.bias,
@@ -251,6 +252,7 @@ class RetrievalIndex:
             "mechanism_id": table.column("mechanism_id").to_numpy(),
             "joint": table.column("joint").to_numpy(),
             "points": points,
+            "sketches": sketch_paths(points),
         }
         columns["mechanisms"] = _source_mechanisms(store, columns["mechanism_id"])
         fingerprint = _fingerprint(store)
@@ -306,7 +308,7 @@ class RetrievalIndex:
             self._scores = np.empty(len(self), dtype=np.float32)
         head_weights = np.ascontiguousarray(weights[:, HEAD_COLUMNS])
         kernels.scan(self.head, head_weights, offsets, self.bias, self._scores)
-        wide = _least(self._scores, HEAD_KEEP * count)
+        wide = _about_least(self._scores, HEAD_KEEP * count)
         scores = np.empty(len(wide), dtype=np.float32)
         likely = np.empty(len(wide), dtype=np.int8)
         kernels.score_rows(
@@ -321,7 +323,7 @@ class RetrievalIndex:
             scores,
             likely,
         )
-        best = _least(scores, count)
+        best = _about_least(scores, count)
         return wide[best], likely[best]
 
     def ranked(
@@ -344,12 +346,10 @@ class RetrievalIndex:
             pair_variants = np.concatenate([first, second[both]]).astype(np.int64)
         table = distance_table(normalized)
         if len(pair_rows) > REFINED:  # a rough estimate of every pair first
-            rough = self._estimate(
-                normalized, table, ROUGH_SAMPLE, pair_rows, pair_variants, *ROUGH_STRIDES
-            )
+            rough = self._rough_estimate(normalized, table, pair_rows, pair_variants)
             best = np.argpartition(rough, REFINED)[:REFINED]
             pair_rows, pair_variants = pair_rows[best], pair_variants[best]
-        fine = self._estimate(normalized, table, QUERY_SAMPLE, pair_rows, pair_variants)
+        fine = self._estimate(normalized, table, pair_rows, pair_variants)
         # Rows by their best estimate (a row may come twice, once per variant).
         by_estimate = pair_rows[np.argsort(fine, kind="stable")]
         _, first = np.unique(by_estimate, return_index=True)
@@ -411,30 +411,24 @@ class RetrievalIndex:
         return found
 
     def _estimate(
-        self,
-        normalized: np.ndarray,
-        table: np.ndarray,
-        sample_size: int,
-        rows: np.ndarray,
-        variants: np.ndarray,
-        near_stride: int = 1,
-        table_stride: int = 1,
+        self, normalized: np.ndarray, table: np.ndarray, rows: np.ndarray, variants: np.ndarray
     ) -> np.ndarray:
-        """Estimated chamfer distances of (row, variant) pairs, with `sample_size` query points
-        evenly along the query (see `search_kernels.estimate_chamfer` for the strides)."""
-        picks = np.unique(np.linspace(0, len(normalized) - 1, sample_size).round().astype(int))
+        """Estimated chamfer distances of (row, variant) pairs from the whole paths."""
+        sample = np.ascontiguousarray(normalized[_spread(len(normalized), QUERY_SAMPLE)])
         out = np.empty(len(rows))
-        kernels.estimate_chamfer(
-            normalized,
-            np.ascontiguousarray(normalized[picks]),
-            table,
-            self.points,
-            rows,
-            variants,
-            near_stride,
-            table_stride,
-            out,
-        )
+        kernels.estimate_chamfer(normalized, sample, table, self.points, rows, variants, out)
+        return out
+
+    def _rough_estimate(
+        self, normalized: np.ndarray, table: np.ndarray, rows: np.ndarray, variants: np.ndarray
+    ) -> np.ndarray:
+        """Roughly estimated chamfer distances of (row, variant) pairs from their sketches."""
+        levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
+        kernels.level_table(table, levels)
+        picked = normalized[_spread(len(normalized), kernels.ROUGH_SAMPLE)]
+        sample = np.rint(picked * kernels.SKETCH_LEVELS).astype(np.int32)
+        out = np.empty(len(rows))
+        kernels.rough_chamfer(sample, levels, self.sketches, rows, variants, out)
         return out
 
     def brute_force(self, points: ArrayLike, k: int = 3) -> list[tuple[int, float, int]]:
@@ -480,24 +474,32 @@ def _fingerprint(store: Store) -> str:
 
 
 #: One score in this many makes the sample that sets a selection threshold.
-SELECTION_STRIDE = 64
+SELECTION_STRIDE = 16
 
 
-def _least(values: np.ndarray, count: int, exactly: bool = True) -> np.ndarray:
-    """Ascending indices of the `count` least values (of all, if there are fewer); with
-    `exactly` false, of at least the `count` least (about half as many again)."""
+def _about_least(values: np.ndarray, count: int) -> np.ndarray:
+    """Ascending indices of about the `count` least values (of all, if there are fewer): those
+    at or below the matching quantile of a strided sample, so a few percent more or fewer."""
     if count >= len(values):
         return np.arange(len(values))
-    # A threshold from a strided sample selects a little more than `count` at once; a
-    # partition of the whole array would cost more than the scan.
-    sample = values[::SELECTION_STRIDE]
-    want = min(len(sample) - 1, int(count / SELECTION_STRIDE * 1.5) + 1)
-    chosen = np.flatnonzero(values <= np.partition(sample, want)[want])
-    if len(chosen) < count:
+    if len(values) < 64 * SELECTION_STRIDE:  # too few for the sample to estimate a quantile
         return np.sort(np.argpartition(values, count - 1)[:count])
-    if not exactly:
-        return chosen
-    return np.sort(chosen[np.argpartition(values[chosen], count - 1)[:count]])
+    # A partition of the whole array would cost more than the scan that made it.
+    sample = values[::SELECTION_STRIDE]
+    rank = min(len(sample) - 1, count * len(sample) // len(values))
+    return np.flatnonzero(values <= np.partition(sample, rank)[rank])
+
+
+def _spread(length: int, count: int) -> np.ndarray:
+    """Up to `count` distinct indices evenly over range(length)."""
+    return np.unique(np.linspace(0, length - 1, count).round().astype(int))
+
+
+def sketch_paths(points: np.ndarray) -> np.ndarray:
+    """The sketches (N, 2 * SKETCH_POINTS) uint8 of normalized paths (N, T, 2)."""
+    sketches = np.empty((len(points), 2 * kernels.SKETCH_POINTS), dtype=np.uint8)
+    kernels.sketch_paths(points, sketches)
+    return sketches
 
 
 def _source_mechanisms(store: Store, mechanism_ids: np.ndarray) -> pa.Table:

@@ -10,6 +10,14 @@ normalized coordinates (x -> 1 - x, y -> 1 - y).
 A query's *distance table* holds its exact distance from every node of a fine grid over
 [TABLE_LO, TABLE_HI]^2. Between nodes the distance is estimated by bilinear interpolation, and
 bounded below by the distance being 1-Lipschitz: d(p) >= d(node) - |p - node| for each node.
+
+A path's *sketch* is SKETCH_POINTS of its points, evenly spaced in time, each coordinate
+rounded to one of SKETCH_LEVELS + 1 levels over [0, 1] and stored as uint8: 128 bytes, two
+cache lines, against 1,600 for the whole path. A variant's flip is then `level ^ 255`, and
+the query's distance table, resampled at the levels, is read without arithmetic.
+
+The kernels that visit rows in an arbitrary order `prefetch` the rows a few steps ahead:
+without it they wait on memory most of the time.
 """
 
 from __future__ import annotations
@@ -17,7 +25,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from llvmlite import binding as llvm
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 #: Descriptor grid: GRID x GRID nodes spanning [0, 1]^2 (node spacing 1 / (GRID - 1)).
 GRID = 24
@@ -26,6 +38,40 @@ TABLE_CELLS = 128
 TABLE_LO, TABLE_HI = -0.05, 1.05
 #: Rows per parallel chunk: large enough that scheduling costs nothing.
 _CHUNK = 4096
+#: Points and coordinate levels of a path's sketch.
+SKETCH_POINTS, SKETCH_LEVELS = 64, 255
+#: Query points the rough estimate measures from (evenly along the query).
+ROUGH_SAMPLE = 32
+#: How many rows ahead the gathering kernels prefetch.
+_AHEAD = 8
+# Pointers became opaque in LLVM 15, and the intrinsic's name says the pointer type.
+_PREFETCH = "llvm.prefetch.p0" if llvm.llvm_version_info >= (15,) else "llvm.prefetch.p0i8"
+
+
+@intrinsic
+def prefetch(
+    typingctx: object, array: types.Array, row: types.Integer, column: types.Integer
+) -> tuple:
+    """`prefetch(array, row, column)` in compiled code: hint the CPU to load the cache line
+    holding array[row, column] (a 2-D array) for reading. It never faults and changes no
+    result; it only saves waiting when that element is read soon after."""
+    signature = types.void(array, row, column)
+
+    def codegen(context: object, builder: object, sig: object, args: tuple) -> object:
+        array_type = sig.args[0]
+        view = context.make_array(array_type)(context, builder, args[0])
+        pointer = cgutils.get_item_pointer(
+            context, builder, array_type, view, [args[1], args[2]], wraparound=False
+        )
+        byte_pointer = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        function_type = ir.FunctionType(ir.VoidType(), [byte_pointer, i32, i32, i32])
+        function = cgutils.get_or_insert_function(builder.module, function_type, _PREFETCH)
+        # Arguments: address, read (0), high temporal locality (3), data cache (1).
+        builder.call(function, [builder.bitcast(pointer, byte_pointer), i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return signature, codegen
 
 
 @njit(cache=True, inline="always")
@@ -133,22 +179,34 @@ def score_rows(
     """The whole code's score of `rows` (the least over variants, as `scan`) into out, and
     likely[r] = 4 * (the least variant) + (the second least if within `margin` of it, else
     the least again)."""
-    for r in prange(rows.shape[0]):
-        i = rows[r]
-        h0, h1, h2, h3 = _scores(head, i, head_weights)
-        t0, t1, t2, t3 = _scores(tail, i, tail_weights)
-        first, low, second, high = _least_two(
-            0,
-            h0 + t0 + offsets[0],
-            1,
-            h1 + t1 + offsets[1],
-            2,
-            h2 + t2 + offsets[2],
-            3,
-            h3 + t3 + offsets[3],
-        )
-        out[r] = bias[i] + low
-        likely[r] = 4 * first + (second if high - low < margin else first)
+    count = rows.shape[0]
+    head_end = head.shape[1] - 1
+    tail_end = tail.shape[1] - 1
+    for chunk in prange((count + 1023) // 1024):
+        end = min(count, (chunk + 1) * 1024)
+        for r in range(chunk * 1024, end):
+            if r + _AHEAD < end:
+                # Both ends of each part: a code may straddle cache lines.
+                ahead = rows[r + _AHEAD]
+                prefetch(head, ahead, 0)
+                prefetch(head, ahead, head_end)
+                prefetch(tail, ahead, 0)
+                prefetch(tail, ahead, tail_end)
+            i = rows[r]
+            h0, h1, h2, h3 = _scores(head, i, head_weights)
+            t0, t1, t2, t3 = _scores(tail, i, tail_weights)
+            first, low, second, high = _least_two(
+                0,
+                h0 + t0 + offsets[0],
+                1,
+                h1 + t1 + offsets[1],
+                2,
+                h2 + t2 + offsets[2],
+                3,
+                h3 + t3 + offsets[3],
+            )
+            out[r] = bias[i] + low
+            likely[r] = 4 * first + (second if high - low < margin else first)
 
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
@@ -202,15 +260,13 @@ def estimate_chamfer(
     points: np.ndarray,
     rows: np.ndarray,
     variants: np.ndarray,
-    near_stride: int,
-    table_stride: int,
     out: np.ndarray,
 ) -> None:
     """out[r] estimates chamfer(query variant `variants[r]`, path `rows[r]`).
 
     Query to path: exact nearest-point distances from the query points `sample` (a subset
-    evenly along the query) to every `near_stride`-th path point, averaged. Path to query: the
-    distance table, interpolated at every `table_stride`-th path point.
+    evenly along the query) to the path's points, averaged. Path to query: the distance
+    table, interpolated at the path's points.
     """
     count = points.shape[1]
     taken = sample.shape[0]
@@ -225,7 +281,7 @@ def estimate_chamfer(
             sign_x = 1.0 - 2.0 * shift_x
             sign_y = 1.0 - 2.0 * shift_y
             to_query = 0.0
-            for t in range(0, count, table_stride):
+            for t in range(count):
                 x = shift_x + sign_x * points[p, t, 0]
                 y = shift_y + sign_y * points[p, t, 1]
                 a, b, fx, fy = _cell(x, y)
@@ -243,7 +299,7 @@ def estimate_chamfer(
             fsy = np.float32(sign_y)
             fox = np.float32(shift_x)
             foy = np.float32(shift_y)
-            for t in range(0, count, near_stride):
+            for t in range(count):
                 px = fox + fsx * points[p, t, 0]
                 py = foy + fsy * points[p, t, 1]
                 # Over the query sample, so the loop vectorizes (a minimum over the inner
@@ -255,7 +311,81 @@ def estimate_chamfer(
             to_path = 0.0
             for i in range(taken):
                 to_path += math.sqrt(nearest[i])
-            out[r] = to_path / taken + to_query / ((count + table_stride - 1) // table_stride)
+            out[r] = to_path / taken + to_query / count
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def sketch_paths(points: np.ndarray, out: np.ndarray) -> None:
+    """out[p] = the sketch of normalized path p (T, 2): the levels of SKETCH_POINTS points
+    evenly spaced in time, x levels first, then y."""
+    count = points.shape[1]
+    for p in prange(points.shape[0]):
+        for s in range(SKETCH_POINTS):
+            t = int(s * (count - 1) / (SKETCH_POINTS - 1) + 0.5)
+            for axis in range(2):
+                level = math.floor(points[p, t, axis] * SKETCH_LEVELS + 0.5)
+                out[p, axis * SKETCH_POINTS + s] = min(max(level, 0), SKETCH_LEVELS)
+
+
+@njit(cache=True, nogil=True)
+def level_table(table: np.ndarray, out: np.ndarray) -> None:
+    """out[i, j] = the distance table interpolated at (i, j) / SKETCH_LEVELS: the query's
+    distance from every point a sketch can hold."""
+    for i in range(SKETCH_LEVELS + 1):
+        for j in range(SKETCH_LEVELS + 1):
+            a, b, fx, fy = _cell(i / SKETCH_LEVELS, j / SKETCH_LEVELS)
+            out[i, j] = (
+                table[a, b] * (1 - fx) * (1 - fy)
+                + table[a + 1, b] * fx * (1 - fy)
+                + table[a, b + 1] * (1 - fx) * fy
+                + table[a + 1, b + 1] * fx * fy
+            )
+
+
+@njit(cache=True, nogil=True, parallel=True, fastmath=True)
+def rough_chamfer(
+    sample: np.ndarray,
+    levels: np.ndarray,
+    sketches: np.ndarray,
+    rows: np.ndarray,
+    variants: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """out[r] roughly estimates chamfer(query variant `variants[r]`, path `rows[r]`) from the
+    path's sketch: query to path from the query points `sample` (S, 2) int32, in levels;
+    path to query from `levels` (the query's `level_table`)."""
+    count = rows.shape[0]
+    taken = sample.shape[0]
+    for chunk in prange((count + 255) // 256):
+        xs = np.empty(SKETCH_POINTS, dtype=np.int32)
+        ys = np.empty(SKETCH_POINTS, dtype=np.int32)
+        end = min(count, (chunk + 1) * 256)
+        for r in range(chunk * 256, end):
+            if r + _AHEAD < end:
+                prefetch(sketches, rows[r + _AHEAD], 0)
+                prefetch(sketches, rows[r + _AHEAD], 2 * SKETCH_POINTS - 1)
+            p = rows[r]
+            # A flip maps level l to 255 - l, which is l ^ 255.
+            flip_x, flip_y = _flip(0.0, 0.0, variants[r])
+            mask_x = np.uint8(255 * int(flip_x))
+            mask_y = np.uint8(255 * int(flip_y))
+            to_query = np.float32(0.0)
+            for t in range(SKETCH_POINTS):
+                x = sketches[p, t] ^ mask_x
+                y = sketches[p, SKETCH_POINTS + t] ^ mask_y
+                to_query += levels[x, y]
+                xs[t] = x
+                ys[t] = y
+            # In integers, so the minimum over the sketch vectorizes exactly.
+            to_path = np.float32(0.0)
+            for i in range(taken):
+                best = np.int32(2**30)
+                for t in range(SKETCH_POINTS):
+                    dx = sample[i, 0] - xs[t]
+                    dy = sample[i, 1] - ys[t]
+                    best = min(best, dx * dx + dy * dy)
+                to_path += math.sqrt(np.float32(best))
+            out[r] = to_path / (taken * SKETCH_LEVELS) + to_query / SKETCH_POINTS
 
 
 @njit(cache=True, nogil=True, parallel=True)

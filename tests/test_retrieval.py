@@ -19,10 +19,11 @@ from links_ray.paths import chamfer, chamfer_to_many, normalize_path
 from links_ray.retrieval import (
     INDEX_FILE,
     RetrievalIndex,
-    _least,
+    _about_least,
     distance_table,
     normalization,
     query_variants,
+    sketch_paths,
     validate_query,
     variant_map,
 )
@@ -205,8 +206,76 @@ def test_scan_scores_and_selection_match_numpy() -> None:
     assert (second[clear & ~near] == first[clear & ~near]).all()
     assert 0 < (clear & near).sum() < clear.sum()  # both cases occur
 
+
+def test_selection_keeps_about_the_least_values() -> None:
+    rng = np.random.default_rng(4)
     values = rng.normal(size=100_000).astype(np.float32)
-    for count in (1, 500, 20_000, 100_000, 200_000):
-        chosen = _least(values, count)
-        assert chosen.tolist() == sorted(np.argsort(values)[:count].tolist())
-    assert set(np.argsort(values)[:500]) <= set(_least(values, 500, exactly=False).tolist())
+    for count in (500, 5_000, 20_000, 60_000):
+        chosen = _about_least(values, count)
+        assert (np.diff(chosen) > 0).all()
+        # Exactly the values up to a threshold: none left out below the largest chosen.
+        assert set(chosen.tolist()) == set(np.flatnonzero(values <= values[chosen].max()))
+        assert abs(len(chosen) - count) < 0.1 * count
+    assert _about_least(values, 100_000).tolist() == list(range(100_000))
+    few = values[:500]  # too few to sample: exactly the least
+    assert _about_least(few, 7).tolist() == sorted(np.argsort(few)[:7].tolist())
+
+
+def smooth_paths(rng: np.random.Generator, count: int) -> np.ndarray:
+    """Normalized closed curves of 200 points with a few random harmonics each."""
+    angle = np.linspace(0, 2 * np.pi, 200)
+    paths = []
+    for _ in range(count):
+        a, b = rng.normal(size=(2, 4)) / np.arange(1, 5)
+        curve = np.column_stack(
+            [
+                sum(a[h] * np.cos((h + 1) * angle + h) for h in range(4)),
+                sum(b[h] * np.sin((h + 1) * angle - h) for h in range(4)),
+            ]
+        )
+        paths.append(normalize_path(curve))
+    return np.stack(paths).astype(np.float32)
+
+
+def test_sketches_hold_evenly_spaced_points_to_half_a_level() -> None:
+    paths = smooth_paths(np.random.default_rng(8), 50)
+    sketches = sketch_paths(paths)
+    assert sketches.shape == (50, 2 * kernels.SKETCH_POINTS) and sketches.dtype == np.uint8
+    times = np.linspace(0, 199, kernels.SKETCH_POINTS).round().astype(int)
+    decoded = sketches.reshape(50, 2, -1).transpose(0, 2, 1) / kernels.SKETCH_LEVELS
+    assert np.abs(decoded - paths[:, times]).max() <= 0.5 / kernels.SKETCH_LEVELS + 1e-6
+
+
+def test_rough_estimate_follows_the_exact_chamfer_distance() -> None:
+    """The sketch estimate of every (path, variant) pair: close to the exact distance, and
+    ranking pairs nearly as the exact distance does."""
+    rng = np.random.default_rng(9)
+    paths = smooth_paths(rng, 300)
+    query = smooth_paths(rng, 1)[0].astype(np.float64)
+    # Some paths near the query, so the best matches are close ones.
+    paths[:20] = np.clip(query + rng.normal(0, 0.01, (20, 200, 2)), 0, 1)
+    rows = np.repeat(np.arange(len(paths)), 4)
+    variants = np.tile(np.arange(4), len(paths))
+    levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
+    kernels.level_table(distance_table(query), levels)
+    picked = query[np.linspace(0, 199, kernels.ROUGH_SAMPLE).round().astype(int)]
+    sample = np.rint(picked * kernels.SKETCH_LEVELS).astype(np.int32)
+    rough = np.empty(len(rows))
+    kernels.rough_chamfer(sample, levels, sketch_paths(paths), rows, variants, rough)
+
+    exact = np.stack([chamfer_to_many(v, paths) for v in query_variants(query)]).T.ravel()
+    assert np.abs(rough - exact).max() < 0.03
+    assert np.abs(rough - exact).mean() < 0.008
+    best = set(np.argsort(exact)[:40])
+    assert len(best & set(np.argsort(rough)[:80])) >= 38
+
+
+def test_level_table_is_the_distance_from_each_level() -> None:
+    query = smooth_paths(np.random.default_rng(10), 1)[0].astype(np.float64)
+    levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
+    kernels.level_table(distance_table(query), levels)
+    grid = np.arange(kernels.SKETCH_LEVELS + 1)[::15] / kernels.SKETCH_LEVELS
+    nodes = np.stack(np.meshgrid(grid, grid, indexing="ij"), axis=-1).reshape(-1, 2)
+    exact = np.sqrt(((nodes[:, None] - query[None]) ** 2).sum(-1)).min(axis=1)
+    cell = (kernels.TABLE_HI - kernels.TABLE_LO) / kernels.TABLE_CELLS
+    np.testing.assert_allclose(levels[::15, ::15].ravel(), exact, atol=cell)
