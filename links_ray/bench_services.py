@@ -101,7 +101,7 @@ def retrieval_dataset(paths: int, folder: str | None = None) -> str:
         mechanisms = int(mechanisms * 1.2 * paths / max(summary["curated"], 1))
 
 
-def bench_retrieve(paths: int = 1_000_000, queries: int = 100, recall_queries: int = 50) -> dict:
+def bench_retrieve(paths: int = 1_000_000, queries: int = 100, recall_queries: int = 100) -> dict:
     """Index build, latency in process and over HTTP, recall@3 against exact brute force.
 
     Queries are paths of mechanisms drawn afresh (held out of the dataset), neither arcs nor

@@ -51,10 +51,10 @@ from links_ray.storage import META, Store
 DIMENSIONS = 64
 #: Paths passed from the scan to the estimate: this share of all, and at least MIN_CANDIDATES
 #: (every path, in every variant, when there are no more than that).
-CANDIDATE_SHARE, MIN_CANDIDATES = 0.015, 3_000
+CANDIDATE_SHARE, MIN_CANDIDATES = 0.025, 3_000
 #: Components per half in the head of a code; the head scan keeps HEAD_KEEP times as many rows
 #: as there are candidates, for the whole codes to rank.
-HEAD_COMPONENTS, HEAD_KEEP = 24, 6
+HEAD_COMPONENTS, HEAD_KEEP = 24, 4
 HEAD_COLUMNS = np.r_[0:HEAD_COMPONENTS, DIMENSIONS : DIMENSIONS + HEAD_COMPONENTS]
 TAIL_COLUMNS = np.r_[HEAD_COMPONENTS:DIMENSIONS, DIMENSIONS + HEAD_COMPONENTS : 2 * DIMENSIONS]
 #: A candidate's second likeliest variant is estimated too when its linear estimate is within
@@ -62,7 +62,7 @@ TAIL_COLUMNS = np.r_[HEAD_COMPONENTS:DIMENSIONS, DIMENSIONS + HEAD_COMPONENTS : 
 VARIANT_MARGIN = 0.002
 #: Candidate pairs given the fine estimate, and the query points it measures from (the rough
 #: estimate measures from `search_kernels.ROUGH_SAMPLE`).
-REFINED, QUERY_SAMPLE = 2_000, 50
+REFINED, QUERY_SAMPLE = 3_000, 50
 #: Paths given the exact chamfer distance.
 FINALISTS = 32
 #: Every second point of a stored path makes its distance field.
@@ -142,11 +142,13 @@ def path_features(paths: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.nd
     return fields, mass
 
 
-def distance_table(normalized: np.ndarray) -> np.ndarray:
-    """The query's exact distance from each node of the `search_kernels` table grid."""
+def distance_table(normalized: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The query's exact distance from each node of the `search_kernels` table grid, and the
+    index of the query point at that distance."""
     table = np.empty((kernels.TABLE_CELLS + 1,) * 2)
-    kernels.distance_table(normalized, table)
-    return table
+    owners = np.empty(table.shape, dtype=np.int32)
+    kernels.distance_table(normalized, table, owners)
+    return table, owners
 
 
 def query_variants(normalized: np.ndarray) -> np.ndarray:
@@ -344,12 +346,12 @@ class RetrievalIndex:
             both = second != first
             pair_rows = np.concatenate([rows, rows[both]])
             pair_variants = np.concatenate([first, second[both]]).astype(np.int64)
-        table = distance_table(normalized)
+        _, owners = distance_table(normalized)
         if len(pair_rows) > REFINED:  # a rough estimate of every pair first
-            rough = self._rough_estimate(normalized, table, pair_rows, pair_variants)
+            rough = self._rough_estimate(normalized, owners, pair_rows, pair_variants)
             best = np.argpartition(rough, REFINED)[:REFINED]
             pair_rows, pair_variants = pair_rows[best], pair_variants[best]
-        fine = self._estimate(normalized, table, pair_rows, pair_variants)
+        fine = self._estimate(normalized, owners, pair_rows, pair_variants)
         # Rows by their best estimate (a row may come twice, once per variant).
         by_estimate = pair_rows[np.argsort(fine, kind="stable")]
         _, first = np.unique(by_estimate, return_index=True)
@@ -411,20 +413,20 @@ class RetrievalIndex:
         return found
 
     def _estimate(
-        self, normalized: np.ndarray, table: np.ndarray, rows: np.ndarray, variants: np.ndarray
+        self, normalized: np.ndarray, owners: np.ndarray, rows: np.ndarray, variants: np.ndarray
     ) -> np.ndarray:
         """Estimated chamfer distances of (row, variant) pairs from the whole paths."""
         sample = np.ascontiguousarray(normalized[_spread(len(normalized), QUERY_SAMPLE)])
         out = np.empty(len(rows))
-        kernels.estimate_chamfer(normalized, sample, table, self.points, rows, variants, out)
+        kernels.estimate_chamfer(normalized, sample, owners, self.points, rows, variants, out)
         return out
 
     def _rough_estimate(
-        self, normalized: np.ndarray, table: np.ndarray, rows: np.ndarray, variants: np.ndarray
+        self, normalized: np.ndarray, owners: np.ndarray, rows: np.ndarray, variants: np.ndarray
     ) -> np.ndarray:
         """Roughly estimated chamfer distances of (row, variant) pairs from their sketches."""
         levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
-        kernels.level_table(table, levels)
+        kernels.level_table(normalized, owners, levels)
         picked = normalized[_spread(len(normalized), kernels.ROUGH_SAMPLE)]
         sample = np.rint(picked * kernels.SKETCH_LEVELS).astype(np.int32)
         out = np.empty(len(rows))
@@ -440,7 +442,7 @@ class RetrievalIndex:
         normalized, _, _ = normalization(validate_query(points, k)[0])
         k = min(k, len(self))
         limit = self.ranked(normalized, k)[-1][1] + 1e-9  # rounding of the two computations
-        table = distance_table(normalized)
+        table, _ = distance_table(normalized)
         bounds = np.empty((len(self), 4))
         kernels.path_to_query_bounds(table, self.points, bounds)
         pairs = np.flatnonzero(bounds.ravel() <= limit)

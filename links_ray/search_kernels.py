@@ -41,7 +41,7 @@ _CHUNK = 4096
 #: Points and coordinate levels of a path's sketch.
 SKETCH_POINTS, SKETCH_LEVELS = 64, 255
 #: Query points the rough estimate measures from (evenly along the query).
-ROUGH_SAMPLE = 32
+ROUGH_SAMPLE = 16
 #: How many rows ahead the gathering kernels prefetch.
 _AHEAD = 8
 # Pointers became opaque in LLVM 15, and the intrinsic's name says the pointer type.
@@ -210,13 +210,15 @@ def score_rows(
 
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
-def distance_table(query: np.ndarray, out: np.ndarray) -> None:
-    """out[a, b] = distance from node (TABLE_LO + a * size, TABLE_LO + b * size) to the query."""
+def distance_table(query: np.ndarray, out: np.ndarray, owners: np.ndarray) -> None:
+    """out[a, b] = distance from node (TABLE_LO + a * size, TABLE_LO + b * size) to the query,
+    and owners[a, b] = the index of the query point at that distance."""
     size = (TABLE_HI - TABLE_LO) / TABLE_CELLS
     nodes = TABLE_CELLS + 1
     for a in prange(nodes):
         x = TABLE_LO + a * size
         nearest = np.full(nodes, np.inf)
+        owner = np.zeros(nodes, dtype=np.int32)
         # Over the column of nodes innermost, so the loop vectorizes.
         for i in range(query.shape[0]):
             dx = query[i, 0] - x
@@ -224,9 +226,13 @@ def distance_table(query: np.ndarray, out: np.ndarray) -> None:
             qy = query[i, 1]
             for b in range(nodes):
                 dy = qy - (TABLE_LO + b * size)
-                nearest[b] = min(nearest[b], dx2 + dy * dy)
+                d = dx2 + dy * dy
+                closer = d < nearest[b]
+                nearest[b] = d if closer else nearest[b]
+                owner[b] = i if closer else owner[b]
         for b in range(nodes):
             out[a, b] = math.sqrt(nearest[b])
+            owners[a, b] = owner[b]
 
 
 @njit(cache=True, inline="always")
@@ -256,7 +262,7 @@ def _nearest(query: np.ndarray, x: float, y: float) -> float:
 def estimate_chamfer(
     query: np.ndarray,
     sample: np.ndarray,
-    table: np.ndarray,
+    owners: np.ndarray,
     points: np.ndarray,
     rows: np.ndarray,
     variants: np.ndarray,
@@ -265,8 +271,9 @@ def estimate_chamfer(
     """out[r] estimates chamfer(query variant `variants[r]`, path `rows[r]`).
 
     Query to path: exact nearest-point distances from the query points `sample` (a subset
-    evenly along the query) to the path's points, averaged. Path to query: the distance
-    table, interpolated at the path's points.
+    evenly along the query) to the path's points, averaged. Path to query: `_owned_distance`
+    at the path's points (interpolating the distance table instead would err by up to a cell
+    where it matters most, on the query).
     """
     count = points.shape[1]
     taken = sample.shape[0]
@@ -284,16 +291,7 @@ def estimate_chamfer(
             for t in range(count):
                 x = shift_x + sign_x * points[p, t, 0]
                 y = shift_y + sign_y * points[p, t, 1]
-                a, b, fx, fy = _cell(x, y)
-                if a < 0:
-                    to_query += _nearest(query, x, y)
-                else:
-                    to_query += (
-                        table[a, b] * (1 - fx) * (1 - fy)
-                        + table[a + 1, b] * fx * (1 - fy)
-                        + table[a, b + 1] * (1 - fx) * fy
-                        + table[a + 1, b + 1] * fx * fy
-                    )
+                to_query += _owned_distance(query, owners, x, y)
             nearest[:] = np.inf
             fsx = np.float32(sign_x)
             fsy = np.float32(sign_y)
@@ -327,19 +325,30 @@ def sketch_paths(points: np.ndarray, out: np.ndarray) -> None:
                 out[p, axis * SKETCH_POINTS + s] = min(max(level, 0), SKETCH_LEVELS)
 
 
-@njit(cache=True, nogil=True)
-def level_table(table: np.ndarray, out: np.ndarray) -> None:
-    """out[i, j] = the distance table interpolated at (i, j) / SKETCH_LEVELS: the query's
-    distance from every point a sketch can hold."""
-    for i in range(SKETCH_LEVELS + 1):
+@njit(cache=True, inline="always")
+def _owned_distance(query: np.ndarray, owners: np.ndarray, x: float, y: float) -> float:
+    """The distance from (x, y) to the nearest of the query points that own the corners of
+    its table cell: the exact distance to the query unless its nearest point is none of
+    these, and never less. Outside the table, the exact distance."""
+    a, b, _, _ = _cell(x, y)
+    if a < 0:
+        return _nearest(query, x, y)
+    best = np.inf
+    for corner in range(4):
+        i = owners[a + corner // 2, b + corner % 2]
+        dx = query[i, 0] - x
+        dy = query[i, 1] - y
+        best = min(best, dx * dx + dy * dy)
+    return math.sqrt(best)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def level_table(query: np.ndarray, owners: np.ndarray, out: np.ndarray) -> None:
+    """out[i, j] = the distance from (i, j) / SKETCH_LEVELS to the query (`_owned_distance`):
+    from every point a sketch can hold."""
+    for i in prange(SKETCH_LEVELS + 1):
         for j in range(SKETCH_LEVELS + 1):
-            a, b, fx, fy = _cell(i / SKETCH_LEVELS, j / SKETCH_LEVELS)
-            out[i, j] = (
-                table[a, b] * (1 - fx) * (1 - fy)
-                + table[a + 1, b] * fx * (1 - fy)
-                + table[a, b + 1] * (1 - fx) * fy
-                + table[a + 1, b + 1] * fx * fy
-            )
+            out[i, j] = _owned_distance(query, owners, i / SKETCH_LEVELS, j / SKETCH_LEVELS)
 
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
