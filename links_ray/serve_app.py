@@ -440,7 +440,16 @@ def _simulate_lists(adjacency: list, node_types: list, positions: list, steps: i
 # -- the deployment -----------------------------------------------------------------------------
 
 
-@serve.deployment(name="LinksApi", ray_actor_options={"num_cpus": 1})
+#: Ray starts worker processes at niceness 15, below its own control plane (GCS, raylet,
+#: dashboard agent) at 0. A replica answers users, and its parallel kernels wait for their
+#: slowest thread, so it runs at 0: in-replica time per retrieval fell from about 46 to 42 ms.
+REPLICA_ENV = {"RAY_worker_niceness": "0"}
+
+
+@serve.deployment(
+    name="LinksApi",
+    ray_actor_options={"num_cpus": 1, "runtime_env": {"env_vars": REPLICA_ENV}},
+)
 @serve.ingress(api)
 class LinksApi:
     """The HTTP API of one replica: the retrieval index of `root`, opened once."""
