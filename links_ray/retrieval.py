@@ -60,9 +60,10 @@ TAIL_COLUMNS = np.r_[HEAD_COMPONENTS:DIMENSIONS, DIMENSIONS + HEAD_COMPONENTS : 
 #: A candidate's second likeliest variant is estimated too when its linear estimate is within
 #: this of the likeliest.
 VARIANT_MARGIN = 0.002
-#: Candidate pairs given the fine estimate, and the query points it measures from (the rough
-#: estimate measures from `search_kernels.ROUGH_SAMPLE`).
-REFINED, QUERY_SAMPLE = 3_000, 50
+#: Candidate pairs given the fine estimate, the query points it measures from (the rough
+#: estimate measures from `search_kernels.ROUGH_SAMPLE`), and the stride of the path points
+#: it measures the distance to the query at.
+REFINED, QUERY_SAMPLE, FINE_STRIDE = 3_000, 32, 2
 #: Paths given the exact chamfer distance.
 FINALISTS = 32
 #: Every second point of a stored path makes its distance field.
@@ -418,7 +419,9 @@ class RetrievalIndex:
         """Estimated chamfer distances of (row, variant) pairs from the whole paths."""
         sample = np.ascontiguousarray(normalized[_spread(len(normalized), QUERY_SAMPLE)])
         out = np.empty(len(rows))
-        kernels.estimate_chamfer(normalized, sample, owners, self.points, rows, variants, out)
+        kernels.estimate_chamfer(
+            normalized, sample, owners, self.points, rows, variants, FINE_STRIDE, out
+        )
         return out
 
     def _rough_estimate(

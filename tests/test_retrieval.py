@@ -17,6 +17,7 @@ from links_ray.curation import curate
 from links_ray.generation import generate
 from links_ray.paths import chamfer, chamfer_to_many, normalize_path
 from links_ray.retrieval import (
+    FINE_STRIDE,
     INDEX_FILE,
     RetrievalIndex,
     _about_least,
@@ -292,7 +293,8 @@ def test_level_table_is_the_distance_from_each_level() -> None:
     assert owners[tuple(node)] == distances.argmin()
 
 
-def test_fine_estimate_is_near_the_exact_chamfer_distance() -> None:
+@pytest.mark.parametrize("stride", [1, FINE_STRIDE])
+def test_fine_estimate_is_near_the_exact_chamfer_distance(stride: int) -> None:
     rng = np.random.default_rng(12)
     paths = smooth_paths(rng, 200)
     query = smooth_paths(rng, 1)[0].astype(np.float64)
@@ -301,9 +303,8 @@ def test_fine_estimate_is_near_the_exact_chamfer_distance() -> None:
     variants = np.tile(np.arange(4), len(paths))
     sample = np.ascontiguousarray(query[::4])
     estimate = np.empty(len(rows))
-    kernels.estimate_chamfer(
-        query, sample, distance_table(query)[1], paths, rows, variants, estimate
-    )
+    owners = distance_table(query)[1]
+    kernels.estimate_chamfer(query, sample, owners, paths, rows, variants, stride, estimate)
     exact = np.stack([chamfer_to_many(v, paths) for v in query_variants(query)]).T.ravel()
     close = exact < 0.05
     assert close.sum() >= 20
