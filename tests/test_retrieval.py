@@ -238,6 +238,20 @@ def smooth_paths(rng: np.random.Generator, count: int) -> np.ndarray:
     return np.stack(paths).astype(np.float32)
 
 
+def every_pair(
+    rng: np.random.Generator, count: int, noise: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`count` paths, the first 20 of them the query plus noise, so that the best matches are
+    close ones; every (path, variant) pair as rows and variants; their exact distances."""
+    paths = smooth_paths(rng, count)
+    query = smooth_paths(rng, 1)[0].astype(np.float64)
+    paths[:20] = np.clip(query + rng.normal(0, noise, (20, 200, 2)), 0, 1)
+    rows = np.repeat(np.arange(count), 4)
+    variants = np.tile(np.arange(4), count)
+    exact = np.stack([chamfer_to_many(v, paths) for v in query_variants(query)]).T.ravel()
+    return paths, query, rows, variants, exact
+
+
 def test_sketches_hold_evenly_spaced_points_to_half_a_level() -> None:
     paths = smooth_paths(np.random.default_rng(8), 50)
     sketches = sketch_paths(paths)
@@ -250,21 +264,13 @@ def test_sketches_hold_evenly_spaced_points_to_half_a_level() -> None:
 def test_rough_estimate_follows_the_exact_chamfer_distance() -> None:
     """The sketch estimate of every (path, variant) pair: close to the exact distance, and
     ranking pairs nearly as the exact distance does."""
-    rng = np.random.default_rng(9)
-    paths = smooth_paths(rng, 300)
-    query = smooth_paths(rng, 1)[0].astype(np.float64)
-    # Some paths near the query, so the best matches are close ones.
-    paths[:20] = np.clip(query + rng.normal(0, 0.01, (20, 200, 2)), 0, 1)
-    rows = np.repeat(np.arange(len(paths)), 4)
-    variants = np.tile(np.arange(4), len(paths))
+    paths, query, rows, variants, exact = every_pair(np.random.default_rng(9), 300, 0.01)
     levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
     kernels.level_table(query, distance_table(query)[1], levels)
     picked = query[np.linspace(0, 199, kernels.ROUGH_SAMPLE).round().astype(int)]
     sample = np.rint(picked * kernels.SKETCH_LEVELS).astype(np.int32)
     rough = np.empty(len(rows))
     kernels.rough_chamfer(sample, levels, sketch_paths(paths), rows, variants, rough)
-
-    exact = np.stack([chamfer_to_many(v, paths) for v in query_variants(query)]).T.ravel()
     assert np.abs(rough - exact).max() < 0.03
     assert np.abs(rough - exact).mean() < 0.008
     best = set(np.argsort(exact)[:40])
@@ -295,17 +301,11 @@ def test_level_table_is_the_distance_from_each_level() -> None:
 
 @pytest.mark.parametrize("stride", [1, FINE_STRIDE])
 def test_fine_estimate_is_near_the_exact_chamfer_distance(stride: int) -> None:
-    rng = np.random.default_rng(12)
-    paths = smooth_paths(rng, 200)
-    query = smooth_paths(rng, 1)[0].astype(np.float64)
-    paths[:20] = np.clip(query + rng.normal(0, 0.005, (20, 200, 2)), 0, 1)
-    rows = np.repeat(np.arange(len(paths)), 4)
-    variants = np.tile(np.arange(4), len(paths))
+    paths, query, rows, variants, exact = every_pair(np.random.default_rng(12), 200, 0.005)
     sample = np.ascontiguousarray(query[::4])
     estimate = np.empty(len(rows))
     owners = distance_table(query)[1]
     kernels.estimate_chamfer(query, sample, owners, paths, rows, variants, stride, estimate)
-    exact = np.stack([chamfer_to_many(v, paths) for v in query_variants(query)]).T.ravel()
     close = exact < 0.05
     assert close.sum() >= 20
     assert np.abs(estimate - exact)[close].max() < 0.002
