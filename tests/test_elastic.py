@@ -32,7 +32,7 @@ ray.init(address=cluster.address, logging_level="WARNING")
 result = {}
 thread = threading.Thread(
     target=lambda: result.update(
-        generate(out, 6000, seed=5, progress=False, topologies_per_shard=1)
+        generate(out, 12000, seed=5, progress=False, topologies_per_shard=1)
     )
 )
 thread.start()
@@ -86,8 +86,8 @@ def test_pool_grows_with_a_joining_node_and_survives_its_leaving(
     assert report["grew"], "a second actor started on the new node"
     assert summary["workers"] == 2
     assert 0 < report["at_leave"] < summary["shards"], "the node left mid-run"
-    assert summary["complete"] and summary["rows"]["mechanisms"] == 6000
+    assert summary["complete"] and summary["rows"]["mechanisms"] == 12000
 
     reference = tmp_path / "reference"
-    generate(str(reference), 6000, seed=5, progress=False, topologies_per_shard=50)
+    generate(str(reference), 12000, seed=5, progress=False, topologies_per_shard=50)
     assert_same_rows(read_all(str(out)), read_all(str(reference)))
