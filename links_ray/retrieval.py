@@ -12,7 +12,8 @@ query's four variants (as drawn, turned 180 degrees, mirrored, both). Search has
    candidates; their whole codes keep the candidates (`CANDIDATE_SHARE` of the paths, at least
    `MIN_CANDIDATES`), each with its likeliest variant (and the second, if within `VARIANT_MARGIN`).
 2. Estimate. Each candidate pair gets nearest-point distances from a sample of query points,
-   plus the query's distance table read along the path: roughly for all, from the paths'
+   plus the path's distance to the query from the query's table of nearest points (nearly
+   exact: the misses against exact search are near ties). Roughly for all, from the paths'
    128-byte sketches (`search_kernels.rough_chamfer`), then finely for the best `REFINED`,
    from the whole paths (`search_kernels.estimate_chamfer`).
 3. Exact. The best `FINALISTS` by estimate get the exact chamfer distance for all four variants.

@@ -8,13 +8,16 @@ that point to the query. Variant v flips x when v is 1 or 3 and y when v is 1 or
 normalized coordinates (x -> 1 - x, y -> 1 - y).
 
 A query's *distance table* holds its exact distance from every node of a fine grid over
-[TABLE_LO, TABLE_HI]^2. Between nodes the distance is estimated by bilinear interpolation, and
-bounded below by the distance being 1-Lipschitz: d(p) >= d(node) - |p - node| for each node.
+[TABLE_LO, TABLE_HI]^2, and which query point is at that distance (its *owner*). Between
+nodes the distance is estimated as the distance to the nearest of the four corners' owners
+(`_owned_distance`: nearly always exact, never too small), and bounded below by the distance
+being 1-Lipschitz: d(p) >= d(node) - |p - node| for each node.
 
 A path's *sketch* is SKETCH_POINTS of its points, evenly spaced in time, each coordinate
 rounded to one of SKETCH_LEVELS + 1 levels over [0, 1] and stored as uint8: 128 bytes, two
-cache lines, against 1,600 for the whole path. A variant's flip is then `level ^ 255`, and
-the query's distance table, resampled at the levels, is read without arithmetic.
+cache lines, against 1,600 for the whole path. With 255 levels a variant's flip is
+`level ^ 255`, and the query's distance from every level point (`level_table`) is read
+without arithmetic.
 
 The kernels that visit rows in an arbitrary order `prefetch` the rows a few steps ahead:
 without it they wait on memory most of the time.
@@ -38,7 +41,7 @@ TABLE_CELLS = 128
 TABLE_LO, TABLE_HI = -0.05, 1.05
 #: Rows per parallel chunk: large enough that scheduling costs nothing.
 _CHUNK = 4096
-#: Points and coordinate levels of a path's sketch.
+#: Points and coordinate levels of a path's sketch (255: all ones in uint8, see `rough_chamfer`).
 SKETCH_POINTS, SKETCH_LEVELS = 64, 255
 #: Query points the rough estimate measures from (evenly along the query).
 ROUGH_SAMPLE = 16
@@ -375,10 +378,10 @@ def rough_chamfer(
                 prefetch(sketches, rows[r + _AHEAD], 0)
                 prefetch(sketches, rows[r + _AHEAD], 2 * SKETCH_POINTS - 1)
             p = rows[r]
-            # A flip maps level l to 255 - l, which is l ^ 255.
+            # A flip maps level l to SKETCH_LEVELS - l, which is l ^ 255 for 255 levels.
             flip_x, flip_y = _flip(0.0, 0.0, variants[r])
-            mask_x = np.uint8(255 * int(flip_x))
-            mask_y = np.uint8(255 * int(flip_y))
+            mask_x = np.uint8(SKETCH_LEVELS * int(flip_x))
+            mask_y = np.uint8(SKETCH_LEVELS * int(flip_y))
             to_query = np.float32(0.0)
             for t in range(SKETCH_POINTS):
                 x = sketches[p, t] ^ mask_x
