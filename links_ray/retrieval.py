@@ -303,9 +303,10 @@ class RetrievalIndex:
     def candidates(
         self, weights: np.ndarray, offsets: np.ndarray, count: int
     ) -> tuple[np.ndarray, np.ndarray]:
-        """The `count` rows whose scanned estimate, at their best variant, is least, for the
-        query weights and offsets of `Basis.query`; and for each, its likeliest variant and
-        the second likeliest if nearly as likely (`score_rows`)."""
+        """About `count` rows whose scanned estimate, at their best variant, is least (every
+        row when `count` reaches the total), for the query weights and offsets of
+        `Basis.query`; and for each, 4 * its likeliest variant + the second likeliest if
+        nearly as likely (`score_rows`), or -1 when every row is returned."""
         if count >= len(self):
             return np.arange(len(self)), np.full(len(self), -1, dtype=np.int8)
         if self._scores is None:
