@@ -136,18 +136,18 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 100, recall_queries: i
         normalized = _normalized(held_out[number])
         hits += len({row for row, _, _ in index.ranked(normalized)} & truth[number])
 
-    over_http = []
+    # Served as `links serve` serves: Ray started for it, the replica answering HTTP itself.
+    import ray
     from ray import serve
 
-    from links_ray.generation import connect
-    from links_ray.serve_app import build_app
+    from links_ray.serve_app import run_server
 
-    connect()
+    ray.shutdown()  # generating the dataset may have started one
     with socket.socket() as probe:  # a free loopback port
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
-    serve.start(http_options={"host": "127.0.0.1", "port": port})
-    serve.run(build_app(root), name="links-bench", route_prefix="/")
+    run_server(root, port=port, blocking=False)
+    over_http = []
     try:
         for query in [held_out[0], *held_out]:
             body = json.dumps({"points": query.tolist(), "k": 3}).encode()

@@ -76,6 +76,9 @@ MAX_K = 100
 #: Query coordinates and extent the normalization handles without overflow.
 MAX_COORDINATE, MIN_EXTENT = 1e12, 1e-9
 INDEX_FILE = f"{META}/index.npz"
+#: How far a lower bound may exceed the exact distance it bounds by rounding (they are
+#: computed differently).
+ROUNDING = 1e-9
 INDEX_FORMAT = 3
 
 
@@ -349,17 +352,49 @@ class RetrievalIndex:
             both = second != first
             pair_rows = np.concatenate([rows, rows[both]])
             pair_variants = np.concatenate([first, second[both]]).astype(np.int64)
-        _, owners = distance_table(normalized)
+        table, owners = distance_table(normalized)
         if len(pair_rows) > REFINED:  # a rough estimate of every pair first
             rough = self._rough_estimate(normalized, owners, pair_rows, pair_variants)
             best = np.argpartition(rough, REFINED)[:REFINED]
             pair_rows, pair_variants = pair_rows[best], pair_variants[best]
         fine = self._estimate(normalized, owners, pair_rows, pair_variants)
         # Rows by their best estimate (a row may come twice, once per variant).
-        by_estimate = pair_rows[np.argsort(fine, kind="stable")]
-        _, first = np.unique(by_estimate, return_index=True)
-        finalists = by_estimate[np.sort(first)][: max(FINALISTS, k)]
-        return _exact_best(variants, self.points, finalists, k)
+        order = np.argsort(fine, kind="stable")
+        _, first = np.unique(pair_rows[order], return_index=True)
+        finalists = order[np.sort(first)][: max(FINALISTS, k)]
+        return self._exact_finalists(
+            variants, table, pair_rows[finalists], pair_variants[finalists], k
+        )
+
+    def _exact_finalists(
+        self,
+        variants: np.ndarray,
+        table: np.ndarray,
+        rows: np.ndarray,
+        likely: np.ndarray,
+        k: int,
+    ) -> list[tuple[int, float, int]]:
+        """The k best (row, chamfer, variant) of `rows`, each at its least exact distance over
+        the four variants, as if all were measured; `likely` is each row's likeliest variant.
+
+        Those are measured first. Another variant of a row is measured only if the lower
+        bound of `path_to_query_bounds` leaves it able to beat both that row's distance and
+        the k-th best so far: no other pair can change the answer.
+        """
+        distances = _exact_pairs(variants, self.points, rows, likely)
+        bounds = np.empty((len(rows), 4))
+        kernels.path_to_query_bounds(table, self.points[rows], bounds)
+        kth = np.partition(distances, min(k, len(rows)) - 1)[min(k, len(rows)) - 1]
+        bounds[np.arange(len(rows)), likely] = np.inf
+        bounds -= ROUNDING
+        able = (bounds < distances[:, None]) & (bounds <= kth)
+        more, more_variants = np.nonzero(able)
+        if len(more):
+            measured = _exact_pairs(variants, self.points, rows[more], more_variants)
+            rows = np.concatenate([rows, rows[more]])
+            likely = np.concatenate([likely, more_variants])
+            distances = np.concatenate([distances, measured])
+        return _best_rows(rows, likely, distances, k)
 
     def warm(self) -> None:
         """Answer one query (an ellipse), so that the first user's answer does not pay for
@@ -446,12 +481,14 @@ class RetrievalIndex:
         """
         normalized, _, _ = normalization(validate_query(points, k)[0])
         k = min(k, len(self))
-        limit = self.ranked(normalized, k)[-1][1] + 1e-9  # rounding of the two computations
+        limit = self.ranked(normalized, k)[-1][1] + ROUNDING
         table, _ = distance_table(normalized)
         bounds = np.empty((len(self), 4))
         kernels.path_to_query_bounds(table, self.points, bounds)
         pairs = np.flatnonzero(bounds.ravel() <= limit)
-        return _exact_best(query_variants(normalized), self.points, pairs // 4, k, pairs % 4)
+        rows, variants = pairs // 4, pairs % 4
+        distances = _exact_pairs(query_variants(normalized), self.points, rows, variants)
+        return _best_rows(rows, variants, distances, k)
 
 
 def _into_query_frame(
@@ -536,35 +573,32 @@ def _encode(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, Bas
     return head, np.ascontiguousarray(codes[:, TAIL_COLUMNS]), bias, basis
 
 
-def _exact_best(
-    variants: np.ndarray,
-    points: np.ndarray,
-    rows: np.ndarray,
-    k: int,
-    only: np.ndarray | None = None,
-) -> list[tuple[int, float, int]]:
-    """The k best (row, chamfer, variant) among `rows`, each against every variant, or only
-    against `only[i]` for rows[i] (rows may then repeat); ties go to the lower row."""
-    best = np.full(len(rows), np.inf)
-    best_variant = np.zeros(len(rows), dtype=np.int64)
+def _exact_pairs(
+    variants: np.ndarray, points: np.ndarray, rows: np.ndarray, which: np.ndarray
+) -> np.ndarray:
+    """Exact chamfer distances between query variant which[i] and path rows[i]."""
+    distances = np.empty(len(rows))
     for variant in range(4):
-        chosen = np.arange(len(rows)) if only is None else np.flatnonzero(only == variant)
+        chosen = np.flatnonzero(which == variant)
         for block in np.array_split(chosen, max(1, len(chosen) // 8192)):
-            if len(block) == 0:
-                continue
-            distance = chamfer_to_many(variants[variant], points[rows[block]])
-            better = distance < best[block]
-            best[block[better]] = distance[better]
-            best_variant[block[better]] = variant
-    # Each row once, at its best variant.
-    order = np.lexsort((rows, best))
+            if len(block):
+                distances[block] = chamfer_to_many(variants[variant], points[rows[block]])
+    return distances
+
+
+def _best_rows(
+    rows: np.ndarray, variants: np.ndarray, distances: np.ndarray, k: int
+) -> list[tuple[int, float, int]]:
+    """The k best (row, distance, variant), best first, each row once at its least distance
+    (rows may repeat, once per variant measured); ties go to the lower row, then variant."""
+    order = np.lexsort((variants, rows, distances))
     answer: list[tuple[int, float, int]] = []
     seen: set[int] = set()
     for i in order:
         if int(rows[i]) in seen:
             continue
         seen.add(int(rows[i]))
-        answer.append((int(rows[i]), float(best[i]), int(best_variant[i])))
+        answer.append((int(rows[i]), float(distances[i]), int(variants[i])))
         if len(answer) == k:
             break
     return answer

@@ -318,13 +318,22 @@ def s3_env(s3_server: S3Server, monkeypatch: pytest.MonkeyPatch) -> Iterator[str
 
 
 @pytest.fixture(scope="session")
-def ray_cluster(s3_server: S3Server) -> Iterator[str]:
+def serve_port() -> int:
+    """The loopback port the Serve app's replica answers HTTP on, as under `links serve`."""
+    return free_port()
+
+
+@pytest.fixture(scope="session")
+def ray_cluster(s3_server: S3Server, serve_port: int) -> Iterator[str]:
     """A real local Ray cluster with two CPUs; yields its address for other drivers.
 
     Ray's workers take the environment of the process that starts the cluster, so the S3
-    server's standard AWS variables are set first: actors then reach it like any store.
+    server's standard AWS variables are set first: actors then reach it like any store. So is
+    Serve's direct ingress on `serve_port`, as `links serve` sets it.
     """
     import ray
+
+    from links_ray.serve_app import direct_ingress_env
 
     os.environ.update(
         {
@@ -334,6 +343,7 @@ def ray_cluster(s3_server: S3Server) -> Iterator[str]:
             "AWS_SECRET_ACCESS_KEY": s3_server.secret_key,
             "AWS_REGION": s3_server.region,
             "AWS_EC2_METADATA_DISABLED": "true",
+            **direct_ingress_env(serve_port),
         }
     )
     ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING")
@@ -357,20 +367,26 @@ def dataset(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> str:
 
 
 @pytest.fixture(scope="module")
-def client(dataset: str) -> Iterator[Client]:
-    """The links app on a free loopback port for one test module; Serve shut down after."""
+def client(dataset: str, serve_port: int) -> Iterator[Client]:
+    """The links app for one test module, answering on `serve_port` from its replica as
+    under `links serve` (`client.proxy`: the same app through Serve's HTTP proxy); Serve shut
+    down after."""
     from ray import serve
 
     from links_ray.serve_app import build_app
 
-    port = free_port()
+    proxy_port = free_port()
     no_access_log = {"enable_access_log": False}
     start = time.perf_counter()
-    serve.start(http_options={"host": "127.0.0.1", "port": port}, logging_config=no_access_log)
+    serve.start(
+        http_options={"host": "127.0.0.1", "port": proxy_port}, logging_config=no_access_log
+    )
     try:
         serve.run(build_app(dataset), name="links", route_prefix="/", logging_config=no_access_log)
-        print(f"\nServe app ready on 127.0.0.1:{port} in {time.perf_counter() - start:.1f} s")
-        yield Client(port)
+        print(f"\nServe app ready on 127.0.0.1:{serve_port} in {time.perf_counter() - start:.1f} s")
+        client = Client(serve_port)
+        client.proxy = Client(proxy_port)
+        yield client
     finally:
         serve.shutdown()
 

@@ -1,6 +1,8 @@
 """Helpers for tests of the Serve app: a small JSON client over `http.client`, a free port,
 and mechanisms the tests share."""
 
+from __future__ import annotations
+
 import http.client
 import json
 import socket
@@ -27,6 +29,7 @@ class Client:
 
     def __init__(self, port: int) -> None:
         self.port = port
+        self.proxy: Client | None = None  # the same app through another way in, if any
 
     def request(
         self,

@@ -91,6 +91,27 @@ def test_brute_force_equals_every_path_against_every_variant(index: RetrievalInd
         assert [v for _, _, v in found] == plain[:, expected].argmin(axis=0).tolist()
 
 
+def test_finalists_are_measured_as_if_every_variant_were(index: RetrievalIndex) -> None:
+    """Measuring each finalist's likeliest variant, then only the variants its lower bound
+    leaves able to matter, gives the answer of measuring all four."""
+    rng = np.random.default_rng(12)
+    for query in queries():
+        normalized = normalization(query)[0]
+        variants = query_variants(normalized)
+        rows = rng.choice(len(index), 40, replace=False)
+        plain = np.stack([chamfer_to_many(v, index.points[rows]) for v in variants])
+        best = plain.min(axis=0)
+        expected = np.lexsort((rows, best))[:5]
+        # The likeliest variant given right, at random, and as the worst of the four.
+        for likely in (plain.argmin(axis=0), rng.integers(0, 4, 40), plain.argmax(axis=0)):
+            found = index._exact_finalists(
+                variants, distance_table(normalized)[0], rows, likely, k=5
+            )
+            assert [row for row, _, _ in found] == rows[expected].tolist()
+            np.testing.assert_allclose([c for _, c, _ in found], best[expected], rtol=1e-12)
+            assert [v for _, _, v in found] == plain[:, expected].argmin(axis=0).tolist()
+
+
 def test_path_to_query_bounds_never_exceed_the_true_distance() -> None:
     rng = np.random.default_rng(11)
     query = normalize_path(np.cumsum(rng.normal(size=(150, 2)), axis=0))

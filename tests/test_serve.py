@@ -1,13 +1,18 @@
 """The Ray Serve app (SPEC section 5) on real Ray, over real HTTP on loopback.
 
 One small dataset (300 mechanisms, generated and curated; `dataset` in conftest.py) and one
-Serve application (`client`) serve the whole module; every request goes through Serve's HTTP
-proxy with `http.client`. The studio's page and files are tested in test_studio.py.
+Serve application (`client`) serve the whole module; every request goes, with `http.client`,
+to the port the replica answers on itself, as under `links serve`. The studio's page and files
+are tested in test_studio.py.
 """
 
 import http.client
 import importlib
 import json
+import os
+import signal
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -384,6 +389,73 @@ def test_app_builder_args(dataset: str, tmp_path: Path) -> None:
             app_builder(bad)
     with pytest.raises(ValueError):
         build_app(dataset, replicas=0)
+
+
+def listening_process(port: int) -> str:
+    """The command line of the process listening on TCP port `port` of 127.0.0.1 ('' if none),
+    from /proc: which process answers, not only that something does."""
+    inodes = set()
+    for line in Path("/proc/net/tcp").read_text().splitlines()[1:]:
+        fields = line.split()
+        if fields[1] == f"0100007F:{port:04X}" and fields[3] == "0A":  # LISTEN
+            inodes.add(f"socket:[{fields[9]}]")
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            fds = os.listdir(f"/proc/{pid}/fd")
+            if any(os.readlink(f"/proc/{pid}/fd/{fd}") in inodes for fd in fds):
+                return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:  # gone, or not ours to read
+            continue
+    return ""
+
+
+def test_the_replica_answers_http_itself(client: Client) -> None:
+    """Direct ingress: the replica owns the port; Serve's proxy answers on its own port too."""
+    assert "ServeReplica:links:LinksApi" in listening_process(client.port)
+    assert client.proxy is not None
+    assert "ProxyActor" in listening_process(client.proxy.port)
+    assert client.proxy.get("/api/health") == client.get("/api/health")
+
+
+def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(dataset: str) -> None:
+    """`links serve` starts its own Ray; the replica answers on --port and Ctrl-C stops all."""
+    port = free_port()
+    server = subprocess.Popen(
+        [sys.executable, "-m", "links_ray.cli", "serve", dataset, "--port", str(port)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        lines = []
+        for line in server.stdout:  # until it says it is serving (or exits)
+            lines.append(line)
+            if "links-ray: serving" in line:
+                break
+        assert f"http://127.0.0.1:{port}/" in lines[-1], "".join(lines[-20:])
+        served = Client(port)
+        status, health = served.get("/api/health")
+        assert status == 200 and health["paths"] > 0
+        status, data = served.post("/api/retrieve", {"points": [[0, 0], [1, 0.5], [2, 0], [1, -1]]})
+        assert status == 200 and len(data["results"]) == 3
+        assert "ServeReplica:links:LinksApi" in listening_process(port)
+        # The port is taken now: a second server says so in one line, before starting Ray.
+        taken = subprocess.run(
+            [sys.executable, "-m", "links_ray.cli", "serve", dataset, "--port", str(port)],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert taken.returncode == 2
+        assert taken.stderr.strip().endswith(f"port {port}: Address already in use")
+        server.send_signal(signal.SIGINT)
+        server.wait(timeout=120)
+        assert server.returncode == 0
+        assert listening_process(port) == ""
+    finally:
+        if server.poll() is None:
+            server.kill()
+            server.wait()
 
 
 def test_serve_cli_refuses_a_root_without_curated_paths(
