@@ -560,14 +560,16 @@ def app_builder(args: dict[str, Any]) -> Application:
 def direct_ingress_env(port: int) -> dict[str, str]:
     """The environment under which Ray Serve's HTTP ingress replica serves on `port` itself.
 
-    Ray reads it when it starts (its controller and replicas inherit it): a released port is
-    taken back at once, so a restarted replica answers on the same port.
+    Ray reads it when it starts (its controller and replicas inherit it). A released port is
+    taken back at once, so a restarted replica answers on the same port; and a stopping
+    replica drains for a second, not 30: there is no load balancer in front to leave.
     """
     return {
         "RAY_SERVE_ENABLE_DIRECT_INGRESS": "1",
         "RAY_SERVE_DIRECT_INGRESS_MIN_HTTP_PORT": str(port),
         "RAY_SERVE_DIRECT_INGRESS_MAX_HTTP_PORT": str(port + 1),  # exclusive
         "RAY_SERVE_PORT_QUARANTINE_S": "0",
+        "RAY_SERVE_DIRECT_INGRESS_MIN_DRAINING_PERIOD_S": "1",
     }
 
 

@@ -79,6 +79,7 @@ export class Editor {
     this.pointers = new Map(); // pointer id -> screen point, for pinching
     this.message = null; // a refusal to show in the hint line until the next action
     this.sim = { version: -1, state: "pending", trajectories: null, lock: null, problem: null };
+    this.queued = null; // the pose last sent to be simulated (JSON of its fields)
     this.analysis = null;
     this.analysisKey = null;
     this.step = 0;
@@ -142,7 +143,17 @@ export class Editor {
     this.picks = this.picks.filter((j) => j < n);
     if (this.selected >= n) this.selected = -1;
     this.step = 0; // edits apply to the starting pose: show it
-    this.simulations.push({ version: this.version, mech: this.mech });
+    // A pose already sent is not sent again (a drag's drop sets the pose of its last move):
+    // its answer, come or coming, is for this version too. A failed one is retried.
+    const pose = JSON.stringify(fields(this.mech));
+    const answered = this.sim.pose === pose;
+    if (pose === this.queued && answered && this.sim.state !== "error") {
+      this.sim = { ...this.sim, version: this.version };
+      this.showSimulation();
+    } else if (pose !== this.queued || answered) {
+      this.queued = pose;
+      this.simulations.push({ version: this.version, pose });
+    }
     const key = topologyKey(this.mech);
     if (key !== this.analysisKey) {
       this.analysisKey = key;
@@ -169,8 +180,9 @@ export class Editor {
 
   // -- talking to the server ----------------------------------------------------------------
 
-  async runSimulation({ version, mech }) {
-    const body = { ...fields(mech), steps: STEPS };
+  async runSimulation({ version, pose }) {
+    const mech = JSON.parse(pose);
+    const body = { ...mech, steps: STEPS };
     let result;
     try {
       const answer = await postJson("/api/simulate", body);
@@ -188,7 +200,9 @@ export class Editor {
       result = { state: "error", trajectories: null, lock: null, problem: err.message };
       this.notify(`Simulation failed: ${err.message}`, "network");
     }
-    this.sim = { version, n: mech.node_types.length, ...result };
+    // Still the pose shown (the last one sent): the answer is for the current version too.
+    const current = pose === this.queued ? this.version : version;
+    this.sim = { version: current, pose, n: mech.node_types.length, ...result };
     this.showSimulation();
   }
 
