@@ -16,7 +16,8 @@ query's four variants (as drawn, turned 180 degrees, mirrored, both). Search has
    exact: the misses against exact search are near ties). Roughly for all, from the paths'
    128-byte sketches (`search_kernels.rough_chamfer`), then finely for the best `REFINED`,
    from the whole paths (`search_kernels.estimate_chamfer`).
-3. Exact. The best `FINALISTS` by estimate get the exact chamfer distance for all four variants.
+3. Exact. The best `FINALISTS` by estimate get the exact chamfer distance: in their likeliest
+   variant, and in each other one whose lower bound could beat both that and the k-th best.
 
 `brute_force` is exact over every path: a lower bound prunes the paths that cannot beat the
 k-th best, and the rest get the exact distance.
@@ -65,8 +66,9 @@ VARIANT_MARGIN = 0.002
 #: estimate measures from `search_kernels.ROUGH_SAMPLE`), and the stride of the path points
 #: it measures the distance to the query at.
 REFINED, QUERY_SAMPLE, FINE_STRIDE = 3_000, 32, 2
-#: Paths given the exact chamfer distance.
-FINALISTS = 32
+#: Paths given the exact chamfer distance (in their likeliest variant, and in the others where
+#: a lower bound leaves them able to matter).
+FINALISTS = 48
 #: Every second point of a stored path makes its distance field.
 FIELD_STRIDE = 2
 #: Distance fields used to fit the PCA basis, and rows featurized per block while building.
