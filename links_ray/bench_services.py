@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import socket
 import time
 
 import numpy as np
@@ -140,12 +139,10 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 100, recall_queries: i
     import ray
     from ray import serve
 
-    from links_ray.serve_app import run_server
+    from links_ray.serve_app import bindable_port, run_server
 
     ray.shutdown()  # generating the dataset may have started one
-    with socket.socket() as probe:  # a free loopback port
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
+    port = bindable_port("127.0.0.1", 0)
     run_server(root, port=port, blocking=False)
     over_http = []
     try:

@@ -573,7 +573,7 @@ def direct_ingress_env(port: int) -> dict[str, str]:
     }
 
 
-def _check_port_free(host: str, port: int) -> int:
+def bindable_port(host: str, port: int) -> int:
     """`port` (a free one if 0) if it can be bound on `host`, else ValueError naming why."""
     try:
         with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
@@ -606,9 +606,9 @@ def run_server(
     direct = replicas == 1 and not ray.is_initialized() and not os.environ.get("RAY_ADDRESS")
     proxy_port = port
     if direct:
-        _check_port_free(host, port)  # else the replica retries and fails without saying why
+        bindable_port(host, port)  # else the replica retries and fails without saying why
         os.environ.update(direct_ingress_env(port))
-        proxy_port = _check_port_free(host, 0)
+        proxy_port = bindable_port(host, 0)
     connect()
     no_access_log = {"enable_access_log": False}
     serve.start(http_options={"host": host, "port": proxy_port}, logging_config=no_access_log)
