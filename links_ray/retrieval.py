@@ -386,7 +386,8 @@ class RetrievalIndex:
         distances = _exact_pairs(variants, self.points, rows, likely)
         bounds = np.empty((len(rows), 4))
         kernels.path_to_query_bounds(table, self.points[rows], bounds)
-        kth = np.partition(distances, min(k, len(rows)) - 1)[min(k, len(rows)) - 1]
+        last = min(k, len(rows)) - 1
+        kth = np.partition(distances, last)[last]
         bounds[np.arange(len(rows)), likely] = np.inf
         bounds -= ROUNDING
         able = (bounds < distances[:, None]) & (bounds <= kth)

@@ -384,9 +384,7 @@ def client(dataset: str, serve_port: int) -> Iterator[Client]:
     try:
         serve.run(build_app(dataset), name="links", route_prefix="/", logging_config=no_access_log)
         print(f"\nServe app ready on 127.0.0.1:{serve_port} in {time.perf_counter() - start:.1f} s")
-        client = Client(serve_port)
-        client.proxy = Client(proxy_port)
-        yield client
+        yield Client(serve_port, proxy=Client(proxy_port))
     finally:
         serve.shutdown()
 

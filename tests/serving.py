@@ -27,9 +27,9 @@ def free_port() -> int:
 class Client:
     """A tiny JSON client for one server: a fresh connection per request unless given one."""
 
-    def __init__(self, port: int) -> None:
+    def __init__(self, port: int, proxy: Client | None = None) -> None:
         self.port = port
-        self.proxy: Client | None = None  # the same app through another way in, if any
+        self.proxy = proxy  # the same app through another way in, if any
 
     def request(
         self,
