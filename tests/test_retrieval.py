@@ -179,6 +179,14 @@ def test_saved_index_is_reused(index: RetrievalIndex) -> None:
     assert again.build_s == 0.0, "loaded, not rebuilt"
 
 
+def test_warm_up_is_bounded_and_leaves_answers_unchanged(index: RetrievalIndex) -> None:
+    query = hand_drawn(np.random.default_rng(5))
+    before = index.retrieve(query, k=5)
+    assert index.warm(seconds=60, queries=7) == 7
+    assert index.warm(seconds=0, queries=100) == 1, "the first query is always answered"
+    assert index.retrieve(query, k=5) == before
+
+
 def test_offline_cli(index: RetrievalIndex, tmp_path: Path) -> None:
     query = tmp_path / "query.json"
     query.write_text(json.dumps({"points": hand_drawn(np.random.default_rng(1)).tolist()}))
