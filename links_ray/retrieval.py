@@ -407,11 +407,13 @@ class RetrievalIndex:
         20 times slower (spikes of 0.3-0.8 s) while later ones did not, and waiting instead
         of querying did not help; answering them before taking traffic keeps them from users.
         """
+        if not (seconds >= 0 and queries >= 1):
+            raise ValueError(f"warm needs seconds >= 0 and queries >= 1, got {seconds}, {queries}")
         if not len(self):
             return 0
         angle = np.linspace(0, 2 * np.pi, 100)
         self.retrieve(np.column_stack([np.cos(angle), 0.5 * np.sin(angle)]))
-        rows = np.random.default_rng(0).integers(len(self), size=max(queries - 1, 0))
+        rows = np.random.default_rng(0).integers(len(self), size=queries - 1)
         start = time.perf_counter()
         answered = 1
         for row in rows:

@@ -185,6 +185,8 @@ def test_warm_up_is_bounded_and_leaves_answers_unchanged(index: RetrievalIndex) 
     assert index.warm(seconds=60, queries=7) == 7
     assert index.warm(seconds=0, queries=100) == 1, "the first query is always answered"
     assert index.retrieve(query, k=5) == before
+    with pytest.raises(ValueError, match="queries >= 1"):
+        index.warm(queries=0)
 
 
 def test_offline_cli(index: RetrievalIndex, tmp_path: Path) -> None:
