@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from serving import Client, free_port
+from serving import Client
 
 S3_REGION = "us-east-1"
 STARTUP_TIMEOUT_S = 30.0
@@ -320,7 +320,9 @@ def s3_env(s3_server: S3Server, monkeypatch: pytest.MonkeyPatch) -> Iterator[str
 @pytest.fixture(scope="session")
 def serve_port() -> int:
     """The loopback port the Serve app's replica answers HTTP on, as under `links serve`."""
-    return free_port()
+    from links_ray.serve_app import bindable_port
+
+    return bindable_port("127.0.0.1", 0)
 
 
 @pytest.fixture(scope="session")
@@ -373,9 +375,9 @@ def client(dataset: str, serve_port: int) -> Iterator[Client]:
     down after."""
     from ray import serve
 
-    from links_ray.serve_app import build_app
+    from links_ray.serve_app import bindable_port, build_app
 
-    proxy_port = free_port()
+    proxy_port = bindable_port("127.0.0.1", 0)
     no_access_log = {"enable_access_log": False}
     start = time.perf_counter()
     serve.start(

@@ -1,11 +1,10 @@
-"""Helpers for tests of the Serve app: a small JSON client over `http.client`, a free port,
-and mechanisms the tests share."""
+"""Helpers for tests of the Serve app: a small JSON client over `http.client`, and
+mechanisms the tests share."""
 
 from __future__ import annotations
 
 import http.client
 import json
-import socket
 from typing import Any
 
 FOUR_BAR = {
@@ -15,13 +14,6 @@ FOUR_BAR = {
 }
 #: The coupler (1-3) and rocker (2-3) are too short to span joints 1 and 2 over a full turn.
 LOCKING_FOUR_BAR = {**FOUR_BAR, "positions": [[0.5, 0.5], [0.55, 0.5], [0.62, 0.5], [0.585, 0.52]]}
-
-
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 class Client:

@@ -21,9 +21,10 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client, free_port
+from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
 
 import links_ray
+from links_ray.serve_app import bindable_port
 
 REPO = Path(__file__).resolve().parents[1]
 RESULT_FIELDS = {
@@ -419,7 +420,7 @@ def test_the_replica_answers_http_itself(client: Client) -> None:
 
 def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(dataset: str) -> None:
     """`links serve` starts its own Ray; the replica answers on --port and Ctrl-C stops all."""
-    port = free_port()
+    port = bindable_port("127.0.0.1", 0)
     server = subprocess.Popen(
         [sys.executable, "-m", "links_ray.cli", "serve", dataset, "--port", str(port)],
         stdout=subprocess.PIPE,
@@ -464,7 +465,8 @@ def test_serve_cli_refuses_a_root_without_curated_paths(
     """One line and exit status 2, before Ray or Serve is touched."""
     from links_ray.cli import main
 
-    assert main(["serve", str(tmp_path / "nothing"), "--port", str(free_port())]) == 2
+    port = bindable_port("127.0.0.1", 0)
+    assert main(["serve", str(tmp_path / "nothing"), "--port", str(port)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "no curated table" in err
 
