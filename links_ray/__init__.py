@@ -3,16 +3,16 @@
 The engine (this package's top level) is pure numpy/numba and imports no Ray.
 """
 
-from links_ray.dataset import load
-from links_ray.mechanism import (
+from links_ray.data.dataset import load
+from links_ray.engine.mechanism import (
     InvalidMechanismError,
     LockingError,
     reduce_mechanism,
 )
-from links_ray.paths import chamfer, circle_variance, is_circle, normalize_path
-from links_ray.sampling import PositionSampler, PositionSearch, sample_positions
-from links_ray.solver import TopologySimulator, simulate, simulate_batch
-from links_ray.topology import random_topology
+from links_ray.engine.paths import chamfer, circle_variance, is_circle, normalize_path
+from links_ray.engine.sampling import PositionSampler, PositionSearch, sample_positions
+from links_ray.engine.solver import TopologySimulator, simulate, simulate_batch
+from links_ray.engine.topology import random_topology
 
 __all__ = [
     "InvalidMechanismError",

@@ -320,7 +320,7 @@ def s3_env(s3_server: S3Server, monkeypatch: pytest.MonkeyPatch) -> Iterator[str
 @pytest.fixture(scope="session")
 def serve_port() -> int:
     """The loopback port the Serve app's replica answers HTTP on, as under `links serve`."""
-    from links_ray.serve_app import bindable_port
+    from links_ray.serve.app import bindable_port
 
     return bindable_port("127.0.0.1", 0)
 
@@ -335,7 +335,7 @@ def ray_cluster(s3_server: S3Server, serve_port: int) -> Iterator[str]:
     """
     import ray
 
-    from links_ray.serve_app import direct_ingress_env
+    from links_ray.serve.app import direct_ingress_env
 
     os.environ.update(
         {
@@ -359,8 +359,8 @@ def ray_cluster(s3_server: S3Server, serve_port: int) -> Iterator[str]:
 @pytest.fixture(scope="session")
 def dataset(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> str:
     """300 mechanisms, generated and curated, for the Serve app's tests."""
-    from links_ray.curation import curate
-    from links_ray.generation import generate
+    from links_ray.cluster.curation import curate
+    from links_ray.cluster.generation import generate
 
     out = str(tmp_path_factory.mktemp("serve") / "links")
     generate(out, 300, seed=5, progress=False, topologies_per_shard=10)
@@ -375,7 +375,7 @@ def client(dataset: str, serve_port: int) -> Iterator[Client]:
     down after."""
     from ray import serve
 
-    from links_ray.serve_app import bindable_port, build_app
+    from links_ray.serve.app import bindable_port, build_app
 
     proxy_port = bindable_port("127.0.0.1", 0)
     no_access_log = {"enable_access_log": False}

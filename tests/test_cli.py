@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 
 import links_ray
-from links_ray import bench
-from links_ray.mechanism import analyze_topology, dataset_rule_violations
+from links_ray.cli import bench
+from links_ray.engine.mechanism import analyze_topology, dataset_rule_violations
 
 
 def links(*args: str) -> subprocess.CompletedProcess[str]:

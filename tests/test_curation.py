@@ -17,11 +17,11 @@ from test_cli import links
 from test_generation import read_table
 
 import links_ray
-from links_ray.curation import curate
-from links_ray.generation import generate
-from links_ray.paths import circle_variance, normalize_path
-from links_ray.pathset import KEEP_SHARE, keep_draw
-from links_ray.storage import CURATION_TABLES, META, Store, StoreError
+from links_ray.cluster.curation import curate
+from links_ray.cluster.generation import generate
+from links_ray.data.pathset import KEEP_SHARE, keep_draw
+from links_ray.data.store import CURATION_TABLES, META, Store, StoreError
+from links_ray.engine.paths import circle_variance, normalize_path
 
 MECHANISMS = 300
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from test_generation import assert_same_rows, read_all
 
-from links_ray.generation import generate
+from links_ray.cluster.generation import generate
 
 SCRIPT = r"""
 import json, os, sys, threading, time
@@ -23,7 +23,7 @@ from pathlib import Path
 import ray
 from ray.cluster_utils import Cluster
 
-from links_ray.generation import generate
+from links_ray.cluster.generation import generate
 
 out = sys.argv[1]
 markers = Path(out) / "_links" / "shards"

@@ -22,11 +22,11 @@ import pyarrow.dataset as pads
 import pytest
 
 import links_ray
-from links_ray.generation import generate
-from links_ray.mechanism import analyze_topology, dataset_rule_violations
-from links_ray.shards import NEGATIVE_ID_BASE
-from links_ray.storage import GENERATION_TABLES as TABLES
-from links_ray.storage import META, Store, StoreError
+from links_ray.cluster.generation import generate
+from links_ray.data.shards import NEGATIVE_ID_BASE
+from links_ray.data.store import GENERATION_TABLES as TABLES
+from links_ray.data.store import META, Store, StoreError
+from links_ray.engine.mechanism import analyze_topology, dataset_rule_violations
 
 
 def read_table(store: Store, table: str) -> pa.Table:

@@ -16,7 +16,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from links_ray.paths import (
+from links_ray.engine.paths import (
     CIRCLE_VARIANCE_THRESHOLD,
     chamfer,
     chamfer_to_many,

@@ -7,7 +7,7 @@ import pytest
 
 import links_ray
 from links_ray import InvalidMechanismError, random_topology, reduce_mechanism
-from links_ray.mechanism import analyze_topology, arc_joints
+from links_ray.engine.mechanism import analyze_topology, arc_joints
 
 
 def test_reduced_mechanism_traces_the_same_path() -> None:

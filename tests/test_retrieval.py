@@ -11,12 +11,13 @@ import pytest
 from test_cli import links
 
 import links_ray
-from links_ray import search_kernels as kernels
-from links_ray.bench_services import _held_out_queries
-from links_ray.curation import curate
-from links_ray.generation import generate
-from links_ray.paths import chamfer, chamfer_to_many, normalize_path
-from links_ray.retrieval import (
+from links_ray.cli.bench_services import _held_out_queries
+from links_ray.cluster.curation import curate
+from links_ray.cluster.generation import generate
+from links_ray.data.store import Store
+from links_ray.engine.paths import chamfer, chamfer_to_many, normalize_path
+from links_ray.search import kernels as kernels
+from links_ray.search.index import (
     FINE_STRIDE,
     INDEX_FILE,
     RetrievalIndex,
@@ -28,7 +29,6 @@ from links_ray.retrieval import (
     validate_query,
     variant_map,
 )
-from links_ray.storage import Store
 
 
 @pytest.fixture(scope="module")
@@ -135,7 +135,7 @@ def test_path_to_query_bounds_never_exceed_the_true_distance() -> None:
 
 def test_returned_mechanism_traces_the_query_where_it_was_drawn(index: RetrievalIndex) -> None:
     for query in queries():
-        i, j = links_ray.paths.longest_chord(query)
+        i, j = links_ray.engine.paths.longest_chord(query)
         chord = np.linalg.norm(query[j] - query[i])
         for result in index.retrieve(query, k=3):
             mechanism = result["mechanism"]

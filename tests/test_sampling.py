@@ -8,8 +8,8 @@ import pytest
 
 import links_ray
 from links_ray import LockingError, PositionSampler, TopologySimulator, random_topology
-from links_ray.mechanism import dataset_rule_violations
-from links_ray.reference import simulate_reference
+from links_ray.engine.mechanism import dataset_rule_violations
+from links_ray.engine.reference import simulate_reference
 
 SAMPLERS = ["sequential", "rejection"]
 

@@ -24,7 +24,7 @@ import yaml
 from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
 
 import links_ray
-from links_ray.serve_app import bindable_port
+from links_ray.serve.app import bindable_port
 
 REPO = Path(__file__).resolve().parents[1]
 RESULT_FIELDS = {
@@ -375,7 +375,7 @@ def test_concurrent_clients(client: Client, curated: Any) -> None:
 def test_app_builder_args(dataset: str, tmp_path: Path) -> None:
     from ray.serve.deployment import Application
 
-    from links_ray.serve_app import app_builder, build_app
+    from links_ray.serve.app import app_builder, build_app
 
     assert isinstance(app_builder({"root": dataset, "replicas": "2"}), Application)
     for bad in (
@@ -463,7 +463,7 @@ def test_serve_cli_refuses_a_root_without_curated_paths(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """One line and exit status 2, before Ray or Serve is touched."""
-    from links_ray.cli import main
+    from links_ray.cli.main import main
 
     port = bindable_port("127.0.0.1", 0)
     assert main(["serve", str(tmp_path / "nothing"), "--port", str(port)]) == 2
@@ -474,7 +474,7 @@ def test_serve_cli_refuses_a_root_without_curated_paths(
 def _check_serve_config(config: dict[str, Any]) -> Any:
     from ray.serve.schema import ServeDeploySchema
 
-    from links_ray.serve_app import app_builder
+    from links_ray.serve.app import app_builder
 
     schema = ServeDeploySchema.model_validate(config)
     (app,) = schema.applications

@@ -22,7 +22,7 @@ import pytest
 from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
 
 import links_ray
-from links_ray.mechanism import analyze_topology
+from links_ray.engine.mechanism import analyze_topology
 
 CHROMIUM = os.environ.get("LINKS_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
@@ -191,8 +191,8 @@ def test_page_and_files_are_served_from_the_package(client: Client) -> None:
         status, headers, body = client.request("GET", f"/studio/{name}")
         assert status == 200 and headers["content-type"].startswith(kind), (name, headers)
         assert headers["x-content-type-options"] == "nosniff"
-        assert body == (Path(links_ray.__file__).parent / "studio" / name).read_text()
-    for name in ("missing.js", "..%2Fserve_app.py", "index.py"):
+        assert body == (Path(links_ray.__file__).parent / "serve" / "studio" / name).read_text()
+    for name in ("missing.js", "..%2Fapp.py", "index.py"):
         status, headers, data = client.request("GET", f"/studio/{name}")
         assert status == 404 and headers["content-type"] == "application/json"
         assert data["error"]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from links_ray import random_topology
-from links_ray.mechanism import FIXED, SIMPLE, analyze_topology, dataset_rule_violations
+from links_ray.engine.mechanism import FIXED, SIMPLE, analyze_topology, dataset_rule_violations
 
 
 def depends_on(adjacency: np.ndarray, node_types: np.ndarray, joint: int) -> set[int]:

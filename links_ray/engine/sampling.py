@@ -26,8 +26,8 @@ from typing import Literal
 import numpy as np
 from numba import njit
 
-from links_ray.mechanism import CRANK_CENTER, CRANK_TIP, Topology
-from links_ray.solver import (
+from links_ray.engine.mechanism import CRANK_CENTER, CRANK_TIP, Topology
+from links_ray.engine.solver import (
     CHECK_BLOCK,
     DEFAULT_STEPS,
     TopologySimulator,
@@ -38,7 +38,7 @@ from links_ray.solver import (
     simulate_one,
     solve_span,
 )
-from links_ray.topology import SeedLike, grow_topology
+from links_ray.engine.topology import SeedLike, grow_topology
 
 Sampler = Literal["sequential", "rejection"]
 SAMPLERS: tuple[str, ...] = ("sequential", "rejection")

@@ -16,9 +16,9 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from links_ray.mechanism import FIXED
-from links_ray.paths import CIRCLE_VARIANCE_THRESHOLD, circle_variances, normalize_paths
-from links_ray.storage import SCHEMAS
+from links_ray.data.store import SCHEMAS
+from links_ray.engine.mechanism import FIXED
+from links_ray.engine.paths import CIRCLE_VARIANCE_THRESHOLD, circle_variances, normalize_paths
 
 JOINT_BITS = 5
 #: Share of arcs and circles curation keeps (the paper's 0.5%).

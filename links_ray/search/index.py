@@ -42,12 +42,12 @@ import pyarrow as pa
 import pyarrow.dataset as pads
 from numpy.typing import ArrayLike
 
-from links_ray import search_kernels as kernels
-from links_ray.dataset import open_table
-from links_ray.mechanism import reduce_mechanism
-from links_ray.paths import chamfer_to_many, longest_chord
-from links_ray.solver import simulate
-from links_ray.storage import META, Store
+from links_ray.data.dataset import open_table
+from links_ray.data.store import META, Store
+from links_ray.engine.mechanism import reduce_mechanism
+from links_ray.engine.paths import chamfer_to_many, longest_chord
+from links_ray.engine.solver import simulate
+from links_ray.search import kernels as kernels
 
 #: PCA components of the distance fields; a path's code holds two sets (2 * DIMENSIONS int8).
 DIMENSIONS = 64

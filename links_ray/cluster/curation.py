@@ -16,10 +16,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import ray
 
-from links_ray.generation import connect
-from links_ray.pathset import KEEP_SHARE, curated_mask, path_table
-from links_ray.progress import Progress
-from links_ray.storage import CURATION_TABLES, META, ShardWriter, Store, StoreError
+from links_ray.cluster.connect import connect
+from links_ray.cluster.progress import Progress
+from links_ray.data.pathset import KEEP_SHARE, curated_mask, path_table
+from links_ray.data.store import CURATION_TABLES, META, ShardWriter, Store, StoreError
 
 CURATION_FORMAT = 1
 

@@ -20,11 +20,11 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import pyarrow as pa
 
-from links_ray.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
-from links_ray.sampling import SAMPLERS, PositionSampler, PositionSearchError
-from links_ray.solver import DEFAULT_STEPS, TopologySimulator
-from links_ray.storage import GENERATION_TABLES, SCHEMAS
-from links_ray.topology import grow_topology
+from links_ray.data.store import GENERATION_TABLES, SCHEMAS
+from links_ray.engine.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
+from links_ray.engine.sampling import SAMPLERS, PositionSampler, PositionSearchError
+from links_ray.engine.solver import DEFAULT_STEPS, TopologySimulator
+from links_ray.engine.topology import grow_topology
 
 VARIANTS = 5
 JOINT_COUNTS = MAX_DATASET_JOINTS - MIN_DATASET_JOINTS + 1

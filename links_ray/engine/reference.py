@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from links_ray.mechanism import FIXED, LockingError
+from links_ray.engine.mechanism import FIXED, LockingError
 
 Point = tuple[float, float]
 
@@ -22,7 +22,8 @@ def simulate_reference(
 ) -> list[list[Point]]:
     """Trajectories [joint][step] = (x, y); raises `LockingError` at the first lock.
 
-    Expects a valid mechanism (see `links_ray.mechanism.analyze_topology`); plain lists or arrays.
+    Expects a valid mechanism (see `links_ray.engine.mechanism.analyze_topology`); plain lists
+    or arrays.
     """
     n = len(node_types)
     neighbours = [[k for k in range(n) if adjacency[j][k]] for j in range(n)]

@@ -6,7 +6,7 @@
 | `POST /api/simulate` | 200 `{"trajectories"}`, 422 `{"error": "locking", "step", "node"}` |
 | `POST /api/retrieve` | 200 `{"results", "took_ms"}`, best first |
 | `POST /api/analyze` | 200 the studio's analysis: mobility, dyadic solvability, where it locks |
-| `GET /` | the web studio (`links_ray/studio/index.html`) |
+| `GET /` | the web studio (`links_ray/serve/studio/index.html`) |
 | `GET /studio/<file>` | the studio's scripts and style sheet, from the package |
 
 Every bad request gets a 4xx with a JSON `{"error": "<what is wrong>"}`: 400 for malformed
@@ -50,15 +50,16 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from links_ray.dataset import open_table
-from links_ray.mechanism import (
+from links_ray.data.dataset import open_table
+from links_ray.engine.mechanism import (
     InvalidMechanismError,
     LockingError,
     analyze_topology,
     dataset_rule_violations,
     mobility,
 )
-from links_ray.retrieval import (
+from links_ray.engine.solver import simulate, simulate_until_lock
+from links_ray.search.index import (
     MAX_COORDINATE,
     MAX_K,
     MAX_POINTS,
@@ -66,7 +67,6 @@ from links_ray.retrieval import (
     MIN_POINTS,
     RetrievalIndex,
 )
-from links_ray.solver import simulate, simulate_until_lock
 
 logger = logging.getLogger("ray.serve")
 
@@ -96,7 +96,7 @@ STUDIO_CSP = (
 @functools.cache
 def studio_files() -> dict[str, tuple[bytes, str]]:
     """The studio's files by name, as (content, media type), read once from the package."""
-    folder = importlib.resources.files("links_ray") / "studio"
+    folder = importlib.resources.files("links_ray.serve") / "studio"
     files = {}
     for entry in folder.iterdir():
         media_type = STUDIO_MEDIA_TYPES.get("." + entry.name.rpartition(".")[2])
@@ -599,7 +599,7 @@ def run_server(
     """
     import ray
 
-    from links_ray.generation import connect
+    from links_ray.cluster.connect import connect
 
     check_root(root)  # a wrong ROOT is one line here, not a replica failing to start
     app = build_app(root, replicas)

@@ -13,8 +13,8 @@ import time
 from collections.abc import Callable, Sequence
 from typing import NoReturn
 
-from links_ray import bench
-from links_ray.demo import run_demo
+from links_ray.cli import bench
+from links_ray.cli.demo import run_demo
 
 
 def _report(args: argparse.Namespace, result: dict, formatted: Callable[[dict], str]) -> None:
@@ -31,7 +31,7 @@ def _bench_sample(args: argparse.Namespace) -> None:
 
 
 def _generate(args: argparse.Namespace) -> None:
-    from links_ray.generation import generate  # imports Ray: only when asked for
+    from links_ray.cluster.generation import generate  # imports Ray: only when asked for
 
     summary = generate(
         args.out,
@@ -46,7 +46,7 @@ def _generate(args: argparse.Namespace) -> None:
 
 
 def _bench_generate(args: argparse.Namespace) -> None:
-    from links_ray import bench_services
+    from links_ray.cli import bench_services
 
     with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
         result = bench_services.bench_generate(mechanisms=args.mechanisms)
@@ -54,31 +54,31 @@ def _bench_generate(args: argparse.Namespace) -> None:
 
 
 def _curate(args: argparse.Namespace) -> None:
-    from links_ray.curation import curate  # imports Ray: only when asked for
+    from links_ray.cluster.curation import curate  # imports Ray: only when asked for
 
     summary = curate(args.root, seed=args.seed, workers=args.workers, address=args.address)
     print(json.dumps(summary, indent=2))
 
 
 def _stats(args: argparse.Namespace) -> None:
-    from links_ray.stats import dataset_stats
+    from links_ray.data.stats import dataset_stats
 
     stats = dataset_stats(args.root, sample_topologies=args.sample_topologies)
     if args.plots:
-        from links_ray.figures import write_figures
+        from links_ray.cli.figures import write_figures
 
         stats["plots"] = write_figures(args.root, args.plots, stats)
     print(json.dumps(stats, indent=2))
 
 
 def _serve(args: argparse.Namespace) -> None:
-    from links_ray.serve_app import run_server  # imports Ray Serve: only when asked for
+    from links_ray.serve.app import run_server  # imports Ray Serve: only when asked for
 
     run_server(args.root, host=args.host, port=args.port, replicas=args.replicas)
 
 
 def _retrieve(args: argparse.Namespace) -> None:
-    from links_ray.retrieval import RetrievalIndex, read_points
+    from links_ray.search.index import RetrievalIndex, read_points
 
     index = RetrievalIndex.open(args.root)
     start = time.perf_counter()
@@ -88,7 +88,7 @@ def _retrieve(args: argparse.Namespace) -> None:
 
 
 def _bench_retrieve(args: argparse.Namespace) -> None:
-    from links_ray import bench_services
+    from links_ray.cli import bench_services
 
     with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
         result = bench_services.bench_retrieve(paths=args.paths)

@@ -2,7 +2,7 @@
 
 Each `GeneratorActor` owns the compiled engine (its kernels loaded once per process) and
 handles one shard at a time: it draws the shard's topologies and positions, streams record
-batches into hidden files and commits them (`links_ray.storage`). The driver keeps the pool as
+batches into hidden files and commits them (`links_ray.data.store`). The driver keeps the pool as
 large as the cluster's CPUs allow (up to `workers`), growing it when nodes join; a shard whose
 actor dies, with its node or by a kill, goes back to the queue and is redone elsewhere. Since
 rows depend only on the plan and a redone shard replaces its files, the result is the same
@@ -11,7 +11,6 @@ whatever happens on the way, and running the same command again finishes an inte
 
 from __future__ import annotations
 
-import os
 import time
 from collections import deque
 from dataclasses import asdict
@@ -19,9 +18,10 @@ from dataclasses import asdict
 import ray
 from ray.exceptions import ActorDiedError, ActorUnavailableError, RayActorError
 
-from links_ray.progress import Progress
-from links_ray.shards import GenerationPlan, Shard, generate_shard
-from links_ray.storage import GENERATION_TABLES, META, ShardWriter, Store, StoreError
+from links_ray.cluster.connect import connect
+from links_ray.cluster.progress import Progress
+from links_ray.data.shards import GenerationPlan, Shard, generate_shard
+from links_ray.data.store import GENERATION_TABLES, META, ShardWriter, Store, StoreError
 
 #: Shards queued on an actor at once: one running, one ready, so no actor waits on the driver.
 SHARDS_IN_FLIGHT = 2
@@ -50,17 +50,6 @@ class GeneratorActor:
         except BaseException:
             writer.abort()
             raise
-
-
-def connect(address: str | None = None) -> None:
-    """Join the Ray cluster at `address` (or RAY_ADDRESS, as under `ray job submit`), or start
-    a local one on this machine's CPUs."""
-    if ray.is_initialized():
-        return
-    if address or os.environ.get("RAY_ADDRESS"):
-        ray.init(address=address, logging_level="WARNING")
-    else:
-        ray.init(include_dashboard=False, logging_level="WARNING")
 
 
 def generate(

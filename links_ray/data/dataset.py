@@ -14,7 +14,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.dataset as pads
 
-from links_ray.storage import CURATION_TABLES, GENERATION_TABLES, Store
+from links_ray.data.store import CURATION_TABLES, GENERATION_TABLES, Store
 
 TABLE_NAMES = GENERATION_TABLES + CURATION_TABLES
 #: The partition column, typed (Hive folders carry no types).

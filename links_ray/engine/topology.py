@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from links_ray.mechanism import (
+from links_ray.engine.mechanism import (
     ACTUATED,
     FIXED,
     MAX_DATASET_JOINTS,

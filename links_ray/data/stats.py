@@ -12,10 +12,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from links_ray.dataset import TABLE_NAMES, open_table
-from links_ray.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
-from links_ray.sampling import measure_candidates_per_valid
-from links_ray.storage import CURATION_TABLES, META, Store
+from links_ray.data.dataset import TABLE_NAMES, open_table
+from links_ray.data.store import CURATION_TABLES, META, Store
+from links_ray.engine.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
+from links_ray.engine.sampling import measure_candidates_per_valid
 
 #: The paper's figures ("Dataset Curation & Processing", "Scale of Infeasibilities").
 PAPER = {

@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
-from links_ray.mechanism import (
+from links_ray.engine.mechanism import (
     LockingError,
     Topology,
     analyze_topology,

@@ -8,8 +8,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as pads
 
-from links_ray.dataset import open_table
-from links_ray.storage import Store
+from links_ray.data.dataset import open_table
+from links_ray.data.store import Store
 
 
 def _pyplot():

@@ -1,7 +1,7 @@
 """Benchmarks of the services: `links bench generate` and `links bench retrieve`.
 
 They run on a local Ray (started on demand) and write real datasets; the engine's benchmarks
-are in `links_ray.bench`.
+are in `links_ray.cli.bench`.
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ import time
 
 import numpy as np
 
-from links_ray.bench import machine_info
-from links_ray.sampling import PositionSampler
-from links_ray.solver import TopologySimulator
-from links_ray.topology import random_topology
+from links_ray.cli.bench import machine_info
+from links_ray.engine.sampling import PositionSampler
+from links_ray.engine.solver import TopologySimulator
+from links_ray.engine.topology import random_topology
 
 
 def bench_generate(
@@ -33,7 +33,8 @@ def bench_generate(
     """
     import tempfile
 
-    from links_ray.generation import connect, generate
+    from links_ray.cluster.connect import connect
+    from links_ray.cluster.generation import generate
 
     connect()
     cpus = os.cpu_count() or 1
@@ -81,8 +82,8 @@ def bench_generate(
 
 def retrieval_dataset(paths: int, folder: str | None = None) -> str:
     """A cached dataset with at least `paths` curated paths (made once, then reused)."""
-    from links_ray.curation import curate
-    from links_ray.generation import generate
+    from links_ray.cluster.curation import curate
+    from links_ray.cluster.generation import generate
 
     root = folder or os.path.join(
         os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")),
@@ -110,7 +111,7 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
     """
     import urllib.request
 
-    from links_ray.retrieval import RetrievalIndex
+    from links_ray.search.index import RetrievalIndex
 
     root = retrieval_dataset(paths)
     start = time.perf_counter()
@@ -141,7 +142,7 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
     import ray
     from ray import serve
 
-    from links_ray.serve_app import bindable_port, run_server
+    from links_ray.serve.app import bindable_port, run_server
 
     ray.shutdown()  # generating the dataset may have started one
     port = bindable_port("127.0.0.1", 0)
@@ -183,15 +184,15 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
 
 
 def _normalized(points: np.ndarray) -> np.ndarray:
-    from links_ray.retrieval import normalization
+    from links_ray.search.index import normalization
 
     return normalization(points)[0]
 
 
 def _held_out_queries(count: int, seed: int) -> list[np.ndarray]:
     """Paths of fresh random mechanisms in random frames (not arcs, not circles)."""
-    from links_ray.mechanism import analyze_topology, arc_joints
-    from links_ray.paths import is_circle, normalize_path
+    from links_ray.engine.mechanism import analyze_topology, arc_joints
+    from links_ray.engine.paths import is_circle, normalize_path
 
     rng = np.random.default_rng(seed)
     queries = []

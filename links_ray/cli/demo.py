@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from links_ray.sampling import PositionSampler, Sampler
-from links_ray.solver import TopologySimulator
-from links_ray.topology import random_topology
+from links_ray.engine.sampling import PositionSampler, Sampler
+from links_ray.engine.solver import TopologySimulator
+from links_ray.engine.topology import random_topology
 
 VARIANTS = 5
 
