@@ -20,7 +20,8 @@ import links_ray
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
 from links_ray.data.pathset import KEEP_SHARE, keep_draw
-from links_ray.data.store import CURATION_TABLES, META, Store, StoreError
+from links_ray.data.schemas import CURATION_TABLES
+from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.paths import circle_variance, normalize_path
 
 MECHANISMS = 300

@@ -18,8 +18,10 @@ import ray
 
 from links_ray.cluster.connect import connect
 from links_ray.cluster.progress import Progress
+from links_ray.data.commit import ShardWriter, committed_shards, remove_uncommitted
+from links_ray.data.lease import Lease, LeaseLost, holder_still
 from links_ray.data.pathset import KEEP_SHARE, curated_mask, path_table
-from links_ray.data.store import CURATION_TABLES, META, ShardWriter, Store, StoreError
+from links_ray.data.store import META, Store, StoreError
 
 CURATION_FORMAT = 1
 
@@ -27,9 +29,10 @@ CURATION_FORMAT = 1
 class ShardCurator:
     """A Ray Data actor: curates the generation shards it is given, one per row."""
 
-    def __init__(self, uri: str, seed: int) -> None:
+    def __init__(self, uri: str, seed: int, lease_token: str) -> None:
         self.store = Store.open(uri, attempts=10)
         self.seed = seed
+        self.lease_token = lease_token
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         markers = [
@@ -73,6 +76,8 @@ class ShardCurator:
                 "both": int((is_arc & is_circle).sum()),
                 "seconds": time.perf_counter() - start,
             }
+            if not holder_still(self.store, "writer", self.lease_token):
+                raise LeaseLost(f"{self.store.uri}: the run this curator works for lost the root")
             return writer.commit(stats)
         except BaseException:
             writer.abort()
@@ -92,13 +97,23 @@ def curate(
     if workers is not None and (isinstance(workers, bool) or workers < 1):
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
     store = Store.open(root)
-    generated = store.committed_shards("shards")
+    with Lease.acquire(store, "writer", "links curate") as lease:
+        summary = _curate_holding(store, lease, seed, workers, address, progress)
+    return summary
+
+
+def _curate_holding(
+    store: Store, lease: Lease, seed: int, workers: int | None, address: str | None, progress: bool
+) -> dict:
+    """`curate`'s work, done while holding the root's writer lease."""
+    generated = committed_shards(store, "shards")
     if not generated:
         raise StoreError(f"{store.uri} holds no generated shards: run links generate first")
     store.claim(
         f"{META}/curation.json", {"seed": seed, "keep_share": KEEP_SHARE, "format": CURATION_FORMAT}
     )
-    curated = store.committed_shards("curation")
+    curated = committed_shards(store, "curation")
+    remove_uncommitted(store, "curation", curated)
     todo = [marker for shard, marker in sorted(generated.items()) if shard not in curated]
 
     start = time.perf_counter()
@@ -122,7 +137,7 @@ def curate(
         )
         results = shards.map_batches(
             ShardCurator,
-            fn_constructor_kwargs={"uri": store.uri, "seed": seed},
+            fn_constructor_kwargs={"uri": store.uri, "seed": seed, "lease_token": lease.token},
             batch_size=1,
             concurrency=actors,
             num_cpus=1,
@@ -135,7 +150,8 @@ def curate(
                 meter.advance(int(row["mechanisms"]))
         finally:
             meter.close()
-        store.remove_uncommitted(CURATION_TABLES)
+        lease.confirm()
+        remove_uncommitted(store, "curation", committed_shards(store, "curation"))
     summary = summarize_curation(store, time.perf_counter() - start, len(todo))
     store.write_json(f"{META}/curation_summary.json", summary)
     return summary
@@ -143,7 +159,7 @@ def curate(
 
 def summarize_curation(store: Store, seconds: float, curated_now: int) -> dict:
     """Counts of paths, arcs and circles, and the curated share, over all curated shards."""
-    markers = store.committed_shards("curation")
+    markers = committed_shards(store, "curation")
     totals = {"mechanisms": 0, "paths": 0, "curated": 0, "arcs": 0, "circles": 0, "both": 0}
     compute_s = 0.0
     for marker in markers.values():

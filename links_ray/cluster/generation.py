@@ -20,8 +20,10 @@ from ray.exceptions import ActorDiedError, ActorUnavailableError, RayActorError
 
 from links_ray.cluster.connect import connect
 from links_ray.cluster.progress import Progress
-from links_ray.data.shards import GenerationPlan, Shard, generate_shard
-from links_ray.data.store import GENERATION_TABLES, META, ShardWriter, Store, StoreError
+from links_ray.data.commit import committed_shards, remove_uncommitted
+from links_ray.data.lease import Lease, LeaseLost, holder_still
+from links_ray.data.shards import GenerationPlan, Shard, write_shard
+from links_ray.data.store import META, Store, StoreError
 
 #: Shards queued on an actor at once: one running, one ready, so no actor waits on the driver.
 SHARDS_IN_FLIGHT = 2
@@ -37,19 +39,19 @@ SHARD_ATTEMPTS = 3
 class GeneratorActor:
     """Generates and commits shards of one run."""
 
-    def __init__(self, uri: str, plan: dict) -> None:
+    def __init__(self, uri: str, plan: dict, lease_token: str) -> None:
         self.store = Store.open(uri, attempts=WRITE_ATTEMPTS)
         self.plan = GenerationPlan(**plan)
+        self.lease_token = lease_token
 
     def run_shard(self, shard: Shard) -> dict:
         """Generate, write and commit `shard`; returns its commit marker."""
-        writer = ShardWriter(self.store, shard.shard_id, shard.n_joints)
-        try:
-            stats = generate_shard(self.plan, shard, writer.write)
-            return writer.commit(stats)
-        except BaseException:
-            writer.abort()
-            raise
+        return write_shard(self.store, self.plan, shard, fence=self._still_ours)
+
+    def _still_ours(self) -> None:
+        # An actor outliving its driver must not commit beside the run that took the root over.
+        if not holder_still(self.store, "writer", self.lease_token):
+            raise LeaseLost(f"{self.store.uri}: the run this actor works for lost the root")
 
 
 def generate(
@@ -71,42 +73,49 @@ def generate(
     extra = {} if topologies_per_shard is None else {"topologies_per_shard": topologies_per_shard}
     plan = GenerationPlan(seed=seed, mechanisms=mechanisms, sampler=sampler, **extra)
     store = Store.open(out)
-    store.claim(f"{META}/run.json", plan.config())
-    shards = plan.shards()
-    committed = store.committed_shards()
-    todo = deque(shard for shard in shards if shard.shard_id not in committed)
+    with Lease.acquire(store, "writer", "links generate") as lease:
+        store.claim(f"{META}/run.json", plan.config())
+        committed = committed_shards(store, "shards")
+        remove_uncommitted(store, "shards", committed)
+        todo = deque(shard for shard in plan.shards() if shard.shard_id not in committed)
 
-    connect(address)
-    start = time.perf_counter()
-    meter = Progress(
-        total=plan.mechanisms,
-        done=sum(marker["stats"]["mechanisms"] for marker in committed.values()),
-        unit="mechanisms",
-        enabled=progress,
-    )
-    pool = _Pool(out, plan, workers)
-    try:
-        while todo or pool.busy():
-            pool.resize(work_left=len(todo))
-            pool.submit(todo)
-            for shard, marker in pool.collect(todo):
-                committed[shard.shard_id] = marker
-                meter.advance(marker["stats"]["mechanisms"])
-    finally:
-        pool.shutdown()
-        meter.close()
-    store.remove_uncommitted(GENERATION_TABLES)
-    summary = summarize(plan, committed, store.uri, time.perf_counter() - start, pool.peak)
-    store.write_json(f"{META}/summary.json", summary)
+        connect(address)
+        start = time.perf_counter()
+        meter = Progress(
+            total=plan.mechanisms,
+            done=sum(marker["stats"]["mechanisms"] for marker in committed.values()),
+            unit="mechanisms",
+            enabled=progress,
+        )
+        pool = _Pool(out, plan, workers, lease.token)
+        try:
+            while todo or pool.busy():
+                if lease.lost:
+                    lease.confirm()  # raises: another run owns the root now
+                pool.resize(work_left=len(todo))
+                pool.submit(todo)
+                for shard, marker in pool.collect(todo):
+                    committed[shard.shard_id] = marker
+                    meter.advance(marker["stats"]["mechanisms"])
+        finally:
+            pool.shutdown()
+            meter.close()
+        lease.confirm()
+        remove_uncommitted(store, "shards", committed)
+        summary = summarize(plan, committed, store.uri, time.perf_counter() - start, pool.peak)
+        store.write_json(f"{META}/summary.json", summary)
     return summary
 
 
 class _Pool:
     """Generator actors sized to the cluster, each fed up to SHARDS_IN_FLIGHT shards."""
 
-    def __init__(self, uri: str, plan: GenerationPlan, workers: int | None) -> None:
+    def __init__(
+        self, uri: str, plan: GenerationPlan, workers: int | None, lease_token: str
+    ) -> None:
         self.uri = uri
         self.plan = asdict(plan)
+        self.lease_token = lease_token
         self.workers = workers
         self.load: dict[ray.actor.ActorHandle, int] = {}  # live actors: shards in flight
         self.in_flight: dict[ray.ObjectRef, tuple[ray.actor.ActorHandle, Shard]] = {}
@@ -132,7 +141,7 @@ class _Pool:
         cpus = int(ray.cluster_resources().get("CPU", 1))
         wanted = min(self.workers or cpus, cpus, work_left + len(self.in_flight))
         while len(self.load) < max(wanted, 1 if work_left else 0):
-            self.load[GeneratorActor.remote(self.uri, self.plan)] = 0
+            self.load[GeneratorActor.remote(self.uri, self.plan, self.lease_token)] = 0
         self.peak = max(self.peak, len(self.load))
 
     def submit(self, todo: deque[Shard]) -> None:

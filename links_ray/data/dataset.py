@@ -1,7 +1,7 @@
 """Reading the dataset: `load` a table as pandas or pyarrow, optionally one joint count.
 
-Only committed rows are read: files of unfinished shards are hidden (their names start with
-`_`), and pyarrow skips them.
+Only committed rows are read: the files that commit markers name (`links_ray.data.commit`), so
+a shard interrupted anywhere in its commit shows no row, in no table.
 """
 
 from __future__ import annotations
@@ -14,25 +14,32 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.dataset as pads
 
-from links_ray.data.store import CURATION_TABLES, GENERATION_TABLES, Store
+from links_ray.data.commit import committed_files
+from links_ray.data.schemas import TABLE_NAMES
+from links_ray.data.store import Store
 
-TABLE_NAMES = GENERATION_TABLES + CURATION_TABLES
 #: The partition column, typed (Hive folders carry no types).
 PARTITIONING = pads.partitioning(pa.schema([("n_joints", pa.int16())]), flavor="hive")
 
 
-def open_table(root: str | Store, table: str) -> pads.Dataset:
-    """The pyarrow dataset of one table at `root` (a folder, s3://bucket/prefix or a Store)."""
+def open_table(
+    root: str | Store, table: str, markers: dict[int, dict] | None = None
+) -> pads.Dataset:
+    """The pyarrow dataset of one table's committed files at `root` (a folder,
+    s3://bucket/prefix or a Store); `markers` as in `committed_files`."""
     if table not in TABLE_NAMES:
         raise ValueError(f"table must be one of {', '.join(TABLE_NAMES)}, got {table!r}")
     store = root if isinstance(root, Store) else Store.open(root, writable=False)
-    try:
-        dataset = pads.dataset(store.path(table), filesystem=store.fs, partitioning=PARTITIONING)
-    except FileNotFoundError:
-        dataset = None
-    if dataset is None or not dataset.files:
+    files = committed_files(store, table, markers)
+    if not files:
         raise ValueError(f"{store.uri} has no {table} table yet")
-    return dataset
+    return pads.dataset(
+        [store.path(relative) for relative in files],
+        filesystem=store.fs,
+        format="parquet",
+        partitioning=PARTITIONING,
+        partition_base_dir=store.path(table),
+    )
 
 
 def load(

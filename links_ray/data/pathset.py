@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from links_ray.data.store import SCHEMAS
+from links_ray.data.schemas import SCHEMAS
 from links_ray.engine.mechanism import FIXED
 from links_ray.engine.paths import CIRCLE_VARIANCE_THRESHOLD, circle_variances, normalize_paths
 

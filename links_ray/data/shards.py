@@ -8,7 +8,7 @@ file per table into a single `n_joints` partition.
 
 Ids: ``mechanism_id = 5 i + variant``; a negative's id is ``NEGATIVE_ID_BASE + 5 i + k``.
 
-Pure numpy/pyarrow: no Ray.
+The engine and pyarrow: no Ray.
 """
 
 from __future__ import annotations
@@ -20,7 +20,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import pyarrow as pa
 
-from links_ray.data.store import GENERATION_TABLES, SCHEMAS
+from links_ray.data.commit import Failpoint, ShardWriter
+from links_ray.data.schemas import GENERATION_TABLES, SCHEMAS
+from links_ray.data.store import Store
 from links_ray.engine.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
 from links_ray.engine.sampling import SAMPLERS, PositionSampler, PositionSearchError
 from links_ray.engine.solver import DEFAULT_STEPS, TopologySimulator
@@ -167,6 +169,29 @@ def generate_shard(
                 write(table, buffer.batch(table))
     stats["seconds"] = time.perf_counter() - start
     return stats
+
+
+def write_shard(
+    store: Store,
+    plan: GenerationPlan,
+    shard: Shard,
+    fence: Callable[[], None] | None = None,
+    failpoint: Failpoint | None = None,
+) -> dict:
+    """Generate `shard` into `store` and commit it; returns its marker.
+
+    `fence` runs just before the commit and raises if this writer may no longer commit. On any
+    failure the attempt is aborted (nothing of it stays visible) and the error goes on up.
+    """
+    writer = ShardWriter(store, shard.shard_id, shard.n_joints, failpoint=failpoint)
+    try:
+        stats = generate_shard(plan, shard, writer.write)
+        if fence is not None:
+            fence()
+        return writer.commit(stats)
+    except BaseException:
+        writer.abort()
+        raise
 
 
 def _generate_topology(

@@ -12,8 +12,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from links_ray.data.dataset import TABLE_NAMES, open_table
-from links_ray.data.store import CURATION_TABLES, META, Store
+from links_ray.data.dataset import open_table
+from links_ray.data.schemas import CURATION_TABLES, TABLE_NAMES
+from links_ray.data.store import META, Store
 from links_ray.engine.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
 from links_ray.engine.sampling import measure_candidates_per_valid
 

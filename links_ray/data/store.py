@@ -1,85 +1,42 @@
-"""Where the dataset lives: table schemas, the filesystem, and the shard commit protocol.
+"""Where the dataset lives: a root on a pyarrow filesystem, a local folder or S3.
 
-A dataset root is a local folder or ``s3://bucket/prefix``. Each table is Hive-partitioned
-Parquet (SPEC section 3)::
+The store reads and writes files by their path relative to the root, and gives the commit
+protocol (`links_ray.data.commit`) and the leases (`links_ray.data.lease`) the few guarantees
+they build on:
 
-    ROOT/mechanisms/n_joints=12/shard-000042.parquet
-    ROOT/simulations/n_joints=12/shard-000042.parquet
-    ROOT/negatives/n_joints=12/shard-000042.parquet
-    ROOT/_links/run.json                 what was asked: seed, count, sampler, shard size
-    ROOT/_links/shards/shard-000042.json commit marker: files, rows and statistics of a shard
-    ROOT/_links/summary.json             the run summary
-
-Commit protocol: a shard streams into files named ``_shard-000042.<attempt>.parquet``, which
-readers skip (pyarrow ignores names starting with ``_``); once every file of the shard is
-complete they are moved to their final names, and then the marker is written. Final names
-depend only on the shard, so a redone shard replaces what an interrupted attempt left rather
-than adding to it; a shard without a marker is redone on the next run.
+- a small file is written whole or not at all: into a hidden temporary name, then moved to its
+  own (a rename on a local disk; on S3 a copy, which makes the object appear whole);
+- `read_json` treats a file it cannot parse like a missing one, so a damaged marker or cache
+  means "redo" or "rebuild", never a crash;
+- conditional writes (create if absent, replace or delete if unchanged) for leases: on S3 the
+  store's own preconditions (If-None-Match, If-Match), on a local disk a lock file held for the
+  few microseconds of a compare and a write.
 
 S3 settings and credentials come from the standard AWS variables and chain
 (``AWS_ENDPOINT_URL``, ``AWS_ACCESS_KEY_ID``, ``AWS_REGION``, ``~/.aws``, instance roles, ...).
 Nothing here logs or stores them.
 
-Pure pyarrow: no Ray.
+pyarrow and boto3: no Ray.
 """
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import json
 import os
 import uuid
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from urllib.parse import urlparse
 
 import pyarrow as pa
 import pyarrow.fs as pafs
-import pyarrow.parquet as pq
 
-GENERATION_TABLES = ("mechanisms", "simulations", "negatives")
-CURATION_TABLES = ("paths", "curated")
+#: The folder of the protocol's own files (markers, run records, leases, the index cache).
 META = "_links"
-
-_MECHANISM_FIELDS = [
-    pa.field("mechanism_id", pa.int64(), nullable=False),
-    pa.field("topology_id", pa.int64(), nullable=False),
-    pa.field("variant", pa.int8(), nullable=False),
-    pa.field("adjacency", pa.list_(pa.uint8()), nullable=False),
-    pa.field("node_types", pa.list_(pa.int8()), nullable=False),
-    pa.field("positions", pa.list_(pa.float64()), nullable=False),
-]
-_PATH_SCHEMA = pa.schema(
-    [
-        pa.field("path_id", pa.int64(), nullable=False),
-        pa.field("mechanism_id", pa.int64(), nullable=False),
-        pa.field("joint", pa.int8(), nullable=False),
-        pa.field("points", pa.list_(pa.float32()), nullable=False),
-        pa.field("is_arc", pa.bool_(), nullable=False),
-        pa.field("is_circle", pa.bool_(), nullable=False),
-        pa.field("circle_variance", pa.float32(), nullable=False),
-    ]
-)
-#: Columns of each table as written; `n_joints` is the Hive partition (the folder name).
-SCHEMAS: dict[str, pa.Schema] = {
-    "mechanisms": pa.schema(_MECHANISM_FIELDS),
-    "simulations": pa.schema(
-        [
-            pa.field("mechanism_id", pa.int64(), nullable=False),
-            pa.field("steps", pa.int16(), nullable=False),
-            pa.field("trajectories", pa.list_(pa.float32()), nullable=False),
-        ]
-    ),
-    "negatives": pa.schema(
-        [
-            *_MECHANISM_FIELDS,
-            pa.field("locked_step", pa.int16(), nullable=False),
-            pa.field("locked_node", pa.int16(), nullable=False),
-        ]
-    ),
-    "paths": _PATH_SCHEMA,
-    "curated": _PATH_SCHEMA,
-}
-#: zstd, no dictionary: floats do not repeat, and dictionary pages only cost time and space.
-PARQUET_OPTIONS = {"compression": "zstd", "use_dictionary": False, "write_statistics": True}
+#: Prefix of the hidden temporary names small files are written under before their move.
+TEMPORARY_PREFIX = "_tmp-"
 
 
 class StoreError(ValueError):
@@ -111,7 +68,9 @@ class Store:
     uri: str
     fs: pafs.FileSystem
     root: str  # the root's path inside `fs`
+    attempts: int = 2
     _made: set[str] = field(default_factory=set, repr=False)
+    _client: object = field(default=None, repr=False)
 
     @classmethod
     def open(cls, uri: str, attempts: int = 2, writable: bool = True) -> Store:
@@ -137,7 +96,7 @@ class Store:
             raise StoreError(
                 f"unsupported scheme {parsed.scheme!r} in {uri}: use a folder or s3://"
             )
-        store = cls(uri=uri, fs=fs, root=root)
+        store = cls(uri=uri, fs=fs, root=root, attempts=attempts)
         try:
             store._probe_writes() if writable else store._probe_reads()
         except StoreError:
@@ -168,9 +127,25 @@ class Store:
             self._made.add(parent)
 
     def write_bytes(self, relative: str, data: bytes) -> None:
+        """Write a file whole or not at all: a hidden temporary name first, then the move."""
         self._make_parent(relative)
-        with self.fs.open_output_stream(self.path(relative)) as stream:
-            stream.write(data)
+        folder, name = relative.rsplit("/", 1) if "/" in relative else ("", relative)
+        temporary = f"{folder}/{TEMPORARY_PREFIX}{uuid.uuid4().hex[:12]}-{name}".lstrip("/")
+        try:
+            with self.fs.open_output_stream(self.path(temporary)) as stream:
+                stream.write(data)
+            self.fs.move(self.path(temporary), self.path(relative))
+        except BaseException:
+            self.delete(temporary)
+            raise
+
+    def delete(self, relative: str) -> bool:
+        """Delete a file if it is there; False if it was not, or could not be deleted."""
+        try:
+            self.fs.delete_file(self.path(relative))
+            return True
+        except (OSError, pa.ArrowException):
+            return False
 
     def read_bytes(self, relative: str) -> bytes | None:
         """The file's bytes, or None if it does not exist."""
@@ -184,28 +159,45 @@ class Store:
         self.write_bytes(relative, (json.dumps(value, indent=1) + "\n").encode())
 
     def read_json(self, relative: str) -> dict | None:
+        """The file's JSON object, or None if it is missing or not a readable JSON object."""
         data = self.read_bytes(relative)
-        return None if data is None else json.loads(data)
+        if data is None:
+            return None
+        try:
+            value = json.loads(data)
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            return None
+        return value if isinstance(value, dict) else None
 
-    def list_files(self, relative: str) -> list[str]:
-        """Paths (relative to the root) of the files below `relative`, recursively."""
+    def list_files(self, relative: str, with_times: bool = False) -> list:
+        """Paths (relative to the root) of the files below `relative`, recursively, sorted;
+        with `with_times`, (path, modified seconds since the epoch) pairs."""
         selector = pafs.FileSelector(self.path(relative), recursive=True, allow_not_found=True)
         prefix = len(self.root) + 1
-        return sorted(
-            info.path[prefix:]
+        files = sorted(
+            (info.path[prefix:], info.mtime.timestamp() if info.mtime else 0.0)
             for info in self.fs.get_file_info(selector)
             if info.type == pafs.FileType.File
         )
+        return files if with_times else [path for path, _ in files]
 
     def claim(self, relative: str, config: dict) -> None:
         """Record what a run asks for at `relative`, or check it matches what is recorded.
 
         A root holds one dataset: resuming with other options would mix two datasets' rows.
+        The record is created only if absent, so two runs racing to claim a root cannot both
+        win; an unreadable record counts as absent.
         """
+        encoded = (json.dumps(config, indent=1) + "\n").encode()
         recorded = self.read_json(relative)
         if recorded is None:
-            self.write_json(relative, config)
-        elif recorded != config:
+            if self.create_exclusive(relative, encoded) is not None:
+                return
+            recorded = self.read_json(relative)
+            if recorded is None:  # there, but unreadable: written by nobody whole, so ours
+                self.write_bytes(relative, encoded)
+                return
+        if recorded != config:
             differ = ", ".join(
                 f"{k}={recorded.get(k)}" for k in config if recorded.get(k) != config[k]
             )
@@ -213,97 +205,132 @@ class Store:
                 f"{self.uri} holds another run ({differ}); use a new root or the same options"
             )
 
-    # -- shards ---------------------------------------------------------------------------
+    # -- conditional writes, for leases ---------------------------------------------------
+    # Each returns the file's new version tag (an S3 ETag, or a digest of a local file's
+    # bytes), or None when its precondition did not hold.
 
-    def committed_shards(self, stage: str = "shards") -> dict[int, dict]:
-        """Markers of the shards a stage ("shards": generation, "curation") committed, by id."""
-        markers = {}
-        for relative in self.list_files(f"{META}/{stage}"):
-            name = relative.rsplit("/", 1)[-1]
-            if name.startswith("shard-") and name.endswith(".json"):
-                markers[int(name[6:-5])] = self.read_json(relative)
-        return markers
+    @property
+    def is_s3(self) -> bool:
+        return isinstance(self.fs, pafs.S3FileSystem)
 
-    def remove_uncommitted(self, tables: tuple[str, ...]) -> int:
-        """Delete files that interrupted attempts left in `tables` (names starting `_shard-`)."""
-        removed = 0
-        for table in tables:
-            for relative in self.list_files(table):
-                if relative.rsplit("/", 1)[-1].startswith("_shard-"):
-                    self.fs.delete_file(self.path(relative))
-                    removed += 1
-        return removed
-
-
-def shard_file(table: str, n_joints: int, shard_id: int) -> str:
-    """The final (visible) path of a shard's file, relative to the root."""
-    return f"{table}/n_joints={n_joints}/shard-{shard_id:06d}.parquet"
-
-
-def marker_file(shard_id: int, stage: str = "shards") -> str:
-    return f"{META}/{stage}/shard-{shard_id:06d}.json"
-
-
-class ShardWriter:
-    """Streams one shard's record batches into hidden files, then commits them together."""
-
-    def __init__(self, store: Store, shard_id: int, n_joints: int, stage: str = "shards") -> None:
-        self.store = store
-        self.shard_id = shard_id
-        self.n_joints = n_joints
-        self.stage = stage
-        self.attempt = uuid.uuid4().hex[:12]
-        self.rows: dict[str, int] = {}
-        self._writers: dict[str, pq.ParquetWriter] = {}
-        self._streams: dict[str, pa.NativeFile] = {}
-
-    def _temporary(self, table: str) -> str:
-        final = shard_file(table, self.n_joints, self.shard_id)
-        folder, name = final.rsplit("/", 1)
-        return f"{folder}/_{name[:-8]}.{self.attempt}.parquet"
-
-    def write(self, table: str, batch: pa.RecordBatch) -> None:
-        """Append rows (with the table's schema) to the shard's file for `table`."""
-        if table not in self._writers:
-            relative = self._temporary(table)
-            self.store._make_parent(relative)
-            stream = self.store.fs.open_output_stream(self.store.path(relative))
-            self._streams[table] = stream
-            self._writers[table] = pq.ParquetWriter(stream, SCHEMAS[table], **PARQUET_OPTIONS)
-        self._writers[table].write_batch(batch)
-        self.rows[table] = self.rows.get(table, 0) + batch.num_rows
-
-    def _close(self) -> None:
-        for table, writer in self._writers.items():
-            writer.close()
-            self._streams[table].close()
-
-    def commit(self, stats: dict) -> dict:
-        """Make the shard's files visible, then write its marker; returns the marker."""
-        self._close()
-        files = {}
-        for table in self._writers:
-            final = shard_file(table, self.n_joints, self.shard_id)
-            self.store.fs.move(self.store.path(self._temporary(table)), self.store.path(final))
-            files[table] = final
-        marker = {
-            "shard": self.shard_id,
-            "n_joints": self.n_joints,
-            "files": files,
-            "rows": self.rows,
-            "stats": stats,
-        }
-        self.store.write_json(marker_file(self.shard_id, self.stage), marker)
-        return marker
-
-    def abort(self) -> None:
-        """Close and delete this attempt's hidden files."""
-        for table, writer in self._writers.items():
+    def read_versioned(self, relative: str) -> tuple[bytes, str] | None:
+        """The file's bytes and version tag, or None if it does not exist."""
+        if self.is_s3:
             try:
-                writer.close()
-                self._streams[table].close()
+                answer = self._s3().get_object(**self._s3_key(relative))
+            except Exception as exc:
+                if _s3_code(exc) in ("NoSuchKey", "404"):
+                    return None
+                raise _s3_error(exc) from None
+            return answer["Body"].read(), answer["ETag"]
+        data = self.read_bytes(relative)
+        return None if data is None else (data, _digest(data))
+
+    def create_exclusive(self, relative: str, data: bytes) -> str | None:
+        """Create the file with `data` only if it does not exist."""
+        if self.is_s3:
+            return self._s3_put(relative, data, IfNoneMatch="*")
+        with self._local_guard():
+            if self.read_bytes(relative) is not None:
+                return None
+            self.write_bytes(relative, data)
+            return _digest(data)
+
+    def replace_if(self, relative: str, version: str, data: bytes) -> str | None:
+        """Replace the file with `data` only if it is still at `version`."""
+        if self.is_s3:
+            return self._s3_put(relative, data, IfMatch=version)
+        with self._local_guard():
+            current = self.read_bytes(relative)
+            if current is None or _digest(current) != version:
+                return None
+            self.write_bytes(relative, data)
+            return _digest(data)
+
+    def delete_if(self, relative: str, version: str) -> bool:
+        """Delete the file only if it is still at `version`."""
+        if self.is_s3:
+            try:
+                self._s3().delete_object(**self._s3_key(relative), IfMatch=version)
+                return True
+            except Exception as exc:
+                if _s3_code(exc) in (*_PRECONDITION_CODES, "NoSuchKey", "404"):
+                    return False
+                raise _s3_error(exc) from None
+        with self._local_guard():
+            current = self.read_bytes(relative)
+            if current is None or _digest(current) != version:
+                return False
+            return self.delete(relative)
+
+    @contextlib.contextmanager
+    def _local_guard(self) -> Iterator[None]:
+        """Hold this root's lock file: the conditional writes of all processes take turns.
+
+        The kernel drops the lock when its holder dies, so a killed process never leaves it held.
+        """
+        import fcntl  # POSIX only, and only local roots need it
+
+        self._make_parent(f"{META}/.guard")
+        with open(self.path(f"{META}/.guard"), "a+b") as guard:
+            fcntl.flock(guard, fcntl.LOCK_EX)
+            try:
+                yield
             finally:
-                self.store.fs.delete_file(self.store.path(self._temporary(table)))
+                fcntl.flock(guard, fcntl.LOCK_UN)
+
+    def _s3(self):  # a boto3 client: boto3 exports no type for it
+        if self._client is None:
+            self._client = _s3_client(self.attempts)
+        return self._client
+
+    def _s3_key(self, relative: str) -> dict[str, str]:
+        bucket, _, prefix = self.path(relative).partition("/")
+        return {"Bucket": bucket, "Key": prefix}
+
+    def _s3_put(self, relative: str, data: bytes, **condition: str) -> str | None:
+        try:
+            return self._s3().put_object(**self._s3_key(relative), Body=data, **condition)["ETag"]
+        except Exception as exc:
+            if _s3_code(exc) in _PRECONDITION_CODES:
+                return None
+            raise _s3_error(exc) from None
+
+
+#: What S3 answers when a conditional request's precondition fails (409: a concurrent one won).
+_PRECONDITION_CODES = ("PreconditionFailed", "412", "ConditionalRequestConflict", "409")
+
+
+def _digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _s3_client(attempts: int):  # a boto3 client
+    """A boto3 S3 client from the same standard variables and chain as the filesystem."""
+    import boto3
+    from botocore.config import Config
+
+    endpoint = os.environ.get("AWS_ENDPOINT_URL_S3") or os.environ.get("AWS_ENDPOINT_URL")
+    config = Config(
+        connect_timeout=3,
+        read_timeout=60,
+        retries={"max_attempts": attempts, "mode": "standard"},
+    )
+    region = os.environ.get("AWS_REGION") or os.environ.get("AWS_DEFAULT_REGION")
+    return boto3.session.Session().client(
+        "s3", endpoint_url=endpoint or None, region_name=region, config=config
+    )
+
+
+def _s3_code(exc: BaseException) -> str:
+    response = getattr(exc, "response", None) or {}
+    return str(response.get("Error", {}).get("Code", ""))
+
+
+def _s3_error(exc: BaseException) -> OSError:
+    """An S3 client error as the OSError the filesystem would raise, named in one line."""
+    code = _s3_code(exc)
+    return OSError(f"{code or type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
 
 
 #: AWS error codes in pyarrow's messages, and what they mean to a user.

@@ -34,6 +34,7 @@ from __future__ import annotations
 import io
 import json
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,12 +43,14 @@ import pyarrow as pa
 import pyarrow.dataset as pads
 from numpy.typing import ArrayLike
 
+from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
-from links_ray.data.store import META, Store
+from links_ray.data.lease import Lease
+from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.mechanism import reduce_mechanism
 from links_ray.engine.paths import chamfer_to_many, longest_chord
 from links_ray.engine.solver import simulate
-from links_ray.search import kernels as kernels
+from links_ray.search import kernels
 
 #: PCA components of the distance fields; a path's code holds two sets (2 * DIMENSIONS int8).
 DIMENSIONS = 64
@@ -246,9 +249,15 @@ class RetrievalIndex:
 
     @classmethod
     def open(cls, root: str | Store, rebuild: bool = False) -> RetrievalIndex:
-        """Load the index saved beside the data, or build (and save) it from `curated/`."""
+        """Load the index saved beside the data, or build (and save) it from `curated/`.
+
+        Of several processes opening one root at once (Serve replicas), the one holding the
+        root's index lease builds and saves the cache; the others wait for it and load it. A
+        cache that cannot be read, or was made from other curated shards, is rebuilt.
+        """
         store = root if isinstance(root, Store) else Store.open(root, writable=False)
-        curated = open_table(store, "curated")
+        markers = committed_shards(store, "curation")
+        curated = open_table(store, "curated", markers)
         table = curated.to_table(columns=["path_id", "mechanism_id", "joint", "points"])
         table = table.sort_by("path_id")
         path_id = table.column("path_id").to_numpy()
@@ -264,45 +273,44 @@ class RetrievalIndex:
             "sketches": sketch_paths(points),
         }
         columns["mechanisms"] = _source_mechanisms(store, columns["mechanism_id"])
-        fingerprint = _fingerprint(store)
-        saved = None if rebuild else store.read_bytes(INDEX_FILE)
+        fingerprint = _fingerprint(markers)
+        saved = None if rebuild else _load_cache(store, fingerprint, path_id)
         if saved is not None:
-            arrays = np.load(io.BytesIO(saved))
-            if (
-                int(arrays["format"]) == INDEX_FORMAT
-                and str(arrays["fingerprint"]) == fingerprint
-                and np.array_equal(arrays["path_id"], path_id)
-            ):
-                basis = Basis(arrays["mean"], arrays["components"], arrays["scale"])
-                head, tail = arrays["head"], arrays["tail"]
-                return cls(**columns, head=head, tail=tail, bias=arrays["bias"], basis=basis)
-        start = time.perf_counter()
-        head, tail, bias, basis = _encode(points)
-        index = cls(
-            **columns,
-            head=head,
-            tail=tail,
-            bias=bias,
-            basis=basis,
-            build_s=time.perf_counter() - start,
-        )
-        buffer = io.BytesIO()
-        np.savez(
-            buffer,
-            format=INDEX_FORMAT,
-            fingerprint=fingerprint,
-            path_id=path_id,
-            head=head,
-            tail=tail,
-            bias=bias,
-            mean=basis.mean,
-            components=basis.components,
-            scale=basis.scale,
-        )
+            return cls(**columns, **saved)
+        lease = None if rebuild else _build_lease(store, fingerprint, path_id)
+        if isinstance(lease, dict):  # another process built it meanwhile
+            return cls(**columns, **lease)
         try:
-            store.write_bytes(INDEX_FILE, buffer.getvalue())
-        except OSError:  # a read-only root: serve from memory, build again next time
-            pass
+            start = time.perf_counter()
+            head, tail, bias, basis = _encode(points)
+            index = cls(
+                **columns,
+                head=head,
+                tail=tail,
+                bias=bias,
+                basis=basis,
+                build_s=time.perf_counter() - start,
+            )
+            buffer = io.BytesIO()
+            np.savez(
+                buffer,
+                format=INDEX_FORMAT,
+                fingerprint=fingerprint,
+                path_id=path_id,
+                head=head,
+                tail=tail,
+                bias=bias,
+                mean=basis.mean,
+                components=basis.components,
+                scale=basis.scale,
+            )
+            try:
+                store.write_bytes(INDEX_FILE, buffer.getvalue())
+            except OSError:  # a read-only root: serve from memory, build again next time
+                pass
+        finally:
+            if lease is not None:
+                lease.release()
         return index
 
     def candidates(
@@ -530,11 +538,63 @@ def _into_query_frame(
     return (as_query - query_offset) @ np.linalg.inv(query_matrix).T
 
 
-def _fingerprint(store: Store) -> str:
+def _fingerprint(markers: dict[int, dict]) -> str:
     """Changes whenever curated shards are added or redone."""
-    markers = store.committed_shards("curation")
-    rows = sorted((shard, m["rows"].get("curated", 0)) for shard, m in markers.items())
+    rows = sorted(
+        (shard, m["rows"].get("curated", 0), m.get("attempt")) for shard, m in markers.items()
+    )
     return json.dumps(rows)
+
+
+def _load_cache(store: Store, fingerprint: str, path_id: np.ndarray) -> dict | None:
+    """The saved codes and basis if the cache holds this fingerprint's, else None (also for a
+    cache that is missing, damaged or of another format)."""
+    saved = store.read_bytes(INDEX_FILE)
+    if saved is None:
+        return None
+    try:
+        arrays = np.load(io.BytesIO(saved))
+        if (
+            int(arrays["format"]) != INDEX_FORMAT
+            or str(arrays["fingerprint"]) != fingerprint
+            or not np.array_equal(arrays["path_id"], path_id)
+        ):
+            return None
+        basis = Basis(arrays["mean"], arrays["components"], arrays["scale"])
+        return {
+            "head": arrays["head"],
+            "tail": arrays["tail"],
+            "bias": arrays["bias"],
+            "basis": basis,
+        }
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
+
+
+#: How often a process waiting for another's index build looks for the cache.
+CACHE_POLL_S = 1.0
+
+
+def _build_lease(store: Store, fingerprint: str, path_id: np.ndarray) -> Lease | dict | None:
+    """The index lease (this process builds), the cache another process built while this one
+    waited, or None (build without the lease: the root takes no writes)."""
+    while True:
+        try:
+            got = Lease.try_acquire(store, "index", "the retrieval index build", ttl_s=60.0)
+        except (OSError, StoreError):
+            return None
+        if isinstance(got, Lease):
+            got.__enter__()  # renew while building: a large build takes minutes
+            # The cache may have been written between our look and our lease.
+            saved = _load_cache(store, fingerprint, path_id)
+            if saved is None:
+                return got
+            got.release()
+            return saved
+        time.sleep(CACHE_POLL_S)
+        saved = _load_cache(store, fingerprint, path_id)
+        if saved is not None:
+            return saved
 
 
 #: One score in this many makes the sample that sets a selection threshold.

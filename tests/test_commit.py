@@ -1,0 +1,254 @@
+"""The commit protocol under faults, on real files: a local folder and the SeaweedFS S3 server.
+
+A shard's commit is a sequence of steps (close the files, move each table's file, write the
+marker). A failure is injected after each step, both as an exception (the writer aborts) and as
+a killed process (nothing runs after the step). Readers must see only committed rows throughout,
+and finishing the work must give exactly the rows of an undisturbed run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.dataset as pads
+import pytest
+
+import links_ray
+from links_ray.data.commit import (
+    Failpoint,
+    ShardWriter,
+    committed_files,
+    committed_shards,
+    marker_file,
+    remove_uncommitted,
+)
+from links_ray.data.dataset import PARTITIONING, open_table
+from links_ray.data.schemas import GENERATION_TABLES
+from links_ray.data.shards import GenerationPlan, generate_shard, write_shard
+from links_ray.data.store import Store
+
+#: Four topologies of four joint counts: four shards of one topology each.
+PLAN = GenerationPlan(seed=3, mechanisms=20, topologies_per_shard=1)
+#: The steps of a generation shard's commit, in order.
+STEPS = ["closed", "moved mechanisms", "moved simulations", "moved negatives", "marked"]
+
+
+class InjectedFault(OSError):
+    """The failure a test injects into a commit."""
+
+
+def fail_at(step: str) -> Failpoint:
+    def failpoint(reached: str) -> None:
+        if reached == step:
+            raise InjectedFault(f"injected after {step!r}")
+
+    return failpoint
+
+
+def rows(root: str | Store) -> dict[str, pa.Table]:
+    """Every generation table's committed rows, through `load`, sorted by id."""
+    return {
+        table: links_ray.load(root, table, format="arrow").sort_by("mechanism_id")
+        for table in GENERATION_TABLES
+    }
+
+
+def plain_rows(store: Store, table: str) -> pa.Table:
+    """What a plain pyarrow directory read of `table` shows."""
+    return pads.dataset(
+        store.path(table), filesystem=store.fs, partitioning=PARTITIONING
+    ).to_table()
+
+
+def hidden_files(store: Store) -> list[str]:
+    return [f for t in GENERATION_TABLES for f in store.list_files(t) if "/_" in f]
+
+
+def assert_same(a: dict[str, pa.Table], b: dict[str, pa.Table]) -> None:
+    for table in GENERATION_TABLES:
+        assert a[table].equals(b[table]), f"{table} differs"
+
+
+@pytest.fixture(scope="module")
+def undisturbed(tmp_path_factory: pytest.TempPathFactory) -> dict[str, pa.Table]:
+    """The rows of every shard of PLAN, committed without a fault."""
+    store = Store.open(str(tmp_path_factory.mktemp("undisturbed") / "data"))
+    for shard in PLAN.shards():
+        write_shard(store, PLAN, shard)
+    return rows(store)
+
+
+def first_shard_only(tables: dict[str, pa.Table]) -> dict[str, pa.Table]:
+    shard = PLAN.shards()[0]
+    ids = pa.array([5 * t + v for t in shard.topology_ids() for v in range(5)])
+    out = {}
+    for table, rows_ in tables.items():
+        topology = rows_.column("topology_id") if "topology_id" in rows_.column_names else None
+        if topology is None:
+            out[table] = rows_.filter(pc.is_in(rows_.column("mechanism_id"), ids))
+        else:
+            out[table] = rows_.filter(pc.is_in(topology, pa.array(list(shard.topology_ids()))))
+    return out
+
+
+@pytest.fixture(params=["local", "s3"])
+def root(request: pytest.FixtureRequest, tmp_path: Path) -> str:
+    if request.param == "local":
+        return str(tmp_path / "data")
+    return f"{request.getfixturevalue('s3_env')}/data"
+
+
+@pytest.mark.parametrize("step", STEPS[:-1])
+def test_a_failed_commit_shows_nothing_and_is_redone(
+    root: str, step: str, undisturbed: dict[str, pa.Table]
+) -> None:
+    store = Store.open(root)
+    first, second, *rest = PLAN.shards()
+    write_shard(store, PLAN, first)
+    with pytest.raises(InjectedFault, match=f"injected after '{step}'"):
+        write_shard(store, PLAN, second, failpoint=fail_at(step))
+    # The original error came through the abort, which left nothing behind, visible or hidden.
+    assert_same(rows(store), first_shard_only(undisturbed))
+    assert len(plain_rows(store, "mechanisms")) == len(first_shard_only(undisturbed)["mechanisms"])
+    assert hidden_files(store) == []
+    for shard in (second, *rest):
+        write_shard(store, PLAN, shard)
+    assert_same(rows(store), undisturbed)
+
+
+KILLED_WRITER = textwrap.dedent(
+    """
+    import os, sys
+    from links_ray.data.shards import GenerationPlan, generate_shard, write_shard
+    from links_ray.data.store import Store
+
+    root, step = sys.argv[1], sys.argv[2]
+    plan = GenerationPlan(seed=3, mechanisms=20, topologies_per_shard=1)
+
+    def die(reached):
+        if reached == step:
+            os._exit(17)  # the process ends here: no abort, no cleanup
+
+    write_shard(Store.open(root), plan, plan.shards()[1], failpoint=die)
+    """
+)
+
+
+@pytest.mark.parametrize("step", STEPS)
+def test_a_writer_killed_mid_commit_shows_nothing_until_redone(
+    root: str, step: str, undisturbed: dict[str, pa.Table]
+) -> None:
+    store = Store.open(root)
+    first, second, *rest = PLAN.shards()
+    write_shard(store, PLAN, first)
+    killed = subprocess.run(
+        [sys.executable, "-c", KILLED_WRITER, root, step],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "PYTHONPATH": str(Path(links_ray.__file__).parents[1])},
+    )
+    assert killed.returncode == 17, killed.stderr
+    if step == "marked":  # the marker was written: the shard is committed
+        assert set(committed_shards(store)) == {first.shard_id, second.shard_id}
+    else:
+        assert_same(rows(store), first_shard_only(undisturbed))
+        assert set(committed_shards(store)) == {first.shard_id}
+    # The next run's cleanup removes what the killed attempt left, then redoes its shard.
+    remove_uncommitted(store, "shards", committed_shards(store))
+    assert hidden_files(store) == []
+    done = committed_shards(store)
+    for shard in (second, *rest):
+        if shard.shard_id not in done:
+            write_shard(store, PLAN, shard)
+    assert_same(rows(store), undisturbed)
+    assert_same(
+        {t: plain_rows(store, t).sort_by("mechanism_id") for t in GENERATION_TABLES},
+        undisturbed,
+    )
+
+
+def test_abort_does_not_mask_the_error_when_the_store_is_gone(tmp_path: Path) -> None:
+    store = Store.open(str(tmp_path / "data"))
+    shard = PLAN.shards()[0]
+
+    def vanish(step: str) -> None:
+        if step == "moved simulations":
+            shutil.rmtree(tmp_path / "data")  # what abort would delete is gone already
+            raise InjectedFault("the disk went away")
+
+    writer = ShardWriter(store, shard.shard_id, shard.n_joints, failpoint=vanish)
+    stats = generate_shard(PLAN, shard, writer.write)
+    with pytest.raises(InjectedFault, match="the disk went away"):
+        try:
+            writer.commit(stats)
+        except BaseException:
+            writer.abort()
+            raise
+
+
+def test_an_unreadable_marker_counts_as_absent(tmp_path: Path) -> None:
+    store = Store.open(str(tmp_path / "data"))
+    for shard in PLAN.shards()[:2]:
+        write_shard(store, PLAN, shard)
+    damaged = store.path(marker_file(1))
+    Path(damaged).write_text('{"shard": 1, "files": {"mechanisms": "mechan')
+    assert set(committed_shards(store)) == {0}
+    assert committed_files(store, "mechanisms") == [
+        committed_shards(store)[0]["files"]["mechanisms"]
+    ]
+    Path(damaged).write_text(json.dumps({"shard": 1, "files": "not a mapping"}))
+    assert set(committed_shards(store)) == {0}
+    assert len(links_ray.load(store, "mechanisms")) == 5
+
+
+def test_readers_refuse_a_root_with_no_committed_rows(tmp_path: Path) -> None:
+    store = Store.open(str(tmp_path / "data"))
+    shard = PLAN.shards()[0]
+    with pytest.raises(InjectedFault):
+        write_shard(store, PLAN, shard, failpoint=fail_at("moved negatives"))
+    with pytest.raises(ValueError, match="has no mechanisms table yet"):
+        open_table(store, "mechanisms")
+
+
+SMALL_FILE_WRITER = textwrap.dedent(
+    """
+    import sys
+    from links_ray.data.store import Store
+
+    store = Store.open(sys.argv[1])
+    block = bytes(range(256)) * (1 << 16)  # 16 MiB
+    version = 0
+    while True:
+        version = (version + 1) % 256
+        store.write_bytes("_links/index.npz", bytes([version]) * 64 + block)
+        print(version, flush=True)
+    """
+)
+
+
+def test_a_small_file_is_whole_after_its_writer_is_killed(tmp_path: Path) -> None:
+    root = str(tmp_path / "data")
+    Store.open(root)
+    block = bytes(range(256)) * (1 << 16)
+    writer = subprocess.Popen(
+        [sys.executable, "-c", SMALL_FILE_WRITER, root],
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(Path(links_ray.__file__).parents[1])},
+    )
+    for _ in range(3):  # a few whole writes, then a kill at an arbitrary moment of the next
+        writer.stdout.readline()
+    writer.kill()
+    writer.wait()
+    data = (tmp_path / "data" / "_links" / "index.npz").read_bytes()
+    assert len(data) == 64 + len(block) and data[64:] == block
+    assert len(set(data[:64])) == 1
