@@ -8,12 +8,14 @@ undisturbed run.
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
 import subprocess
 import sys
 import threading
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -23,9 +25,9 @@ import pytest
 
 import links_ray
 from links_ray.cluster.generation import generate
-from links_ray.data.commit import committed_shards
+from links_ray.data.commit import committed_shards, marker_file
 from links_ray.data.schemas import GENERATION_TABLES as TABLES
-from links_ray.data.shards import NEGATIVE_ID_BASE
+from links_ray.data.shards import NEGATIVE_ID_BASE, GenerationPlan
 from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.mechanism import analyze_topology, dataset_rule_violations
 
@@ -86,6 +88,10 @@ def assert_same_rows(a: dict[str, pa.Table], b: dict[str, pa.Table]) -> None:
         assert left.equals(right), f"{table} differs"
 
 
+#: The plan of the reference run and of every run compared with it.
+PLAN = GenerationPlan(seed=3, mechanisms=137, topologies_per_shard=2)
+
+
 @pytest.fixture(scope="module")
 def reference_run(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> dict:
     """An undisturbed run: 137 mechanisms, seed 3, small shards so there are many of them."""
@@ -139,6 +145,60 @@ def test_bad_out_is_a_clear_error(tmp_path: Path) -> None:
         generate(str(tmp_path / "x"), 0, progress=False)
 
 
+class PollingReader:
+    """Reads a root over and over while a run writes it, as a user's notebook might.
+
+    Each poll loads `mechanisms` then `simulations` (two separate `load` calls) and then reads
+    the commit markers. Every row it saw must belong to a shard committed by then, every shard
+    must be whole, and every shard of the first read must be in the second: a reader never sees
+    mechanisms without their simulations.
+    """
+
+    def __init__(self, uri: str, plan: GenerationPlan) -> None:
+        self.uri = uri
+        self.shard_of = {t: s.shard_id for s in plan.shards() for t in s.topology_ids()}
+        self.polls = 0
+        self.problems: list[str] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run)
+
+    def __enter__(self) -> PollingReader:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def _rows_per_shard(self, table: str) -> dict[int, int]:
+        """Rows per shard in one `load` of `table` (empty while it has no committed rows)."""
+        try:
+            ids = links_ray.load(self.uri, table, columns=["mechanism_id"], format="arrow")
+        except ValueError:  # no committed rows yet, or no root yet
+            return {}
+        shards = [self.shard_of[i // 5] for i in ids.column("mechanism_id").to_pylist()]
+        return dict(Counter(shards))
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            mechanisms = self._rows_per_shard("mechanisms")
+            simulations = self._rows_per_shard("simulations")
+            if not mechanisms:
+                time.sleep(0.01)
+                continue
+            markers = committed_shards(Store.open(self.uri, writable=False))
+            self.polls += 1
+            for table, seen in (("mechanisms", mechanisms), ("simulations", simulations)):
+                for shard, count in seen.items():
+                    if shard not in markers:
+                        self.problems.append(f"{table}: rows of uncommitted shard {shard}")
+                    elif count != markers[shard]["rows"][table]:
+                        self.problems.append(f"{table}: {count} rows of shard {shard}")
+            if set(mechanisms) - set(simulations):
+                missing = sorted(set(mechanisms) - set(simulations))
+                self.problems.append(f"mechanisms of shards {missing} without simulations")
+
+
 def generator_pids() -> list[int]:
     """PIDs of live generator actors (Ray titles their processes `ray::GeneratorActor`)."""
     pids = []
@@ -170,10 +230,12 @@ def test_killed_actor_shard_is_redone(
 
     killer = threading.Thread(target=kill_one_actor_mid_run)
     killer.start()
-    generate(out, 137, seed=3, workers=2, progress=False, topologies_per_shard=2)
+    with PollingReader(out, PLAN) as reader:
+        generate(out, 137, seed=3, workers=2, progress=False, topologies_per_shard=2)
     killer.join()
     assert killed and killed[0] < reference_run["summary"]["shards"], "killed mid-run"
     assert_same_rows(read_all(out), reference_run["tables"])
+    assert reader.polls > 0 and reader.problems == []
 
 
 def test_killed_driver_run_is_finished_by_the_same_command(
@@ -197,22 +259,47 @@ def test_killed_driver_run_is_finished_by_the_same_command(
         "2",
     ]
     env = {**os.environ, "RAY_AUTH_MODE": "disabled"}
-    driver = subprocess.Popen(
-        command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-    )
     store = Store.open(out)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and not store.list_files(f"{META}/shards"):
-        time.sleep(0.05)
-    driver.send_signal(signal.SIGKILL)
-    driver.wait()
-    partial = len(store.list_files(f"{META}/shards"))
-    total = reference_run["summary"]["shards"]
-    assert 0 < partial < total, "the driver died mid-run"
-    rerun = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
-    assert rerun.returncode == 0, rerun.stderr
+    with PollingReader(out, PLAN) as reader:
+        driver = subprocess.Popen(
+            command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        )
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not store.list_files(f"{META}/shards"):
+            time.sleep(0.05)
+        # A second driver on the same root, or a curation, is refused in one line naming the
+        # driver that holds it (stopped meanwhile, so that it cannot finish first).
+        driver.send_signal(signal.SIGSTOP)
+        for second in (command, [*command[:3], "curate", out, "--address", ray_cluster]):
+            refused = subprocess.run(second, env=env, capture_output=True, text=True, timeout=300)
+            assert refused.returncode != 0
+            assert refused.stderr.count("\n") == 1, refused.stderr
+            assert f"in use by links generate (pid {driver.pid} on" in refused.stderr
+        driver.send_signal(signal.SIGKILL)
+        driver.wait()
+        partial = len(store.list_files(f"{META}/shards"))
+        total = reference_run["summary"]["shards"]
+        assert 0 < partial < total, "the driver died mid-run"
+        # Its lease dies with it (same host): the same command goes on at once.
+        rerun = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+        assert rerun.returncode == 0, rerun.stderr
     assert_same_rows(read_all(out), reference_run["tables"])
     assert not [f for t in TABLES for f in store.list_files(t) if "/_" in f]
+    assert reader.polls > 0 and reader.problems == []
+
+
+def test_an_unreadable_marker_is_redone(
+    ray_cluster: str, tmp_path: Path, reference_run: dict
+) -> None:
+    out = tmp_path / "damaged"
+    shutil.copytree(reference_run["out"], out)
+    damaged = out / marker_file(3)
+    damaged.write_bytes(damaged.read_bytes()[:40])
+    store = Store.open(str(out))
+    assert 3 not in committed_shards(store)
+    summary = generate(str(out), 137, seed=3, progress=False, topologies_per_shard=2)
+    assert summary["complete"] and 3 in committed_shards(store)
+    assert_same_rows(read_all(str(out)), reference_run["tables"])
 
 
 def test_s3_run_matches_the_local_one(ray_cluster: str, s3_env: str, reference_run: dict) -> None:

@@ -1,0 +1,110 @@
+"""The retrieval index's cache: rebuilt when damaged or when curation changes, and built once
+when several processes (Serve replicas) open one root at the same time."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import links_ray
+from links_ray.data.commit import committed_shards, marker_file
+from links_ray.data.lease import Lease
+from links_ray.data.store import Store
+from links_ray.search.index import INDEX_FILE, RetrievalIndex
+
+QUERY = np.column_stack([np.cos(np.linspace(0, 6, 50)), np.sin(np.linspace(0, 3, 50))])
+
+
+@pytest.fixture
+def root(dataset: str, tmp_path: Path) -> Path:
+    """A private copy of the Serve tests' curated dataset, without its index cache."""
+    copy = tmp_path / "data"
+    shutil.copytree(dataset, copy)
+    (copy / INDEX_FILE).unlink(missing_ok=True)
+    return copy
+
+
+def answers(index: RetrievalIndex) -> list[tuple[int, float]]:
+    return [(r["path_id"], round(r["chamfer"], 9)) for r in index.retrieve(QUERY, k=5)]
+
+
+def test_a_damaged_cache_is_rebuilt(root: Path) -> None:
+    built = RetrievalIndex.open(str(root))
+    assert built.build_s > 0
+    cache = root / INDEX_FILE
+    for damage in (cache.read_bytes()[:1000], b"not an npz file at all"):
+        cache.write_bytes(damage)
+        rebuilt = RetrievalIndex.open(str(root))
+        assert rebuilt.build_s > 0 and answers(rebuilt) == answers(built)
+        assert RetrievalIndex.open(str(root)).build_s == 0  # and saved whole again
+
+
+def test_the_cache_follows_curation(root: Path) -> None:
+    full = RetrievalIndex.open(str(root))
+    store = Store.open(str(root))
+    last = max(committed_shards(store, "curation"))
+    marker = root / marker_file(last, "curation")
+    saved = marker.read_bytes()
+    marker.unlink()  # as if that shard were not curated yet
+    fewer = RetrievalIndex.open(str(root))
+    assert fewer.build_s > 0 and len(fewer) < len(full)
+    assert not set(fewer.path_id.tolist()) - set(full.path_id.tolist())
+    marker.write_bytes(saved)  # curated now: the cache of fewer paths no longer serves
+    again = RetrievalIndex.open(str(root))
+    assert again.build_s > 0 and len(again) == len(full)
+    assert answers(again) == answers(full)
+
+
+OPENER = textwrap.dedent(
+    """
+    import json, sys
+    from links_ray.search.index import RetrievalIndex
+
+    index = RetrievalIndex.open(sys.argv[1])
+    print(json.dumps({"paths": len(index), "built": index.build_s > 0}), flush=True)
+    """
+)
+
+
+def start_openers(root: Path, count: int) -> list[subprocess.Popen[str]]:
+    env = {**os.environ, "PYTHONPATH": str(Path(links_ray.__file__).parents[1])}
+    return [
+        subprocess.Popen(
+            [sys.executable, "-c", OPENER, str(root)], stdout=subprocess.PIPE, text=True, env=env
+        )
+        for _ in range(count)
+    ]
+
+
+def test_processes_opening_one_root_build_the_cache_once(root: Path) -> None:
+    store = Store.open(str(root))
+    paths = len(RetrievalIndex.open(str(root), rebuild=True))
+    (root / INDEX_FILE).unlink()
+    # Another process is building: the openers wait for its cache instead of building too.
+    builder = Lease.acquire(store, "index", "a replica building the index")
+    openers = start_openers(root, 2)
+    time.sleep(8)  # long enough for both to have read the data and found no cache
+    assert [opener.poll() for opener in openers] == [None, None]
+    RetrievalIndex.open(str(root), rebuild=True)  # the builder saves its cache...
+    builder.release()  # ...and is done
+    results = [json.loads(opener.communicate(timeout=120)[0]) for opener in openers]
+    assert results == [{"paths": paths, "built": False}] * 2
+
+    # A builder that gives up without a cache: exactly one of the waiting processes builds.
+    (root / INDEX_FILE).unlink()
+    builder = Lease.acquire(store, "index", "a replica that will fail")
+    openers = start_openers(root, 2)
+    time.sleep(8)
+    builder.release()
+    results = [json.loads(opener.communicate(timeout=120)[0]) for opener in openers]
+    assert sorted(r["built"] for r in results) == [False, True]
+    assert {r["paths"] for r in results} == {paths}
