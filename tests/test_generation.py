@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -327,3 +328,61 @@ def test_s3_bad_credentials_and_unreachable_store_are_clear(
     with pytest.raises(StoreError, match="unreachable"):
         generate(f"{s3_env}/data", 10, progress=False)
     assert time.monotonic() - start < 15
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path) -> Iterator[Path]:
+    """A 1 MiB tmpfs: the run's data (about 2 MB) cannot fit."""
+    mount = tmp_path / "small-disk"
+    mount.mkdir()
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mount)],
+        capture_output=True,
+        text=True,
+    )
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs here: {done.stderr.strip()}")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], check=False)
+
+
+def test_a_full_disk_ends_the_run_in_one_line_and_the_same_command_finishes_it(
+    ray_cluster: str, small_disk: Path, reference_run: dict
+) -> None:
+    out = str(small_disk / "data")
+    command = [
+        sys.executable,
+        "-m",
+        "links_ray.cli",
+        "generate",
+        "--out",
+        out,
+        "--mechanisms",
+        "137",
+        "--seed",
+        "3",
+        "--address",
+        ray_cluster,
+        "--shard-topologies",
+        "2",
+    ]
+    env = {**os.environ, "RAY_AUTH_MODE": "disabled"}
+    full = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
+    assert full.returncode == 2, full.stderr
+    last = full.stderr.strip().splitlines()[-1]
+    assert last.startswith("links generate: error: ") and "No space left on device" in last
+    # What is there is whole: committed shards only, each with all its rows in every table.
+    store = Store.open(out, writable=False)
+    markers = committed_shards(store)
+    assert 0 < len(markers) < reference_run["summary"]["shards"]
+    for table in ("mechanisms", "simulations"):
+        rows = links_ray.load(out, table, format="arrow")
+        assert len(rows) == sum(m["rows"][table] for m in markers.values())
+    # Space is back: the same command finishes the run, with the rows of an undisturbed one.
+    subprocess.run(["mount", "-o", "remount,size=64m", str(small_disk)], check=True)
+    again = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    assert_same_rows(read_all(out), reference_run["tables"])
+    assert not [f for t in TABLES for f in store.list_files(t) if "/_" in f]

@@ -203,6 +203,16 @@ class _Pool:
         for actor in self.load:
             ray.kill(actor, no_restart=True)
         self.load.clear()
+        # Take the errors of shards still in flight: Ray prints an error nobody took when it
+        # drops its reference, after the run's own one-line message.
+        refs = list(self.in_flight)
+        self.in_flight.clear()
+        ready, _ = ray.wait(refs, num_returns=len(refs), timeout=5.0) if refs else ([], [])
+        for ref in ready:
+            try:
+                ray.get(ref)
+            except Exception:  # the run is over; its error is already on its way up
+                pass
         if self.workers:
             _request_cpus(0)
 
