@@ -25,6 +25,7 @@ import pyarrow.dataset as pads
 import pytest
 
 import links_ray
+from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
 from links_ray.data.commit import committed_shards, marker_file
 from links_ray.data.schemas import GENERATION_TABLES as TABLES
@@ -386,3 +387,34 @@ def test_a_full_disk_ends_the_run_in_one_line_and_the_same_command_finishes_it(
     assert again.returncode == 0, again.stderr
     assert_same_rows(read_all(out), reference_run["tables"])
     assert not [f for t in TABLES for f in store.list_files(t) if "/_" in f]
+
+
+def test_a_full_disk_stops_curation_in_one_line_and_the_same_command_finishes_it(
+    ray_cluster: str, small_disk: Path, reference_run: dict, tmp_path: Path
+) -> None:
+    undisturbed = tmp_path / "undisturbed"
+    shutil.copytree(reference_run["out"], undisturbed)
+    curate(str(undisturbed), progress=False)
+    # Room for the generated tables (about 2.1 MB), not for their paths as well.
+    subprocess.run(["mount", "-o", "remount,size=3m", str(small_disk)], check=True)
+    out = small_disk / "data"
+    shutil.copytree(reference_run["out"], out)
+    command = [sys.executable, "-m", "links_ray.cli", "curate", str(out), "--address", ray_cluster]
+    env = {**os.environ, "RAY_AUTH_MODE": "disabled"}
+    full = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
+    assert full.returncode == 2, full.stderr
+    last = full.stderr.strip().splitlines()[-1]
+    assert last.startswith("links curate: error: curation stopped: the store refused shard")
+    assert "No space left on device" in last
+    store = Store.open(str(out), writable=False)
+    markers = committed_shards(store, "curation")
+    assert len(markers) < len(committed_shards(store))
+    paths = links_ray.load(str(out), "paths", format="arrow") if markers else None
+    assert paths is None or len(paths) == sum(m["rows"]["paths"] for m in markers.values())
+    subprocess.run(["mount", "-o", "remount,size=64m", str(small_disk)], check=True)
+    again = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    for table in ("paths", "curated"):
+        ours = links_ray.load(str(out), table, format="arrow").sort_by("path_id")
+        theirs = links_ray.load(str(undisturbed), table, format="arrow").sort_by("path_id")
+        assert ours.equals(theirs), f"{table} differs"

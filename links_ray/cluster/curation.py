@@ -9,6 +9,7 @@ rows; a rerun curates only the shards not yet curated, including ones generated 
 
 from __future__ import annotations
 
+import logging
 import time
 
 import numpy as np
@@ -21,7 +22,7 @@ from links_ray.cluster.progress import Progress
 from links_ray.data.commit import ShardWriter, committed_shards, remove_uncommitted
 from links_ray.data.lease import Lease, LeaseLost, holder_still
 from links_ray.data.pathset import KEEP_SHARE, curated_mask, path_table
-from links_ray.data.store import META, Store, StoreError
+from links_ray.data.store import META, Store, StoreError, diagnose
 
 CURATION_FORMAT = 1
 
@@ -35,20 +36,33 @@ class ShardCurator:
         self.lease_token = lease_token
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        markers = [
-            self.curate(int(shard), int(n), str(mechanisms), str(simulations))
-            for shard, n, mechanisms, simulations in zip(
-                batch["shard"],
-                batch["n_joints"],
-                batch["mechanisms_file"],
-                batch["simulations_file"],
-                strict=True,
-            )
-        ]
+        """Curate each shard of the batch; a shard the store refused reports its error as data
+        (Ray Data would carry the exception as text only), so the driver can say it in a line."""
+        paths, mechanisms, errors = [], [], []
+        for shard, n, mechanisms_file, simulations_file in zip(
+            batch["shard"],
+            batch["n_joints"],
+            batch["mechanisms_file"],
+            batch["simulations_file"],
+            strict=True,
+        ):
+            try:
+                marker = self.curate(
+                    int(shard), int(n), str(mechanisms_file), str(simulations_file)
+                )
+            except OSError as exc:
+                paths.append(0)
+                mechanisms.append(0)
+                errors.append(f"shard {int(shard)}: {diagnose(exc)}")
+                continue
+            paths.append(marker["rows"]["paths"])
+            mechanisms.append(marker["stats"]["mechanisms"])
+            errors.append("")
         return {
             "shard": batch["shard"],
-            "paths": np.array([m["rows"]["paths"] for m in markers]),
-            "mechanisms": np.array([m["stats"]["mechanisms"] for m in markers]),
+            "paths": np.array(paths),
+            "mechanisms": np.array(mechanisms),
+            "error": np.array(errors, dtype=object),
         }
 
     def _read(self, relative: str) -> pa.Table:
@@ -139,17 +153,30 @@ def _curate_holding(
             ShardCurator,
             fn_constructor_kwargs={"uri": store.uri, "seed": seed, "lease_token": lease.token},
             batch_size=1,
-            concurrency=actors,
+            compute=ray.data.ActorPoolStrategy(size=actors),
             num_cpus=1,
         )
         total = sum(m["stats"]["mechanisms"] for m in generated.values())
         done = sum(m["stats"]["mechanisms"] for m in curated.values())
         meter = Progress(total=total, done=done, unit="mechanisms", enabled=progress)
+        data_log = logging.getLogger("ray.data")
+        level = data_log.level
+        data_log.setLevel(logging.WARNING)  # Ray Data logs every stage; the meter says enough
+        failed = ""
         try:
             for row in results.iter_rows():
+                if row["error"]:
+                    failed = row["error"]
+                    break
                 meter.advance(int(row["mechanisms"]))
         finally:
+            data_log.setLevel(level)
             meter.close()
+        if failed:
+            raise StoreError(
+                f"curation stopped: the store refused {failed}; once that is mended, the same "
+                "command finishes the pass"
+            )
         lease.confirm()
         remove_uncommitted(store, "curation", committed_shards(store, "curation"))
     summary = summarize_curation(store, time.perf_counter() - start, len(todo))

@@ -102,7 +102,7 @@ class Store:
         except StoreError:
             raise
         except (OSError, pa.ArrowException) as exc:
-            raise StoreError(f"cannot use {uri}: {_diagnose(exc)}") from None
+            raise StoreError(f"cannot use {uri}: {diagnose(exc)}") from None
         return store
 
     def _probe_writes(self) -> None:
@@ -343,7 +343,7 @@ _S3_DIAGNOSES = {
 }
 
 
-def _diagnose(exc: BaseException) -> str:
+def diagnose(exc: BaseException) -> str:
     """One line saying what went wrong, without secrets (pyarrow's messages carry none)."""
     text = str(exc).strip() or type(exc).__name__
     for code, meaning in _S3_DIAGNOSES.items():
