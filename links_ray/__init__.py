@@ -1,6 +1,7 @@
 """links-ray: the LINKS dataset of planar linkage mechanisms, generated and served on Ray.
 
-The engine (this package's top level) is pure numpy/numba and imports no Ray.
+`import links_ray` loads the engine (numpy/numba) and `load` (pyarrow), and nothing of Ray:
+the package is built in layers (ARCHITECTURE.md), held by tests/test_layers.py.
 """
 
 from links_ray.data.dataset import load

@@ -186,11 +186,14 @@ def _wait_ready(
 def _start(
     weed: str, workdir: Path, identity: Path, ports: dict[str, int]
 ) -> subprocess.Popen[bytes]:
-    """Launch ``weed mini`` with our standard flags and the given ports."""
+    """Launch ``weed mini`` with our standard flags and the given ports.
+
+    A ``workdir`` that already holds a server's data is reused: that is a restart.
+    """
     data = workdir / "data"
-    data.mkdir()
+    data.mkdir(exist_ok=True)
     logdir = workdir / "glog"
-    logdir.mkdir()
+    logdir.mkdir(exist_ok=True)
     args = [
         weed,
         f"-logdir={logdir}",  # keep glog files out of /tmp
@@ -200,7 +203,7 @@ def _start(
         f"-s3.config={identity}",
         *(f"-{component}.port={port}" for component, port in ports.items()),
     ]
-    with open(workdir / "weed.log", "wb") as log:
+    with open(workdir / "weed.log", "ab") as log:  # a restart appends to the first run's log
         return subprocess.Popen(
             args, cwd=workdir, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT
         )
@@ -276,6 +279,65 @@ def s3_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[S3Server]:
         _remove_unix_sockets(ports)
         identity.unlink(missing_ok=True)
         shutil.rmtree(workdir / "data", ignore_errors=True)
+
+
+class RestartableS3Server:
+    """A private SeaweedFS that a test stops by PID and starts again on the same data and ports."""
+
+    def __init__(
+        self, weed: str, root: Path, identity: Path, access_key: str, secret_key: str
+    ) -> None:
+        self.weed = weed
+        self.identity = identity
+        self.access_key = access_key
+        self.secret_key = secret_key
+        try:
+            self.process, self.ports, self.workdir, _ = _launch(
+                weed, root, self.identity, access_key, secret_key
+            )
+        except RuntimeError as exc:
+            pytest.fail(f"SeaweedFS did not start: {exc}", pytrace=False)
+        self.endpoint = f"http://127.0.0.1:{self.ports['s3']}"
+
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
+    def stop(self) -> None:
+        """SIGTERM the server's PID and wait for it to exit; its data stays."""
+        _stop(self.process)
+        _remove_unix_sockets(self.ports)
+
+    def start(self) -> float:
+        """Start it again on the same data folder and ports; returns seconds until it answers."""
+        self.process = _start(self.weed, self.workdir, self.identity, self.ports)
+        try:
+            return _wait_ready(self.process, self.endpoint, self.access_key, self.secret_key)
+        except (ChildProcessError, TimeoutError) as exc:
+            self.stop()
+            tail = _log_tail(self.workdir / "weed.log")
+            raise RuntimeError(f"SeaweedFS did not restart: {exc}\n{tail}") from None
+
+
+@pytest.fixture
+def restartable_s3_server(
+    s3_server: S3Server, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[RestartableS3Server]:
+    """A SeaweedFS of this test's own that the test may stop and restart; stopped at the end.
+
+    It takes `s3_server`'s identity file, so the same credentials (those Ray's workers were
+    started with) reach both servers, and only the endpoint tells them apart.
+    """
+    weed = find_weed()
+    assert weed is not None  # s3_server is skipped otherwise
+    identity = s3_server.workdir.parent / "identity.json"  # where s3_server wrote it
+    root = tmp_path_factory.mktemp("seaweedfs-private")
+    server = RestartableS3Server(weed, root, identity, s3_server.access_key, s3_server.secret_key)
+    try:
+        yield server
+    finally:
+        server.stop()
+        shutil.rmtree(server.workdir / "data", ignore_errors=True)
 
 
 @pytest.fixture

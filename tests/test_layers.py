@@ -1,0 +1,173 @@
+"""The package's layers hold: a module imports only its own layer or lower ones.
+
+engine (numpy/numba) < data (pyarrow) < search, cluster (peers: neither imports the other)
+< serve < cli. `links_ray/__init__.py` may import engine and data only. The engine imports no
+Ray, pyarrow or pandas; data and search import no Ray. Read from the source with `ast`, imports
+inside functions included: a lazy import is still a dependency.
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE = "links_ray"
+#: Rank of each layer: a module may import its own layer and layers of lower rank.
+LAYERS = {"engine": 0, "data": 1, "search": 2, "cluster": 2, "serve": 3, "cli": 4}
+#: What the package's own `__init__.py` (`import links_ray`) may load.
+ROOT_MAY_IMPORT = ("engine", "data")
+#: Third-party packages a layer must not import, even lazily.
+FORBIDDEN = {
+    "root": ("ray",),
+    "engine": ("ray", "pyarrow", "pandas"),
+    "data": ("ray",),
+    "search": ("ray",),
+}
+
+
+def module_names(package_dir: Path) -> dict[str, Path]:
+    """Every module under `package_dir` by dotted name (a package by its `__init__.py`)."""
+    names = {}
+    for path in sorted(package_dir.rglob("*.py")):
+        parts = path.relative_to(package_dir.parent).with_suffix("").parts
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        names[".".join(parts)] = path
+    return names
+
+
+def imported(path: Path, module: str, known: set[str]) -> list[tuple[int, str]]:
+    """(line, dotted name) of everything `path` imports, at any depth, relative ones resolved.
+
+    `from a import b` counts as importing `a.b` when that is a module of ours, else `a`;
+    `importlib.import_module("name")` with a constant name counts too.
+    """
+    tree = ast.parse(path.read_text(), filename=str(path))
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")
+                anchor = anchor[: len(anchor) - (node.level - 1)]
+                base = ".".join([*anchor, base] if base else anchor)
+            for alias in node.names:
+                candidate = f"{base}.{alias.name}"
+                found.append((node.lineno, candidate if candidate in known else base))
+        elif (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Attribute)
+            and node.func.attr == "import_module"
+            and node.args
+            and isinstance(node.args[0], ast.Constant)
+            and isinstance(node.args[0].value, str)
+        ):
+            found.append((node.lineno, node.args[0].value))
+    return found
+
+
+def layer_of(module: str) -> str | None:
+    """The layer a dotted name of ours lives in: "root" for the package itself."""
+    parts = module.split(".")
+    if parts[0] != PACKAGE:
+        return None
+    return "root" if len(parts) == 1 else parts[1]
+
+
+def may_import(own: str, target: str) -> bool:
+    """Whether layer `own` may import from layer `target`."""
+    if own == "root":
+        return target in ROOT_MAY_IMPORT
+    if target == "root":  # `import links_ray` loads engine and data
+        return all(may_import(own, layer) for layer in ROOT_MAY_IMPORT)
+    if own not in LAYERS or target not in LAYERS:
+        return False
+    return target == own or LAYERS[target] < LAYERS[own]
+
+
+def violations(package_dir: Path) -> list[str]:
+    """Every import that breaks the layer rule, as `file:line: what`."""
+    modules = module_names(package_dir)
+    problems = []
+    for module, path in modules.items():
+        where = path.relative_to(package_dir.parent)
+        own = layer_of(module)
+        if own != "root" and own not in LAYERS:
+            problems.append(f"{where}: in no layer")
+            continue
+        for line, name in imported(path, module, set(modules)):
+            top = name.split(".")[0]
+            if top in FORBIDDEN.get(own, ()):
+                problems.append(f"{where}:{line}: {own} imports {name}")
+            target = layer_of(name)
+            if target is not None and not may_import(own, target):
+                problems.append(f"{where}:{line}: {own} imports {name} ({target})")
+    return problems
+
+
+def test_every_import_goes_to_its_own_layer_or_lower() -> None:
+    assert violations(REPO / PACKAGE) == []
+
+
+def test_import_links_ray_loads_no_ray() -> None:
+    probe = (
+        "import sys, links_ray\n"
+        "print(sorted(m for m in sys.modules if m == 'ray' or m.startswith('ray.'))[:5])"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}  # this checkout, whatever is installed
+    done = subprocess.run(
+        [sys.executable, "-c", probe], cwd=REPO, env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
+
+
+@pytest.fixture
+def broken_package(tmp_path: Path) -> Path:
+    """A small package shaped like ours, one module per kind of violation."""
+    sources = {
+        "__init__.py": "from .engine import solver\nfrom .search import index\nimport ray\n",
+        "engine/__init__.py": "",
+        "engine/solver.py": "def f():\n    import ray.util\n    from links_ray import data\n",
+        "data/__init__.py": "",
+        "data/store.py": "import pyarrow\nfrom ..search.index import g\n",
+        "search/__init__.py": "",
+        "search/index.py": (
+            "import importlib\n\n\ndef g():\n    importlib.import_module('links_ray.cluster.run')\n"
+        ),
+        "cluster/__init__.py": "",
+        "cluster/run.py": "from links_ray.search import index\nimport ray\n",
+        "serve/__init__.py": "",
+        "serve/app.py": "import links_ray\nfrom links_ray.cli import main\n",
+        "cli/__init__.py": "",
+        "cli/main.py": "import links_ray\nfrom links_ray.serve import app\nfrom . import main\n",
+        "stray.py": "import numpy\n",
+    }
+    for name, text in sources.items():
+        path = tmp_path / PACKAGE / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    return tmp_path / PACKAGE
+
+
+def test_the_rule_catches_what_breaks_it(broken_package: Path) -> None:
+    assert violations(broken_package) == [
+        "links_ray/__init__.py:2: root imports links_ray.search.index (search)",
+        "links_ray/__init__.py:3: root imports ray",
+        "links_ray/cluster/run.py:1: cluster imports links_ray.search.index (search)",
+        "links_ray/data/store.py:2: data imports links_ray.search.index (search)",
+        "links_ray/engine/solver.py:2: engine imports ray.util",
+        "links_ray/engine/solver.py:3: engine imports links_ray.data (data)",
+        "links_ray/search/index.py:5: search imports links_ray.cluster.run (cluster)",
+        "links_ray/serve/app.py:2: serve imports links_ray.cli.main (cli)",
+        "links_ray/stray.py: in no layer",
+    ]
