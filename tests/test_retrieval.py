@@ -15,7 +15,7 @@ from links_ray.cli.bench_services import _held_out_queries
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
 from links_ray.data.store import Store
-from links_ray.engine.paths import chamfer, chamfer_to_many, normalize_path
+from links_ray.engine.paths import chamfer, chamfer_to_many, normalization, normalize_path
 from links_ray.search import kernels as kernels
 from links_ray.search.index import (
     FINE_STRIDE,
@@ -23,7 +23,6 @@ from links_ray.search.index import (
     RetrievalIndex,
     _about_least,
     distance_table,
-    normalization,
     query_variants,
     sketch_paths,
     validate_query,

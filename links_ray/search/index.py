@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike
 from links_ray.data.dataset import open_table
 from links_ray.data.store import META, Store
 from links_ray.engine.mechanism import reduce_mechanism
-from links_ray.engine.paths import chamfer_to_many, longest_chord
+from links_ray.engine.paths import chamfer_to_many, normalization
 from links_ray.engine.solver import simulate
 from links_ray.search import kernels as kernels
 
@@ -119,16 +119,6 @@ def read_points(path: str) -> np.ndarray:
     except (OSError, json.JSONDecodeError) as exc:
         raise ValueError(f"cannot read points from {path}: {exc}") from None
     return data["points"] if isinstance(data, dict) and "points" in data else data
-
-
-def normalization(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`normalize_path` with its map: (normalized, matrix, offset), normalized = p @ M.T + b."""
-    i, j = longest_chord(points)
-    vx, vy = points[j] - points[i]
-    matrix = np.array([[vx, vy], [-vy, vx]]) / (vx * vx + vy * vy)
-    turned = (points - points[i]) @ matrix.T
-    offset = 0.5 - (turned.min(axis=0) + turned.max(axis=0)) / 2 - points[i] @ matrix.T
-    return points @ matrix.T + offset, matrix, offset
 
 
 def variant_map(variant: int) -> tuple[np.ndarray, np.ndarray]:
