@@ -335,7 +335,17 @@ def reduce_mechanism(
     )
 
 
+def arc_flags(adjacency: np.ndarray, node_types: np.ndarray) -> np.ndarray:
+    """Which joints trace arcs: the moving joints linked to a fixed joint (they turn about it).
+
+    adjacency (..., n, n) and node_types (..., n) -> (..., n) bool; a batch of mechanisms of
+    one size works as one mechanism does. docs/CONTRACT.md, Dataset layout, `is_arc`.
+    """
+    fixed = np.asarray(node_types) == FIXED
+    on_ground = ((np.asarray(adjacency) != 0) & fixed[..., None, :]).any(axis=-1)
+    return on_ground & ~fixed
+
+
 def arc_joints(topology: Topology) -> np.ndarray:
-    """(n,) bool: moving joints linked to a fixed joint, whose paths are arcs (SPEC section 3)."""
-    on_ground = topology.adjacency[:, topology.node_types == FIXED].any(axis=1)
-    return on_ground & (topology.node_types != FIXED)
+    """(n,) bool: `arc_flags` of a validated topology."""
+    return arc_flags(topology.adjacency, topology.node_types)
