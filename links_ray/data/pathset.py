@@ -4,7 +4,8 @@ One path per moving joint (simple or actuated) of every mechanism, normalized; `
 the joint is linked to a fixed joint (the engine's `arc_flags`), `is_circle` when the variance
 of the normalized points' distances from (0.5, 0.5) is below 5e-4. Curation keeps every other
 path and 0.5% of the arcs and circles, by a seeded draw per path: the same seed keeps the same
-paths, wherever and however often it runs.
+paths, wherever and however often it runs. `arc_circle_counts` and `path_shares` are the one
+count and share of arcs and circles, for the curation summary and `links stats` alike.
 
 ``path_id = 32 * mechanism_id + joint`` (mechanisms have at most 20 joints).
 
@@ -91,3 +92,26 @@ def curated_mask(paths: pa.Table, seed: int) -> np.ndarray:
     common = paths.column("is_arc").to_numpy() | paths.column("is_circle").to_numpy()
     lucky = keep_draw(paths.column("path_id").to_numpy(), seed) < KEEP_SHARE
     return ~common | lucky
+
+
+def arc_circle_counts(paths: pa.Table) -> dict[str, int]:
+    """How many of `paths` are arcs, circles, and both."""
+    is_arc = paths.column("is_arc").to_numpy(zero_copy_only=False)
+    is_circle = paths.column("is_circle").to_numpy(zero_copy_only=False)
+    return {
+        "arcs": int(is_arc.sum()),
+        "circles": int(is_circle.sum()),
+        "both": int((is_arc & is_circle).sum()),
+    }
+
+
+def path_shares(paths: int, arcs: int, circles: int, both: int) -> dict[str, float]:
+    """The shares of `paths` paths that are circles, arcs, either and both (0 with no paths),
+    from the counts of `arc_circle_counts`."""
+    total = paths or 1
+    return {
+        "circle": circles / total,
+        "arc": arcs / total,
+        "arc_or_circle": (arcs + circles - both) / total,
+        "both": both / total,
+    }
