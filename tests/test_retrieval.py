@@ -15,6 +15,7 @@ from links_ray.cli.bench_services import _held_out_queries
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
 from links_ray.data.store import Store
+from links_ray.engine.inputs import validate_query
 from links_ray.engine.paths import chamfer, chamfer_to_many, normalization, normalize_path
 from links_ray.search import kernels as kernels
 from links_ray.search.index import (
@@ -25,7 +26,6 @@ from links_ray.search.index import (
     distance_table,
     query_variants,
     sketch_paths,
-    validate_query,
     variant_map,
 )
 
