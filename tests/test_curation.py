@@ -1,6 +1,6 @@
 """Curation on Ray Data, the loading helper and `links stats`, on real generated data.
 
-Every path row is checked against the definitions (SPEC section 3) from the mechanism and
+Every path row is checked against the definitions (docs/CONTRACT.md, Paths) from the mechanism and
 simulation rows it came from; curation's kept share is checked against binomial bounds.
 """
 

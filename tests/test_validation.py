@@ -1,4 +1,4 @@
-"""Input validation (SPEC sections 1 and 2): malformed or unsolvable mechanisms are refused.
+"""Input validation (docs/CONTRACT.md, Mechanisms and Python API): bad mechanisms are refused.
 
 Every case must raise `InvalidMechanismError` (a `ValueError`) naming the problem, through each
 public entry point: `simulate`, `simulate_batch` and `TopologySimulator` (construction for

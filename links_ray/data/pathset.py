@@ -1,4 +1,4 @@
-"""From simulations to path rows (SPEC section 3), for one shard at a time.
+"""From simulations to path rows (docs/CONTRACT.md, Dataset layout), for one shard at a time.
 
 One path per moving joint (simple or actuated) of every mechanism, normalized; `is_arc` when
 the joint is linked to a fixed joint (the engine's `arc_flags`), `is_circle` when the variance
