@@ -1,7 +1,7 @@
 """Where the dataset lives: table schemas, the filesystem, and the shard commit protocol.
 
 A dataset root is a local folder or ``s3://bucket/prefix``. Each table is Hive-partitioned
-Parquet (SPEC section 3)::
+Parquet (docs/CONTRACT.md, Dataset layout)::
 
     ROOT/mechanisms/n_joints=12/shard-000042.parquet
     ROOT/simulations/n_joints=12/shard-000042.parquet
