@@ -360,7 +360,8 @@ def topology_args(body: dict[str, Any]) -> tuple[list, list]:
     adjacency = _required(body, "adjacency")
     node_types = _required(body, "node_types")
     if not isinstance(adjacency, list) or not adjacency:
-        raise ApiError(400, f"adjacency must be an n x n array of 0/1, got {_kind(adjacency)}")
+        got = "an empty array" if adjacency == [] else _kind(adjacency)
+        raise ApiError(400, f"adjacency must be an n x n array of 0/1, got {got}")
     n = len(adjacency)
     if n > MAX_REQUEST_JOINTS:
         raise ApiError(413, f"at most {MAX_REQUEST_JOINTS} joints per request, got {n}")
