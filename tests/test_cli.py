@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import links_ray
 from links_ray.cli import bench
-from links_ray.engine.mechanism import analyze_topology, dataset_rule_violations
+from links_ray.engine.mechanism import LockingError, analyze_topology, dataset_rule_violations
+from links_ray.engine.reference import simulate_reference
+from links_ray.engine.sampling import measure_candidates_per_valid
 
 
 def links(*args: str) -> subprocess.CompletedProcess[str]:
@@ -21,49 +26,108 @@ def links(*args: str) -> subprocess.CompletedProcess[str]:
 
 
 def test_demo_writes_valid_mechanisms(tmp_path: Path) -> None:
+    """12 mechanisms at five variants per topology: topologies 0, 1 and 2 (two variants of the
+    last), every row valid by the dataset rules and its stored path re-simulated."""
     result = links("demo", "--out", str(tmp_path / "demo"), "--mechanisms", "12", "--seed", "3")
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
     assert summary["mechanisms"] == 12 and summary["topologies"] == 3
     rows = [json.loads(line) for line in (tmp_path / "demo" / "mechanisms.jsonl").open()]
     assert [row["mechanism_id"] for row in rows] == list(range(12))
+    assert [row["topology_id"] for row in rows] == [0] * 5 + [1] * 5 + [2] * 2
+    assert [row["variant"] for row in rows] == [0, 1, 2, 3, 4] * 2 + [0, 1]
+    sizes = Counter(str(len(row["node_types"])) for row in rows)
+    assert summary["joint_counts"] == dict(sizes)
     assert json.loads((tmp_path / "demo" / "summary.json").read_text()) == summary
     for row in rows:
+        first = rows[5 * row["topology_id"]]
+        assert (row["adjacency"], row["node_types"]) == (first["adjacency"], first["node_types"])
         positions = np.array(row["positions"])
         topology = analyze_topology(row["adjacency"], row["node_types"])
         assert dataset_rule_violations(topology, positions) == []
+        assert row["last_joint"] == topology.last_joint
         path = links_ray.simulate(row["adjacency"], row["node_types"], positions)
         np.testing.assert_allclose(path[row["last_joint"]], row["last_joint_path"], atol=1e-6)
+    # A whole number of candidates for the 15 valid sets of three topologies, at least 15.
+    candidates = 15 * summary["candidates_per_valid"]
+    assert candidates == pytest.approx(round(candidates)) and round(candidates) >= 15
 
 
 def test_bad_arguments_fail_with_one_line(tmp_path: Path) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
     result = links("demo", "--out", str(blocker / "sub"))
-    assert result.returncode != 0
-    assert len(result.stderr.strip().splitlines()) == 1 and "error" in result.stderr
-    for bad in (["demo", "--mechanisms", "0"], ["generate", "--out", "x", "--mechanisms", "y"]):
+    assert result.returncode == 2
+    assert result.stderr == f"links demo: error: [Errno 20] Not a directory: '{blocker / 'sub'}'\n"
+    for bad, what in (
+        (["demo", "--mechanisms", "0"], "got 0"),
+        (["generate", "--out", "x", "--mechanisms", "y"], "got y"),
+    ):
         result = links(*bad)
-        assert result.returncode == 2 and "positive" in result.stderr
-        assert len(result.stderr.strip().splitlines()) == 1
+        assert result.returncode == 2
+        assert result.stderr == (
+            f"links {bad[0]}: error: argument --mechanisms: must be a positive integer, "
+            f"{what} (see --help)\n"
+        )
     result = links("generate", "--out", "ftp://host/x", "--mechanisms", "5")
-    assert result.returncode == 2 and "unsupported scheme" in result.stderr
-    assert len(result.stderr.strip().splitlines()) == 1
+    assert result.returncode == 2
+    assert result.stderr == (
+        "links generate: error: unsupported scheme 'ftp' in ftp://host/x: use a folder or s3://\n"
+    )
+
+
+def count_valid_by_reference(workload: bench.Workload, steps: int) -> int:
+    """Candidates of a workload that the plain-Python solver turns a full crank without a lock."""
+    valid = 0
+    for adjacency, node_types, positions in workload:
+        for candidate in positions:
+            try:
+                simulate_reference(adjacency, node_types, candidate, steps)
+            except LockingError:
+                continue
+            valid += 1
+    return valid
 
 
 def test_bench_simulate_reports_table1() -> None:
-    result = bench.bench_simulate(repeats=1, reference_subset=4, topologies=4, per_topology=10)
-    assert result["candidates"] == 40
+    """The counts come from the plan (4 topologies x 10 candidates, one per topology for the
+    plain solver) and the valid count from the reference solver; timings are consistent."""
+    result = bench.bench_simulate(repeats=2, reference_subset=4, topologies=4, per_topology=10)
+    assert result["candidates"] == 40 and result["topologies"] == 4 and result["steps"] == 200
+    workload = bench.table1_workload(topologies=4, per_topology=10, seed=0)
+    assert result["valid_candidates"] == count_valid_by_reference(workload, 200)
+    reference = result["non_vectorized_1_thread"]
+    assert reference["subset"] == 4
+    assert reference["scaled_s"] == pytest.approx(reference["subset_s"] * 40 / 4)
     for key in ("compiled_1_thread", "compiled_all_cores", "valid_full_turn"):
-        assert result[key]["mean_s"] > 0
+        timing = result[key]
+        assert 0 < timing["best_s"] <= timing["mean_s"] and timing["std_s"] >= 0
+    assert result["compiled_all_cores"]["threads"] == os.cpu_count()
+    full = result["valid_full_turn"]
+    assert full["mechanisms"] == 40
+    assert full["per_second_per_core"] == pytest.approx(40 / full["best_s"])
     assert result["paper_s"]["vectorized_1_thread"] == 10.994
-    assert "Table 1" in bench.format_simulate(result)
+    text = bench.format_simulate(result)
+    assert "Table 1: 40 random candidates (4 topologies" in text
+    assert f"{result['valid_candidates']} valid)" in text
 
 
 def test_bench_sample_cli_prints_json() -> None:
+    """Both samplers see the same topologies (the seed's), so each sampler's candidates per
+    valid set are those of measuring it directly; the throughput follows from the entries."""
     result = links("bench", "sample", "--json", "--topologies", "1")
     assert result.returncode == 0, result.stderr
     data = json.loads(result.stdout)
-    by_size = data["samplers"]["rejection"]["by_joint_count"]
-    assert sorted(map(int, by_size)) == list(range(8, 21))
-    assert data["samplers"]["sequential"]["valid_per_core_second"] > 0
+    assert data["count"] == 5
+    for kind in ("rejection", "sequential"):
+        by_size = data["samplers"][kind]["by_joint_count"]
+        assert sorted(map(int, by_size)) == list(range(8, 21))
+        direct = measure_candidates_per_valid(range(8, 21), 1, 5, np.random.default_rng(0), kind)
+        for n, entry in by_size.items():
+            assert entry["candidates_per_valid"] == direct[int(n)]["candidates_per_valid"]
+            assert entry["abandoned"] == direct[int(n)]["abandoned"]
+            assert entry["candidates_per_valid"] >= 1
+        # 5 valid sets of one topology per joint count, over the seconds each took.
+        seconds = sum(5 / entry["valid_per_second"] for entry in by_size.values())
+        throughput = data["samplers"][kind]["valid_per_core_second"]
+        assert throughput == pytest.approx(5 * 13 / seconds, rel=1e-12)

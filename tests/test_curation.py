@@ -1,6 +1,6 @@
 """Curation on Ray Data, the loading helper and `links stats`, on real generated data.
 
-Every path row is checked against the definitions (SPEC section 3) from the mechanism and
+Every path row is checked against the definitions (docs/CONTRACT.md, Paths) from the mechanism and
 simulation rows it came from; curation's kept share is checked against binomial bounds.
 """
 
@@ -9,9 +9,12 @@ from __future__ import annotations
 import json
 import math
 import shutil
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
 import pytest
 from test_cli import links
 from test_generation import read_table
@@ -23,14 +26,31 @@ from links_ray.data.pathset import KEEP_SHARE, keep_draw
 from links_ray.data.schemas import CURATION_TABLES
 from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.paths import circle_variance, normalize_path
+from links_ray.engine.sampling import measure_candidates_per_valid
 
 MECHANISMS = 300
+#: The plan of `curated_run`: topology i has 8 + i % 13 joints and five variants, and each joint
+#: count's topologies go in shards of TOPOLOGIES_PER_SHARD.
+TOPOLOGIES, TOPOLOGIES_PER_SHARD = MECHANISMS // 5, 4
+TOPOLOGIES_BY_SIZE = Counter(8 + i % 13 for i in range(TOPOLOGIES))
+
+
+def shares_of(paths: pa.Table) -> dict[str, float]:
+    """The shares of arcs and circles among path rows, counted here from the rows."""
+    arc = paths.column("is_arc").to_numpy()
+    circle = paths.column("is_circle").to_numpy()
+    return {
+        "circle": circle.mean(),
+        "arc": arc.mean(),
+        "arc_or_circle": (arc | circle).mean(),
+        "both": (arc & circle).mean(),
+    }
 
 
 @pytest.fixture(scope="module")
 def curated_run(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> dict:
     out = str(tmp_path_factory.mktemp("curation") / "data")
-    generate(out, MECHANISMS, seed=7, progress=False, topologies_per_shard=4)
+    generate(out, MECHANISMS, seed=7, progress=False, topologies_per_shard=TOPOLOGIES_PER_SHARD)
     summary = curate(out, seed=11, progress=False)
     store = Store.open(out)
     return {
@@ -97,9 +117,29 @@ def test_curated_keeps_the_rest_and_a_seeded_half_percent(curated_run: dict) -> 
     low, high = binomial_interval(int(common.sum()), KEEP_SHARE)
     assert low <= len(lucky) <= high
     assert curated.equals(paths.filter(np.isin(ids, list(kept))))
+
+
+def test_summary_counts_are_the_rows(curated_run: dict) -> None:
+    """Every count and share of the curation summary, against the rows and the plan."""
+    paths, curated = curated_run["paths"], curated_run["curated"]
     summary = curated_run["summary"]
+    shards = sum(-(-count // TOPOLOGIES_PER_SHARD) for count in TOPOLOGIES_BY_SIZE.values())
+    assert summary["shards"] == summary["shards_this_run"] == shards == 21
+    assert summary["mechanisms"] == MECHANISMS
     assert summary["paths"] == len(paths) and summary["curated"] == len(curated)
-    assert summary["shares"]["arc_or_circle"] == pytest.approx(common.mean())
+    arc = paths.column("is_arc").to_numpy()
+    circle = paths.column("is_circle").to_numpy()
+    assert summary["arcs"] == arc.sum() and summary["circles"] == circle.sum()
+    assert summary["both"] == (arc & circle).sum()
+    assert summary["shares"].keys() == shares_of(paths).keys()
+    for key, share in shares_of(paths).items():
+        assert summary["shares"][key] == pytest.approx(share, rel=1e-12), key
+    # One path per moving joint: the mechanisms' moving joints, counted from their rows.
+    moving = sum(
+        sum(t != 0 for t in types)
+        for types in curated_run["mechanisms"].column("node_types").to_pylist()
+    )
+    assert len(paths) == moving
 
 
 def test_keep_draw_is_uniform_and_seeded() -> None:
@@ -142,13 +182,18 @@ def test_curation_on_s3_matches_local(ray_cluster: str, s3_env: str, curated_run
     for table in CURATION_TABLES:
         assert read_table(store, table).sort_by("path_id").equals(curated_run[table])
     frame = links_ray.load(uri, "curated", n_joints=[9, 10])
-    assert set(frame["n_joints"]) <= {9, 10} and len(frame) > 0
+    sizes = curated_run["curated"].column("n_joints").to_numpy()
+    assert set(frame["n_joints"]) == {9, 10} and len(frame) == np.isin(sizes, [9, 10]).sum()
 
 
 def test_load_filters_and_reshapes(curated_run: dict) -> None:
     out = curated_run["out"]
     frame = links_ray.load(out, "mechanisms", n_joints=12, reshape=True)
-    assert len(frame) > 0 and set(frame["n_joints"]) == {12}
+    assert set(frame["n_joints"]) == {12} and len(frame) == 5 * TOPOLOGIES_BY_SIZE[12] == 25
+    mechanisms = curated_run["mechanisms"].filter(
+        pc.equal(curated_run["mechanisms"]["n_joints"], 12)
+    )
+    assert sorted(frame["mechanism_id"]) == sorted(mechanisms.column("mechanism_id").to_pylist())
     assert frame["positions"].iloc[0].shape == (12, 2)
     assert frame["adjacency"].iloc[0].shape == (12, 12)
     sims = links_ray.load(out, "simulations", n_joints=12, reshape=True)
@@ -163,19 +208,42 @@ def test_load_filters_and_reshapes(curated_run: dict) -> None:
 
 
 def test_stats_cli_reports_and_draws(curated_run: dict, tmp_path: Path) -> None:
+    """Counts against the plan and the rows, shares counted from the rows, candidates per valid
+    mechanism as measured directly with the same seed (the run used the sequential sampler, so
+    `links stats` measures the rejection sampler itself)."""
     plots = tmp_path / "plots"
     result = links("stats", curated_run["out"], "--plots", str(plots), "--sample-topologies", "1")
     assert result.returncode == 0, result.stderr
     stats = json.loads(result.stdout)
-    assert stats["counts"]["mechanisms"]["rows"] == MECHANISMS
-    assert stats["counts"]["paths"]["rows"] == len(curated_run["paths"])
-    assert sum(stats["counts"]["mechanisms"]["by_joint_count"].values()) == MECHANISMS
-    shares = stats["shares"]["paths"]
-    assert 0 < shares["circle"] < 1 and 0 < shares["arc"] < 1
-    assert shares["arc_or_circle"] <= shares["arc"] + shares["circle"]
-    assert stats["shares"]["curated"]["arc_or_circle"] < shares["arc_or_circle"]
-    assert set(stats["candidates_per_valid"]) == {str(n) for n in range(8, 21)}
-    assert stats["paper"]["shares"]["arc_or_circle"] == 0.62
-    for name in ("candidates_per_valid", "joint_counts", "curation", "mechanisms"):
+    by_size = {str(n): 5 * count for n, count in sorted(TOPOLOGIES_BY_SIZE.items())}
+    assert stats["counts"]["mechanisms"] == {"rows": MECHANISMS, "by_joint_count": by_size}
+    assert stats["counts"]["simulations"] == {"rows": MECHANISMS, "by_joint_count": by_size}
+    tables = {
+        "negatives": read_table(Store.open(curated_run["out"]), "negatives"),
+        "paths": curated_run["paths"],
+        "curated": curated_run["curated"],
+    }
+    for table, rows in tables.items():
+        sizes = Counter(str(n) for n in rows.column("n_joints").to_pylist())
+        expected = {"rows": len(rows), "by_joint_count": dict(sorted(sizes.items()))}
+        assert stats["counts"][table] == expected, table
+    for table in ("paths", "curated"):
+        rows, shares = tables[table], stats["shares"][table]
+        assert shares["paths"] == len(rows)
+        for key, share in shares_of(rows).items():
+            assert shares[key] == pytest.approx(share, rel=1e-12), (table, key)
+        arc_only = rows.column("is_arc").to_numpy() & ~rows.column("is_circle").to_numpy()
+        assert shares["arc_not_circle"] == pytest.approx(arc_only.mean(), rel=1e-12)
+    measured = measure_candidates_per_valid(
+        range(8, 21), 1, 5, np.random.default_rng(0), "rejection", max_candidates=200_000
+    )
+    assert stats["candidates_per_valid"] == {
+        str(n): entry["candidates_per_valid"] for n, entry in measured.items()
+    }
+    assert stats["candidates_per_valid_source"].startswith("measured here")
+    assert stats["paper"]["shares"] == {"circle": 0.34, "arc": 0.28, "arc_or_circle": 0.62}
+    names = ("candidates_per_valid", "joint_counts", "curation", "mechanisms")
+    assert sorted(stats["plots"]) == sorted(str(plots / f"{name}.png") for name in names)
+    for name in names:
         png = plots / f"{name}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000

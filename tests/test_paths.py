@@ -1,4 +1,4 @@
-"""Path normalization, circle detection and chamfer distance (SPEC sections 2 and 3).
+"""Path normalization, circle detection and chamfer distance (docs/CONTRACT.md, Paths).
 
 Everything is checked against independent brute-force numpy computations or exact geometric
 facts: the longest chord against an O(T^2) search, normalization by its invariance under
@@ -24,6 +24,7 @@ from links_ray.engine.paths import (
     circle_variances,
     is_circle,
     longest_chord,
+    normalization,
     normalize_path,
     normalize_paths,
 )
@@ -163,6 +164,35 @@ def test_normalize_path_extreme_scales() -> None:
     ref = normalize_path(pts)
     for factor in (1e-300, 1e-150, 1e150, 1e300):
         np.testing.assert_allclose(normalize_path(pts * factor), ref, rtol=0, atol=1e-12)
+
+
+@SETTINGS
+@given(point_sets(), st.floats(-6, 6), st.tuples(st.floats(-100, 100), st.floats(-100, 100)))
+def test_normalization_is_normalize_path_and_the_similarity_that_does_it(
+    pts: np.ndarray, log_scale: float, shift: tuple[float, float]
+) -> None:
+    """normalization gives normalize_path's points exactly, and a matrix and offset that map
+    the input onto them: a turn and a uniform scale (never a mirror) plus a shift."""
+    assume(pairwise(pts).max() >= 1.0)
+    moved = pts * 10.0**log_scale + np.array(shift)
+    normalized, matrix, offset = normalization(moved)
+    np.testing.assert_array_equal(normalized, normalize_path(moved))
+    i, j = longest_chord(moved)
+    # Checked against the chord: it goes to a unit vector along +x.
+    np.testing.assert_allclose((moved[j] - moved[i]) @ matrix.T, [1.0, 0.0], atol=1e-12)
+    assert matrix[0, 0] == matrix[1, 1] and matrix[0, 1] == -matrix[1, 0]
+    assert np.linalg.det(matrix) > 0
+    # Relative to the input's own size: the shift may be far larger than the path.
+    size = np.abs(moved).max() / np.ptp(moved, axis=0).max()
+    np.testing.assert_allclose(moved @ matrix.T + offset, normalized, rtol=0, atol=1e-12 * size)
+
+
+def test_normalization_at_extreme_scales() -> None:
+    pts = coupler_curves(1, seed=3)[0]
+    for factor in (1e-300, 1e-150, 1e150, 1e300):
+        normalized, matrix, offset = normalization(pts * factor)
+        np.testing.assert_array_equal(normalized, normalize_path(pts * factor))
+        np.testing.assert_allclose(pts * factor @ matrix.T + offset, normalized, atol=1e-12)
 
 
 def test_normalize_path_index_direction() -> None:

@@ -15,7 +15,8 @@ from links_ray.cli.bench_services import _held_out_queries
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
 from links_ray.data.store import Store
-from links_ray.engine.paths import chamfer, chamfer_to_many, normalize_path
+from links_ray.engine.inputs import validate_query
+from links_ray.engine.paths import chamfer, chamfer_to_many, normalization, normalize_path
 from links_ray.search import kernels as kernels
 from links_ray.search.index import (
     FINE_STRIDE,
@@ -23,10 +24,8 @@ from links_ray.search.index import (
     RetrievalIndex,
     _about_least,
     distance_table,
-    normalization,
     query_variants,
     sketch_paths,
-    validate_query,
     variant_map,
 )
 
@@ -154,15 +153,19 @@ def test_returned_mechanism_traces_the_query_where_it_was_drawn(index: Retrieval
 @pytest.mark.parametrize(
     ("points", "k", "message"),
     [
-        ([[0, 0], [1, 1]], 3, "3 to 10000"),
-        ([[0, 0]] * 10_001, 3, "3 to 10000"),
-        ([[1, 1]] * 5, 3, "same point"),
-        ([[0, 0], [1, float("nan")], [2, 2]], 3, "finite"),
-        ([[0, 0], [1, 1], [2, 2]], 0, "k must be"),
-        ([[0, 0], [1, 1], [2, 2]], 101, "k must be"),
-        ([[0, 0], [1, 1], [2, 2]], True, "k must be"),
-        ([[0, 0], [1, 1, 1], [2, 2]], 3, "pairs"),
-        ("zigzag", 3, "pairs"),
+        ([[0, 0], [1, 1]], 3, "points must hold 3 to 10000 pairs, got 2"),
+        ([[0, 0]] * 10_001, 3, "points must hold 3 to 10000 pairs, got 10001"),
+        ([], 3, "points must hold 3 to 10000 pairs, got 0"),
+        ([[1, 1]] * 5, 3, "points are all the same point: there is no curve"),
+        ([[0, 0], [1, float("nan")], [2, 2]], 3, "points must be finite numbers"),
+        ([[0, 0], [1, 1e13], [2, 2]], 3, r"points must lie within \+-1e\+12"),
+        ([[0, 0], [1e-10, 0], [0, 1e-10]], 3, "points span less than 1e-09"),
+        ([[0, 0], [1, 1], [2, 2]], 0, "k must be from 1 to 100, got 0"),
+        ([[0, 0], [1, 1], [2, 2]], 101, "k must be from 1 to 100, got 101"),
+        ([[0, 0], [1, 1], [2, 2]], True, "k must be an integer from 1 to 100, got True"),
+        ([[0, 0], [1, 1, 1], [2, 2]], 3, r"points must be a list of \[x, y\] number pairs"),
+        ("zigzag", 3, r"points must be a list of \[x, y\] number pairs"),
+        ([[0, 0, 0], [1, 1, 1], [2, 2, 2]], 3, r"points must be \[x, y\] pairs, got an array"),
     ],
 )
 def test_bad_queries_are_refused(points: object, k: object, message: str) -> None:
@@ -199,7 +202,8 @@ def test_offline_cli(index: RetrievalIndex, tmp_path: Path) -> None:
     bad = tmp_path / "bad.json"
     bad.write_text("[[0, 0], [1, 1]]")
     result = links("retrieve", index.store.uri, "--points", str(bad))
-    assert result.returncode == 2 and "3 to 10000" in result.stderr
+    assert result.returncode == 2
+    assert result.stderr == "links retrieve: error: points must hold 3 to 10000 pairs, got 2\n"
 
 
 def test_scan_scores_and_selection_match_numpy() -> None:

@@ -1,4 +1,4 @@
-"""The Ray Serve app (SPEC section 5) on real Ray, over real HTTP on loopback.
+"""The Ray Serve app (docs/CONTRACT.md, HTTP API) on real Ray, over real HTTP on loopback.
 
 One small dataset (300 mechanisms, generated and curated; `dataset` in conftest.py) and one
 Serve application (`client`) serve the whole module; every request goes, with `http.client`,
@@ -24,6 +24,7 @@ import yaml
 from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
 
 import links_ray
+from links_ray.engine.inputs import validate_query
 from links_ray.serve.app import bindable_port
 
 REPO = Path(__file__).resolve().parents[1]
@@ -142,153 +143,312 @@ POINTS = [[0.0, 0.0], [1.0, 0.5], [2.0, 0.0], [3.0, 1.0]]
 FOUR_BAR_JSON = json.dumps(FOUR_BAR)
 
 
-def bad(name: str, path: str, body: Any, status: int = 400, **request: Any) -> Any:
-    """One bad request: a JSON-able body, or raw bytes sent as they are."""
+def bad(name: str, path: str, body: Any, words: str, status: int = 400, **request: Any) -> Any:
+    """One bad request: a JSON-able body, or raw bytes sent as they are; `words` must be in the
+    error message."""
     method = request.pop("method", "POST")
-    return pytest.param(method, path, body, request.pop("headers", {}), status, id=name)
+    headers = request.pop("headers", {})
+    return pytest.param(method, path, body, headers, status, words, id=name)
 
 
-def sim(name: str, status: int = 400, **changes: Any) -> Any:
+def sim(name: str, words: str, status: int = 400, **changes: Any) -> Any:
     """A four-bar simulation with some fields replaced."""
-    return bad(name, "/api/simulate", {**FOUR_BAR, **changes}, status)
+    return bad(name, "/api/simulate", {**FOUR_BAR, **changes}, words, status)
 
 
-def ret(name: str, status: int = 400, **body: Any) -> Any:
+def ret(name: str, words: str, status: int = 400, **body: Any) -> Any:
     """A retrieval with this body."""
-    return bad(name, "/api/retrieve", body, status)
+    return bad(name, "/api/retrieve", body, words, status)
 
 
-def sim_raw(name: str, text: str) -> Any:
+def sim_raw(name: str, text: str, words: str) -> Any:
     """The four-bar's JSON with 0.8 (a coordinate of joint 2) replaced by `text`."""
-    return bad(name, "/api/simulate", FOUR_BAR_JSON.replace("0.8", text).encode())
+    return bad(name, "/api/simulate", FOUR_BAR_JSON.replace("0.8", text).encode(), words)
 
 
-def ret_raw(name: str, text: str, status: int = 400) -> Any:
+def ret_raw(name: str, text: str, words: str, status: int = 400) -> Any:
     """A retrieval body written out by hand."""
-    return bad(name, "/api/retrieve", text.encode(), status)
+    return bad(name, "/api/retrieve", text.encode(), words, status)
 
 
 NESTED = "[" * 50_000 + "]" * 50_000
 JUNK_ROWS = [[[0], {"a": [1]}, "x", None]] * 4
 PAD = "x" * LIMIT
+NOT_JSON = "the body is not valid JSON"
+OVER_LIMIT = f"the body is over the limit of {LIMIT} bytes"
 BAD_REQUESTS = [
     # Not a JSON object.
-    bad("invalid JSON", "/api/simulate", b"{adjacency: ["),
-    ret_raw("truncated JSON", '{"points": [[0, 0],'),
-    ret_raw("empty body", ""),
-    bad("not UTF-8", "/api/retrieve", b'{"points": "\xff\xfe"}'),
-    ret_raw("array body", json.dumps([POINTS])),
-    ret_raw("null body", "null"),
-    bad("number body", "/api/simulate", 3),
-    bad("string body", "/api/simulate", "adjacency"),
-    ret_raw("deep nesting", '{"k": ' + NESTED + "}"),
-    bad("text/plain", "/api/retrieve", b"{}", 415, headers={"Content-Type": "text/plain"}),
-    bad("form", "/api/simulate", b"a=1", 415, headers={"Content-Type": "multipart/form-data"}),
-    # /api/simulate: missing fields, wrong types, wrong shapes, limits.
-    bad("missing all", "/api/simulate", {}),
+    bad("invalid JSON", "/api/simulate", b"{adjacency: [", f"{NOT_JSON}: Expecting property name"),
+    ret_raw("truncated JSON", '{"points": [[0, 0],', f"{NOT_JSON}: Expecting value"),
+    ret_raw("empty body", "", "the body is empty: expected a JSON object"),
+    bad("not UTF-8", "/api/retrieve", b'{"points": "\xff\xfe"}', "the body is not UTF-8 text"),
+    ret_raw("array body", json.dumps([POINTS]), "the body must be a JSON object, got an array"),
+    ret_raw("null body", "null", "the body must be a JSON object, got null"),
+    bad("number body", "/api/simulate", 3, "the body must be a JSON object, got a number"),
+    bad("string body", "/api/simulate", "adjacency", "must be a JSON object, got a string"),
+    ret_raw("deep nesting", '{"k": ' + NESTED + "}", f"{NOT_JSON}: nested too deeply"),
     bad(
-        "missing positions", "/api/simulate", {k: FOUR_BAR[k] for k in ("adjacency", "node_types")}
+        "text/plain",
+        "/api/retrieve",
+        b"{}",
+        "the body must be JSON (Content-Type application/json), got 'text/plain'",
+        415,
+        headers={"Content-Type": "text/plain"},
     ),
-    sim("adjacency string", adjacency="0110"),
-    sim("adjacency strings", adjacency=[["0", "1"], ["1", "0"]]),
-    sim("adjacency nested junk", adjacency=JUNK_ROWS),
-    sim("adjacency not square", adjacency=[row[:3] for row in FOUR_BAR["adjacency"]]),
-    sim("adjacency empty", adjacency=[]),
-    sim("adjacency asymmetric", adjacency=[[0, 1, 0, 0], [1, 0, 0, 1], [0, 0, 0, 1], [0, 1, 0, 0]]),
-    sim("adjacency booleans", adjacency=[[x == 1 for x in r] for r in FOUR_BAR["adjacency"]]),
-    sim("node_types object", node_types={"0": 0}),
-    sim("node_types short", node_types=[0, 2, 0]),
-    sim("no actuated joint", node_types=[0, 1, 0, 1]),
-    sim("positions triples", positions=[[0.5, 0.5, 0.0]] * 4),
-    sim("positions null", positions=[[0.5, None]] * 4),
-    sim("positions too few", positions=FOUR_BAR["positions"][:3]),
-    sim("zero-length crank", positions=[[0.5, 0.5], [0.5, 0.5], [0.8, 0.5], [0.6, 0.7]]),
-    sim_raw("NaN literal", "NaN"),
-    sim_raw("Infinity literal", "Infinity"),
-    sim_raw("overflow to inf", "1e999"),
-    sim_raw("integer beyond float", "9" * 400),
-    sim("steps string", steps="200"),
-    sim("steps true", steps=True),
-    sim("steps float", steps=200.5),
-    sim("steps 0", steps=0),
-    sim("steps huge", steps=10**12),
-    sim("huge simulation", 413, steps=100_000),
+    bad(
+        "form",
+        "/api/simulate",
+        b"a=1",
+        "got 'multipart/form-data'",
+        415,
+        headers={"Content-Type": "multipart/form-data"},
+    ),
+    # /api/simulate: missing fields, wrong types, wrong shapes, limits.
+    bad("missing all", "/api/simulate", {}, "missing field 'adjacency'"),
+    bad(
+        "missing positions",
+        "/api/simulate",
+        {k: FOUR_BAR[k] for k in ("adjacency", "node_types")},
+        "missing field 'positions'",
+    ),
+    sim(
+        "adjacency string",
+        "adjacency must be an n x n array of 0/1, got a string",
+        adjacency="0110",
+    ),
+    sim(
+        "adjacency strings",
+        "adjacency[0][0] must be 0 or 1, got a string",
+        adjacency=[["0", "1"], ["1", "0"]],
+    ),
+    sim(
+        "adjacency nested junk", "adjacency[0][0] must be 0 or 1, got an array", adjacency=JUNK_ROWS
+    ),
+    sim(
+        "adjacency not square",
+        "adjacency[0] must hold 4 entries (one per joint), got 3",
+        adjacency=[row[:3] for row in FOUR_BAR["adjacency"]],
+    ),
+    sim(
+        "adjacency empty",
+        "adjacency must be an n x n array of 0/1, got an empty array",
+        adjacency=[],
+    ),
+    sim(
+        "adjacency asymmetric",
+        "adjacency is not symmetric: [2, 3] = 1 but [3, 2] = 0",
+        adjacency=[[0, 1, 0, 0], [1, 0, 0, 1], [0, 0, 0, 1], [0, 1, 0, 0]],
+    ),
+    sim(
+        "adjacency booleans",
+        "adjacency[0][0] must be 0 or 1, got a boolean",
+        adjacency=[[x == 1 for x in r] for r in FOUR_BAR["adjacency"]],
+    ),
+    sim(
+        "node_types object",
+        "node_types must be an array of 4 numbers, got an object",
+        node_types={"0": 0},
+    ),
+    sim(
+        "node_types short",
+        "node_types must hold 4 entries (one per joint), got 3",
+        node_types=[0, 2, 0],
+    ),
+    sim(
+        "no actuated joint",
+        "joint 1 must be the actuated joint (2), got 1",
+        node_types=[0, 1, 0, 1],
+    ),
+    sim(
+        "positions triples",
+        "positions[0] must be an [x, y] pair, got 3 entries",
+        positions=[[0.5, 0.5, 0.0]] * 4,
+    ),
+    sim(
+        "positions null",
+        "positions[0] must hold two numbers, got null",
+        positions=[[0.5, None]] * 4,
+    ),
+    sim(
+        "positions too few",
+        "positions must hold 4 [x, y] pairs (one per joint), got 3",
+        positions=FOUR_BAR["positions"][:3],
+    ),
+    sim(
+        "zero-length crank",
+        "the crank has zero length: joints 0 and 1 are closer than 1e-09",
+        positions=[[0.5, 0.5], [0.5, 0.5], [0.8, 0.5], [0.6, 0.7]],
+    ),
+    sim_raw("NaN literal", "NaN", f"{NOT_JSON}: NaN is not a JSON number"),
+    sim_raw("Infinity literal", "Infinity", f"{NOT_JSON}: Infinity is not a JSON number"),
+    sim_raw("overflow to inf", "1e999", "positions[2] must hold finite numbers"),
+    sim_raw("integer beyond float", "9" * 400, "positions[2] must hold finite numbers"),
+    sim("steps string", "steps must be an integer from 1 to 100000, got '200'", steps="200"),
+    sim("steps true", "steps must be an integer from 1 to 100000, got True", steps=True),
+    sim("steps float", "steps must be an integer from 1 to 100000, got 200.5", steps=200.5),
+    sim("steps 0", "steps must be from 1 to 100000, got 0", steps=0),
+    sim("steps huge", "steps must be from 1 to 100000, got 1000000000000", steps=10**12),
+    sim(
+        "huge simulation",
+        "simulation too large: 4 joints x 100000 steps = 400000, the limit is 100000 joint-steps",
+        413,
+        steps=100_000,
+    ),
     bad(
         "too many joints",
         "/api/simulate",
         {"adjacency": [[0] * 101] * 101, "node_types": [0] * 101, "positions": [[0, 0]] * 101},
+        "at most 100 joints per request, got 101",
         413,
     ),
     # /api/retrieve: points and k.
-    ret("missing points", k=3),
-    ret("points string", points="0,0 1,1 2,0"),
-    ret("points strings", points=[["0", "0"], ["1", "1"], ["2", "0"]]),
-    ret("points nested junk", points=[[[0, 0]], {"x": 1}, [None, []]]),
-    ret("points objects", points=[{"x": 0, "y": 0}] * 3),
-    ret("points triples", points=[[0, 0, 0], [1, 1, 1], [2, 0, 0]]),
-    ret("points booleans", points=[[True, False], [1, 1], [2, 0]]),
-    ret("2 pairs", points=POINTS[:2]),
-    ret("10,001 pairs", points=[[i, i % 7] for i in range(10_001)]),
-    ret("all one point", points=[[0.3, 0.4]] * 50),
-    ret_raw("NaN", '{"points": [[NaN, 0], [1, 1], [2, 0]]}'),
-    ret_raw("Infinity", '{"points": [[0, 0], [1, Infinity], [2, 0]]}'),
-    ret_raw("-Infinity", '{"points": [[0, 0], [1, -Infinity], [2, 0]]}'),
-    ret_raw("overflow to inf", '{"points": [[0, 0], [1, 1e999], [2, 0]]}'),
-    ret_raw("integer beyond float", '{"points": [[0, 0], [1, ' + "9" * 400 + "], [2, 0]]}"),
-    ret("coordinates huge", points=[[0, 0], [1e300, 0], [0, 1e300]]),
-    ret("extent tiny", points=[[0, 0], [1e-300, 0], [0, 1e-300]]),
-    ret("k 0", points=POINTS, k=0),
-    ret("k 101", points=POINTS, k=101),
-    ret("k -1", points=POINTS, k=-1),
-    ret("k true", points=POINTS, k=True),
-    ret("k string", points=POINTS, k="3"),
-    ret("k float", points=POINTS, k=2.5),
-    ret("k array", points=POINTS, k=[3]),
+    ret("missing points", "missing field 'points'", k=3),
+    ret(
+        "points string",
+        "points must be an array of [x, y] pairs, got a string",
+        points="0,0 1,1 2,0",
+    ),
+    ret(
+        "points strings",
+        "points[0] must hold two numbers, got a string",
+        points=[["0", "0"], ["1", "1"], ["2", "0"]],
+    ),
+    ret(
+        "points nested junk",
+        "points[0] must be an [x, y] pair, got 1 entries",
+        points=[[[0, 0]], {"x": 1}, [None, []]],
+    ),
+    ret(
+        "points objects",
+        "points[0] must be an [x, y] pair, got an object",
+        points=[{"x": 0, "y": 0}] * 3,
+    ),
+    ret(
+        "points triples",
+        "points[0] must be an [x, y] pair, got 3 entries",
+        points=[[0, 0, 0], [1, 1, 1], [2, 0, 0]],
+    ),
+    ret(
+        "points booleans",
+        "points[0] must hold two numbers, got a boolean",
+        points=[[True, False], [1, 1], [2, 0]],
+    ),
+    ret("2 pairs", "points must hold 3 to 10000 pairs, got 2", points=POINTS[:2]),
+    ret(
+        "10,001 pairs",
+        "points must hold 3 to 10000 pairs, got 10001",
+        points=[[i, i % 7] for i in range(10_001)],
+    ),
+    ret(
+        "all one point",
+        "points are all the same point: there is no curve",
+        points=[[0.3, 0.4]] * 50,
+    ),
+    ret_raw(
+        "NaN", '{"points": [[NaN, 0], [1, 1], [2, 0]]}', f"{NOT_JSON}: NaN is not a JSON number"
+    ),
+    ret_raw(
+        "Infinity", '{"points": [[0, 0], [1, Infinity], [2, 0]]}', "Infinity is not a JSON number"
+    ),
+    ret_raw(
+        "-Infinity",
+        '{"points": [[0, 0], [1, -Infinity], [2, 0]]}',
+        "-Infinity is not a JSON number",
+    ),
+    ret_raw(
+        "overflow to inf",
+        '{"points": [[0, 0], [1, 1e999], [2, 0]]}',
+        "points[1] must hold finite numbers",
+    ),
+    ret_raw(
+        "integer beyond float",
+        '{"points": [[0, 0], [1, ' + "9" * 400 + "], [2, 0]]}",
+        "points[1] must hold finite numbers",
+    ),
+    ret(
+        "coordinates huge",
+        "points must lie within +-1e+12",
+        points=[[0, 0], [1e300, 0], [0, 1e300]],
+    ),
+    ret(
+        "extent tiny",
+        "points span less than 1e-09: there is no curve to match",
+        points=[[0, 0], [1e-300, 0], [0, 1e-300]],
+    ),
+    ret("k 0", "k must be from 1 to 100, got 0", points=POINTS, k=0),
+    ret("k 101", "k must be from 1 to 100, got 101", points=POINTS, k=101),
+    ret("k -1", "k must be from 1 to 100, got -1", points=POINTS, k=-1),
+    ret("k true", "k must be an integer from 1 to 100, got True", points=POINTS, k=True),
+    ret("k string", "k must be an integer from 1 to 100, got '3'", points=POINTS, k="3"),
+    ret("k float", "k must be an integer from 1 to 100, got 2.5", points=POINTS, k=2.5),
+    ret("k array", "k must be an integer from 1 to 100, got [3]", points=POINTS, k=[3]),
     # Size limits and routes.
-    ret("oversized body", 413, points=POINTS, pad=PAD),
-    ret("oversized points", 413, points=[[0.123456789012345678, i * 1e-3] for i in range(80_000)]),
-    bad("unknown route", "/api/nothing", None, 404, method="GET"),
-    bad("GET simulate", "/api/simulate", None, 405, method="GET"),
-    bad("POST health", "/api/health", {}, 405),
+    ret("oversized body", OVER_LIMIT, 413, points=POINTS, pad=PAD),
+    ret(
+        "oversized points",
+        OVER_LIMIT,
+        413,
+        points=[[0.123456789012345678, i * 1e-3] for i in range(80_000)],
+    ),
+    bad("unknown route", "/api/nothing", None, "not found", 404, method="GET"),
+    bad("GET simulate", "/api/simulate", None, "method not allowed", 405, method="GET"),
+    bad("POST health", "/api/health", {}, "method not allowed", 405),
 ]
 
 
-def _check_error(status: int, headers: dict[str, str], data: Any, expected: int) -> None:
+def _check_error(
+    status: int, headers: dict[str, str], data: Any, expected: int, words: str
+) -> None:
     assert status < 500, (status, data)
     assert status == expected, (status, data)
     assert headers.get("content-type", "").startswith("application/json")
-    assert isinstance(data, dict) and isinstance(data.get("error"), str) and data["error"]
+    assert isinstance(data, dict) and set(data) == {"error"}, data
+    assert words in data["error"], data["error"]
 
 
-@pytest.mark.parametrize(("method", "path", "body", "headers", "expected"), BAD_REQUESTS)
+@pytest.mark.parametrize(("method", "path", "body", "headers", "expected", "words"), BAD_REQUESTS)
 def test_bad_requests_get_a_4xx_json_error(
-    client: Client, method: str, path: str, body: Any, headers: dict[str, str], expected: int
+    client: Client,
+    method: str,
+    path: str,
+    body: Any,
+    headers: dict[str, str],
+    expected: int,
+    words: str,
 ) -> None:
+    """Each bad request gets its status and an `error` that names its problem."""
     status, reply_headers, data = client.request(method, path, body, headers)
-    _check_error(status, reply_headers, data, expected)
+    _check_error(status, reply_headers, data, expected, words)
 
 
 def test_error_messages_name_the_problem(client: Client) -> None:
+    """The messages are the engine's own, word for word: one validator for Python and HTTP."""
     cases = [
-        ({"points": POINTS[:2]}, "3 to 10000"),
-        ({"points": POINTS, "k": 101}, "k"),
-        ({"points": [[0.3, 0.4]] * 5}, "same point"),
-        ({"k": 3}, "points"),
+        ({"points": POINTS[:2]}, "points must hold 3 to 10000 pairs, got 2"),
+        ({"points": POINTS, "k": 101}, "k must be from 1 to 100, got 101"),
+        ({"points": [[0.3, 0.4]] * 5}, "points are all the same point: there is no curve"),
     ]
-    for body, words in cases:
+    for body, message in cases:
         status, data = client.post("/api/retrieve", body)
-        assert status == 400 and words in data["error"], data
-    status, data = client.post("/api/simulate", {**FOUR_BAR, "node_types": [0, 1, 0, 1]})
-    assert status == 400 and "actuated" in data["error"]
-    status, data = client.post("/api/simulate", {**FOUR_BAR, "steps": 100_000})
-    assert status == 413 and "100000" in data["error"]
+        with pytest.raises(ValueError) as refused:
+            validate_query(body["points"], body.get("k", 3))
+        assert str(refused.value) == message
+        assert (status, data) == (400, {"error": message})
+    status, data = client.post("/api/retrieve", {"k": 3})
+    assert (status, data) == (400, {"error": "missing field 'points'"})
+    wrong = {**FOUR_BAR, "node_types": [0, 1, 0, 1]}
+    status, data = client.post("/api/simulate", wrong)
+    with pytest.raises(links_ray.InvalidMechanismError) as refused:
+        links_ray.simulate(**wrong)
+    assert (status, data) == (400, {"error": str(refused.value)})
+    assert "joint 1 must be the actuated joint (2), got 1" in data["error"]
 
 
 def test_oversized_body_without_content_length(client: Client) -> None:
     """A chunked body is counted as it arrives."""
     body = json.dumps({"points": POINTS, "pad": PAD}).encode()
     status, headers, data = client.request("POST", "/api/retrieve", body, chunked=True)
-    _check_error(status, headers, data, 413)
+    _check_error(status, headers, data, 413, OVER_LIMIT)
     small = json.dumps({"points": POINTS, "k": 2}).encode()
     status, _, data = client.request("POST", "/api/retrieve", small, chunked=True)
     assert status == 200 and len(data["results"]) == 2
@@ -299,7 +459,7 @@ def test_lying_content_length_is_refused(client: Client) -> None:
         "POST", "/api/retrieve", b'{"points": []}', {"Content-Length": str(10 * LIMIT)}
     )
     # The header is checked before the body is read: refused at once, no waiting.
-    _check_error(status, headers, data, 413)
+    _check_error(status, headers, data, 413, OVER_LIMIT)
 
 
 def test_still_serving_after_bad_requests(client: Client, curated: Any) -> None:
@@ -378,17 +538,20 @@ def test_app_builder_args(dataset: str, tmp_path: Path) -> None:
     from links_ray.serve.app import app_builder, build_app
 
     assert isinstance(app_builder({"root": dataset, "replicas": "2"}), Application)
-    for bad in (
-        {},
-        {"root": ""},
-        {"root": str(tmp_path)},  # no curated table
-        {"root": dataset, "replicas": "two"},
-        {"root": dataset, "replicas": True},
-        {"root": dataset, "x": 1},
+    for bad, message in (
+        ({}, "the links application needs args.root"),
+        ({"root": ""}, "the links application needs args.root"),
+        ({"root": str(tmp_path)}, "has no curated table"),
+        (
+            {"root": dataset, "replicas": "two"},
+            "args.replicas must be a positive integer, got 'two'",
+        ),
+        ({"root": dataset, "replicas": True}, "args.replicas must be a positive integer, got True"),
+        ({"root": dataset, "x": 1}, r"unknown args for the links application: \['x'\]"),
     ):
-        with pytest.raises(ValueError):
+        with pytest.raises(ValueError, match=message):
             app_builder(bad)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="replicas must be a positive integer, got 0"):
         build_app(dataset, replicas=0)
 
 
@@ -418,7 +581,9 @@ def test_the_replica_answers_http_itself(client: Client) -> None:
     assert client.proxy.get("/api/health") == client.get("/api/health")
 
 
-def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(dataset: str) -> None:
+def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
+    dataset: str, curated: Any
+) -> None:
     """`links serve` starts its own Ray; the replica answers on --port and Ctrl-C stops all."""
     port = bindable_port("127.0.0.1", 0)
     server = subprocess.Popen(
@@ -435,8 +600,7 @@ def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(dataset: str) 
                 break
         assert f"http://127.0.0.1:{port}/" in lines[-1], "".join(lines[-20:])
         served = Client(port)
-        status, health = served.get("/api/health")
-        assert status == 200 and health["paths"] > 0
+        assert served.get("/api/health") == (200, {"status": "ok", "paths": len(curated)})
         status, data = served.post("/api/retrieve", {"points": [[0, 0], [1, 0.5], [2, 0], [1, -1]]})
         assert status == 200 and len(data["results"]) == 3
         assert "ServeReplica:links:LinksApi" in listening_process(port)

@@ -1,4 +1,4 @@
-"""The dyadic solver against independent truth (SPEC section 1).
+"""The dyadic solver against independent truth (docs/CONTRACT.md, Simulation).
 
 * Four-bar linkages against the closed-form Freudenstein solution: coupler curves of Grashof
   crank-rockers to ~1e-9, and the exact first locking step of four-bars whose crank cannot turn.
@@ -26,6 +26,7 @@ from links_ray import (
     simulate,
     simulate_batch,
 )
+from links_ray.engine.inputs import MAX_COORDINATE, MIN_LINK_LENGTH
 
 TAU = 2.0 * math.pi
 #: Four-bar joints: 0 = O2 (fixed pivot), 1 = A (crank tip), 2 = B (coupler/rocker), 3 = O4.
@@ -643,16 +644,52 @@ def test_parents_passing_through_each_other_lock() -> None:
     assert (info.value.step, info.value.node) == (50, 2)
 
 
-@pytest.mark.parametrize("scale", [1e155, 1e-160, 1e-170])
-def test_extreme_scales_are_finite_or_refused(scale: float) -> None:
-    """Finite coordinates of any magnitude: either refused as invalid input, or simulated
-    with finite trajectories equal to the scaled ones."""
+def edge_scales(positions: np.ndarray, adjacency: np.ndarray) -> tuple[float, float]:
+    """The least and greatest factors by which `positions` may be scaled and still be taken:
+    the shortest link just over MIN_LINK_LENGTH, the farthest coordinate just under
+    MAX_COORDINATE."""
+    i, j = np.nonzero(np.triu(adjacency, 1))
+    shortest = np.linalg.norm(positions[i] - positions[j], axis=1).min()
+    return MIN_LINK_LENGTH / shortest * 1.001, MAX_COORDINATE / np.abs(positions).max() * 0.999
+
+
+@pytest.mark.parametrize("edge", ["smallest", "largest"])
+def test_scales_at_the_edges_of_the_accepted_range(edge: str) -> None:
+    """At the smallest and largest scales the checks accept, trajectories are finite and are the
+    unit-scale ones scaled."""
     adjacency, node_types = fourbar_topology()
     positions = fourbar_positions((0.5, 0.5), 0.0, (0.05, 0.3, 0.36, 0.3), 0.0, 1)
     reference = simulate(adjacency, node_types, positions)
-    try:
-        trajectories, valid = simulate_batch(adjacency, node_types, positions[None] * scale)
-    except InvalidMechanismError:
-        return
+    smallest, largest = edge_scales(positions, adjacency)
+    scale = smallest if edge == "smallest" else largest
+    trajectories, valid = simulate_batch(adjacency, node_types, positions[None] * scale)
     assert valid[0] and np.isfinite(trajectories).all()
     np.testing.assert_allclose(trajectories[0] / scale, reference, rtol=0, atol=1e-9)
+    single = simulate(adjacency, node_types, positions * scale)
+    np.testing.assert_array_equal(single, trajectories[0])
+
+
+@pytest.mark.parametrize(
+    ("where", "match"),
+    [
+        ("just above the largest", r"positions must lie within \+-1e\+12"),
+        ("far above the largest", r"positions must lie within \+-1e\+12"),
+        ("just below the smallest", r"crank has zero length: joints 0 and 1 are closer than 1e-09"),
+        ("far below the smallest", r"crank has zero length: joints 0 and 1 are closer than 1e-09"),
+    ],
+)
+def test_scales_beyond_the_accepted_range_are_refused(where: str, match: str) -> None:
+    """Just past either edge, and far past it, the input is refused, naming the limit."""
+    adjacency, node_types = fourbar_topology()
+    positions = fourbar_positions((0.5, 0.5), 0.0, (0.05, 0.3, 0.36, 0.3), 0.0, 1)
+    smallest, largest = edge_scales(positions, adjacency)
+    scale = {
+        "just above the largest": largest * 1.002,
+        "far above the largest": 1e155,
+        "just below the smallest": smallest * 0.998,
+        "far below the smallest": 1e-160,
+    }[where]
+    with pytest.raises(InvalidMechanismError, match=match):
+        simulate_batch(adjacency, node_types, positions[None] * scale)
+    with pytest.raises(InvalidMechanismError, match=match):
+        simulate(adjacency, node_types, positions * scale)

@@ -1,4 +1,4 @@
-"""Input validation (SPEC sections 1 and 2): malformed or unsolvable mechanisms are refused.
+"""Input validation (docs/CONTRACT.md, Mechanisms and Python API): bad mechanisms are refused.
 
 Every case must raise `InvalidMechanismError` (a `ValueError`) naming the problem, through each
 public entry point: `simulate`, `simulate_batch` and `TopologySimulator` (construction for
@@ -111,15 +111,29 @@ def test_reference_mechanism_is_valid() -> None:
 @pytest.mark.parametrize(
     ("adjacency", "match"),
     [
-        pytest.param([0, 1, 1, 0], r"2-D", id="1-D"),
-        pytest.param(np.zeros((5, 5, 1)), r"2-D", id="3-D"),
-        pytest.param(np.zeros((5, 4)), r"square", id="non-square"),
-        pytest.param(None, r"adjacency", id="None"),
-        pytest.param([["0", "1"], ["1", "0"]], r"numeric", id="strings"),
-        pytest.param("adjacency", r"adjacency", id="a string"),
-        pytest.param([[0, 1, 0], [1, 0]], r"rectangular", id="ragged"),
-        pytest.param([[0, None], [None, 0]], r"numeric", id="None entries"),
-        pytest.param(np.ones((2, 2), dtype=complex), r"numeric", id="complex"),
+        pytest.param([0, 1, 1, 0], r"adjacency must be 2-D, got shape \(4,\)", id="1-D"),
+        pytest.param(
+            np.zeros((5, 5, 1)), r"adjacency must be 2-D, got shape \(5, 5, 1\)", id="3-D"
+        ),
+        pytest.param(
+            np.zeros((5, 4)), r"adjacency must be square, got shape \(5, 4\)", id="non-square"
+        ),
+        pytest.param(None, r"adjacency must be 2-D, got shape \(\)", id="None"),
+        pytest.param(
+            [["0", "1"], ["1", "0"]], r"adjacency must be numeric, got dtype <U1", id="strings"
+        ),
+        pytest.param("adjacency", r"adjacency must be 2-D, got shape \(\)", id="a string"),
+        pytest.param([[0, 1, 0], [1, 0]], r"adjacency is not a rectangular array", id="ragged"),
+        pytest.param(
+            [[0, None], [None, 0]],
+            r"adjacency must be numeric, got dtype object",
+            id="None entries",
+        ),
+        pytest.param(
+            np.ones((2, 2), dtype=complex),
+            r"adjacency must be numeric, got dtype complex",
+            id="complex",
+        ),
     ],
 )
 def test_malformed_adjacency(adjacency: object, match: str) -> None:
@@ -136,15 +150,17 @@ def test_single_joint_refused() -> None:
 @pytest.mark.parametrize(
     ("node_types", "match"),
     [
-        pytest.param([0, 2, 1, 0], r"one entry per joint", id="too short"),
-        pytest.param([0, 2, 1, 0, 1, 1], r"one entry per joint", id="too long"),
-        pytest.param([[0, 2, 1, 0, 1]], r"1-D", id="2-D"),
-        pytest.param(None, r"node_types", id="None"),
-        pytest.param(["0", "2", "1", "0", "1"], r"numeric", id="strings"),
-        pytest.param([0, 2, [1, 0], 0, 1], r"rectangular", id="ragged"),
-        pytest.param([0, 2, 1.5, 0, 1], r"whole", id="fractional"),
-        pytest.param([0, 2, np.nan, 0, 1], r"NaN", id="NaN"),
-        pytest.param([0, 2, np.inf, 0, 1], r"infinite", id="inf"),
+        pytest.param(
+            [0, 2, 1, 0], r"node_types must have one entry per joint \(5\), got 4", id="too short"
+        ),
+        pytest.param([0, 2, 1, 0, 1, 1], r"one entry per joint \(5\), got 6", id="too long"),
+        pytest.param([[0, 2, 1, 0, 1]], r"node_types must be 1-D, got shape \(1, 5\)", id="2-D"),
+        pytest.param(None, r"node_types must be 1-D, got shape \(\)", id="None"),
+        pytest.param(["0", "2", "1", "0", "1"], r"node_types must be numeric", id="strings"),
+        pytest.param([0, 2, [1, 0], 0, 1], r"node_types is not a rectangular array", id="ragged"),
+        pytest.param([0, 2, 1.5, 0, 1], r"node_types must hold whole numbers", id="fractional"),
+        pytest.param([0, 2, np.nan, 0, 1], r"node_types has NaN or infinite entries", id="NaN"),
+        pytest.param([0, 2, np.inf, 0, 1], r"node_types has NaN or infinite entries", id="inf"),
         pytest.param([0, 2, 3, 0, 1], r"node_types must be 0 .*joint 2", id="type 3"),
         pytest.param([0, 2, -1, 0, 1], r"node_types must be 0 .*joint 2", id="type -1"),
     ],
@@ -157,17 +173,39 @@ def test_malformed_node_types(node_types: object, match: str) -> None:
 @pytest.mark.parametrize(
     ("positions", "match"),
     [
-        pytest.param(POSITIONS[:4], r"positions must have shape", id="too few joints"),
-        pytest.param([[*p, 0.0] for p in POSITIONS], r"positions must have shape", id="(n, 3)"),
-        pytest.param(np.ravel(POSITIONS).tolist(), r"positions must have shape", id="flat"),
-        pytest.param(None, r"positions", id="None"),
-        pytest.param([[str(x) for x in p] for p in POSITIONS], r"numeric", id="strings"),
-        pytest.param([*POSITIONS[:4], [0.7]], r"rectangular", id="ragged"),
-        pytest.param([*POSITIONS[:4], [0.7, None]], r"numeric", id="None entry"),
-        pytest.param(np.ones((5, 2), dtype=bool), r"numeric", id="bool"),
-        pytest.param([*POSITIONS[:4], [0.7, np.nan]], r"NaN", id="NaN"),
-        pytest.param([*POSITIONS[:4], [np.inf, 0.7]], r"infinite", id="inf"),
-        pytest.param([*POSITIONS[:4], [0.7, -np.inf]], r"infinite", id="-inf"),
+        pytest.param(
+            POSITIONS[:4],
+            r"positions must have shape \((B, )?n, 2\) with n = 5, got \((1, )?4, 2\)",
+            id="too few joints",
+        ),
+        pytest.param(
+            [[*p, 0.0] for p in POSITIONS], r"with n = 5, got \((1, )?5, 3\)", id="(n, 3)"
+        ),
+        pytest.param(np.ravel(POSITIONS).tolist(), r"with n = 5, got \((1, )?10,?\)", id="flat"),
+        pytest.param(None, r"positions must be numeric, got dtype object", id="None"),
+        pytest.param(
+            [[str(x) for x in p] for p in POSITIONS],
+            r"positions must be numeric, got dtype <U",
+            id="strings",
+        ),
+        pytest.param([*POSITIONS[:4], [0.7]], r"positions is not a rectangular array", id="ragged"),
+        pytest.param(
+            [*POSITIONS[:4], [0.7, None]],
+            r"positions must be numeric, got dtype object",
+            id="None entry",
+        ),
+        pytest.param(
+            np.ones((5, 2), dtype=bool), r"positions must be numeric, got dtype bool", id="bool"
+        ),
+        pytest.param(
+            [*POSITIONS[:4], [0.7, np.nan]], r"positions has NaN or infinite entries", id="NaN"
+        ),
+        pytest.param(
+            [*POSITIONS[:4], [np.inf, 0.7]], r"positions has NaN or infinite entries", id="inf"
+        ),
+        pytest.param(
+            [*POSITIONS[:4], [0.7, -np.inf]], r"positions has NaN or infinite entries", id="-inf"
+        ),
     ],
 )
 def test_malformed_positions(positions: object, match: str) -> None:
@@ -209,15 +247,39 @@ def with_entries(*entries: tuple[int, int, float]) -> np.ndarray:
 @pytest.mark.parametrize(
     ("adjacency", "match"),
     [
-        pytest.param(with_entries((0, 3, np.nan), (3, 0, np.nan)), r"NaN", id="NaN"),
-        pytest.param(with_entries((0, 3, np.inf), (3, 0, np.inf)), r"infinite", id="inf"),
-        pytest.param(with_entries((1, 2, 2), (2, 1, 2)), r"0 or 1", id="2"),
-        pytest.param(with_entries((1, 2, -1), (2, 1, -1)), r"0 or 1", id="-1"),
-        pytest.param(with_entries((1, 2, 0.5), (2, 1, 0.5)), r"whole", id="0.5"),
-        pytest.param(with_entries((0, 2, 1)), r"symmetric", id="asymmetric"),
-        pytest.param(with_entries((2, 1, 0)), r"symmetric", id="one-sided link"),
-        pytest.param(with_entries((2, 2, 1)), r"self-link", id="self-link"),
-        pytest.param(with_entries((0, 0, 1)), r"self-link", id="self-link at 0"),
+        pytest.param(
+            with_entries((0, 3, np.nan), (3, 0, np.nan)),
+            r"adjacency has NaN or infinite entries",
+            id="NaN",
+        ),
+        pytest.param(
+            with_entries((0, 3, np.inf), (3, 0, np.inf)),
+            r"adjacency has NaN or infinite entries",
+            id="inf",
+        ),
+        pytest.param(
+            with_entries((1, 2, 2), (2, 1, 2)), r"must be 0 or 1, got 2 at \(1, 2\)", id="2"
+        ),
+        pytest.param(with_entries((1, 2, -1), (2, 1, -1)), r"0 or 1, got -1 at \(1, 2\)", id="-1"),
+        pytest.param(
+            with_entries((1, 2, 0.5), (2, 1, 0.5)), r"adjacency must hold whole numbers", id="0.5"
+        ),
+        pytest.param(
+            with_entries((0, 2, 1)),
+            r"not symmetric: \[0, 2\] = 1 but \[2, 0\] = 0",
+            id="asymmetric",
+        ),
+        pytest.param(
+            with_entries((2, 1, 0)),
+            r"not symmetric: \[1, 2\] = 1 but \[2, 1\] = 0",
+            id="one-sided link",
+        ),
+        pytest.param(
+            with_entries((2, 2, 1)), r"self-link: adjacency\[2, 2\] must be 0", id="self-link"
+        ),
+        pytest.param(
+            with_entries((0, 0, 1)), r"self-link: adjacency\[0, 0\] must be 0", id="self-link at 0"
+        ),
     ],
 )
 def test_malformed_adjacency_entries(adjacency: np.ndarray, match: str) -> None:
@@ -341,26 +403,29 @@ def test_unlinked_simple_joint_is_more_than_one_dof() -> None:
 def test_zero_length_crank() -> None:
     """Joint 1 on top of joint 0: the crank has zero length."""
     positions = [POSITIONS[0], POSITIONS[0], *POSITIONS[2:]]
-    assert_refused(r"crank has zero length", ADJACENCY, NODE_TYPES, positions)
+    match = r"the crank has zero length: joints 0 and 1 are closer than 1e-09"
+    assert_refused(match, ADJACENCY, NODE_TYPES, positions)
 
 
 def test_zero_length_link() -> None:
     """Two linked joints at one point."""
     positions = [*POSITIONS[:4], POSITIONS[2]]
-    assert_refused(r"zero length", ADJACENCY, NODE_TYPES, positions)
+    match = r"a link has zero length: joints 2 and 4 are closer than 1e-09"
+    assert_refused(match, ADJACENCY, NODE_TYPES, positions)
 
 
-def test_coincident_dyad_parents_refused() -> None:
-    """Joint 2's two parents (crank tip 1 and fixed pivot 3) start at the same point: the dyad
-    is undefined. Any ValueError will do (malformed input, or a lock at step 0)."""
+def test_coincident_dyad_parents_lock_at_step_0() -> None:
+    """Joint 2's two parents (crank tip 1 and fixed pivot 3) start at the same point, so its two
+    circles share a centre: well-formed input (1 and 3 are not linked) that cannot be
+    assembled, a lock at step 0 of joint 2 through every entry point."""
     positions = [POSITIONS[0], POSITIONS[1], POSITIONS[2], POSITIONS[1], POSITIONS[4]]
-    with pytest.raises(ValueError, match=r"joint|zero|lock|coincid|same"):
+    with pytest.raises(LockingError, match=r"^mechanism locks at step 0: joint 2 ") as info:
         simulate(ADJACENCY, NODE_TYPES, positions)
-    try:
-        trajectories, valid = simulate_batch(ADJACENCY, NODE_TYPES, [positions])
-    except InvalidMechanismError:
-        return
-    assert not valid[0] and np.isnan(trajectories).all()
+    assert (info.value.step, info.value.node) == (0, 2)
+    trajectories, valid = simulate_batch(ADJACENCY, NODE_TYPES, [positions])
+    assert valid.tolist() == [False] and np.isnan(trajectories).all()
+    lock_step, lock_node = TopologySimulator(ADJACENCY, NODE_TYPES).first_lock([positions])
+    assert (lock_step.tolist(), lock_node.tolist()) == ([0], [2])
 
 
 @pytest.mark.parametrize(
@@ -369,8 +434,9 @@ def test_coincident_dyad_parents_refused() -> None:
     ids=repr,
 )
 def test_invalid_steps(steps: object) -> None:
-    """steps must be a positive integer (not a bool, float or string)."""
-    assert_refused(r"steps", ADJACENCY, NODE_TYPES, POSITIONS, steps)
+    """steps must be an integer from 1 to 100,000 (not a bool, float or string)."""
+    match = r"^steps must be (an integer )?from 1 to 100000, got "
+    assert_refused(match, ADJACENCY, NODE_TYPES, POSITIONS, steps)
 
 
 @pytest.mark.parametrize("steps", [1, 2, np.int64(50), np.int32(7), 360])

@@ -16,10 +16,11 @@ from importlib import metadata
 
 import numpy as np
 
+from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.mechanism import CRANK_CENTER, CRANK_TIP, MAX_DATASET_JOINTS
 from links_ray.engine.reference import simulate_reference
 from links_ray.engine.sampling import SAMPLERS, PositionSampler, measure_candidates_per_valid
-from links_ray.engine.solver import DEFAULT_STEPS, TopologySimulator
+from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.topology import random_topology
 
 #: Table 1 of the paper: seconds to simulate 10,000 random mechanisms (mean of 10 runs).

@@ -14,6 +14,8 @@ import time
 import numpy as np
 
 from links_ray.cli.bench import machine_info
+from links_ray.engine.mechanism import analyze_topology, arc_joints
+from links_ray.engine.paths import is_circle, normalize_path
 from links_ray.engine.sampling import PositionSampler
 from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.topology import random_topology
@@ -135,7 +137,7 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
     }
     hits = 0
     for number in range(recall_queries):
-        normalized = _normalized(held_out[number])
+        normalized = normalize_path(held_out[number])
         hits += len({row for row, _, _ in index.ranked(normalized)} & truth[number])
 
     # Served as `links serve` serves: Ray started for it, the replica answering HTTP itself.
@@ -183,17 +185,8 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
     }
 
 
-def _normalized(points: np.ndarray) -> np.ndarray:
-    from links_ray.search.index import normalization
-
-    return normalization(points)[0]
-
-
 def _held_out_queries(count: int, seed: int) -> list[np.ndarray]:
     """Paths of fresh random mechanisms in random frames (not arcs, not circles)."""
-    from links_ray.engine.mechanism import analyze_topology, arc_joints
-    from links_ray.engine.paths import is_circle, normalize_path
-
     rng = np.random.default_rng(seed)
     queries = []
     while len(queries) < count:

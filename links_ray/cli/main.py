@@ -15,6 +15,7 @@ from typing import NoReturn
 
 from links_ray.cli import bench
 from links_ray.cli.demo import run_demo
+from links_ray.engine.inputs import DEFAULT_K, MAX_K
 
 
 def _report(args: argparse.Namespace, result: dict, formatted: Callable[[dict], str]) -> None:
@@ -45,12 +46,17 @@ def _generate(args: argparse.Namespace) -> None:
     print(json.dumps(summary, indent=2))
 
 
-def _bench_generate(args: argparse.Namespace) -> None:
-    from links_ray.cli import bench_services
+def _bench_service(args: argparse.Namespace, name: str, **options: int) -> None:
+    """Run `bench_services.bench_<name>` and report it with `format_<name>`."""
+    from links_ray.cli import bench_services  # imports Ray: only when asked for
 
     with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
-        result = bench_services.bench_generate(mechanisms=args.mechanisms)
-    _report(args, result, bench_services.format_generate)
+        result = getattr(bench_services, f"bench_{name}")(**options)
+    _report(args, result, getattr(bench_services, f"format_{name}"))
+
+
+def _bench_generate(args: argparse.Namespace) -> None:
+    _bench_service(args, "generate", mechanisms=args.mechanisms)
 
 
 def _curate(args: argparse.Namespace) -> None:
@@ -88,11 +94,7 @@ def _retrieve(args: argparse.Namespace) -> None:
 
 
 def _bench_retrieve(args: argparse.Namespace) -> None:
-    from links_ray.cli import bench_services
-
-    with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
-        result = bench_services.bench_retrieve(paths=args.paths)
-    _report(args, result, bench_services.format_retrieve)
+    _bench_service(args, "retrieve", paths=args.paths)
 
 
 def _demo(args: argparse.Namespace) -> None:
@@ -124,6 +126,23 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def _add_bench(
+    benches: argparse._SubParsersAction,
+    name: str,
+    summary: str,
+    run: Callable[[argparse.Namespace], None],
+    size: tuple[str, int, str],
+) -> None:
+    """`links bench NAME [--json] [SIZE N]`: every benchmark has one size option."""
+    bench_parser = benches.add_parser(name, help=summary)
+    bench_parser.add_argument("--json", action="store_true", help="print one JSON object")
+    option, default, meaning = size
+    bench_parser.add_argument(
+        option, type=_positive_int, default=default, help=f"{meaning} (default {default:,})"
+    )
+    bench_parser.set_defaults(run=run)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -198,37 +217,44 @@ def build_parser() -> argparse.ArgumentParser:
     retrieve.add_argument(
         "--points", required=True, help='JSON file: [[x, y], ...] or {"points": [...]}'
     )
-    retrieve.add_argument("-k", type=_positive_int, default=3, help="results (1-100, default 3)")
+    retrieve.add_argument(
+        "-k",
+        type=_positive_int,
+        default=DEFAULT_K,
+        help=f"results (1-{MAX_K}, default {DEFAULT_K})",
+    )
     retrieve.set_defaults(run=_retrieve)
 
     bench_parser = commands.add_parser("bench", help="benchmarks")
     benches = bench_parser.add_subparsers(dest="bench", required=True)
-    simulate = benches.add_parser(
-        "simulate", help="the paper's Table 1: 10,000 random mechanisms, 200 steps"
+    _add_bench(
+        benches,
+        "simulate",
+        "the paper's Table 1: 10,000 random mechanisms, 200 steps",
+        _bench_simulate,
+        ("--repeats", 5, "timed runs of each method"),
     )
-    simulate.add_argument("--json", action="store_true", help="print one JSON object")
-    simulate.add_argument("--repeats", type=_positive_int, default=5)
-    simulate.set_defaults(run=_bench_simulate)
-    sample = benches.add_parser(
-        "sample", help="position samplers: valid per core-second, candidates per valid"
+    _add_bench(
+        benches,
+        "sample",
+        "position samplers: valid per core-second, candidates per valid",
+        _bench_sample,
+        ("--topologies", 10, "topologies per joint count"),
     )
-    sample.add_argument("--json", action="store_true", help="print one JSON object")
-    sample.add_argument(
-        "--topologies", type=_positive_int, default=10, help="topologies per joint count"
+    _add_bench(
+        benches,
+        "generate",
+        "end-to-end generation on local Ray: valid mechanisms per core-second",
+        _bench_generate,
+        ("--mechanisms", 50_000, "mechanisms per run"),
     )
-    sample.set_defaults(run=_bench_sample)
-    generate_bench = benches.add_parser(
-        "generate", help="end-to-end generation on local Ray: valid mechanisms per core-second"
+    _add_bench(
+        benches,
+        "retrieve",
+        "retrieval latency and recall@3 on a cached curated dataset",
+        _bench_retrieve,
+        ("--paths", 1_000_000, "curated paths in the index"),
     )
-    generate_bench.add_argument("--json", action="store_true", help="print one JSON object")
-    generate_bench.add_argument("--mechanisms", type=_positive_int, default=50_000)
-    generate_bench.set_defaults(run=_bench_generate)
-    retrieve_bench = benches.add_parser(
-        "retrieve", help="retrieval latency and recall@3 on a cached curated dataset"
-    )
-    retrieve_bench.add_argument("--json", action="store_true", help="print one JSON object")
-    retrieve_bench.add_argument("--paths", type=_positive_int, default=1_000_000)
-    retrieve_bench.set_defaults(run=_bench_retrieve)
     return parser
 
 

@@ -21,7 +21,13 @@ from links_ray.cluster.connect import connect
 from links_ray.cluster.progress import Progress
 from links_ray.data.commit import ShardWriter, committed_shards, remove_uncommitted
 from links_ray.data.lease import Lease, LeaseLost, holder_still
-from links_ray.data.pathset import KEEP_SHARE, curated_mask, path_table
+from links_ray.data.pathset import (
+    KEEP_SHARE,
+    arc_circle_counts,
+    curated_mask,
+    path_shares,
+    path_table,
+)
 from links_ray.data.store import META, Store, StoreError, diagnose
 
 CURATION_FORMAT = 1
@@ -76,8 +82,6 @@ class ShardCurator:
         start = time.perf_counter()
         paths = path_table(self._read(mechanisms_file), self._read(simulations_file), n_joints)
         keep = curated_mask(paths, self.seed)
-        is_arc = paths.column("is_arc").to_numpy()
-        is_circle = paths.column("is_circle").to_numpy()
         writer = ShardWriter(self.store, shard_id, n_joints, stage="curation")
         try:
             for table, rows in (("paths", paths), ("curated", paths.filter(keep))):
@@ -85,9 +89,7 @@ class ShardCurator:
                     writer.write(table, batch)
             stats = {
                 "mechanisms": len(np.unique(paths.column("mechanism_id").to_numpy())),
-                "arcs": int(is_arc.sum()),
-                "circles": int(is_circle.sum()),
-                "both": int((is_arc & is_circle).sum()),
+                **arc_circle_counts(paths),
                 "seconds": time.perf_counter() - start,
             }
             if not holder_still(self.store, "writer", self.lease_token):
@@ -195,18 +197,12 @@ def summarize_curation(store: Store, seconds: float, curated_now: int) -> dict:
         for key in ("mechanisms", "arcs", "circles", "both"):
             totals[key] += marker["stats"][key]
         compute_s += marker["stats"]["seconds"]
-    paths = totals["paths"] or 1
     return {
         "out": store.uri,
         "shards": len(markers),
         "shards_this_run": curated_now,
         **totals,
-        "shares": {
-            "circle": totals["circles"] / paths,
-            "arc": totals["arcs"] / paths,
-            "arc_or_circle": (totals["arcs"] + totals["circles"] - totals["both"]) / paths,
-            "both": totals["both"] / paths,
-        },
+        "shares": path_shares(totals["paths"], totals["arcs"], totals["circles"], totals["both"]),
         "seconds": seconds,
         "mechanisms_per_core_second": totals["mechanisms"] / compute_s if compute_s else None,
     }

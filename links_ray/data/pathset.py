@@ -1,10 +1,11 @@
-"""From simulations to path rows (SPEC section 3), for one shard at a time.
+"""From simulations to path rows (docs/CONTRACT.md, Dataset layout), for one shard at a time.
 
 One path per moving joint (simple or actuated) of every mechanism, normalized; `is_arc` when
-the joint is linked to a fixed joint, `is_circle` when the variance of the normalized points'
-distances from (0.5, 0.5) is below 5e-4. Curation keeps every other path and 0.5% of the arcs
-and circles, by a seeded draw per path: the same seed keeps the same paths, wherever and
-however often it runs.
+the joint is linked to a fixed joint (the engine's `arc_flags`), `is_circle` when the variance
+of the normalized points' distances from (0.5, 0.5) is below 5e-4. Curation keeps every other
+path and 0.5% of the arcs and circles, by a seeded draw per path: the same seed keeps the same
+paths, wherever and however often it runs. `arc_circle_counts` and `path_shares` are the one
+count and share of arcs and circles, for the curation summary and `links stats` alike.
 
 ``path_id = 32 * mechanism_id + joint`` (mechanisms have at most 20 joints).
 
@@ -17,7 +18,7 @@ import numpy as np
 import pyarrow as pa
 
 from links_ray.data.schemas import SCHEMAS
-from links_ray.engine.mechanism import FIXED
+from links_ray.engine.mechanism import FIXED, arc_flags
 from links_ray.engine.paths import CIRCLE_VARIANCE_THRESHOLD, circle_variances, normalize_paths
 
 JOINT_BITS = 5
@@ -64,9 +65,8 @@ def path_table(mechanisms: pa.Table, simulations: pa.Table, n_joints: int) -> pa
     trajectories = _list_values(simulations.column("trajectories"), n * steps * 2)
     trajectories = trajectories.reshape(-1, n, steps, 2)
 
-    moving = node_types != FIXED
-    on_ground = np.einsum("bij,bj->bi", adjacency.astype(np.int32), (~moving).astype(np.int32)) > 0
-    rows, joints = np.nonzero(moving)
+    is_arc = arc_flags(adjacency, node_types)
+    rows, joints = np.nonzero(node_types != FIXED)
     points = normalize_paths(trajectories[rows, joints]).astype(np.float32)
     # Classified from the points as stored, so a reader recomputing it gets the same answer.
     variance = circle_variances(points)
@@ -79,7 +79,7 @@ def path_table(mechanisms: pa.Table, simulations: pa.Table, n_joints: int) -> pa
                 pa.array(np.arange(0, (len(rows) + 1) * steps * 2, steps * 2, dtype=np.int32)),
                 pa.array(points.ravel(), type=pa.float32()),
             ),
-            "is_arc": on_ground[rows, joints],
+            "is_arc": is_arc[rows, joints],
             "is_circle": variance < CIRCLE_VARIANCE_THRESHOLD,
             "circle_variance": variance.astype(np.float32),
         },
@@ -92,3 +92,26 @@ def curated_mask(paths: pa.Table, seed: int) -> np.ndarray:
     common = paths.column("is_arc").to_numpy() | paths.column("is_circle").to_numpy()
     lucky = keep_draw(paths.column("path_id").to_numpy(), seed) < KEEP_SHARE
     return ~common | lucky
+
+
+def arc_circle_counts(paths: pa.Table) -> dict[str, int]:
+    """How many of `paths` are arcs, circles, and both."""
+    is_arc = paths.column("is_arc").to_numpy(zero_copy_only=False)
+    is_circle = paths.column("is_circle").to_numpy(zero_copy_only=False)
+    return {
+        "arcs": int(is_arc.sum()),
+        "circles": int(is_circle.sum()),
+        "both": int((is_arc & is_circle).sum()),
+    }
+
+
+def path_shares(paths: int, arcs: int, circles: int, both: int) -> dict[str, float]:
+    """The shares of `paths` paths that are circles, arcs, either and both (0 with no paths),
+    from the counts of `arc_circle_counts`."""
+    total = paths or 1
+    return {
+        "circle": circles / total,
+        "arc": arcs / total,
+        "arc_or_circle": (arcs + circles - both) / total,
+        "both": both / total,
+    }

@@ -23,9 +23,10 @@ import pyarrow as pa
 from links_ray.data.commit import Failpoint, ShardWriter
 from links_ray.data.schemas import GENERATION_TABLES, SCHEMAS
 from links_ray.data.store import Store
+from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
 from links_ray.engine.sampling import SAMPLERS, PositionSampler, PositionSearchError
-from links_ray.engine.solver import DEFAULT_STEPS, TopologySimulator
+from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.topology import grow_topology
 
 VARIANTS = 5

@@ -13,6 +13,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from links_ray.data.dataset import open_table
+from links_ray.data.pathset import arc_circle_counts, path_shares
 from links_ray.data.schemas import CURATION_TABLES, TABLE_NAMES
 from links_ray.data.store import META, Store
 from links_ray.engine.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
@@ -46,17 +47,12 @@ def _counts(rows: pa.Table | None) -> dict | None:
 def _shares(flags: pa.Table | None) -> dict | None:
     if flags is None:
         return None
-    arc = flags.column("is_arc").to_numpy(zero_copy_only=False)
-    circle = flags.column("is_circle").to_numpy(zero_copy_only=False)
-    total = max(len(arc), 1)
-    return {
-        "paths": len(arc),
-        "circle": float(circle.sum() / total),
-        "arc": float(arc.sum() / total),
-        "arc_or_circle": float((arc | circle).sum() / total),
-        "both": float((arc & circle).sum() / total),
-        "arc_not_circle": float((arc & ~circle).sum() / total),
-    }
+    counts = arc_circle_counts(flags)
+    shares = path_shares(len(flags), **counts)
+    # The arc share of only the arcs that are not circles too: the paper's arc share (its
+    # circle and arc shares add up to its arc-or-circle share).
+    arc_not_circle = path_shares(len(flags), counts["arcs"] - counts["both"], 0, 0)["arc"]
+    return {"paths": len(flags), **shares, "arc_not_circle": arc_not_circle}
 
 
 def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:

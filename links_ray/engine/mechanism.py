@@ -1,9 +1,10 @@
-"""Mechanism model: input validation and the dyadic solution path.
+"""Mechanism model: the crank and ground rules, the dyadic solution path, the dataset rules.
 
-A mechanism is a graph (SPEC section 1): joints are nodes, links are edges. Joint 0 is fixed,
-joint 1 is the only actuated joint, and link (0, 1) is the crank. A simple joint is solved once
-exactly two of its neighbours are known; the order in which joints get solved is the solution
-path, found once per topology and reused for every position set.
+A mechanism is a graph (docs/CONTRACT.md, Mechanisms): joints are nodes, links are edges.
+Joint 0 is fixed, joint 1 is the only actuated joint, and link (0, 1) is the crank. A simple
+joint is solved once exactly two of its neighbours are known; the order in which joints get
+solved is the solution path, found once per topology and reused for every position set. The
+checks of the input's form (shapes, types, limits) are in `links_ray.engine.inputs`.
 
 Pure numpy: no numba, no Ray.
 """
@@ -17,16 +18,18 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike
 
-FIXED, SIMPLE, ACTUATED = 0, 1, 2
+from links_ray.engine.inputs import (
+    ACTUATED,
+    FIXED,
+    SIMPLE,
+    InvalidMechanismError,
+    as_graph,
+    as_positions,
+)
+
 CRANK_CENTER = (0.5, 0.5)
 CRANK_TIP = (0.55, 0.5)
 MIN_DATASET_JOINTS, MAX_DATASET_JOINTS = 8, 20
-#: Larger graphs are refused: the solution search is quadratic and nobody draws such linkages.
-MAX_JOINTS = 1000
-
-
-class InvalidMechanismError(ValueError):
-    """The input is not a simulable one-degree-of-freedom dyadic mechanism."""
 
 
 class LockingError(ValueError):
@@ -77,56 +80,6 @@ class Topology:
         return np.array(sorted(needed), dtype=np.int64)
 
 
-def _as_int_array(name: str, value: ArrayLike, ndim: int) -> np.ndarray:
-    try:
-        array = np.asarray(value)
-    except (TypeError, ValueError) as exc:  # ragged nested lists
-        raise InvalidMechanismError(f"{name} is not a rectangular array: {exc}") from None
-    if array.ndim != ndim:
-        raise InvalidMechanismError(f"{name} must be {ndim}-D, got shape {array.shape}")
-    if array.dtype == bool:
-        return array.astype(np.int64)
-    if not (np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)):
-        raise InvalidMechanismError(f"{name} must be numeric, got dtype {array.dtype}")
-    if np.issubdtype(array.dtype, np.floating):
-        if not np.all(np.isfinite(array)):
-            raise InvalidMechanismError(f"{name} has NaN or infinite entries")
-        if np.any(array != np.round(array)):
-            raise InvalidMechanismError(f"{name} must hold whole numbers")
-    return array.astype(np.int64)
-
-
-def as_positions(positions: ArrayLike, n_joints: int, *, batch: bool = False) -> np.ndarray:
-    """`positions` as a C-contiguous float64 array of shape (n, 2), or (B, n, 2) with `batch`."""
-    shape = "(B, n, 2)" if batch else "(n, 2)"
-    try:
-        array = np.asarray(positions)
-    except (TypeError, ValueError) as exc:
-        raise InvalidMechanismError(f"positions is not a rectangular array: {exc}") from None
-    if array.dtype == bool or not (
-        np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)
-    ):
-        raise InvalidMechanismError(f"positions must be numeric, got dtype {array.dtype}")
-    expected_ndim = 3 if batch else 2
-    if array.ndim != expected_ndim or array.shape[-2:] != (n_joints, 2):
-        raise InvalidMechanismError(
-            f"positions must have shape {shape} with n = {n_joints}, got {array.shape}"
-        )
-    array = np.ascontiguousarray(array, dtype=np.float64)
-    if not np.all(np.isfinite(array)):
-        raise InvalidMechanismError("positions has NaN or infinite entries")
-    return array
-
-
-def as_steps(steps: object) -> int:
-    """Validate a step count: an integer from 1 to 100,000."""
-    if isinstance(steps, bool) or not isinstance(steps, int | np.integer):
-        raise InvalidMechanismError(f"steps must be an integer, got {steps!r}")
-    if not 1 <= steps <= 100_000:
-        raise InvalidMechanismError(f"steps must be between 1 and 100000, got {steps}")
-    return int(steps)
-
-
 def mobility(adjacency: ArrayLike, node_types: ArrayLike) -> tuple[int, int, int]:
     """(moving joints, links, degrees of freedom = 2 x moving - links) of a mechanism graph."""
     moving = int(np.count_nonzero(np.asarray(node_types) != FIXED))
@@ -139,40 +92,7 @@ def analyze_topology(adjacency: ArrayLike, node_types: ArrayLike) -> Topology:
 
     Raises `InvalidMechanismError` naming the first problem found.
     """
-    adj = _as_int_array("adjacency", adjacency, 2)
-    types = _as_int_array("node_types", node_types, 1)
-    n = adj.shape[0]
-    if adj.shape != (n, n):
-        raise InvalidMechanismError(f"adjacency must be square, got shape {adj.shape}")
-    if n < 2:
-        raise InvalidMechanismError(f"a mechanism needs at least 2 joints (the crank), got {n}")
-    if n > MAX_JOINTS:
-        raise InvalidMechanismError(f"at most {MAX_JOINTS} joints are supported, got {n}")
-    if types.shape != (n,):
-        raise InvalidMechanismError(
-            f"node_types must have one entry per joint ({n}), got {types.shape[0]}"
-        )
-    bad = np.argwhere((adj != 0) & (adj != 1))
-    if len(bad):
-        i, j = bad[0]
-        raise InvalidMechanismError(
-            f"adjacency entries must be 0 or 1, got {adj[i, j]} at ({i}, {j})"
-        )
-    if np.any(np.diag(adj)):
-        i = int(np.flatnonzero(np.diag(adj))[0])
-        raise InvalidMechanismError(f"self-link: adjacency[{i}, {i}] must be 0")
-    asym = np.argwhere(adj != adj.T)
-    if len(asym):
-        i, j = asym[0]
-        raise InvalidMechanismError(
-            f"adjacency is not symmetric: [{i}, {j}] = {adj[i, j]} but [{j}, {i}] = {adj[j, i]}"
-        )
-    bad_types = np.flatnonzero((types < FIXED) | (types > ACTUATED))
-    if len(bad_types):
-        i = int(bad_types[0])
-        raise InvalidMechanismError(
-            f"node_types must be 0 (fixed), 1 (simple) or 2 (actuated); joint {i} is {types[i]}"
-        )
+    adj, types = as_graph(adjacency, node_types)
     if types[0] != FIXED:
         raise InvalidMechanismError(
             f"wrong crank joints: joint 0 must be fixed (0), got {types[0]}"
@@ -255,27 +175,6 @@ def _solution_path(adj: np.ndarray, types: np.ndarray) -> np.ndarray:
     return np.array(order, dtype=np.int64).reshape(-1, 3)
 
 
-#: Coordinates and link lengths the solver handles without its squares overflowing.
-MAX_COORDINATE = 1e12
-MIN_LINK_LENGTH = 1e-9
-
-
-def check_positions(topology: Topology, positions: np.ndarray) -> None:
-    """Refuse degenerate geometry (batch-aware): coordinates beyond +-1e12, and linked joints
-    closer than 1e-9, the crank included."""
-    if np.any(np.abs(positions) > MAX_COORDINATE):
-        raise InvalidMechanismError(f"positions must lie within +-{MAX_COORDINATE:g}")
-    i, j = np.nonzero(np.triu(topology.adjacency, 1))
-    lengths = np.linalg.norm(positions[..., i, :] - positions[..., j, :], axis=-1)
-    short = lengths < MIN_LINK_LENGTH
-    if np.any(short):
-        k = int(np.flatnonzero(short.reshape(-1, len(i)).any(axis=0))[0])
-        what = "the crank has zero length" if (i[k], j[k]) == (0, 1) else "a link has zero length"
-        raise InvalidMechanismError(
-            f"{what}: joints {i[k]} and {j[k]} are closer than {MIN_LINK_LENGTH:g}"
-        )
-
-
 def structure_violations(topology: Topology) -> list[str]:
     """The topology rules of the dataset this topology breaks: reducibility and the last joint."""
     problems = []
@@ -290,9 +189,10 @@ def structure_violations(topology: Topology) -> list[str]:
 def dataset_rule_violations(
     topology: Topology, positions: np.ndarray | None = None, *, atol: float = 1e-12
 ) -> list[str]:
-    """The SPEC section 1 dataset rules this mechanism breaks (empty when it obeys them all).
+    """The dataset rules this mechanism breaks (empty when it obeys them all).
 
-    Locking is not checked here; simulate for that.
+    The rules are those of docs/CONTRACT.md, Mechanisms. Locking is not checked here; simulate
+    for that.
     """
     problems = structure_violations(topology)
     n = topology.n_joints
@@ -335,7 +235,17 @@ def reduce_mechanism(
     )
 
 
+def arc_flags(adjacency: np.ndarray, node_types: np.ndarray) -> np.ndarray:
+    """Which joints trace arcs: the moving joints linked to a fixed joint (they turn about it).
+
+    adjacency (..., n, n) and node_types (..., n) -> (..., n) bool; a batch of mechanisms of
+    one size works as one mechanism does. docs/CONTRACT.md, Dataset layout, `is_arc`.
+    """
+    fixed = np.asarray(node_types) == FIXED
+    on_ground = ((np.asarray(adjacency) != 0) & fixed[..., None, :]).any(axis=-1)
+    return on_ground & ~fixed
+
+
 def arc_joints(topology: Topology) -> np.ndarray:
-    """(n,) bool: moving joints linked to a fixed joint, whose paths are arcs (SPEC section 3)."""
-    on_ground = topology.adjacency[:, topology.node_types == FIXED].any(axis=1)
-    return on_ground & (topology.node_types != FIXED)
+    """(n,) bool: `arc_flags` of a validated topology."""
+    return arc_flags(topology.adjacency, topology.node_types)

@@ -18,6 +18,7 @@ __all__ = [
     "circle_variances",
     "is_circle",
     "longest_chord",
+    "normalization",
     "normalize_path",
     "normalize_paths",
 ]
@@ -350,6 +351,27 @@ def longest_chord(points: object) -> tuple[int, int]:
     return i, j
 
 
+def normalization(points: object) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`normalize_path` and the similarity that does it: (normalized, matrix, offset).
+
+    `points @ matrix.T + offset` equals `normalized` up to rounding; `normalized` is exactly
+    `normalize_path(points)`. The map turns, scales and moves, never mirrors, so a mechanism
+    mapped by it traces the mapped path. Raises ValueError as `normalize_path` does.
+    """
+    pts = _as_points(points, "points", 2)
+    scaled, i, j = _chord(pts)
+    normalized = np.empty_like(scaled)
+    _place(scaled, i, j, normalized)
+    # The kernel worked on the points times 2**-e (as _prescale_into scaled them), so the
+    # matrix takes that power of two in; multiplying by it rounds nothing.
+    power = math.ldexp(1.0, -math.frexp(float(np.abs(pts).max()))[1])
+    vx, vy = scaled[j] - scaled[i]
+    matrix = np.array([[vx, vy], [-vy, vx]]) * (power / (vx * vx + vy * vy))
+    # _place sends points[i] to the box shift itself, so normalized[i] is the offset there.
+    offset = normalized[i] - pts[i] @ matrix.T
+    return normalized, matrix, offset
+
+
 def normalize_path(points: object) -> np.ndarray:
     """Normalize a path: longest chord horizontal with length 1, bounding box centred at 0.5.
 
@@ -357,10 +379,7 @@ def normalize_path(points: object) -> np.ndarray:
     lowest index pair is used. Returns float64 (T, 2) in the input point order. Raises
     ValueError for input that is not T >= 2 finite points with some extent.
     """
-    scaled, i, j = _chord(points)
-    out = np.empty_like(scaled)
-    _place(scaled, i, j, out)
-    return out
+    return normalization(points)[0]
 
 
 def normalize_paths(paths: object) -> np.ndarray:

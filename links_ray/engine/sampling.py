@@ -26,10 +26,10 @@ from typing import Literal
 import numpy as np
 from numba import njit
 
+from links_ray.engine.inputs import DEFAULT_STEPS, as_int
 from links_ray.engine.mechanism import CRANK_CENTER, CRANK_TIP, Topology
 from links_ray.engine.solver import (
     CHECK_BLOCK,
-    DEFAULT_STEPS,
     TopologySimulator,
     dyad_fails,
     dyad_geometry,
@@ -210,8 +210,7 @@ class PositionSampler:
         """Find `count` valid position sets, keeping up to `max_negatives` locking candidates."""
         if sampler not in SAMPLERS:
             raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)}, got {sampler!r}")
-        if isinstance(count, bool) or not isinstance(count, int | np.integer) or count < 1:
-            raise ValueError(f"count must be a positive integer, got {count!r}")
+        count = as_int("count", count, 1)
         topology = self.topology
         n, steps = topology.n_joints, self.steps
         positions = np.empty((count, n, 2))

@@ -1,4 +1,4 @@
-"""The compiled dyadic solver (SPEC section 1).
+"""The compiled dyadic solver (docs/CONTRACT.md, Simulation).
 
 One numba kernel serves every topology: the topology enters as data (its solution path), so
 nothing is compiled per topology. A candidate is simulated step by step and stops at its first
@@ -13,16 +13,9 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
-from links_ray.engine.mechanism import (
-    LockingError,
-    Topology,
-    analyze_topology,
-    as_positions,
-    as_steps,
-    check_positions,
-)
+from links_ray.engine.inputs import DEFAULT_STEPS, as_positions, as_steps, check_positions
+from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 
-DEFAULT_STEPS = 200
 #: Steps solved together per joint when trajectories are kept (see `simulate_one`).
 BLOCK = 16
 #: Steps per block of a lock check: small, so a rejected candidate costs little past its lock.
@@ -230,7 +223,7 @@ class TopologySimulator:
     def _prepare(self, positions: ArrayLike, steps: int) -> tuple[np.ndarray, int]:
         steps = as_steps(steps)
         positions = as_positions(positions, self.n_joints, batch=True)
-        check_positions(self.topology, positions)
+        check_positions(self.topology.adjacency, positions)
         return positions, steps
 
     def simulate(

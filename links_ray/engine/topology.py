@@ -20,11 +20,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from links_ray.engine.inputs import MAX_JOINTS, as_int
 from links_ray.engine.mechanism import (
     ACTUATED,
     FIXED,
     MAX_DATASET_JOINTS,
-    MAX_JOINTS,
     MIN_DATASET_JOINTS,
     SIMPLE,
     Topology,
@@ -128,12 +128,6 @@ def random_topology(
     if n_joints is None:
         n = int(rng.integers(MIN_DATASET_JOINTS, MAX_DATASET_JOINTS + 1))
     else:
-        if isinstance(n_joints, bool) or not isinstance(n_joints, int | np.integer):
-            raise ValueError(f"n_joints must be an integer, got {n_joints!r}")
-        if not MIN_TOPOLOGY_JOINTS <= n_joints <= MAX_JOINTS:
-            raise ValueError(
-                f"n_joints must be between {MIN_TOPOLOGY_JOINTS} and {MAX_JOINTS}, got {n_joints}"
-            )
-        n = int(n_joints)
+        n = as_int("n_joints", n_joints, MIN_TOPOLOGY_JOINTS, MAX_JOINTS)
     topology = grow_topology(rng, n)
     return topology.adjacency, topology.node_types

@@ -47,8 +47,9 @@ from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
 from links_ray.data.lease import Lease
 from links_ray.data.store import META, Store, StoreError
+from links_ray.engine.inputs import DEFAULT_K, validate_query
 from links_ray.engine.mechanism import reduce_mechanism
-from links_ray.engine.paths import chamfer_to_many, longest_chord
+from links_ray.engine.paths import chamfer_to_many, normalization
 from links_ray.engine.solver import simulate
 from links_ray.search import kernels
 
@@ -76,43 +77,11 @@ FINALISTS = 48
 FIELD_STRIDE = 2
 #: Distance fields used to fit the PCA basis, and rows featurized per block while building.
 PCA_SAMPLE, BUILD_BLOCK = 50_000, 50_000
-MIN_POINTS, MAX_POINTS = 3, 10_000
-MAX_K = 100
-#: Query coordinates and extent the normalization handles without overflow.
-MAX_COORDINATE, MIN_EXTENT = 1e12, 1e-9
 INDEX_FILE = f"{META}/index.npz"
 #: How far a lower bound may exceed the exact distance it bounds by rounding (they are
 #: computed differently).
 ROUNDING = 1e-9
 INDEX_FORMAT = 3
-
-
-def validate_query(points: object, k: object = 3) -> tuple[np.ndarray, int]:
-    """The query as a float64 (T, 2) array and k, or ValueError naming the problem."""
-    if isinstance(k, bool) or not isinstance(k, int | np.integer):
-        raise ValueError(f"k must be an integer from 1 to {MAX_K}, got {k!r}")
-    if not 1 <= k <= MAX_K:
-        raise ValueError(f"k must be from 1 to {MAX_K}, got {k}")
-    try:
-        array = np.asarray(points)
-    except (TypeError, ValueError):
-        raise ValueError("points must be a list of [x, y] number pairs") from None
-    if array.dtype.kind not in "iuf":
-        raise ValueError("points must be a list of [x, y] number pairs")
-    array = array.astype(np.float64)
-    if array.ndim != 2 or array.shape[1] != 2:
-        raise ValueError(f"points must be [x, y] pairs, got an array of shape {array.shape}")
-    if not MIN_POINTS <= len(array) <= MAX_POINTS:
-        raise ValueError(f"points must hold {MIN_POINTS} to {MAX_POINTS} pairs, got {len(array)}")
-    if not np.all(np.isfinite(array)):
-        raise ValueError("points must be finite numbers")
-    if np.any(np.abs(array) > MAX_COORDINATE):
-        raise ValueError(f"points must lie within +-{MAX_COORDINATE:g}")
-    if np.all(array == array[0]):
-        raise ValueError("points are all the same point: there is no curve")
-    if np.ptp(array, axis=0).max() < MIN_EXTENT:
-        raise ValueError(f"points span less than {MIN_EXTENT:g}: there is no curve to match")
-    return array, int(k)
 
 
 def read_points(path: str) -> np.ndarray:
@@ -122,16 +91,6 @@ def read_points(path: str) -> np.ndarray:
     except (OSError, json.JSONDecodeError) as exc:
         raise ValueError(f"cannot read points from {path}: {exc}") from None
     return data["points"] if isinstance(data, dict) and "points" in data else data
-
-
-def normalization(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`normalize_path` with its map: (normalized, matrix, offset), normalized = p @ M.T + b."""
-    i, j = longest_chord(points)
-    vx, vy = points[j] - points[i]
-    matrix = np.array([[vx, vy], [-vy, vx]]) / (vx * vx + vy * vy)
-    turned = (points - points[i]) @ matrix.T
-    offset = 0.5 - (turned.min(axis=0) + turned.max(axis=0)) / 2 - points[i] @ matrix.T
-    return points @ matrix.T + offset, matrix, offset
 
 
 def variant_map(variant: int) -> tuple[np.ndarray, np.ndarray]:
@@ -345,7 +304,7 @@ class RetrievalIndex:
         return wide[best], likely[best]
 
     def ranked(
-        self, normalized: np.ndarray, k: int = 3, candidates: int | None = None
+        self, normalized: np.ndarray, k: int = DEFAULT_K, candidates: int | None = None
     ) -> list[tuple[int, float, int]]:
         """The k best (row, chamfer, variant), best first, for a normalized query; the scan
         passes on `candidates` paths (by default `CANDIDATE_SHARE` of them)."""
@@ -431,8 +390,9 @@ class RetrievalIndex:
             answered += 1
         return answered
 
-    def retrieve(self, points: object, k: int = 3) -> list[dict]:
-        """SPEC section 5 results for a query: best first, mechanisms in the query's frame."""
+    def retrieve(self, points: object, k: int = DEFAULT_K) -> list[dict]:
+        """The k best results for a query, best first, each with its mechanism in the query's
+        frame (docs/CONTRACT.md, HTTP API, describes a result)."""
         query, k = validate_query(points, k)
         normalized, query_matrix, query_offset = normalization(query)
         ranked = self.ranked(normalized, k)
@@ -501,7 +461,7 @@ class RetrievalIndex:
         kernels.rough_chamfer(sample, levels, self.sketches, rows, variants, out)
         return out
 
-    def brute_force(self, points: ArrayLike, k: int = 3) -> list[tuple[int, float, int]]:
+    def brute_force(self, points: ArrayLike, k: int = DEFAULT_K) -> list[tuple[int, float, int]]:
         """Exact k best (row, chamfer, variant) over every path and variant, best first.
 
         The exact distances of `ranked`'s answer bound the k-th best from above; a path whose

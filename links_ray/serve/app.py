@@ -1,4 +1,4 @@
-"""The Ray Serve application behind `links serve`: the HTTP API of SPEC section 5.
+"""The Ray Serve application behind `links serve`: the HTTP API of docs/CONTRACT.md.
 
 | route | answers |
 |---|---|
@@ -10,10 +10,13 @@
 | `GET /studio/<file>` | the studio's scripts and style sheet, from the package |
 
 Every bad request gets a 4xx with a JSON `{"error": "<what is wrong>"}`: 400 for malformed
-input, 404/405 for unknown routes and methods, 413 for a body over `MAX_BODY_BYTES` or a
-simulation over `MAX_JOINT_STEPS`, 415 for a body that is declared as something other than
-JSON. Anything unexpected is logged by exception type and location only (never a request
-body) and answered 500 `{"error": "internal error"}`; the replica keeps serving.
+input, 404/405 for unknown routes and methods, 413 for a body over `MAX_BODY_BYTES`, a
+mechanism over `MAX_REQUEST_JOINTS` or a simulation over `MAX_REQUEST_JOINT_STEPS`, 415 for a
+body that is declared as something other than JSON. The limits and the checks of the values
+are the engine's (`links_ray.engine.inputs`, whose ValueErrors become 400s); this module checks
+only what JSON alone can get wrong (types, booleans for numbers, array lengths) first. Anything
+unexpected is logged by exception type and location only (never a request body) and answered
+500 `{"error": "internal error"}`; the replica keeps serving.
 
 Each replica opens the retrieval index once, in its constructor. Retrievals run one at a time
 per replica (the index's compiled kernels are parallel, and the JIT's workqueue threading layer,
@@ -37,6 +40,7 @@ import os
 import socket
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -51,6 +55,15 @@ from starlette.requests import ClientDisconnect
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from links_ray.data.dataset import open_table
+from links_ray.engine.inputs import (
+    DEFAULT_K,
+    DEFAULT_STEPS,
+    MAX_BODY_BYTES,
+    MAX_REQUEST_JOINT_STEPS,
+    MAX_REQUEST_JOINTS,
+    as_steps,
+    validate_query,
+)
 from links_ray.engine.mechanism import (
     InvalidMechanismError,
     LockingError,
@@ -59,26 +72,9 @@ from links_ray.engine.mechanism import (
     mobility,
 )
 from links_ray.engine.solver import simulate, simulate_until_lock
-from links_ray.search.index import (
-    MAX_COORDINATE,
-    MAX_K,
-    MAX_POINTS,
-    MIN_EXTENT,
-    MIN_POINTS,
-    RetrievalIndex,
-)
+from links_ray.search.index import RetrievalIndex
 
 logger = logging.getLogger("ray.serve")
-
-#: Largest request body accepted, in bytes (10,000 points take about 0.5 MB).
-MAX_BODY_BYTES = 2 * 1024 * 1024
-#: Largest mechanism /api/simulate takes, in joints.
-MAX_JOINTS = 100
-#: Largest simulation /api/simulate runs: joints x steps (the answer holds twice as many numbers).
-MAX_JOINT_STEPS = 100_000
-DEFAULT_STEPS = 200
-MAX_STEPS = 100_000
-DEFAULT_K = 3
 
 #: The studio's files (plain HTML, CSS and JavaScript modules; no build step) and their types.
 STUDIO_MEDIA_TYPES = {
@@ -312,15 +308,23 @@ def _required(body: dict[str, Any], name: str) -> Any:
     return body[name]
 
 
-def _integer(body: dict[str, Any], name: str, default: int, low: int, high: int) -> int:
-    """An optional integer field (absent or null: `default`) within [low, high]."""
-    value = body.get(name)
-    if value is None:
-        return default
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ApiError(400, f"{name} must be an integer from {low} to {high}, got {_kind(value)}")
-    if not low <= value <= high:
-        raise ApiError(400, f"{name} must be from {low} to {high}, got {value}")
+def _checked(check: Callable[..., Any], *args: Any) -> Any:
+    """`check(*args)`, an engine validator, with its ValueError answered 400."""
+    try:
+        return check(*args)
+    except ValueError as exc:
+        raise ApiError(400, str(exc)) from None
+
+
+def _numbers(name: str, value: object, count: int, entries: str) -> list:
+    """`value` as an array of `count` JSON numbers (not booleans); `entries` says which."""
+    if not isinstance(value, list):
+        raise ApiError(400, f"{name} must be an array of {count} numbers, got {_kind(value)}")
+    if len(value) != count:
+        raise ApiError(400, f"{name} must hold {count} entries (one per joint), got {len(value)}")
+    for i, entry in enumerate(value):
+        if not _is_number(entry):
+            raise ApiError(400, f"{name}[{i}] must be {entries}, got {_kind(entry)}")
     return value
 
 
@@ -346,20 +350,9 @@ def _pairs(name: str, value: object, count: int | None = None) -> list[list[floa
 
 def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int]:
     """The query points (T, 2) and k of a /api/retrieve body, or ApiError naming the problem."""
-    points = _required(body, "points")
-    if isinstance(points, list) and not MIN_POINTS <= len(points) <= MAX_POINTS:
-        raise ApiError(
-            400, f"points must hold {MIN_POINTS} to {MAX_POINTS} [x, y] pairs, got {len(points)}"
-        )
-    array = np.array(_pairs("points", points), dtype=np.float64)
-    if np.abs(array).max() > MAX_COORDINATE:
-        raise ApiError(400, f"points must lie within +-{MAX_COORDINATE:g}")
-    extent = array.max(axis=0) - array.min(axis=0)
-    if not extent.any():
-        raise ApiError(400, "points are all the same point: there is no curve")
-    if extent.max() < MIN_EXTENT:
-        raise ApiError(400, f"points span less than {MIN_EXTENT:g}: too small to be a curve")
-    return array, _integer(body, "k", DEFAULT_K, 1, MAX_K)
+    points = _pairs("points", _required(body, "points"))
+    k = body.get("k")
+    return _checked(validate_query, points, DEFAULT_K if k is None else k)
 
 
 def topology_args(body: dict[str, Any]) -> tuple[list, list]:
@@ -367,29 +360,14 @@ def topology_args(body: dict[str, Any]) -> tuple[list, list]:
     adjacency = _required(body, "adjacency")
     node_types = _required(body, "node_types")
     if not isinstance(adjacency, list) or not adjacency:
-        raise ApiError(400, f"adjacency must be an n x n array of 0/1, got {_kind(adjacency)}")
+        got = "an empty array" if adjacency == [] else _kind(adjacency)
+        raise ApiError(400, f"adjacency must be an n x n array of 0/1, got {got}")
     n = len(adjacency)
-    if n > MAX_JOINTS:
-        raise ApiError(413, f"at most {MAX_JOINTS} joints per simulation, got {n}")
+    if n > MAX_REQUEST_JOINTS:
+        raise ApiError(413, f"at most {MAX_REQUEST_JOINTS} joints per request, got {n}")
     for i, row in enumerate(adjacency):
-        if not isinstance(row, list):
-            raise ApiError(400, f"adjacency[{i}] must be an array, got {_kind(row)}")
-        if len(row) != n:
-            raise ApiError(
-                400, f"adjacency must be square: row {i} has {len(row)} entries, expected {n}"
-            )
-        for j, entry in enumerate(row):
-            if not _is_number(entry):
-                raise ApiError(400, f"adjacency[{i}][{j}] must be 0 or 1, got {_kind(entry)}")
-    if not isinstance(node_types, list):
-        raise ApiError(400, f"node_types must be an array of n integers, got {_kind(node_types)}")
-    if len(node_types) != n:
-        raise ApiError(
-            400, f"node_types must hold one entry per joint ({n}), got {len(node_types)}"
-        )
-    for i, entry in enumerate(node_types):
-        if not _is_number(entry):
-            raise ApiError(400, f"node_types[{i}] must be 0, 1 or 2, got {_kind(entry)}")
+        _numbers(f"adjacency[{i}]", row, n, "0 or 1")
+    _numbers("node_types", node_types, n, "0, 1 or 2")
     return adjacency, node_types
 
 
@@ -402,12 +380,13 @@ def simulate_args(body: dict[str, Any]) -> tuple[list, list, list, int]:
     adjacency, node_types = topology_args(body)
     n = len(adjacency)
     positions = _pairs("positions", _required(body, "positions"), count=n)
-    steps = _integer(body, "steps", DEFAULT_STEPS, 1, MAX_STEPS)
-    if n * steps > MAX_JOINT_STEPS:
+    steps = body.get("steps")
+    steps = DEFAULT_STEPS if steps is None else _checked(as_steps, steps)
+    if n * steps > MAX_REQUEST_JOINT_STEPS:
         raise ApiError(
             413,
             f"simulation too large: {n} joints x {steps} steps = {n * steps}, "
-            f"the limit is {MAX_JOINT_STEPS} joint-steps",
+            f"the limit is {MAX_REQUEST_JOINT_STEPS} joint-steps",
         )
     return adjacency, node_types, positions, steps
 
@@ -419,9 +398,10 @@ def analyze_mechanism(
 
     Always: `joints`, `moving`, `links`, `dof` (2 x moving - links), `solvable` (dyadic),
     `problem` (the engine's message, or None), `order` (the solution path as [joint, a, b]
-    rows) and `dataset_rules` (the SPEC section 1 rules it breaks). With positions and a
-    solvable topology also `lock` (None, or `step`, `node` and `angle`, the crank's turn in
-    degrees) and, when it locks, `trajectories` [n][step][2] of the steps before the lock.
+    rows) and `dataset_rules` (the dataset rules it breaks: docs/CONTRACT.md, Mechanisms).
+    With positions and a solvable topology also `lock` (None, or `step`, `node` and `angle`,
+    the crank's turn in degrees) and, when it locks, `trajectories` [n][step][2] of the steps
+    before the lock.
     Raises InvalidMechanismError for degenerate positions, as /api/simulate does.
     """
     moving, links, dof = mobility(adjacency, node_types)

@@ -1,5 +1,5 @@
-// Talking to the links-ray HTTP API (SPEC section 5). Every failure becomes a sentence the page
-// can show: the server's own `error` message when it sent one.
+// Talking to the links-ray HTTP API (docs/CONTRACT.md, HTTP API). Every failure becomes a
+// sentence the page can show: the server's own `error` message when it sent one.
 
 /** POST a JSON body; resolves to {status, data, ms} for any HTTP answer, rejects on no answer. */
 export async function postJson(path, body) {

@@ -1,12 +1,12 @@
-// The mechanism model of SPEC section 1 (adjacency, node_types, positions) and the edits the
-// editor makes to it. Edits return a new mechanism and never change their input, so the undo
-// history can keep plain snapshots.
+// The mechanism model of docs/CONTRACT.md, Mechanisms (adjacency, node_types, positions) and the
+// edits the editor makes to it. Edits return a new mechanism and never change their input, so
+// the undo history can keep plain snapshots.
 
 export const FIXED = 0;
 export const SIMPLE = 1;
 export const ACTUATED = 2;
-/** The most joints /api/simulate takes. */
-export const MAX_JOINTS = 100;
+/** The most joints one request to the HTTP API may carry (links_ray/engine/inputs.py). */
+export const MAX_REQUEST_JOINTS = 100;
 
 /** The crank (joint 0 fixed at the dataset's pivot, joint 1 its tip) and one ground joint. */
 export function starter() {
@@ -53,8 +53,8 @@ export function topologyKey(mech) {
 }
 
 function checkRoom(mech) {
-  if (jointCount(mech) >= MAX_JOINTS) {
-    throw new Error(`a mechanism can have at most ${MAX_JOINTS} joints`);
+  if (jointCount(mech) >= MAX_REQUEST_JOINTS) {
+    throw new Error(`a mechanism can have at most ${MAX_REQUEST_JOINTS} joints`);
   }
 }
 
@@ -122,9 +122,9 @@ function isFiniteNumber(value) {
 }
 
 /**
- * A mechanism from parsed JSON: the SPEC section 1 fields, or a retrieval result holding them
- * under "mechanism". Throws an Error that says what is wrong. The server checks the rest
- * (joint types, symmetry, solvability) and the studio shows what it says.
+ * A mechanism from parsed JSON: the fields of docs/CONTRACT.md, Mechanisms, or a retrieval
+ * result holding them under "mechanism". Throws an Error that says what is wrong. The server
+ * checks the rest (joint types, symmetry, solvability) and the studio shows what it says.
  */
 export function parseMechanism(value) {
   if (value && typeof value === "object" && !Array.isArray(value) && value.mechanism) {
@@ -140,7 +140,7 @@ export function parseMechanism(value) {
   const { adjacency, node_types: types, positions } = value;
   const n = types.length;
   if (n < 2) throw new Error(`a mechanism needs at least the 2 crank joints, got ${n}`);
-  if (n > MAX_JOINTS) throw new Error(`at most ${MAX_JOINTS} joints, got ${n}`);
+  if (n > MAX_REQUEST_JOINTS) throw new Error(`at most ${MAX_REQUEST_JOINTS} joints, got ${n}`);
   if (adjacency.length !== n || positions.length !== n) {
     throw new Error(
       `adjacency has ${adjacency.length} rows and positions ${positions.length} pairs, ` +

@@ -1,0 +1,210 @@
+"""Limits on user input, and the checks that enforce them.
+
+The Python API, the CLI and the HTTP API check what users give them here, so that each limit
+has one value and one message wherever it is hit. A refused input raises `ValueError` (its
+subclass `InvalidMechanismError` for mechanisms) with a message naming the problem; the HTTP
+API answers it with a 4xx and `{"error": <the message>}`. docs/CONTRACT.md, Limits, lists them.
+
+Pure numpy: no numba, no Ray.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+FIXED, SIMPLE, ACTUATED = 0, 1, 2
+
+# -- mechanisms -------------------------------------------------------------------------------
+
+#: Largest mechanism the engine takes, in joints: finding the solution path is quadratic in the
+#: joints, and no hand-drawn linkage comes near this.
+MAX_JOINTS = 1000
+DEFAULT_STEPS = 200
+MAX_STEPS = 100_000
+#: Coordinates and link lengths the solver handles without its squares overflowing and without
+#: its circles collapsing to points.
+MAX_COORDINATE = 1e12
+MIN_LINK_LENGTH = 1e-9
+
+# -- retrieval queries ------------------------------------------------------------------------
+
+MIN_POINTS, MAX_POINTS = 3, 10_000
+#: A query spanning less than this has no curve to match (and its frame would not invert).
+MIN_EXTENT = 1e-9
+DEFAULT_K, MAX_K = 3, 100
+
+# -- one HTTP request -------------------------------------------------------------------------
+
+#: Largest mechanism one request may carry, in joints. Smaller than MAX_JOINTS: a request holds
+#: a replica's CPU while it runs, and the studio draws nothing larger.
+MAX_REQUEST_JOINTS = 100
+#: Largest simulation one request may ask for: joints x steps (the answer holds twice as many
+#: numbers, about 4 MB of JSON at the limit).
+MAX_REQUEST_JOINT_STEPS = 100_000
+#: Largest request body, in bytes (MAX_POINTS points take about 0.5 MB).
+MAX_BODY_BYTES = 2 * 1024 * 1024
+
+
+class InvalidMechanismError(ValueError):
+    """The input is not a simulable one-degree-of-freedom dyadic mechanism."""
+
+
+def shown(value: object) -> str:
+    """`value` for a message: its repr, cut short (a request may send megabytes)."""
+    text = str(int(value)) if isinstance(value, np.integer) else repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def as_int(
+    name: str,
+    value: object,
+    low: int,
+    high: int | None = None,
+    error: type[ValueError] = ValueError,
+) -> int:
+    """`value` as an int from `low` to `high` (no upper bound if None); bools are refused."""
+    wanted = f"from {low} to {high}" if high is not None else f">= {low}"
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise error(f"{name} must be an integer {wanted}, got {shown(value)}")
+    if value < low or (high is not None and value > high):
+        raise error(f"{name} must be {wanted}, got {shown(value)}")
+    return int(value)
+
+
+def as_steps(steps: object) -> int:
+    """A step count from 1 to MAX_STEPS, or InvalidMechanismError."""
+    return as_int("steps", steps, 1, MAX_STEPS, InvalidMechanismError)
+
+
+# -- mechanism arrays -------------------------------------------------------------------------
+
+
+def as_int_array(name: str, value: ArrayLike, ndim: int) -> np.ndarray:
+    """`value` as an int64 array of `ndim` dimensions; bools count, fractions and NaN do not."""
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError) as exc:  # ragged nested lists
+        raise InvalidMechanismError(f"{name} is not a rectangular array: {exc}") from None
+    if array.ndim != ndim:
+        raise InvalidMechanismError(f"{name} must be {ndim}-D, got shape {array.shape}")
+    if array.dtype == bool:
+        return array.astype(np.int64)
+    if not (np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)):
+        raise InvalidMechanismError(f"{name} must be numeric, got dtype {array.dtype}")
+    if np.issubdtype(array.dtype, np.floating):
+        if not np.all(np.isfinite(array)):
+            raise InvalidMechanismError(f"{name} has NaN or infinite entries")
+        if np.any(array != np.round(array)):
+            raise InvalidMechanismError(f"{name} must hold whole numbers")
+    return array.astype(np.int64)
+
+
+def as_graph(adjacency: ArrayLike, node_types: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """(adjacency, node_types) as int64 arrays if they form a mechanism graph: a symmetric 0/1
+    matrix with zero diagonal of 2 to MAX_JOINTS joints, and one known type per joint.
+
+    Raises `InvalidMechanismError` naming the first problem found.
+    """
+    adj = as_int_array("adjacency", adjacency, 2)
+    types = as_int_array("node_types", node_types, 1)
+    n = adj.shape[0]
+    if adj.shape != (n, n):
+        raise InvalidMechanismError(f"adjacency must be square, got shape {adj.shape}")
+    if n < 2:
+        raise InvalidMechanismError(f"a mechanism needs at least 2 joints (the crank), got {n}")
+    if n > MAX_JOINTS:
+        raise InvalidMechanismError(f"at most {MAX_JOINTS} joints are supported, got {n}")
+    if types.shape != (n,):
+        raise InvalidMechanismError(
+            f"node_types must have one entry per joint ({n}), got {types.shape[0]}"
+        )
+    bad = np.argwhere((adj != 0) & (adj != 1))
+    if len(bad):
+        i, j = bad[0]
+        raise InvalidMechanismError(
+            f"adjacency entries must be 0 or 1, got {adj[i, j]} at ({i}, {j})"
+        )
+    if np.any(np.diag(adj)):
+        i = int(np.flatnonzero(np.diag(adj))[0])
+        raise InvalidMechanismError(f"self-link: adjacency[{i}, {i}] must be 0")
+    asym = np.argwhere(adj != adj.T)
+    if len(asym):
+        i, j = asym[0]
+        raise InvalidMechanismError(
+            f"adjacency is not symmetric: [{i}, {j}] = {adj[i, j]} but [{j}, {i}] = {adj[j, i]}"
+        )
+    bad_types = np.flatnonzero((types < FIXED) | (types > ACTUATED))
+    if len(bad_types):
+        i = int(bad_types[0])
+        raise InvalidMechanismError(
+            f"node_types must be 0 (fixed), 1 (simple) or 2 (actuated); joint {i} is {types[i]}"
+        )
+    return adj, types
+
+
+def as_positions(positions: ArrayLike, n_joints: int, *, batch: bool = False) -> np.ndarray:
+    """`positions` as a C-contiguous float64 array of shape (n, 2), or (B, n, 2) with `batch`."""
+    shape = "(B, n, 2)" if batch else "(n, 2)"
+    try:
+        array = np.asarray(positions)
+    except (TypeError, ValueError) as exc:
+        raise InvalidMechanismError(f"positions is not a rectangular array: {exc}") from None
+    if array.dtype == bool or not (
+        np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)
+    ):
+        raise InvalidMechanismError(f"positions must be numeric, got dtype {array.dtype}")
+    expected_ndim = 3 if batch else 2
+    if array.ndim != expected_ndim or array.shape[-2:] != (n_joints, 2):
+        raise InvalidMechanismError(
+            f"positions must have shape {shape} with n = {n_joints}, got {array.shape}"
+        )
+    array = np.ascontiguousarray(array, dtype=np.float64)
+    if not np.all(np.isfinite(array)):
+        raise InvalidMechanismError("positions has NaN or infinite entries")
+    return array
+
+
+def check_positions(adjacency: np.ndarray, positions: np.ndarray) -> None:
+    """Refuse degenerate geometry (batch-aware): coordinates beyond MAX_COORDINATE, and linked
+    joints closer than MIN_LINK_LENGTH, the crank included."""
+    if np.any(np.abs(positions) > MAX_COORDINATE):
+        raise InvalidMechanismError(f"positions must lie within +-{MAX_COORDINATE:g}")
+    i, j = np.nonzero(np.triu(adjacency, 1))
+    lengths = np.linalg.norm(positions[..., i, :] - positions[..., j, :], axis=-1)
+    short = lengths < MIN_LINK_LENGTH
+    if np.any(short):
+        k = int(np.flatnonzero(short.reshape(-1, len(i)).any(axis=0))[0])
+        what = "the crank has zero length" if (i[k], j[k]) == (0, 1) else "a link has zero length"
+        raise InvalidMechanismError(
+            f"{what}: joints {i[k]} and {j[k]} are closer than {MIN_LINK_LENGTH:g}"
+        )
+
+
+# -- retrieval queries ------------------------------------------------------------------------
+
+
+def validate_query(points: object, k: object = DEFAULT_K) -> tuple[np.ndarray, int]:
+    """A retrieval query as a float64 (T, 2) array and k, or ValueError naming the problem."""
+    k = as_int("k", k, 1, MAX_K)
+    try:
+        array = np.asarray(points)
+    except (TypeError, ValueError):
+        raise ValueError("points must be a list of [x, y] number pairs") from None
+    if array.dtype.kind not in "iuf":
+        raise ValueError("points must be a list of [x, y] number pairs")
+    array = array.astype(np.float64)
+    # The count first: an empty list has no pairs to have a shape.
+    if array.ndim and not MIN_POINTS <= len(array) <= MAX_POINTS:
+        raise ValueError(f"points must hold {MIN_POINTS} to {MAX_POINTS} pairs, got {len(array)}")
+    if array.ndim != 2 or array.shape[1] != 2:
+        raise ValueError(f"points must be [x, y] pairs, got an array of shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError("points must be finite numbers")
+    if np.any(np.abs(array) > MAX_COORDINATE):
+        raise ValueError(f"points must lie within +-{MAX_COORDINATE:g}")
+    if np.all(array == array[0]):
+        raise ValueError("points are all the same point: there is no curve")
+    if np.ptp(array, axis=0).max() < MIN_EXTENT:
+        raise ValueError(f"points span less than {MIN_EXTENT:g}: there is no curve to match")
+    return array, k
