@@ -240,26 +240,27 @@ def test_killed_actor_shard_is_redone(
     assert reader.polls > 0 and reader.problems == []
 
 
-def test_killed_driver_run_is_finished_by_the_same_command(
-    ray_cluster: str, tmp_path: Path, reference_run: dict
-) -> None:
-    out = str(tmp_path / "killed-driver")
-    command = [
+def reference_command(out: str, address: str) -> list[str]:
+    """`links generate` of the reference run's plan into `out`, on the cluster at `address`."""
+    plan = ["--mechanisms", "137", "--seed", "3", "--shard-topologies", "2"]
+    return [
         sys.executable,
         "-m",
         "links_ray.cli",
         "generate",
         "--out",
         out,
-        "--mechanisms",
-        "137",
-        "--seed",
-        "3",
+        *plan,
         "--address",
-        ray_cluster,
-        "--shard-topologies",
-        "2",
+        address,
     ]
+
+
+def test_killed_driver_run_is_finished_by_the_same_command(
+    ray_cluster: str, tmp_path: Path, reference_run: dict
+) -> None:
+    out = str(tmp_path / "killed-driver")
+    command = reference_command(out, ray_cluster)
     env = {**os.environ, "RAY_AUTH_MODE": "disabled"}
     store = Store.open(out)
     with PollingReader(out, PLAN) as reader:
@@ -353,22 +354,7 @@ def test_a_full_disk_ends_the_run_in_one_line_and_the_same_command_finishes_it(
     ray_cluster: str, small_disk: Path, reference_run: dict
 ) -> None:
     out = str(small_disk / "data")
-    command = [
-        sys.executable,
-        "-m",
-        "links_ray.cli",
-        "generate",
-        "--out",
-        out,
-        "--mechanisms",
-        "137",
-        "--seed",
-        "3",
-        "--address",
-        ray_cluster,
-        "--shard-topologies",
-        "2",
-    ]
+    command = reference_command(out, ray_cluster)
     env = {**os.environ, "RAY_AUTH_MODE": "disabled"}
     full = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
     assert full.returncode == 2, full.stderr
