@@ -167,12 +167,17 @@ class Lease:
             except (OSError, StoreError):  # the store is away: try again next time
                 continue
 
-    def __enter__(self) -> Lease:
-        self._thread = threading.Thread(
-            target=self._renew_until_stopped, name=f"lease-{self.name}", daemon=True
-        )
-        self._thread.start()
+    def keep_renewed(self) -> Lease:
+        """Renew the lease from a background thread until `release`."""
+        if self._thread is None:
+            self._thread = threading.Thread(
+                target=self._renew_until_stopped, name=f"lease-{self.name}", daemon=True
+            )
+            self._thread.start()
         return self
+
+    def __enter__(self) -> Lease:
+        return self.keep_renewed()
 
     def __exit__(self, *_: object) -> None:
         try:

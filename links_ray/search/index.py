@@ -544,7 +544,7 @@ def _build_lease(store: Store, fingerprint: str, path_id: np.ndarray) -> Lease |
         except (OSError, StoreError):
             return None
         if isinstance(got, Lease):
-            got.__enter__()  # renew while building: a large build takes minutes
+            got.keep_renewed()  # a large build takes minutes
             # The cache may have been written between our look and our lease.
             saved = _load_cache(store, fingerprint, path_id)
             if saved is None:
