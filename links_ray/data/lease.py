@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import socket
 import threading
 import time
@@ -32,8 +33,18 @@ from links_ray.data.store import META, Store, StoreError
 #: How long a lease lasts without renewal: far longer than a store's brief outages (a restart of
 #: the S3 server takes seconds), short enough that a killed run's root is free within a minute.
 LEASE_TTL_S = 60.0
-#: Lease names, one per kind of exclusive work on a root.
+#: Lease names, one per kind of exclusive work on a root; a part of a split retrieval index
+#: has its own (`index_lease_name`), so the parts build at once.
 LEASE_NAMES = ("writer", "index")
+
+
+def index_lease_name(part: int, parts: int) -> str:
+    """The lease of building part `part` of an index split in `parts`."""
+    return "index" if parts == 1 else f"index-{part}-of-{parts}"
+
+
+def _known_name(name: str) -> bool:
+    return name in LEASE_NAMES or re.fullmatch(r"index-\d+-of-\d+", name) is not None
 
 
 class LeaseHeld(StoreError):
@@ -87,7 +98,7 @@ class Lease:
         cls, store: Store, name: str, holder: str, ttl_s: float = LEASE_TTL_S
     ) -> Lease | dict:
         """The lease, or the record of the live holder that has it."""
-        if name not in LEASE_NAMES:
+        if not _known_name(name):
             raise ValueError(f"lease name must be one of {', '.join(LEASE_NAMES)}, got {name!r}")
         if not ttl_s > 0:
             raise ValueError(f"ttl_s must be positive, got {ttl_s!r}")

@@ -195,6 +195,46 @@ def simulate_candidates(
             out[b] = np.nan
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def trace_joints(
+    orders: np.ndarray,
+    order_start: np.ndarray,
+    positions: np.ndarray,
+    joint_start: np.ndarray,
+    mechanisms: np.ndarray,
+    joints: np.ndarray,
+    crank: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """out[i] = the trajectory (steps, 2) of joint joints[i] of mechanism mechanisms[i], for
+    many mechanisms of any topologies held packed: mechanism m's solution path is
+    orders[order_start[m]:order_start[m + 1]] (rows joint, parent_a, parent_b) and its initial
+    positions positions[joint_start[m]:joint_start[m + 1]]. The joints that are neither joint 1
+    nor in its solution path are fixed. Mechanisms that lock give NaN rows.
+
+    The arithmetic is `simulate_one`'s, so a trajectory equals the one `TopologySimulator`
+    gives for the whole mechanism, bit for bit.
+    """
+    steps = crank.shape[0]
+    for i in range(mechanisms.shape[0]):
+        m = mechanisms[i]
+        pos = positions[joint_start[m] : joint_start[m + 1]]
+        n = pos.shape[0]
+        order = orders[order_start[m] : order_start[m + 1]].astype(np.int64)
+        solved = np.zeros(n, dtype=np.bool_)
+        solved[1] = True
+        for k in range(order.shape[0]):
+            solved[order[k, 0]] = True
+        fixed = np.flatnonzero(~solved).astype(np.int64)
+        traj = np.empty((n, steps, 2))
+        geometry = np.empty((order.shape[0], 3))
+        step, _ = simulate_one(order, fixed, pos, crank, True, traj, geometry)
+        if step >= 0:
+            out[i] = np.nan
+        else:
+            out[i] = traj[joints[i]]
+
+
 class TopologySimulator:
     """Simulates many position sets of one topology; its solution path is found once."""
 

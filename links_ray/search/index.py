@@ -12,19 +12,23 @@ query's four variants (as drawn, turned 180 degrees, mirrored, both). Search has
    candidates; their whole codes keep the candidates (`CANDIDATE_SHARE` of the paths, at least
    `MIN_CANDIDATES`), each with its likeliest variant (and the second, if within `VARIANT_MARGIN`).
 2. Estimate. Each candidate pair gets nearest-point distances from a sample of query points,
-   plus the path's distance to the query from the query's table of nearest points (nearly
-   exact: the misses against exact search are near ties). Roughly for all, from the paths'
-   128-byte sketches (`search_kernels.rough_chamfer`), then finely for the best `REFINED`,
-   from the whole paths (`search_kernels.estimate_chamfer`).
-3. Exact. The best `FINALISTS` by estimate get the exact chamfer distance: in their likeliest
-   variant, and in each other one whose lower bound could beat both that and the k-th best.
+   plus the path's distance to the query from the query's table of nearest points. Roughly
+   for all, from the first half of the paths' 256-byte sketches, then from the whole sketch
+   for the best `REFINED` (`search_kernels.sketch_chamfer`).
+3. Exact. The best `FINALISTS` by estimate are traced again from their mechanisms
+   (`MechanismBank`: the stored points, bit for bit) and get the exact chamfer distance: in
+   their likeliest variant, and in each other one whose lower bound could beat both that and
+   the k-th best.
 
-`brute_force` is exact over every path: a lower bound prunes the paths that cannot beat the
-k-th best, and the rest get the exact distance.
+In memory an index holds, per path, its code, sketch and bias and the row of its mechanism
+(about 400 bytes), and the packed mechanisms (about 90 bytes a path): no path's points.
+`brute_force` is exact over every path, streaming the curated points from Parquet: a lower
+bound prunes the paths that cannot beat the k-th best, and the rest get the exact distance.
 
-The index (codes, PCA basis, ids) is saved at ``ROOT/_links/index.npz`` and reused while the
-curated tables are unchanged; the curated points are read from Parquet when it opens, and
-sketched then.
+An index may cover one part of the curated shards (those whose number is `part` modulo
+`parts`), so that several Serve replicas split a dataset too large for one. The arrays of each
+part are saved under ``ROOT/_links/index/part-P-of-N/`` and reused while its curated shards are
+unchanged; a build streams the curated table, so it needs memory only for what it keeps.
 
 No Ray: the Serve app and the CLI wrap this module.
 """
@@ -34,24 +38,27 @@ from __future__ import annotations
 import io
 import json
 import time
-import zipfile
-from dataclasses import dataclass
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as pads
+import pyarrow.parquet as pq
 from numpy.typing import ArrayLike
 
-from links_ray.data.commit import committed_shards
+from links_ray.data.commit import committed_files, committed_shards
 from links_ray.data.dataset import open_table
-from links_ray.data.lease import Lease
+from links_ray.data.lease import Lease, index_lease_name
 from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.inputs import DEFAULT_K, validate_query
 from links_ray.engine.mechanism import reduce_mechanism
 from links_ray.engine.paths import chamfer_to_many, normalization
 from links_ray.engine.solver import simulate
 from links_ray.search import kernels
+from links_ray.search.mechanisms import MechanismBank
 
 #: PCA components of the distance fields; a path's code holds two sets (2 * DIMENSIONS int8).
 DIMENSIONS = 64
@@ -66,22 +73,24 @@ TAIL_COLUMNS = np.r_[HEAD_COMPONENTS:DIMENSIONS, DIMENSIONS + HEAD_COMPONENTS : 
 #: A candidate's second likeliest variant is estimated too when its linear estimate is within
 #: this of the likeliest.
 VARIANT_MARGIN = 0.002
-#: Candidate pairs given the fine estimate, the query points it measures from (the rough
-#: estimate measures from `search_kernels.ROUGH_SAMPLE`), and the stride of the path points
-#: it measures the distance to the query at.
-REFINED, QUERY_SAMPLE, FINE_STRIDE = 3_000, 32, 2
-#: Paths given the exact chamfer distance (in their likeliest variant, and in the others where
-#: a lower bound leaves them able to matter).
-FINALISTS = 48
+#: Candidate pairs estimated from their whole sketches, and the query points that estimate
+#: measures from (the rough one measures from `search_kernels.ROUGH_SAMPLE`).
+REFINED, QUERY_SAMPLE = 3_000, 32
+#: Paths traced again and given the exact chamfer distance (in their likeliest variant, and
+#: in the others where a lower bound leaves them able to matter).
+FINALISTS = 96
 #: Every second point of a stored path makes its distance field.
 FIELD_STRIDE = 2
-#: Distance fields used to fit the PCA basis, and rows featurized per block while building.
+#: Distance fields used to fit the PCA basis, and rows read and featurized per block.
 PCA_SAMPLE, BUILD_BLOCK = 50_000, 50_000
-INDEX_FILE = f"{META}/index.npz"
+#: The int8 scale of the codes leaves this much room above the largest value of the sample
+#: the basis is fitted on (values beyond it are clipped).
+SCALE_ROOM = 1.25
+INDEX_FOLDER = f"{META}/index"
 #: How far a lower bound may exceed the exact distance it bounds by rounding (they are
 #: computed differently).
 ROUNDING = 1e-9
-INDEX_FORMAT = 3
+INDEX_FORMAT = 4
 
 
 def read_points(path: str) -> np.ndarray:
@@ -162,115 +171,127 @@ class Basis:
         return (weights * self.scale).astype(np.float32), (mass @ self.mean).astype(np.float32)
 
 
+def check_part(part: int, parts: int) -> None:
+    """ValueError unless 0 <= part < parts."""
+    for name, value in (("part", part), ("parts", parts)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer):
+            raise ValueError(f"{name} must be an integer, got {value!r}")
+    if parts < 1 or not 0 <= part < parts:
+        raise ValueError(f"part must be in 0..parts-1 with parts >= 1, got part {part} of {parts}")
+
+
+def cache_folder(part: int, parts: int) -> str:
+    """Where part `part` of an index split in `parts` keeps its arrays."""
+    return f"{INDEX_FOLDER}/part-{part}-of-{parts}"
+
+
 @dataclass
 class RetrievalIndex:
-    """Curated paths, their codes, and the way back to their mechanisms.
+    """Curated paths, their codes and sketches, and the mechanisms that trace them.
 
     One query at a time: the scan writes into buffers the index keeps (callers that serve
     concurrent requests hold a lock, as the Serve app does).
     """
 
     store: Store
-    path_id: np.ndarray
-    mechanism_id: np.ndarray
-    joint: np.ndarray
-    points: np.ndarray  # (N, T, 2) float32 normalized
+    files: list[str]  # the curated files indexed, in row order
+    steps: int  # points per path
+    mechanism_row: np.ndarray  # (N,) int32: each path's mechanism, a row of `bank`
+    joint: np.ndarray  # (N,) int8
     # Each path's int8 code, split in two: the leading HEAD_COMPONENTS of each half, scanned
     # for every query, and the rest, read only for the rows the head ranks best.
     head: np.ndarray  # (N, 2 * HEAD_COMPONENTS) int8
     tail: np.ndarray  # (N, 2 * (DIMENSIONS - HEAD_COMPONENTS)) int8
     bias: np.ndarray  # (N,) float32
-    basis: Basis
-    mechanisms: pa.Table  # the mechanisms the paths come from, sorted by mechanism_id
     sketches: np.ndarray  # (N, 2 * SKETCH_POINTS) uint8, see `search_kernels`
+    basis: Basis
+    bank: MechanismBank
+    part: int = 0
+    parts: int = 1
     build_s: float = 0.0
-    _scores: np.ndarray | None = None  # the scan's output, reused across queries
+    _scores: np.ndarray | None = field(default=None, repr=False)  # the scan's, reused
 
     def __len__(self) -> int:
-        return len(self.path_id)
+        return len(self.joint)
 
     @property
     def nbytes(self) -> int:
-        """Memory the index holds."""
-        arrays = (
-            self.path_id,
-            self.mechanism_id,
-            self.joint,
-            self.points,
-            self.sketches,
-            self.head,
-            self.tail,
-            self.bias,
-            self.basis.components,
-        )
-        # And the scan's scores.
-        return sum(a.nbytes for a in arrays) + self.mechanisms.nbytes + 4 * len(self)
+        """Memory the index holds, the scan's output buffer included."""
+        arrays = (self.mechanism_row, self.joint, self.head, self.tail, self.bias, self.sketches)
+        basis = self.basis.mean.nbytes + self.basis.components.nbytes + self.basis.scale.nbytes
+        return sum(a.nbytes for a in arrays) + basis + self.bank.nbytes + 4 * len(self)
+
+    @property
+    def mechanism_id(self) -> np.ndarray:
+        """(N,) int64: each path's mechanism id (computed)."""
+        return self.bank.ids[self.mechanism_row]
+
+    @property
+    def path_id(self) -> np.ndarray:
+        """(N,) int64: each path's id, 32 * mechanism_id + joint (computed)."""
+        return self.path_ids(np.arange(len(self)))
+
+    def path_ids(self, rows: np.ndarray) -> np.ndarray:
+        return (self.bank.ids[self.mechanism_row[rows]] << 5) | self.joint[rows].astype(np.int64)
+
+    def paths(self, rows: np.ndarray) -> np.ndarray:
+        """(len(rows), steps, 2) float32: the curated points of these rows, traced again."""
+        rows = np.asarray(rows, dtype=np.int64)
+        return self.bank.paths(self.mechanism_row[rows], self.joint[rows], self.steps)
 
     @classmethod
-    def open(cls, root: str | Store, rebuild: bool = False) -> RetrievalIndex:
-        """Load the index saved beside the data, or build (and save) it from `curated/`.
+    def open(
+        cls, root: str | Store, rebuild: bool = False, part: int = 0, parts: int = 1
+    ) -> RetrievalIndex:
+        """Load the index of `root`'s curated shards numbered `part` modulo `parts` (all, by
+        default) saved beside the data, or build (and save) it.
 
-        Of several processes opening one root at once (Serve replicas), the one holding the
-        root's index lease builds and saves the cache; the others wait for it and load it. A
-        cache that cannot be read, or was made from other curated shards, is rebuilt.
+        Of several processes opening one part at once (Serve replicas), the one holding the
+        part's index lease builds and saves it; the others wait for it and load it. A saved
+        index that cannot be read, or was made from other curated shards, is rebuilt.
         """
+        check_part(part, parts)
         store = root if isinstance(root, Store) else Store.open(root, writable=False)
-        markers = committed_shards(store, "curation")
-        curated = open_table(store, "curated", markers)
-        table = curated.to_table(columns=["path_id", "mechanism_id", "joint", "points"])
-        table = table.sort_by("path_id")
-        path_id = table.column("path_id").to_numpy()
-        points = (
-            table.column("points").combine_chunks().flatten().to_numpy().reshape(len(table), -1, 2)
-        )
-        columns = {
-            "store": store,
-            "path_id": path_id,
-            "mechanism_id": table.column("mechanism_id").to_numpy(),
-            "joint": table.column("joint").to_numpy(),
-            "points": points,
-            "sketches": sketch_paths(points),
+        markers = {
+            shard: marker
+            for shard, marker in committed_shards(store, "curation").items()
+            if shard % parts == part and "curated" in marker["files"]
         }
-        columns["mechanisms"] = _source_mechanisms(store, columns["mechanism_id"])
+        files = committed_files(store, "curated", markers)
+        if not files:
+            where = "" if parts == 1 else f" in part {part} of {parts}"
+            raise ValueError(f"{store.uri} has no curated table{where} yet")
+        folder = cache_folder(part, parts)
         fingerprint = _fingerprint(markers)
-        saved = None if rebuild else _load_cache(store, fingerprint, path_id)
+        rows = sum(marker["rows"].get("curated", 0) for marker in markers.values())
+        common = {"store": store, "files": files, "part": part, "parts": parts}
+        saved = None if rebuild else _load_cache(store, folder, fingerprint, rows)
         if saved is not None:
-            return cls(**columns, **saved)
-        lease = None if rebuild else _build_lease(store, fingerprint, path_id)
+            return cls(**common, **saved)
+        lease = None if rebuild else _build_lease(store, part, parts, fingerprint, rows)
         if isinstance(lease, dict):  # another process built it meanwhile
-            return cls(**columns, **lease)
+            return cls(**common, **lease)
         try:
             start = time.perf_counter()
-            head, tail, bias, basis = _encode(points)
-            index = cls(
-                **columns,
-                head=head,
-                tail=tail,
-                bias=bias,
-                basis=basis,
-                build_s=time.perf_counter() - start,
-            )
-            buffer = io.BytesIO()
-            np.savez(
-                buffer,
-                format=INDEX_FORMAT,
-                fingerprint=fingerprint,
-                path_id=path_id,
-                head=head,
-                tail=tail,
-                bias=bias,
-                mean=basis.mean,
-                components=basis.components,
-                scale=basis.scale,
-            )
+            arrays = _build(store, files, rows)
+            index = cls(**common, **arrays, build_s=time.perf_counter() - start)
             try:
-                store.write_bytes(INDEX_FILE, buffer.getvalue())
+                _save(store, folder, fingerprint, arrays)
             except OSError:  # a read-only root: serve from memory, build again next time
                 pass
         finally:
             if lease is not None:
                 lease.release()
         return index
+
+    def iter_points(self, block: int = BUILD_BLOCK) -> Iterator[tuple[int, np.ndarray]]:
+        """(first row, points (B, steps, 2) float32) of every path, in row order, read from
+        the curated Parquet files (the index holds no points)."""
+        start = 0
+        for batch in _curated_batches(self.store, self.files, ["points"], block):
+            points = _batch_points(batch)
+            yield start, points
+            start += len(points)
 
     def candidates(
         self, weights: np.ndarray, offsets: np.ndarray, count: int
@@ -322,11 +343,15 @@ class RetrievalIndex:
             pair_rows = np.concatenate([rows, rows[both]])
             pair_variants = np.concatenate([first, second[both]]).astype(np.int64)
         table, owners = distance_table(normalized)
+        levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
+        kernels.level_table(normalized, owners, levels)
         if len(pair_rows) > REFINED:  # a rough estimate of every pair first
-            rough = self._rough_estimate(normalized, owners, pair_rows, pair_variants)
+            rough = self._estimate(
+                normalized, levels, pair_rows, pair_variants, kernels.ROUGH_SAMPLE, rough=True
+            )
             best = np.argpartition(rough, REFINED)[:REFINED]
             pair_rows, pair_variants = pair_rows[best], pair_variants[best]
-        fine = self._estimate(normalized, owners, pair_rows, pair_variants)
+        fine = self._estimate(normalized, levels, pair_rows, pair_variants, QUERY_SAMPLE)
         # Rows by their best estimate (a row may come twice, once per variant).
         order = np.argsort(fine, kind="stable")
         _, first = np.unique(pair_rows[order], return_index=True)
@@ -342,29 +367,35 @@ class RetrievalIndex:
         rows: np.ndarray,
         likely: np.ndarray,
         k: int,
+        points: np.ndarray | None = None,
     ) -> list[tuple[int, float, int]]:
         """The k best (row, chamfer, variant) of `rows`, each at its least exact distance over
-        the four variants, as if all were measured; `likely` is each row's likeliest variant.
+        the four variants, as if all were measured; `likely` is each row's likeliest variant,
+        and `points` their paths (traced again when not given).
 
         Those are measured first. Another variant of a row is measured only if the lower
         bound of `path_to_query_bounds` leaves it able to beat both that row's distance and
         the k-th best so far: no other pair can change the answer.
         """
-        distances = _exact_pairs(variants, self.points, rows, likely)
+        if points is None:
+            points = self.paths(rows)
+        local = np.arange(len(rows))
+        distances = _exact_pairs(variants, points, local, likely)
         bounds = np.empty((len(rows), 4))
-        kernels.path_to_query_bounds(table, self.points[rows], bounds)
+        kernels.path_to_query_bounds(table, points, bounds)
         last = min(k, len(rows)) - 1
         kth = np.partition(distances, last)[last]
-        bounds[np.arange(len(rows)), likely] = np.inf
+        bounds[local, likely] = np.inf
         bounds -= ROUNDING
         able = (bounds < distances[:, None]) & (bounds <= kth)
         more, more_variants = np.nonzero(able)
         if len(more):
-            measured = _exact_pairs(variants, self.points, rows[more], more_variants)
-            rows = np.concatenate([rows, rows[more]])
+            measured = _exact_pairs(variants, points, more, more_variants)
+            local = np.concatenate([local, more])
             likely = np.concatenate([likely, more_variants])
             distances = np.concatenate([distances, measured])
-        return _best_rows(rows, likely, distances, k)
+        rows = np.asarray(rows)[local]
+        return _best_rows(rows, self.path_ids(rows), likely, distances, k)
 
     def warm(self, seconds: float = 5.0, queries: int = 200) -> int:
         """Answer queries until `seconds` pass or `queries` are answered; return how many.
@@ -383,10 +414,10 @@ class RetrievalIndex:
         rows = np.random.default_rng(0).integers(len(self), size=queries - 1)
         start = time.perf_counter()
         answered = 1
-        for row in rows:
+        for path in self.paths(rows):
             if time.perf_counter() - start >= seconds:
                 break
-            self.retrieve(self.points[row])
+            self.retrieve(path)
             answered += 1
         return answered
 
@@ -396,24 +427,24 @@ class RetrievalIndex:
         query, k = validate_query(points, k)
         normalized, query_matrix, query_offset = normalization(query)
         ranked = self.ranked(normalized, k)
-        mechanisms = self._mechanisms([row for row, _, _ in ranked])
+        rows = np.array([row for row, _, _ in ranked], dtype=np.int64)
+        paths = self.paths(rows)
         results = []
-        for row, distance, variant in ranked:
-            mechanism_id = int(self.mechanism_id[row])
+        for (row, distance, variant), path in zip(ranked, paths, strict=True):
             joint = int(self.joint[row])
             adjacency, node_types, positions, index = reduce_mechanism(
-                *mechanisms[mechanism_id], joint
+                *self.bank.mechanism(int(self.mechanism_row[row])), joint
             )
             placed = _into_query_frame(
                 adjacency, node_types, positions, index, variant, query_matrix, query_offset
             )
             results.append(
                 {
-                    "path_id": int(self.path_id[row]),
-                    "mechanism_id": mechanism_id,
+                    "path_id": int(self.path_ids(np.array([row]))[0]),
+                    "mechanism_id": int(self.bank.ids[self.mechanism_row[row]]),
                     "joint": joint,
                     "chamfer": distance,
-                    "points": self.points[row].astype(float).tolist(),
+                    "points": path.astype(float).tolist(),
                     "mechanism": {
                         "adjacency": adjacency.tolist(),
                         "node_types": node_types.tolist(),
@@ -424,59 +455,55 @@ class RetrievalIndex:
             )
         return results
 
-    def _mechanisms(self, rows: list[int]) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """The mechanisms of index rows `rows`, by mechanism id."""
-        ids = self.mechanisms.column("mechanism_id").to_numpy()
-        at = np.searchsorted(ids, self.mechanism_id[rows])
-        found = {}
-        for row in self.mechanisms.take(at).to_pylist():
-            n = len(row["node_types"])
-            found[row["mechanism_id"]] = (
-                np.array(row["adjacency"], dtype=np.uint8).reshape(n, n),
-                np.array(row["node_types"], dtype=np.int8),
-                np.array(row["positions"]).reshape(n, 2),
-            )
-        return found
-
     def _estimate(
-        self, normalized: np.ndarray, owners: np.ndarray, rows: np.ndarray, variants: np.ndarray
+        self,
+        normalized: np.ndarray,
+        levels: np.ndarray,
+        rows: np.ndarray,
+        variants: np.ndarray,
+        sample_size: int,
+        rough: bool = False,
     ) -> np.ndarray:
-        """Estimated chamfer distances of (row, variant) pairs from the whole paths."""
-        sample = np.ascontiguousarray(normalized[_spread(len(normalized), QUERY_SAMPLE)])
-        out = np.empty(len(rows))
-        kernels.estimate_chamfer(
-            normalized, sample, owners, self.points, rows, variants, FINE_STRIDE, out
-        )
-        return out
-
-    def _rough_estimate(
-        self, normalized: np.ndarray, owners: np.ndarray, rows: np.ndarray, variants: np.ndarray
-    ) -> np.ndarray:
-        """Roughly estimated chamfer distances of (row, variant) pairs from their sketches."""
-        levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
-        kernels.level_table(normalized, owners, levels)
-        picked = normalized[_spread(len(normalized), kernels.ROUGH_SAMPLE)]
+        """Estimated chamfer distances of (row, variant) pairs from the paths' sketches (their
+        leading half only, if `rough`), measured from `sample_size` query points."""
+        picked = normalized[_spread(len(normalized), sample_size)]
         sample = np.rint(picked * kernels.SKETCH_LEVELS).astype(np.int32)
+        used = kernels.ROUGH_POINTS if rough else kernels.SKETCH_POINTS
         out = np.empty(len(rows))
-        kernels.rough_chamfer(sample, levels, self.sketches, rows, variants, out)
+        kernels.sketch_chamfer(sample, levels, self.sketches, rows, variants, used, out)
         return out
 
     def brute_force(self, points: ArrayLike, k: int = DEFAULT_K) -> list[tuple[int, float, int]]:
-        """Exact k best (row, chamfer, variant) over every path and variant, best first.
+        """Exact k best (row, chamfer, variant) over every path and variant, best first."""
+        return self.brute_force_many([points], k)[0]
+
+    def brute_force_many(
+        self, queries: list[ArrayLike], k: int = DEFAULT_K
+    ) -> list[list[tuple[int, float, int]]]:
+        """`brute_force` of each query, in one pass over the curated points.
 
         The exact distances of `ranked`'s answer bound the k-th best from above; a path whose
         path-to-query half alone is bounded below by more than that cannot be among the best.
         """
-        normalized, _, _ = normalization(validate_query(points, k)[0])
         k = min(k, len(self))
-        limit = self.ranked(normalized, k)[-1][1] + ROUNDING
-        table, _ = distance_table(normalized)
-        bounds = np.empty((len(self), 4))
-        kernels.path_to_query_bounds(table, self.points, bounds)
-        pairs = np.flatnonzero(bounds.ravel() <= limit)
-        rows, variants = pairs // 4, pairs % 4
-        distances = _exact_pairs(query_variants(normalized), self.points, rows, variants)
-        return _best_rows(rows, variants, distances, k)
+        normalized = [normalization(validate_query(q, k)[0])[0] for q in queries]
+        limits = [self.ranked(n, k)[-1][1] + ROUNDING for n in normalized]
+        tables = [distance_table(n)[0] for n in normalized]
+        variants = [query_variants(n) for n in normalized]
+        found: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [[] for _ in queries]
+        for start, block in self.iter_points():
+            bounds = np.empty((len(block), 4))
+            for q, (table, limit) in enumerate(zip(tables, limits, strict=True)):
+                kernels.path_to_query_bounds(table, block, bounds)
+                pairs = np.flatnonzero(bounds.ravel() <= limit)
+                local, which = pairs // 4, pairs % 4
+                distances = _exact_pairs(variants[q], block, local, which)
+                found[q].append((local + start, which, distances))
+        answers = []
+        for parts in found:
+            rows, which, distances = (np.concatenate(column) for column in zip(*parts, strict=True))
+            answers.append(_best_rows(rows, self.path_ids(rows), which, distances, k))
+        return answers
 
 
 def _into_query_frame(
@@ -506,53 +533,169 @@ def _fingerprint(markers: dict[int, dict]) -> str:
     return json.dumps(rows)
 
 
-def _load_cache(store: Store, fingerprint: str, path_id: np.ndarray) -> dict | None:
-    """The saved codes and basis if the cache holds this fingerprint's, else None (also for a
-    cache that is missing, damaged or of another format)."""
-    saved = store.read_bytes(INDEX_FILE)
-    if saved is None:
+def _curated_batches(
+    store: Store, files: list[str], columns: list[str], block: int
+) -> Iterator[pa.RecordBatch]:
+    """Record batches of up to `block` rows of these curated files, in order."""
+    for relative in files:
+        with store.fs.open_input_file(store.path(relative)) as source:
+            yield from pq.ParquetFile(source).iter_batches(batch_size=block, columns=columns)
+
+
+def _batch_points(batch: pa.RecordBatch) -> np.ndarray:
+    """The `points` of a record batch as (rows, steps, 2) float32 (a batch's own offsets are
+    32-bit, and never overflow: a batch holds at most `BUILD_BLOCK` paths)."""
+    column = batch.column("points")
+    values = column.flatten().to_numpy()
+    return values.reshape(len(column), -1, 2)
+
+
+def _build(store: Store, files: list[str], rows: int) -> dict:
+    """Codes, biases, sketches and mechanisms of the paths in `files` (`rows` of them),
+    streamed block by block."""
+    sample = _pca_sample(store, files, rows)
+    steps = sample.shape[1]
+    fields, mass = path_features(sample, FIELD_STRIDE)
+    basis = Basis.fit(fields)
+    raw, _ = basis.project(fields, mass)
+    basis.scale = np.maximum(np.abs(raw).max(axis=0) * SCALE_ROOM, 1e-12).astype(np.float32) / 127
+    head = np.empty((rows, len(HEAD_COLUMNS)), dtype=np.int8)
+    tail = np.empty((rows, len(TAIL_COLUMNS)), dtype=np.int8)
+    bias = np.empty(rows, dtype=np.float32)
+    sketches = np.empty((rows, 2 * kernels.SKETCH_POINTS), dtype=np.uint8)
+    mechanism_id = np.empty(rows, dtype=np.int64)
+    joint = np.empty(rows, dtype=np.int8)
+    start = 0
+    columns = ["mechanism_id", "joint", "points"]
+    for batch in _curated_batches(store, files, columns, BUILD_BLOCK):
+        end = start + batch.num_rows
+        if end > rows:
+            raise ValueError(f"{store.uri}: the curated files hold more rows than their markers")
+        points = _batch_points(batch)
+        if points.shape[1] != steps:
+            raise ValueError(f"{store.uri}: curated paths of {points.shape[1]} and {steps} points")
+        codes, bias[start:end] = basis.project(*path_features(points, FIELD_STRIDE))
+        codes = np.clip(np.rint(codes / basis.scale), -127, 127).astype(np.int8)
+        head[start:end] = codes[:, HEAD_COLUMNS]
+        tail[start:end] = codes[:, TAIL_COLUMNS]
+        kernels.sketch_paths(points, sketches[start:end])
+        mechanism_id[start:end] = batch.column("mechanism_id").to_numpy()
+        joint[start:end] = batch.column("joint").to_numpy()
+        start = end
+    if start != rows:
+        raise ValueError(f"{store.uri}: the curated files hold fewer rows than their markers")
+    bank = MechanismBank.from_table(_source_mechanisms(store, mechanism_id))
+    return {
+        "steps": steps,
+        "mechanism_row": bank.rows_of(mechanism_id),
+        "joint": joint,
+        "head": head,
+        "tail": tail,
+        "bias": bias,
+        "sketches": sketches,
+        "basis": basis,
+        "bank": bank,
+    }
+
+
+def _pca_sample(store: Store, files: list[str], rows: int) -> np.ndarray:
+    """Up to PCA_SAMPLE paths drawn from files spread evenly over `files` (twice as many
+    paths as it needs, when the files hold them), as (P, steps, 2) float32."""
+    share = min(1.0, 2 * PCA_SAMPLE / max(rows, 1))
+    chosen = files[:: max(1, round(1 / share))] if share < 1 else files
+    points = np.concatenate(
+        [_batch_points(b) for b in _curated_batches(store, chosen, ["points"], BUILD_BLOCK)]
+    )
+    picked = np.random.default_rng(0).permutation(len(points))[:PCA_SAMPLE]
+    return points[np.sort(picked)]
+
+
+#: The arrays a saved index holds, besides the basis.
+SAVED_ARRAYS = ("mechanism_row", "joint", "head", "tail", "bias", "sketches")
+BASIS_ARRAYS = ("mean", "components", "scale")
+
+
+def _save(store: Store, folder: str, fingerprint: str, arrays: dict) -> None:
+    """Save an index's arrays in a new build folder, then point `current.json` at it (the
+    commit), then delete older builds."""
+    build = uuid.uuid4().hex[:12]
+    named = {name: arrays[name] for name in SAVED_ARRAYS}
+    named.update({f"basis_{name}": getattr(arrays["basis"], name) for name in BASIS_ARRAYS})
+    named.update({f"bank_{name}": array for name, array in arrays["bank"].arrays().items()})
+    for name, array in named.items():
+        buffer = io.BytesIO()
+        np.save(buffer, array)
+        store.write_bytes(f"{folder}/{build}/{name}.npy", buffer.getbuffer())
+    current = {
+        "format": INDEX_FORMAT,
+        "fingerprint": fingerprint,
+        "build": build,
+        "rows": len(arrays["joint"]),
+        "steps": arrays["steps"],
+        "arrays": sorted(named),
+    }
+    store.write_json(f"{folder}/current.json", current)
+    for relative in store.list_files(folder):
+        if not relative.startswith(f"{folder}/{build}/") and not relative.endswith(".json"):
+            store.delete(relative)
+
+
+def _load_cache(store: Store, folder: str, fingerprint: str, rows: int) -> dict | None:
+    """The saved index if it holds this fingerprint's paths, else None (also for one that is
+    missing, damaged or of another format)."""
+    current = store.read_json(f"{folder}/current.json")
+    if (
+        current is None
+        or current.get("format") != INDEX_FORMAT
+        or current.get("fingerprint") != fingerprint
+        or current.get("rows") != rows
+    ):
         return None
+    named = {}
     try:
-        arrays = np.load(io.BytesIO(saved))
-        if (
-            int(arrays["format"]) != INDEX_FORMAT
-            or str(arrays["fingerprint"]) != fingerprint
-            or not np.array_equal(arrays["path_id"], path_id)
-        ):
-            return None
-        basis = Basis(arrays["mean"], arrays["components"], arrays["scale"])
-        return {
-            "head": arrays["head"],
-            "tail": arrays["tail"],
-            "bias": arrays["bias"],
-            "basis": basis,
-        }
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        for name in current["arrays"]:
+            data = store.read_bytes(f"{folder}/{current['build']}/{name}.npy")
+            if data is None:
+                return None
+            named[name] = np.load(io.BytesIO(data), allow_pickle=False)
+        basis = Basis(*(named.pop(f"basis_{name}") for name in BASIS_ARRAYS))
+        bank = MechanismBank(
+            **{name[5:]: named.pop(name) for name in list(named) if name.startswith("bank_")}
+        )
+        saved = {name: named.pop(name) for name in SAVED_ARRAYS}
+    except (OSError, ValueError, KeyError, TypeError, EOFError):
         return None
+    if named or any(len(saved[name]) != rows for name in SAVED_ARRAYS):
+        return None
+    return {**saved, "steps": int(current["steps"]), "basis": basis, "bank": bank}
 
 
-#: How often a process waiting for another's index build looks for the cache.
+#: How often a process waiting for another's index build looks for the saved index.
 CACHE_POLL_S = 1.0
 
 
-def _build_lease(store: Store, fingerprint: str, path_id: np.ndarray) -> Lease | dict | None:
-    """The index lease (this process builds), the cache another process built while this one
-    waited, or None (build without the lease: the root takes no writes)."""
+def _build_lease(
+    store: Store, part: int, parts: int, fingerprint: str, rows: int
+) -> Lease | dict | None:
+    """The part's index lease (this process builds), the index another process built while
+    this one waited, or None (build without the lease: the root takes no writes)."""
+    folder = cache_folder(part, parts)
+    name = index_lease_name(part, parts)
     while True:
         try:
-            got = Lease.try_acquire(store, "index", "the retrieval index build", ttl_s=60.0)
+            got = Lease.try_acquire(store, name, "the retrieval index build", ttl_s=60.0)
         except (OSError, StoreError):
             return None
         if isinstance(got, Lease):
             got.keep_renewed()  # a large build takes minutes
-            # The cache may have been written between our look and our lease.
-            saved = _load_cache(store, fingerprint, path_id)
+            # The index may have been saved between our look and our lease.
+            saved = _load_cache(store, folder, fingerprint, rows)
             if saved is None:
                 return got
             got.release()
             return saved
         time.sleep(CACHE_POLL_S)
-        saved = _load_cache(store, fingerprint, path_id)
+        saved = _load_cache(store, folder, fingerprint, rows)
         if saved is not None:
             return saved
 
@@ -579,59 +722,36 @@ def _spread(length: int, count: int) -> np.ndarray:
     return np.unique(np.linspace(0, length - 1, count).round().astype(int))
 
 
-def sketch_paths(points: np.ndarray) -> np.ndarray:
-    """The sketches (N, 2 * SKETCH_POINTS) uint8 of normalized paths (N, T, 2)."""
-    sketches = np.empty((len(points), 2 * kernels.SKETCH_POINTS), dtype=np.uint8)
-    kernels.sketch_paths(points, sketches)
-    return sketches
-
-
 def _source_mechanisms(store: Store, mechanism_ids: np.ndarray) -> pa.Table:
-    """The mechanisms with these ids, sorted by id: answers need them at once, and a Parquet
-    lookup per answer would cost more than the search."""
+    """The mechanisms with these ids (each once)."""
     wanted = pa.array(np.unique(mechanism_ids))
-    table = open_table(store, "mechanisms").to_table(
+    return open_table(store, "mechanisms").to_table(
         columns=["mechanism_id", "adjacency", "node_types", "positions"],
         filter=pads.field("mechanism_id").isin(wanted),
     )
-    return table.sort_by("mechanism_id").combine_chunks()
-
-
-def _encode(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, Basis]:
-    """The int8 codes of normalized paths (N, T, 2), split into head (N, 2 * HEAD_COMPONENTS)
-    and tail, their biases, and the basis."""
-    sample = np.sort(np.random.default_rng(0).permutation(len(points))[:PCA_SAMPLE])
-    basis = Basis.fit(path_features(points[sample], FIELD_STRIDE)[0])
-    raw = np.empty((len(points), 2 * DIMENSIONS), dtype=np.float32)
-    bias = np.empty(len(points), dtype=np.float32)
-    for start in range(0, len(points), BUILD_BLOCK):
-        block = slice(start, start + BUILD_BLOCK)
-        raw[block], bias[block] = basis.project(*path_features(points[block], FIELD_STRIDE))
-    basis.scale = np.maximum(np.abs(raw).max(axis=0), 1e-12) / 127
-    codes = np.round(raw / basis.scale).astype(np.int8)
-    head = np.ascontiguousarray(codes[:, HEAD_COLUMNS])
-    return head, np.ascontiguousarray(codes[:, TAIL_COLUMNS]), bias, basis
 
 
 def _exact_pairs(
     variants: np.ndarray, points: np.ndarray, rows: np.ndarray, which: np.ndarray
 ) -> np.ndarray:
-    """Exact chamfer distances between query variant which[i] and path rows[i]."""
+    """Exact chamfer distances between query variant which[i] and path points[rows[i]]."""
     distances = np.empty(len(rows))
     for variant in range(4):
         chosen = np.flatnonzero(which == variant)
         for block in np.array_split(chosen, max(1, len(chosen) // 8192)):
             if len(block):
                 distances[block] = chamfer_to_many(variants[variant], points[rows[block]])
-    return distances
+    # A path that no longer traces (damaged data) is never an answer.
+    return np.nan_to_num(distances, nan=np.inf)
 
 
 def _best_rows(
-    rows: np.ndarray, variants: np.ndarray, distances: np.ndarray, k: int
+    rows: np.ndarray, path_ids: np.ndarray, variants: np.ndarray, distances: np.ndarray, k: int
 ) -> list[tuple[int, float, int]]:
     """The k best (row, distance, variant), best first, each row once at its least distance
-    (rows may repeat, once per variant measured); ties go to the lower row, then variant."""
-    order = np.lexsort((variants, rows, distances))
+    (rows may repeat, once per variant measured); ties go to the lower path id, then variant,
+    as a merge of several indexes' answers orders them."""
+    order = np.lexsort((variants, path_ids, distances))
     answer: list[tuple[int, float, int]] = []
     seen: set[int] = set()
     for i in order:
@@ -642,3 +762,10 @@ def _best_rows(
         if len(answer) == k:
             break
     return answer
+
+
+def sketch_paths(points: np.ndarray) -> np.ndarray:
+    """The sketches (N, 2 * SKETCH_POINTS) uint8 of normalized paths (N, T, 2)."""
+    sketches = np.empty((len(points), 2 * kernels.SKETCH_POINTS), dtype=np.uint8)
+    kernels.sketch_paths(points, sketches)
+    return sketches

@@ -14,10 +14,12 @@ nodes the distance is estimated as the distance to the nearest of the four corne
 being 1-Lipschitz: d(p) >= d(node) - |p - node| for each node.
 
 A path's *sketch* is SKETCH_POINTS of its points, evenly spaced in time, each coordinate
-rounded to one of SKETCH_LEVELS + 1 levels over [0, 1] and stored as uint8: 128 bytes, two
-cache lines, against 1,600 for the whole path. With 255 levels a variant's flip is
-`level ^ 255`, and the query's distance from every level point (`level_table`) is read
-without arithmetic.
+rounded to one of SKETCH_LEVELS + 1 levels over [0, 1] and stored as uint8: 256 bytes against
+1,600 for the whole path. Its even points come first (x levels of points 0, 2, 4, ..., then of
+points 1, 3, ...; the y levels likewise after all x levels), so the leading ROUGH_POINTS of
+each half are a coarser sketch of their own, in half the cache lines. With 255 levels a
+variant's flip is `level ^ 255`, and the query's distance from every level point
+(`level_table`) is read without arithmetic.
 
 The kernels that visit rows in an arbitrary order `prefetch` the rows a few steps ahead:
 without it they wait on memory most of the time.
@@ -41,8 +43,9 @@ TABLE_CELLS = 128
 TABLE_LO, TABLE_HI = -0.05, 1.05
 #: Rows per parallel chunk: large enough that scheduling costs nothing.
 _CHUNK = 4096
-#: Points and coordinate levels of a path's sketch (255: all ones in uint8, see `rough_chamfer`).
-SKETCH_POINTS, SKETCH_LEVELS = 64, 255
+#: Points and coordinate levels of a path's sketch (255: all ones in uint8, see
+#: `sketch_chamfer`), and the points of its coarser leading part.
+SKETCH_POINTS, SKETCH_LEVELS, ROUGH_POINTS = 128, 255, 64
 #: Query points the rough estimate measures from (evenly along the query).
 ROUGH_SAMPLE = 16
 #: How many rows ahead the gathering kernels prefetch.
@@ -261,72 +264,19 @@ def _nearest(query: np.ndarray, x: float, y: float) -> float:
     return math.sqrt(best)
 
 
-@njit(cache=True, nogil=True, parallel=True, fastmath=True)
-def estimate_chamfer(
-    query: np.ndarray,
-    sample: np.ndarray,
-    owners: np.ndarray,
-    points: np.ndarray,
-    rows: np.ndarray,
-    variants: np.ndarray,
-    stride: int,
-    out: np.ndarray,
-) -> None:
-    """out[r] estimates chamfer(query variant `variants[r]`, path `rows[r]`).
-
-    Query to path: exact nearest-point distances from the query points `sample` (a subset
-    evenly along the query) to the path's points, averaged. Path to query: `_owned_distance`
-    at every `stride`-th path point (interpolating the distance table instead would err by up
-    to a cell where it matters most, on the query).
-    """
-    count = points.shape[1]
-    taken = sample.shape[0]
-    qx = sample[:, 0].astype(np.float32)
-    qy = sample[:, 1].astype(np.float32)
-    for chunk in prange((rows.shape[0] + 255) // 256):
-        nearest = np.empty(taken, dtype=np.float32)
-        for r in range(chunk * 256, min(rows.shape[0], (chunk + 1) * 256)):
-            p = rows[r]
-            # The variant's flip as x -> sign_x * x + shift_x, without branches in the loops.
-            shift_x, shift_y = _flip(0.0, 0.0, variants[r])
-            sign_x = 1.0 - 2.0 * shift_x
-            sign_y = 1.0 - 2.0 * shift_y
-            to_query = 0.0
-            for t in range(0, count, stride):
-                x = shift_x + sign_x * points[p, t, 0]
-                y = shift_y + sign_y * points[p, t, 1]
-                to_query += _owned_distance(query, owners, x, y)
-            nearest[:] = np.inf
-            fsx = np.float32(sign_x)
-            fsy = np.float32(sign_y)
-            fox = np.float32(shift_x)
-            foy = np.float32(shift_y)
-            for t in range(count):
-                px = fox + fsx * points[p, t, 0]
-                py = foy + fsy * points[p, t, 1]
-                # Over the query sample, so the loop vectorizes (a minimum over the inner
-                # loop would be a scalar reduction).
-                for i in range(taken):
-                    dx = qx[i] - px
-                    dy = qy[i] - py
-                    nearest[i] = min(nearest[i], dx * dx + dy * dy)
-            to_path = 0.0
-            for i in range(taken):
-                to_path += math.sqrt(nearest[i])
-            out[r] = to_path / taken + to_query / ((count + stride - 1) // stride)
-
-
 @njit(cache=True, nogil=True, parallel=True)
 def sketch_paths(points: np.ndarray, out: np.ndarray) -> None:
     """out[p] = the sketch of normalized path p (T, 2): the levels of SKETCH_POINTS points
-    evenly spaced in time, x levels first, then y."""
+    evenly spaced in time, even points first, x levels first, then y."""
     count = points.shape[1]
+    half = SKETCH_POINTS // 2
     for p in prange(points.shape[0]):
         for s in range(SKETCH_POINTS):
             t = int(s * (count - 1) / (SKETCH_POINTS - 1) + 0.5)
+            slot = s // 2 + (s % 2) * half
             for axis in range(2):
                 level = math.floor(points[p, t, axis] * SKETCH_LEVELS + 0.5)
-                out[p, axis * SKETCH_POINTS + s] = min(max(level, 0), SKETCH_LEVELS)
+                out[p, axis * SKETCH_POINTS + slot] = min(max(level, 0), SKETCH_LEVELS)
 
 
 @njit(cache=True, inline="always")
@@ -356,34 +306,39 @@ def level_table(query: np.ndarray, owners: np.ndarray, out: np.ndarray) -> None:
 
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
-def rough_chamfer(
+def sketch_chamfer(
     sample: np.ndarray,
     levels: np.ndarray,
     sketches: np.ndarray,
     rows: np.ndarray,
     variants: np.ndarray,
+    used: int,
     out: np.ndarray,
 ) -> None:
-    """out[r] roughly estimates chamfer(query variant `variants[r]`, path `rows[r]`) from the
-    path's sketch: query to path from the query points `sample` (S, 2) int32, in levels;
-    path to query from `levels` (the query's `level_table`)."""
+    """out[r] estimates chamfer(query variant `variants[r]`, path `rows[r]`) from the leading
+    `used` points of the path's sketch (ROUGH_POINTS or SKETCH_POINTS): query to path from
+    the query points `sample` (S, 2) int32, in levels; path to query from `levels` (the
+    query's `level_table`)."""
     count = rows.shape[0]
     taken = sample.shape[0]
     for chunk in prange((count + 255) // 256):
-        xs = np.empty(SKETCH_POINTS, dtype=np.int32)
-        ys = np.empty(SKETCH_POINTS, dtype=np.int32)
+        xs = np.empty(used, dtype=np.int32)
+        ys = np.empty(used, dtype=np.int32)
         end = min(count, (chunk + 1) * 256)
         for r in range(chunk * 256, end):
             if r + _AHEAD < end:
-                prefetch(sketches, rows[r + _AHEAD], 0)
-                prefetch(sketches, rows[r + _AHEAD], 2 * SKETCH_POINTS - 1)
+                ahead = rows[r + _AHEAD]
+                prefetch(sketches, ahead, 0)
+                prefetch(sketches, ahead, used - 1)
+                prefetch(sketches, ahead, SKETCH_POINTS)
+                prefetch(sketches, ahead, SKETCH_POINTS + used - 1)
             p = rows[r]
             # A flip maps level l to SKETCH_LEVELS - l, which is l ^ 255 for 255 levels.
             flip_x, flip_y = _flip(0.0, 0.0, variants[r])
             mask_x = np.uint8(SKETCH_LEVELS * int(flip_x))
             mask_y = np.uint8(SKETCH_LEVELS * int(flip_y))
             to_query = np.float32(0.0)
-            for t in range(SKETCH_POINTS):
+            for t in range(used):
                 x = sketches[p, t] ^ mask_x
                 y = sketches[p, SKETCH_POINTS + t] ^ mask_y
                 to_query += levels[x, y]
@@ -393,12 +348,12 @@ def rough_chamfer(
             to_path = np.float32(0.0)
             for i in range(taken):
                 best = np.int32(2**30)
-                for t in range(SKETCH_POINTS):
+                for t in range(used):
                     dx = sample[i, 0] - xs[t]
                     dy = sample[i, 1] - ys[t]
                     best = min(best, dx * dx + dy * dy)
                 to_path += math.sqrt(np.float32(best))
-            out[r] = to_path / (taken * SKETCH_LEVELS) + to_query / SKETCH_POINTS
+            out[r] = to_path / (taken * SKETCH_LEVELS) + to_query / used
 
 
 @njit(cache=True, nogil=True, parallel=True)
