@@ -19,7 +19,7 @@ import links_ray
 from links_ray.data.commit import committed_shards, marker_file
 from links_ray.data.lease import Lease
 from links_ray.data.store import Store
-from links_ray.search.index import INDEX_FILE, RetrievalIndex
+from links_ray.search.index import INDEX_FOLDER, RetrievalIndex, cache_folder
 
 QUERY = np.column_stack([np.cos(np.linspace(0, 6, 50)), np.sin(np.linspace(0, 3, 50))])
 
@@ -29,8 +29,12 @@ def root(dataset: str, tmp_path: Path) -> Path:
     """A private copy of the Serve tests' curated dataset, without its index cache."""
     copy = tmp_path / "data"
     shutil.copytree(dataset, copy)
-    (copy / INDEX_FILE).unlink(missing_ok=True)
+    shutil.rmtree(copy / INDEX_FOLDER, ignore_errors=True)
     return copy
+
+
+def forget_saved(root: Path) -> None:
+    shutil.rmtree(root / INDEX_FOLDER)
 
 
 def answers(index: RetrievalIndex) -> list[tuple[int, float]]:
@@ -40,12 +44,23 @@ def answers(index: RetrievalIndex) -> list[tuple[int, float]]:
 def test_a_damaged_cache_is_rebuilt(root: Path) -> None:
     built = RetrievalIndex.open(str(root))
     assert built.build_s > 0
-    cache = root / INDEX_FILE
-    for damage in (cache.read_bytes()[:1000], b"not an npz file at all"):
-        cache.write_bytes(damage)
-        rebuilt = RetrievalIndex.open(str(root))
-        assert rebuilt.build_s > 0 and answers(rebuilt) == answers(built)
-        assert RetrievalIndex.open(str(root)).build_s == 0  # and saved whole again
+    folder = root / cache_folder(0, 1)
+    for damaged in ("current.json", "sketches.npy", "bank_positions.npy", "head.npy"):
+        current = json.loads((folder / "current.json").read_text())
+        target = folder / (
+            damaged if damaged.endswith(".json") else f"{current['build']}/{damaged}"
+        )
+        for damage in (target.read_bytes()[:100], b"not what it was at all"):
+            target.write_bytes(damage)
+            rebuilt = RetrievalIndex.open(str(root))
+            assert rebuilt.build_s > 0 and answers(rebuilt) == answers(built), damaged
+            assert RetrievalIndex.open(str(root)).build_s == 0  # and saved whole again
+            current = json.loads((folder / "current.json").read_text())
+            target = folder / (
+                damaged if damaged.endswith(".json") else f"{current['build']}/{damaged}"
+            )
+    # One build is kept: older ones are deleted once a new one is saved.
+    assert [p.name for p in folder.iterdir() if p.is_dir()] == [current["build"]]
 
 
 def test_the_cache_follows_curation(root: Path) -> None:
@@ -88,7 +103,7 @@ def start_openers(root: Path, count: int) -> list[subprocess.Popen[str]]:
 def test_processes_opening_one_root_build_the_cache_once(root: Path) -> None:
     store = Store.open(str(root))
     paths = len(RetrievalIndex.open(str(root), rebuild=True))
-    (root / INDEX_FILE).unlink()
+    forget_saved(root)
     # Another process is building: the openers wait for its cache instead of building too.
     builder = Lease.acquire(store, "index", "a replica building the index")
     openers = start_openers(root, 2)
@@ -100,7 +115,7 @@ def test_processes_opening_one_root_build_the_cache_once(root: Path) -> None:
     assert results == [{"paths": paths, "built": False}] * 2
 
     # A builder that gives up without a cache: exactly one of the waiting processes builds.
-    (root / INDEX_FILE).unlink()
+    forget_saved(root)
     builder = Lease.acquire(store, "index", "a replica that will fail")
     openers = start_openers(root, 2)
     time.sleep(8)

@@ -19,10 +19,9 @@ from links_ray.engine.inputs import validate_query
 from links_ray.engine.paths import chamfer, chamfer_to_many, normalization, normalize_path
 from links_ray.search import kernels as kernels
 from links_ray.search.index import (
-    FINE_STRIDE,
-    INDEX_FILE,
     RetrievalIndex,
     _about_least,
+    cache_folder,
     distance_table,
     query_variants,
     sketch_paths,
@@ -61,30 +60,65 @@ def test_top3_is_exactly_the_brute_force_top3(index: RetrievalIndex) -> None:
         np.testing.assert_allclose(chamfers, [c for _, c, _ in exact], rtol=1e-9)
 
 
+def stored_points(index: RetrievalIndex) -> np.ndarray:
+    """Every path's points as the curated table stores them, in row order."""
+    return np.concatenate([points for _, points in index.iter_points()])
+
+
+def test_paths_traced_again_are_the_stored_points_bit_for_bit(index: RetrievalIndex) -> None:
+    """The index keeps no points: its finalists are traced again from their mechanisms, and
+    those must be exactly what curation stored."""
+    stored = stored_points(index)
+    assert stored.shape == (len(index), 200, 2)
+    np.testing.assert_array_equal(index.paths(np.arange(len(index))), stored)
+    table = links_ray.load(index.store, "mechanisms", format="arrow")
+    ids = table.column("mechanism_id").to_numpy()
+    for row in np.random.default_rng(1).choice(len(index.bank), 50, replace=False):
+        adjacency, node_types, positions = index.bank.mechanism(row)
+        stored_row = table.slice(int(np.flatnonzero(ids == index.bank.ids[row])[0]), 1)
+        assert adjacency.ravel().tolist() == stored_row.column("adjacency")[0].as_py()
+        assert node_types.tolist() == stored_row.column("node_types")[0].as_py()
+        assert positions.ravel().tolist() == stored_row.column("positions")[0].as_py()
+
+
+def test_memory_per_path_is_small(index: RetrievalIndex) -> None:
+    """Codes, sketch, bias and mechanism row per path, and the packed mechanisms: no points
+    (1,600 bytes a path) in memory."""
+    basis = sum(a.nbytes for a in (index.basis.mean, index.basis.components, index.basis.scale))
+    assert (index.nbytes - basis) / len(index) < 600  # the basis is the same at any size
+    assert not any(
+        getattr(array, "nbytes", 0) >= 1600 * len(index) for array in vars(index).values()
+    )
+
+
 def test_scan_brings_a_stored_path_back_in_any_frame(index: RetrievalIndex) -> None:
     """Passing only a tenth of the paths on from the scan, a stored path drawn in another
     frame still finds itself."""
     rng = np.random.default_rng(5)
+    stored = stored_points(index)
     for row in rng.choice(len(index), 10, replace=False):
         angle = rng.uniform(0, 2 * np.pi)
         turn = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
         if rng.random() < 0.5:
             turn = turn @ np.diag([1.0, -1.0])
-        query = index.points[row].astype(float) @ turn.T * 4.0 + [2, 3]
+        query = stored[row].astype(float) @ turn.T * 4.0 + [2, 3]
         normalized = normalization(query)[0]
         best_row, distance, _ = index.ranked(normalized, k=1, candidates=len(index) // 10)[0]
         assert distance < 1e-5
-        assert np.allclose(index.points[best_row], index.points[row], atol=1e-6)
+        assert np.allclose(stored[best_row], stored[row], atol=1e-6)
 
 
 def test_brute_force_equals_every_path_against_every_variant(index: RetrievalIndex) -> None:
     """The pruned exact search against the plain one: chamfer to all paths, four variants."""
-    for query in queries():
+    stored = stored_points(index)
+    path_ids = index.path_id
+    every = index.brute_force_many(queries(), k=5)
+    for query, found in zip(queries(), every, strict=True):
         normalized = normalization(query)[0]
-        plain = np.stack([chamfer_to_many(v, index.points) for v in query_variants(normalized)])
+        plain = np.stack([chamfer_to_many(v, stored) for v in query_variants(normalized)])
         best = plain.min(axis=0)
-        expected = np.lexsort((np.arange(len(best)), best))[:5]
-        found = index.brute_force(query, k=5)
+        expected = np.lexsort((path_ids, best))[:5]
+        assert found == index.brute_force(query, k=5)
         assert [row for row, _, _ in found] == expected.tolist()
         np.testing.assert_allclose([c for _, c, _ in found], best[expected], rtol=1e-12)
         assert [v for _, _, v in found] == plain[:, expected].argmin(axis=0).tolist()
@@ -94,13 +128,14 @@ def test_finalists_are_measured_as_if_every_variant_were(index: RetrievalIndex) 
     """Measuring each finalist's likeliest variant, then only the variants its lower bound
     leaves able to matter, gives the answer of measuring all four."""
     rng = np.random.default_rng(12)
+    stored = stored_points(index)
     for query in queries():
         normalized = normalization(query)[0]
         variants = query_variants(normalized)
         rows = rng.choice(len(index), 40, replace=False)
-        plain = np.stack([chamfer_to_many(v, index.points[rows]) for v in variants])
+        plain = np.stack([chamfer_to_many(v, stored[rows]) for v in variants])
         best = plain.min(axis=0)
-        expected = np.lexsort((rows, best))[:5]
+        expected = np.lexsort((index.path_ids(rows), best))[:5]
         # The likeliest variant given right, at random, and as the worst of the four.
         for likely in (plain.argmin(axis=0), rng.integers(0, 4, 40), plain.argmax(axis=0)):
             found = index._exact_finalists(
@@ -130,6 +165,31 @@ def test_path_to_query_bounds_never_exceed_the_true_distance() -> None:
             assert bounds[p, variant] <= nearest + 1e-12
             assert bounds[p, variant] >= nearest - 2 * cell  # and tight
     assert bounds[-1, 0] < 1e-6
+
+
+def test_bounds_of_many_queries_never_exceed_the_true_distance() -> None:
+    """`nearest_node_bounds`, for brute force: every query at once, from the nearest node."""
+    rng = np.random.default_rng(13)
+    queries = [normalize_path(np.cumsum(rng.normal(size=(120, 2)), axis=0)) for _ in range(5)]
+    paths = np.stack(
+        [normalize_path(np.cumsum(rng.normal(size=(200, 2)), axis=0)) for _ in range(30)]
+    ).astype(np.float32)
+    nodes = 257
+    tables = np.empty((nodes, nodes, len(queries)), dtype=np.float32)
+    for q, query in enumerate(queries):
+        table = np.empty((nodes, nodes))
+        kernels.distance_table(query, table, np.empty((nodes, nodes), dtype=np.int32))
+        tables[:, :, q] = table
+    bounds = np.empty((len(paths), 4, len(queries)), dtype=np.float32)
+    kernels.nearest_node_bounds(tables, paths, bounds)
+    reach = (kernels.TABLE_HI - kernels.TABLE_LO) / (nodes - 1) / np.sqrt(2)
+    for q, query in enumerate(queries):
+        for variant, (matrix, offset) in enumerate(map(variant_map, range(4))):
+            moved = query @ matrix.T + offset
+            for p, path in enumerate(paths.astype(np.float64)):
+                nearest = np.sqrt(((path[:, None] - moved[None]) ** 2).sum(-1)).min(axis=1).mean()
+                assert bounds[p, variant, q] <= nearest + 1e-5
+                assert bounds[p, variant, q] >= nearest - 2 * reach  # and tight
 
 
 def test_returned_mechanism_traces_the_query_where_it_was_drawn(index: RetrievalIndex) -> None:
@@ -174,12 +234,38 @@ def test_bad_queries_are_refused(points: object, k: object, message: str) -> Non
 
 
 def test_saved_index_is_reused(index: RetrievalIndex) -> None:
-    assert Store.open(index.store.uri).read_bytes(INDEX_FILE) is not None
+    assert Store.open(index.store.uri).read_json(f"{cache_folder(0, 1)}/current.json")
     again = RetrievalIndex.open(index.store.uri)
-    np.testing.assert_array_equal(again.head, index.head)
-    np.testing.assert_array_equal(again.tail, index.tail)
+    for name in ("head", "tail", "bias", "sketches", "mechanism_row", "joint"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(index, name))
+    for name, array in index.bank.arrays().items():
+        np.testing.assert_array_equal(getattr(again.bank, name), array)
     np.testing.assert_array_equal(again.basis.components, index.basis.components)
     assert again.build_s == 0.0, "loaded, not rebuilt"
+
+
+def test_parts_split_the_paths_by_curation_shard(index: RetrievalIndex) -> None:
+    """Parts of an index hold its paths once each, the shards numbered part modulo parts,
+    and answer with exactly the distances the whole index measures."""
+    parts = [RetrievalIndex.open(index.store, part=p, parts=3) for p in range(3)]
+    ids = np.concatenate([part.path_id for part in parts])
+    assert sorted(ids.tolist()) == sorted(index.path_id.tolist())
+    for p, part in enumerate(parts):
+        assert part.files and all(
+            int(f.rsplit("shard-", 1)[1].split(".")[0]) % 3 == p for f in part.files
+        )
+        assert Store.open(index.store.uri).read_json(f"{cache_folder(p, 3)}/current.json")
+    for query in queries():
+        whole = {r["path_id"]: r["chamfer"] for r in index.retrieve(query, k=10)}
+        shared = 0
+        for part in parts:
+            for result in part.retrieve(query, k=10):
+                if result["path_id"] in whole:
+                    assert result["chamfer"] == whole[result["path_id"]]
+                    shared += 1
+        assert shared == len(whole)  # the whole index's ten best are each some part's
+    with pytest.raises(ValueError, match=r"part must be in 0\.\.parts-1"):
+        RetrievalIndex.open(index.store, part=3, parts=3)
 
 
 def test_warm_up_is_bounded_and_leaves_answers_unchanged(index: RetrievalIndex) -> None:
@@ -292,6 +378,8 @@ def test_sketches_hold_evenly_spaced_points_to_half_a_level() -> None:
     sketches = sketch_paths(paths)
     assert sketches.shape == (50, 2 * kernels.SKETCH_POINTS) and sketches.dtype == np.uint8
     times = np.linspace(0, 199, kernels.SKETCH_POINTS).round().astype(int)
+    # Even points first: the leading half is a sketch of its own.
+    times = np.concatenate([times[0::2], times[1::2]])
     decoded = sketches.reshape(50, 2, -1).transpose(0, 2, 1) / kernels.SKETCH_LEVELS
     assert np.abs(decoded - paths[:, times]).max() <= 0.5 / kernels.SKETCH_LEVELS + 1e-6
 
@@ -302,14 +390,22 @@ def test_rough_estimate_follows_the_exact_chamfer_distance() -> None:
     paths, query, rows, variants, exact = every_pair(np.random.default_rng(9), 300, 0.01)
     levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
     kernels.level_table(query, distance_table(query)[1], levels)
+    sketches = sketch_paths(paths)
     picked = query[np.linspace(0, 199, kernels.ROUGH_SAMPLE).round().astype(int)]
     sample = np.rint(picked * kernels.SKETCH_LEVELS).astype(np.int32)
     rough = np.empty(len(rows))
-    kernels.rough_chamfer(sample, levels, sketch_paths(paths), rows, variants, rough)
+    kernels.sketch_chamfer(sample, levels, sketches, rows, variants, kernels.ROUGH_POINTS, rough)
     assert np.abs(rough - exact).max() < 0.03
     assert np.abs(rough - exact).mean() < 0.008
     best = set(np.argsort(exact)[:40])
     assert len(best & set(np.argsort(rough)[:80])) >= 38
+    # The whole sketch, from more query points, follows the exact distance more closely.
+    picked = query[np.linspace(0, 199, 32).round().astype(int)]
+    sample = np.rint(picked * kernels.SKETCH_LEVELS).astype(np.int32)
+    fine = np.empty(len(rows))
+    kernels.sketch_chamfer(sample, levels, sketches, rows, variants, kernels.SKETCH_POINTS, fine)
+    assert np.abs(fine - exact).mean() < 0.6 * np.abs(rough - exact).mean()
+    assert len(best & set(np.argsort(fine)[:60])) >= 39
 
 
 def test_level_table_is_the_distance_from_each_level() -> None:
@@ -334,14 +430,19 @@ def test_level_table_is_the_distance_from_each_level() -> None:
     assert owners[tuple(node)] == distances.argmin()
 
 
-@pytest.mark.parametrize("stride", [1, FINE_STRIDE])
-def test_fine_estimate_is_near_the_exact_chamfer_distance(stride: int) -> None:
+def test_fine_estimate_is_near_the_exact_chamfer_distance() -> None:
+    """From the whole sketch and 32 query points, close pairs are estimated to within the
+    sketch's rounding."""
     paths, query, rows, variants, exact = every_pair(np.random.default_rng(12), 200, 0.005)
-    sample = np.ascontiguousarray(query[::4])
+    levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
+    kernels.level_table(query, distance_table(query)[1], levels)
+    picked = query[np.linspace(0, 199, 32).round().astype(int)]
+    sample = np.rint(picked * kernels.SKETCH_LEVELS).astype(np.int32)
     estimate = np.empty(len(rows))
-    owners = distance_table(query)[1]
-    kernels.estimate_chamfer(query, sample, owners, paths, rows, variants, stride, estimate)
+    kernels.sketch_chamfer(
+        sample, levels, sketch_paths(paths), rows, variants, kernels.SKETCH_POINTS, estimate
+    )
     close = exact < 0.05
     assert close.sum() >= 20
-    assert np.abs(estimate - exact)[close].max() < 0.002
+    assert np.abs(estimate - exact)[close].max() < 0.004
     assert np.abs(estimate - exact).max() < 0.02

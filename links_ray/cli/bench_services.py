@@ -83,7 +83,11 @@ def bench_generate(
 
 
 def retrieval_dataset(paths: int, folder: str | None = None) -> str:
-    """A cached dataset with at least `paths` curated paths (made once, then reused)."""
+    """A cached dataset with at least `paths` curated paths (made once, then reused).
+
+    Only what retrieval reads is written: `mechanisms`, and `curated` made from them by
+    re-simulation, about 1.6 KB a path on disk instead of about 9.4 KB with every table.
+    """
     from links_ray.cluster.curation import curate
     from links_ray.cluster.generation import generate
 
@@ -92,19 +96,58 @@ def retrieval_dataset(paths: int, folder: str | None = None) -> str:
         "links-ray",
         f"retrieve-{paths}",
     )
+    if _curated_rows(root) >= paths:
+        return root
     # About three curated paths per mechanism (measured); top up if a run falls short.
     mechanisms = max(1000, paths // 3)
     while True:
-        generate(root, mechanisms, seed=2024, progress=False)
-        summary = curate(root, progress=False)
-        if summary["curated"] >= paths:
+        generate(root, mechanisms, seed=2024, progress=False, tables=("mechanisms",))
+        curate(root, progress=False, tables=("curated",))
+        curated = _curated_rows(root)
+        if curated >= paths:
             return root
         shutil.rmtree(root)
-        mechanisms = int(mechanisms * 1.2 * paths / max(summary["curated"], 1))
+        mechanisms = int(mechanisms * 1.2 * paths / max(curated, 1))
+
+
+def _curated_rows(root: str) -> int:
+    """Curated paths committed at `root` (0 if there is no dataset there)."""
+    from links_ray.data.commit import committed_shards
+    from links_ray.data.store import Store
+
+    if not os.path.isdir(root):
+        return 0
+    markers = committed_shards(Store.open(root, writable=False), "curation")
+    return sum(marker["rows"].get("curated", 0) for marker in markers.values())
+
+
+#: Measures the memory an index takes once loaded, in a fresh process: resident set growth.
+_RESIDENT_PROBE = """
+import json, sys
+def rss():
+    return int(open("/proc/self/status").read().split("VmRSS:")[1].split()[0]) * 1024
+from links_ray.search.index import RetrievalIndex
+import numpy, pyarrow, numba
+before = rss()
+index = RetrievalIndex.open(sys.argv[1])
+index.warm(seconds=1.0)
+print(json.dumps({"resident": rss() - before, "held": index.nbytes, "paths": len(index)}))
+"""
+
+
+def _resident_bytes(root: str) -> dict:
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-c", _RESIDENT_PROBE, root], capture_output=True, text=True, check=True
+    )
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: int = 100) -> dict:
-    """Index build, latency in process and over HTTP, recall@3 against exact brute force.
+    """Index build, load and memory; latency in process and over HTTP; recall@3 against
+    exact brute force.
 
     Queries are paths of mechanisms drawn afresh (held out of the dataset), neither arcs nor
     circles, given in a random frame: moved, turned, scaled and sometimes mirrored. Latency
@@ -115,13 +158,22 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
 
     from links_ray.search.index import RetrievalIndex
 
+    start = time.perf_counter()
     root = retrieval_dataset(paths)
+    dataset_s = time.perf_counter() - start
+    disk = {
+        table: _folder_bytes(os.path.join(root, table))
+        for table in sorted(os.listdir(root))
+        if not table.startswith("_")
+    }
     start = time.perf_counter()
     index = RetrievalIndex.open(root, rebuild=True)
     build_s = time.perf_counter() - start
+    del index
     start = time.perf_counter()
-    RetrievalIndex.open(root)
+    index = RetrievalIndex.open(root)
     load_s = time.perf_counter() - start
+    resident = _resident_bytes(root)
     held_out = _held_out_queries(max(queries, recall_queries), seed=99)
     index.warm()
     in_process = []
@@ -130,15 +182,14 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
         index.retrieve(query)
         in_process.append(time.perf_counter() - start)
 
-    # Exact brute force for recall (the search is pruned but exact: see `brute_force`).
-    truth = {
-        number: {row for row, _, _ in index.brute_force(held_out[number])}
-        for number in range(recall_queries)
-    }
+    # Exact brute force for recall, all queries in one pass over the stored points.
+    start = time.perf_counter()
+    truth = index.brute_force_many(held_out[:recall_queries])
+    brute_force_s = time.perf_counter() - start
     hits = 0
-    for number in range(recall_queries):
-        normalized = normalize_path(held_out[number])
-        hits += len({row for row, _, _ in index.ranked(normalized)} & truth[number])
+    for query, exact in zip(held_out[:recall_queries], truth, strict=True):
+        found = {row for row, _, _ in index.ranked(normalize_path(query))}
+        hits += len(found & {row for row, _, _ in exact})
 
     # Served as `links serve` serves: Ray started for it, the replica answering HTTP itself.
     import ray
@@ -165,13 +216,17 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
     finally:
         serve.shutdown()
     over_http = over_http[1:]
+    large = len(index) >= 5_000_000
     return {
         "benchmark": "retrieve",
         "machine": machine_info(),
         "paths": len(index),
+        "dataset_s": dataset_s,
+        "disk_bytes": disk,
         "build_s": build_s,
         "load_s": load_s,
         "index_bytes": index.nbytes,
+        "resident_bytes": resident["resident"],
         "p50_ms": float(np.percentile(over_http, 50) * 1e3),
         "p99_ms": float(np.percentile(over_http, 99) * 1e3),
         "in_process_p50_ms": float(np.percentile(in_process, 50) * 1e3),
@@ -180,8 +235,14 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
         "in_process_max_ms": float(np.max(in_process) * 1e3),
         "recall_at_3": hits / (3 * recall_queries),
         "recall_queries": recall_queries,
+        "brute_force_s": brute_force_s,
         "queries": queries,
-        "targets": {"p50_ms": 50, "p99_ms": 200, "recall_at_3": 0.95},
+        "targets": {
+            "p50_ms": 100 if large else 50,
+            "p99_ms": 300 if large else 200,
+            "recall_at_3": 0.95,
+            "resident_bytes_per_path": 600,
+        },
     }
 
 
@@ -208,17 +269,24 @@ def _held_out_queries(count: int, seed: int) -> list[np.ndarray]:
 
 def format_retrieve(result: dict) -> str:
     """Retrieval latency, recall and memory beside the targets."""
+    targets, paths = result["targets"], result["paths"]
+    disk = ", ".join(f"{t} {b / 1e9:.1f} GB" for t, b in result["disk_bytes"].items())
     return "\n".join(
         [
-            f"{result['paths']:,} curated paths; index built in {result['build_s']:.1f} s, "
-            f"loaded in {result['load_s']:.1f} s, {result['index_bytes'] / 1e9:.2f} GB in memory",
+            f"{paths:,} curated paths ({disk}); index built in {result['build_s']:.0f} s, "
+            f"loaded in {result['load_s']:.1f} s",
+            f"memory: {result['resident_bytes'] / paths:.0f} bytes resident per path "
+            f"(target {targets['resident_bytes_per_path']}), "
+            f"{result['index_bytes'] / paths:.0f} held by the index arrays",
             f"over HTTP: p50 {result['p50_ms']:.1f} ms, p99 {result['p99_ms']:.1f} ms, "
-            f"slowest {result['max_ms']:.0f} ms of {result['queries']} (targets 50 / 200 ms)",
+            f"slowest {result['max_ms']:.0f} ms of {result['queries']} "
+            f"(targets {targets['p50_ms']} / {targets['p99_ms']} ms)",
             f"in process: p50 {result['in_process_p50_ms']:.1f} ms, "
             f"p99 {result['in_process_p99_ms']:.1f} ms, "
             f"slowest {result['in_process_max_ms']:.0f} ms",
             f"recall@3 against exact brute force: {result['recall_at_3']:.3f} on "
-            f"{result['recall_queries']} held-out queries (target 0.95)",
+            f"{result['recall_queries']} held-out queries (target {targets['recall_at_3']}; "
+            f"brute force took {result['brute_force_s']:.0f} s)",
         ]
     )
 

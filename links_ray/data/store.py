@@ -147,6 +147,16 @@ class Store:
         except (OSError, pa.ArrowException):
             return False
 
+    def delete_folder(self, relative: str) -> bool:
+        """Delete a folder and everything below it; False if it could not be deleted."""
+        try:
+            self.fs.delete_dir(self.path(relative))
+            return True
+        except FileNotFoundError:
+            return True
+        except (OSError, pa.ArrowException):
+            return False
+
     def read_bytes(self, relative: str) -> bytes | None:
         """The file's bytes, or None if it does not exist."""
         try:

@@ -91,6 +91,10 @@ INDEX_FOLDER = f"{META}/index"
 #: computed differently).
 ROUNDING = 1e-9
 INDEX_FORMAT = 4
+#: Exact brute force: queries bounded together in one pass over the points, the nodes a
+#: side of their distance tables (a finer grid than the search's: tighter bounds), and how
+#: far a float32 sum of 200 bounds may exceed its exact value.
+BRUTE_FORCE_QUERIES, BRUTE_FORCE_NODES, BOUND_ROUNDING = 100, 513, 1e-4
 
 
 def read_points(path: str) -> np.ndarray:
@@ -483,22 +487,30 @@ class RetrievalIndex:
         """`brute_force` of each query, in one pass over the curated points.
 
         The exact distances of `ranked`'s answer bound the k-th best from above; a path whose
-        path-to-query half alone is bounded below by more than that cannot be among the best.
+        path-to-query half alone is bounded below (`nearest_node_bounds`) by more than that
+        cannot be among the best. The rest get the exact distance.
         """
         k = min(k, len(self))
         normalized = [normalization(validate_query(q, k)[0])[0] for q in queries]
-        limits = [self.ranked(n, k)[-1][1] + ROUNDING for n in normalized]
-        tables = [distance_table(n)[0] for n in normalized]
-        variants = [query_variants(n) for n in normalized]
         found: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [[] for _ in queries]
-        for start, block in self.iter_points():
-            bounds = np.empty((len(block), 4))
-            for q, (table, limit) in enumerate(zip(tables, limits, strict=True)):
-                kernels.path_to_query_bounds(table, block, bounds)
-                pairs = np.flatnonzero(bounds.ravel() <= limit)
-                local, which = pairs // 4, pairs % 4
-                distances = _exact_pairs(variants[q], block, local, which)
-                found[q].append((local + start, which, distances))
+        for first in range(0, len(queries), BRUTE_FORCE_QUERIES):
+            group = range(first, min(len(queries), first + BRUTE_FORCE_QUERIES))
+            limits = np.array([self.ranked(normalized[q], k)[-1][1] for q in group])
+            tables = np.empty((BRUTE_FORCE_NODES, BRUTE_FORCE_NODES, len(group)), np.float32)
+            owners = np.empty((BRUTE_FORCE_NODES,) * 2, dtype=np.int32)
+            table = np.empty((BRUTE_FORCE_NODES,) * 2)
+            for column, q in enumerate(group):
+                kernels.distance_table(normalized[q], table, owners)
+                tables[:, :, column] = table
+            variants = [query_variants(normalized[q]) for q in group]
+            for start, block in self.iter_points():
+                bounds = np.empty((len(block), 4, len(group)), dtype=np.float32)
+                kernels.nearest_node_bounds(tables, block, bounds)
+                able = bounds <= limits + BOUND_ROUNDING
+                for column, q in enumerate(group):
+                    local, which = np.nonzero(able[:, :, column])
+                    distances = _exact_pairs(variants[column], block, local, which)
+                    found[q].append((local + start, which, distances))
         answers = []
         for parts in found:
             rows, which, distances = (np.concatenate(column) for column in zip(*parts, strict=True))
@@ -635,9 +647,9 @@ def _save(store: Store, folder: str, fingerprint: str, arrays: dict) -> None:
         "arrays": sorted(named),
     }
     store.write_json(f"{folder}/current.json", current)
-    for relative in store.list_files(folder):
-        if not relative.startswith(f"{folder}/{build}/") and not relative.endswith(".json"):
-            store.delete(relative)
+    older = {relative[len(folder) + 1 :].split("/")[0] for relative in store.list_files(folder)}
+    for name in older - {build, "current.json"}:
+        store.delete_folder(f"{folder}/{name}")
 
 
 def _load_cache(store: Store, folder: str, fingerprint: str, rows: int) -> dict | None:

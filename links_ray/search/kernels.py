@@ -218,9 +218,10 @@ def score_rows(
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
 def distance_table(query: np.ndarray, out: np.ndarray, owners: np.ndarray) -> None:
     """out[a, b] = distance from node (TABLE_LO + a * size, TABLE_LO + b * size) to the query,
-    and owners[a, b] = the index of the query point at that distance."""
-    size = (TABLE_HI - TABLE_LO) / TABLE_CELLS
-    nodes = TABLE_CELLS + 1
+    and owners[a, b] = the index of the query point at that distance; out is square, of
+    TABLE_CELLS + 1 nodes a side for the search (any number for `nearest_node_bounds`)."""
+    nodes = out.shape[0]
+    size = (TABLE_HI - TABLE_LO) / (nodes - 1)
     for a in prange(nodes):
         x = TABLE_LO + a * size
         nearest = np.full(nodes, np.inf)
@@ -387,3 +388,38 @@ def path_to_query_bounds(table: np.ndarray, points: np.ndarray, out: np.ndarray)
                     )
                     total += max(bound, 0.0)
                 out[p, v] = total / count
+
+
+@njit(cache=True, nogil=True, parallel=True, fastmath=True)
+def nearest_node_bounds(tables: np.ndarray, points: np.ndarray, out: np.ndarray) -> None:
+    """out[p, v, q] <= the mean distance from path p, as variant v, to query q, for many
+    queries at once: `tables` (nodes, nodes, Q) float32 holds each query's `distance_table`
+    over [TABLE_LO, TABLE_HI]^2, queries last, so the one node a path point needs gives all
+    queries' distances from one place in memory. Each point is bounded from its nearest node
+    (the distance is 1-Lipschitz): d(point) >= d(node) - |point - node|.
+
+    Sums are float32: a caller comparing bounds allows for their rounding.
+    """
+    nodes = tables.shape[0]
+    size = (TABLE_HI - TABLE_LO) / (nodes - 1)
+    queries = tables.shape[2]
+    count = points.shape[1]
+    for chunk in prange((points.shape[0] + 63) // 64):
+        total = np.empty((4, queries), dtype=np.float32)
+        for p in range(chunk * 64, min(points.shape[0], (chunk + 1) * 64)):
+            total[:] = 0.0
+            for t in range(count):
+                for v in range(4):
+                    x, y = _flip(np.float64(points[p, t, 0]), np.float64(points[p, t, 1]), v)
+                    a = math.floor((x - TABLE_LO) / size + 0.5)
+                    b = math.floor((y - TABLE_LO) / size + 0.5)
+                    if a < 0 or b < 0 or a >= nodes or b >= nodes:
+                        continue  # outside the table: bounded by zero
+                    dx = x - (TABLE_LO + a * size)
+                    dy = y - (TABLE_LO + b * size)
+                    reach = np.float32(math.sqrt(dx * dx + dy * dy))
+                    for q in range(queries):
+                        total[v, q] += max(tables[a, b, q] - reach, np.float32(0.0))
+            for v in range(4):
+                for q in range(queries):
+                    out[p, v, q] = total[v, q] / count
