@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+import pyarrow.parquet as pq
 import pytest
 from test_cli import links
 from test_generation import read_table
@@ -22,7 +23,9 @@ from test_generation import read_table
 import links_ray
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
-from links_ray.data.pathset import KEEP_SHARE, keep_draw
+from links_ray.data import pathset, schemas
+from links_ray.data.commit import committed_files, committed_shards, marker_file
+from links_ray.data.pathset import KEEP_SHARE, keep_draw, path_table
 from links_ray.data.schemas import CURATION_TABLES
 from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.paths import circle_variance, normalize_path
@@ -184,6 +187,156 @@ def test_curation_on_s3_matches_local(ray_cluster: str, s3_env: str, curated_run
     frame = links_ray.load(uri, "curated", n_joints=[9, 10])
     sizes = curated_run["curated"].column("n_joints").to_numpy()
     assert set(frame["n_joints"]) == {9, 10} and len(frame) == np.isin(sizes, [9, 10]).sum()
+
+
+def read_curation(uri: str) -> dict[str, pa.Table | None]:
+    """Each curation table's rows by path_id, None for a table the pass did not write."""
+    store = Store.open(uri)
+    return {
+        table: read_table(store, table).sort_by("path_id") if store.list_files(table) else None
+        for table in CURATION_TABLES
+    }
+
+
+@pytest.fixture(scope="module")
+def mechanisms_only_run(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """`curated_run`'s plan generated with `mechanisms` alone (same seed), then curated."""
+    out = str(tmp_path_factory.mktemp("mechanisms-only") / "data")
+    generate(
+        out,
+        MECHANISMS,
+        seed=7,
+        progress=False,
+        topologies_per_shard=TOPOLOGIES_PER_SHARD,
+        tables="mechanisms",
+    )
+    summary = curate(out, seed=11, progress=False)
+    return {"out": out, "summary": summary, **read_curation(out)}
+
+
+def test_curation_from_mechanisms_alone_gives_the_same_rows(
+    curated_run: dict, mechanisms_only_run: dict
+) -> None:
+    """Simulated again, then cast to float32 as generation casts, the trajectories give the
+    paths of the stored ones bit for bit: ids, points, flags and variances."""
+    store = Store.open(mechanisms_only_run["out"])
+    assert store.list_files("simulations") == [] and store.list_files("negatives") == []
+    for table in CURATION_TABLES:
+        ours, theirs = mechanisms_only_run[table], curated_run[table]
+        assert ours.equals(theirs), f"{table} differs"
+        ours_points = ours.column("points").combine_chunks().flatten().to_numpy()
+        theirs_points = theirs.column("points").combine_chunks().flatten().to_numpy()
+        assert ours_points.tobytes() == theirs_points.tobytes()
+    summary, full = mechanisms_only_run["summary"], curated_run["summary"]
+    assert summary["resimulated"] == MECHANISMS and full["resimulated"] == 0
+    for key in ("mechanisms", "paths", "curated", "arcs", "circles", "both", "shares"):
+        assert summary[key] == full[key], key
+
+
+def test_mixed_root_and_chosen_tables(
+    ray_cluster: str, curated_run: dict, mechanisms_only_run: dict, tmp_path: Path
+) -> None:
+    """Some generation shards with simulations and some without; curation writes only the
+    tables asked for, and a later pass asking for others is refused in one line."""
+    full, bare = Path(curated_run["out"]), Path(mechanisms_only_run["out"])
+    mixed = tmp_path / "mixed"
+    shutil.copytree(full, mixed, ignore=shutil.ignore_patterns(*CURATION_TABLES, "curation*"))
+    store = Store.open(str(mixed))
+    markers = committed_shards(store)
+    without = [shard for shard in markers if shard % 2]
+    for shard in without:
+        (mixed / markers[shard]["files"]["simulations"]).unlink()
+        shutil.copy(bare / marker_file(shard), mixed / marker_file(shard))
+    assert committed_files(store, "simulations") == [
+        markers[shard]["files"]["simulations"] for shard in markers if shard not in without
+    ]
+    moved = sum(markers[shard]["rows"]["mechanisms"] for shard in without)
+    assert 0 < moved < MECHANISMS
+
+    summary = curate(str(mixed), seed=11, progress=False, tables="curated")
+    assert summary["tables"] == ["curated"] and summary["resimulated"] == moved
+    rows = read_curation(str(mixed))
+    assert rows["paths"] is None and rows["curated"].equals(curated_run["curated"])
+    for key in ("paths", "curated", "arcs", "circles", "both", "shares"):
+        assert summary[key] == curated_run["summary"][key], key
+    assert {t for m in committed_shards(store, "curation").values() for t in m["files"]} == {
+        "curated"
+    }
+    with pytest.raises(StoreError, match=r"holds another run \(tables=curated\)"):
+        curate(str(mixed), seed=11, progress=False)
+    refused = links(
+        "curate", str(mixed), "--seed", "11", "--tables", "paths", "--address", ray_cluster
+    )
+    assert refused.returncode == 2
+    assert refused.stderr == (
+        f"links curate: error: {mixed} holds another run (tables=curated); "
+        "use a new root or the same options\n"
+    )
+
+    # `paths` alone, from the same mixed shards.
+    shutil.rmtree(mixed / "curated")
+    shutil.rmtree(mixed / META / "curation")
+    (mixed / META / "curation.json").unlink()
+    summary = curate(str(mixed), seed=11, progress=False, tables=["paths"])
+    rows = read_curation(str(mixed))
+    assert rows["curated"] is None and rows["paths"].equals(curated_run["paths"])
+    assert summary["curated"] == curated_run["summary"]["curated"]
+
+
+@pytest.mark.parametrize(
+    ("tables", "message"),
+    [
+        ("mechanisms", "tables must be among paths, curated, got 'mechanisms'"),
+        (",", "tables must be among paths, curated, got '', ''"),
+        ([], "tables must name at least one of paths, curated"),
+    ],
+)
+def test_bad_curation_tables_are_refused(
+    curated_run: dict, tables: str | list, message: str
+) -> None:
+    with pytest.raises(ValueError, match=f"^{message}$"):
+        curate(curated_run["out"], seed=11, progress=False, tables=tables)
+    if isinstance(tables, str):
+        refused = links("curate", curated_run["out"], "--tables", tables)
+        assert (refused.returncode, refused.stderr) == (2, f"links curate: error: {message}\n")
+
+
+def test_paths_of_big_shards_split_their_list_arrays(
+    curated_run: dict, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A shard's paths hold no list array past the 32-bit offsets' reach: with the limit made
+    small, the rows come in more, smaller arrays and batches, and are the same rows."""
+    store = Store.open(curated_run["out"])
+    marker = max(committed_shards(store).values(), key=lambda m: m["rows"]["mechanisms"])
+    mechanisms, simulations = (
+        pq.read_table(store.path(marker["files"][table])) for table in ("mechanisms", "simulations")
+    )
+    n = marker["n_joints"]
+    whole = path_table(mechanisms, simulations, n)
+    assert whole.column("points").num_chunks == 1
+    limit = 7 * 200 * 2  # seven paths of 200 points
+    monkeypatch.setattr(schemas, "MAX_LIST_VALUES", limit)
+    monkeypatch.setattr(pathset, "MAX_LIST_VALUES", limit)
+    monkeypatch.setattr(pathset, "MECHANISMS_PER_BATCH", 3)
+    for source in (simulations, None):
+        batches = list(pathset.path_batches(mechanisms, source, n))
+        assert len(batches) == -(-len(mechanisms) // 3)
+        split = pa.concat_tables(batches)
+        assert all(len(chunk) * 400 <= limit for chunk in split.column("points").chunks)
+        assert split.equals(whole)
+    with pytest.raises(ValueError, match="8 lists of 400 values exceed the 2800 values"):
+        schemas.list_array(np.zeros((8, 400), dtype=np.float32), pa.float32())
+
+
+def test_curation_from_mechanisms_alone_on_s3(
+    ray_cluster: str, s3_env: str, curated_run: dict
+) -> None:
+    uri = f"{s3_env}/links-mechanisms-only"
+    generate(uri, MECHANISMS, seed=7, progress=False, topologies_per_shard=30, tables="mechanisms")
+    summary = curate(uri, seed=11, progress=False, tables="curated")
+    assert summary["resimulated"] == MECHANISMS
+    rows = read_curation(uri)
+    assert rows["paths"] is None and rows["curated"].equals(curated_run["curated"])
 
 
 def test_load_filters_and_reshapes(curated_run: dict) -> None:

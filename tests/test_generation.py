@@ -7,6 +7,7 @@ undisturbed run.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -145,6 +146,89 @@ def test_bad_out_is_a_clear_error(tmp_path: Path) -> None:
         generate("ftp://example/data", 10, progress=False)
     with pytest.raises(ValueError, match="mechanisms"):
         generate(str(tmp_path / "x"), 0, progress=False)
+
+
+def test_left_out_tables_change_no_row_of_the_written_ones(
+    ray_cluster: str, tmp_path: Path, reference_run: dict
+) -> None:
+    """`tables` in any order: the chosen tables' rows are the full run's, the markers and the
+    summary name only them, and run.json records them."""
+    out = str(tmp_path / "no-simulations")
+    summary = generate(
+        out, 137, seed=3, progress=False, topologies_per_shard=2, tables="negatives,mechanisms"
+    )
+    store = Store.open(out)
+    assert store.list_files("simulations") == []
+    for table in ("mechanisms", "negatives"):
+        left, right = read_table(store, table), reference_run["tables"][table]
+        assert left.select(sorted(left.column_names)).equals(
+            right.select(sorted(right.column_names))
+        ), f"{table} differs"
+    markers = committed_shards(store)
+    assert len(markers) == reference_run["summary"]["shards"]
+    assert {table for marker in markers.values() for table in marker["files"]} == {
+        "mechanisms",
+        "negatives",
+    }
+    assert summary["complete"] and summary["plan"]["tables"] == ["mechanisms", "negatives"]
+    assert summary["rows"] == {
+        table: reference_run["summary"]["rows"][table] for table in ("mechanisms", "negatives")
+    }
+    assert store.read_json(f"{META}/run.json")["tables"] == ["mechanisms", "negatives"]
+
+
+def test_resuming_with_other_tables_is_refused_in_one_line(
+    ray_cluster: str, tmp_path: Path, reference_run: dict
+) -> None:
+    with pytest.raises(StoreError, match=r"holds another run \(tables=mechanisms,simulations,"):
+        generate(
+            reference_run["out"],
+            137,
+            seed=3,
+            progress=False,
+            topologies_per_shard=2,
+            tables="mechanisms",
+        )
+    command = [*reference_command(reference_run["out"], ray_cluster), "--tables", "mechanisms"]
+    refused = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert refused.returncode == 2
+    assert refused.stderr == (
+        f"links generate: error: {reference_run['out']} holds another run "
+        "(tables=mechanisms,simulations,negatives); use a new root or the same options\n"
+    )
+    # A root recorded before tables could be chosen holds them all: the same plan resumes.
+    legacy = tmp_path / "legacy"
+    shutil.copytree(reference_run["out"], legacy)
+    run = json.loads((legacy / META / "run.json").read_text())
+    del run["tables"]
+    (legacy / META / "run.json").write_text(json.dumps(run))
+    again = generate(str(legacy), 137, seed=3, progress=False, topologies_per_shard=2)
+    assert again["complete"] and again["rows"] == reference_run["summary"]["rows"]
+
+
+@pytest.mark.parametrize(
+    ("tables", "message"),
+    [
+        ("simulations", "tables must include mechanisms, got simulations"),
+        (
+            "mechanisms,paths",
+            "tables must be among mechanisms, simulations, negatives, got 'paths'",
+        ),
+        ("", "tables must be among mechanisms, simulations, negatives, got ''"),
+    ],
+)
+def test_bad_tables_are_refused_in_one_line(tmp_path: Path, tables: str, message: str) -> None:
+    with pytest.raises(ValueError, match=f"^{message}$"):
+        generate(str(tmp_path / "data"), 10, progress=False, tables=tables)
+    command = [sys.executable, "-m", "links_ray.cli", "generate", "--out", str(tmp_path / "data")]
+    refused = subprocess.run(
+        [*command, "--mechanisms", "10", "--tables", tables],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert (refused.returncode, refused.stderr) == (2, f"links generate: error: {message}\n")
+    assert not (tmp_path / "data").exists()
 
 
 class PollingReader:

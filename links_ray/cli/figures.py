@@ -10,6 +10,7 @@ import pyarrow.dataset as pads
 
 from links_ray.data.dataset import open_table
 from links_ray.data.store import Store
+from links_ray.engine.solver import simulate
 
 
 def _pyplot():
@@ -74,28 +75,34 @@ def write_figures(root: str | Store, folder: str | Path, stats: dict, seed: int 
         figure.suptitle("Random normalized paths: before (left) and after (right) curation")
         written.append(_save(figure, out / "curation.png", plt))
 
-    if mechanisms and stats["counts"]["simulations"]:
+    if mechanisms:
         rows = _sample(store, "mechanisms", None, 4, rng)
-        ids = [row["mechanism_id"] for row in rows]
-        simulations = {
-            row["mechanism_id"]: row
-            for row in open_table(store, "simulations")
-            .to_table(filter=pads.field("mechanism_id").isin(ids))
-            .to_pylist()
-        }
+        traced = _trajectories(store, rows) if stats["counts"]["simulations"] else {}
         figure, grid = plt.subplots(1, len(rows), figsize=(4 * len(rows), 4))
         for axes, row in zip(np.atleast_1d(grid), rows, strict=True):
-            _draw_mechanism(axes, row, simulations[row["mechanism_id"]])
+            _draw_mechanism(axes, row, traced.get(row["mechanism_id"]))
         written.append(_save(figure, out / "mechanisms.png", plt))
     return written
 
 
-def _draw_mechanism(axes, mechanism: dict, simulation: dict) -> None:
+def _trajectories(store: Store, mechanisms: list[dict]) -> dict[int, list[float]]:
+    """The stored trajectories of these mechanisms, by id."""
+    ids = [row["mechanism_id"] for row in mechanisms]
+    rows = open_table(store, "simulations").to_table(filter=pads.field("mechanism_id").isin(ids))
+    return {row["mechanism_id"]: row["trajectories"] for row in rows.to_pylist()}
+
+
+def _draw_mechanism(axes, mechanism: dict, trajectories: list[float] | None) -> None:
+    """A mechanism with its joints' paths: stored ones, or simulated here when generation left
+    the simulations out."""
     n = len(mechanism["node_types"])
     positions = np.asarray(mechanism["positions"]).reshape(n, 2)
     adjacency = np.asarray(mechanism["adjacency"]).reshape(n, n)
     types = np.asarray(mechanism["node_types"])
-    paths = np.asarray(simulation["trajectories"]).reshape(n, -1, 2)
+    if trajectories is None:
+        paths = simulate(adjacency, types, positions)
+    else:
+        paths = np.asarray(trajectories).reshape(n, -1, 2)
     for joint in range(n):
         if types[joint] != 0:
             axes.plot(paths[joint, :, 0], paths[joint, :, 1], linewidth=0.7, alpha=0.7)

@@ -31,6 +31,11 @@ def _bench_sample(args: argparse.Namespace) -> None:
     _report(args, bench.bench_sample(per_joint_count=args.topologies), bench.format_sample)
 
 
+def _tables(args: argparse.Namespace) -> dict:
+    """`--tables` as the library takes it; absent, the library's default (the paper's set)."""
+    return {} if args.tables is None else {"tables": args.tables}
+
+
 def _generate(args: argparse.Namespace) -> None:
     from links_ray.cluster.generation import generate  # imports Ray: only when asked for
 
@@ -42,6 +47,7 @@ def _generate(args: argparse.Namespace) -> None:
         sampler=args.sampler,
         address=args.address,
         topologies_per_shard=args.shard_topologies,
+        **_tables(args),
     )
     print(json.dumps(summary, indent=2))
 
@@ -62,7 +68,9 @@ def _bench_generate(args: argparse.Namespace) -> None:
 def _curate(args: argparse.Namespace) -> None:
     from links_ray.cluster.curation import curate  # imports Ray: only when asked for
 
-    summary = curate(args.root, seed=args.seed, workers=args.workers, address=args.address)
+    summary = curate(
+        args.root, seed=args.seed, workers=args.workers, address=args.address, **_tables(args)
+    )
     print(json.dumps(summary, indent=2))
 
 
@@ -181,6 +189,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="topologies per shard (default 1000); rows do not depend on it, but a resumed "
         "run must use the same value",
     )
+    generate.add_argument(
+        "--tables",
+        default=None,
+        metavar="TABLES",
+        help="tables to write, comma-separated: mechanisms and any of simulations, negatives "
+        "(default all three); a resumed run must use the same",
+    )
     generate.set_defaults(run=_generate)
 
     curate = commands.add_parser(
@@ -190,6 +205,12 @@ def build_parser() -> argparse.ArgumentParser:
     curate.add_argument("--seed", type=_non_negative_int, default=0, help="curation draw seed")
     curate.add_argument("--workers", type=_positive_int, default=None)
     curate.add_argument("--address", default=None, help="Ray cluster address")
+    curate.add_argument(
+        "--tables",
+        default=None,
+        metavar="TABLES",
+        help="tables to write, comma-separated: paths, curated or both (default both)",
+    )
     curate.set_defaults(run=_curate)
 
     stats = commands.add_parser("stats", help="dataset statistics as JSON, figures as PNG")

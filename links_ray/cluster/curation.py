@@ -1,16 +1,18 @@
-"""The curation pass on Ray Data: committed simulations become `paths` and `curated` tables.
+"""The curation pass on Ray Data: committed mechanisms become `paths` and `curated` tables.
 
 The unit of work is a generation shard: its mechanisms and simulations files hold the same
 mechanisms, so a shard is curated on its own, streamed through a Ray Data pipeline of curator
 actors, and committed like generation shards (hidden files, then a marker under
-``ROOT/_links/curation/``). Rows depend only on the data and `--seed`, so reruns give the same
-rows; a rerun curates only the shards not yet curated, including ones generated since.
+``ROOT/_links/curation/``). A shard generated without its simulations is simulated again by its
+curator, which gives the same rows. Rows depend only on the data and `--seed`, so reruns give
+the same rows; a rerun curates only the shards not yet curated, including ones generated since.
 """
 
 from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Iterable
 
 import numpy as np
 import pyarrow as pa
@@ -25,10 +27,12 @@ from links_ray.data.pathset import (
     KEEP_SHARE,
     arc_circle_counts,
     curated_mask,
+    path_batches,
     path_shares,
-    path_table,
 )
+from links_ray.data.schemas import CURATION_TABLES, choose_tables
 from links_ray.data.store import META, Store, StoreError, diagnose
+from links_ray.engine.inputs import DEFAULT_STEPS
 
 CURATION_FORMAT = 1
 
@@ -36,10 +40,14 @@ CURATION_FORMAT = 1
 class ShardCurator:
     """A Ray Data actor: curates the generation shards it is given, one per row."""
 
-    def __init__(self, uri: str, seed: int, lease_token: str) -> None:
+    def __init__(
+        self, uri: str, seed: int, lease_token: str, tables: tuple[str, ...], steps: int
+    ) -> None:
         self.store = Store.open(uri, attempts=10)
         self.seed = seed
         self.lease_token = lease_token
+        self.tables = tables
+        self.steps = steps
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Curate each shard of the batch; a shard the store refused reports its error as data
@@ -61,7 +69,7 @@ class ShardCurator:
                 mechanisms.append(0)
                 errors.append(f"shard {int(shard)}: {diagnose(exc)}")
                 continue
-            paths.append(marker["rows"]["paths"])
+            paths.append(marker["stats"]["paths"])
             mechanisms.append(marker["stats"]["mechanisms"])
             errors.append("")
         return {
@@ -78,18 +86,31 @@ class ShardCurator:
     def curate(
         self, shard_id: int, n_joints: int, mechanisms_file: str, simulations_file: str
     ) -> dict:
-        """Write one shard's paths and curated paths, then its marker; returns the marker."""
+        """Write one shard's chosen tables, then its marker; returns the marker.
+
+        With no `simulations_file` (generation left the table out) the shard's mechanisms are
+        simulated again, which gives the same rows.
+        """
         start = time.perf_counter()
-        paths = path_table(self._read(mechanisms_file), self._read(simulations_file), n_joints)
-        keep = curated_mask(paths, self.seed)
+        mechanisms = self._read(mechanisms_file)
+        simulations = self._read(simulations_file) if simulations_file else None
         writer = ShardWriter(self.store, shard_id, n_joints, stage="curation")
         try:
-            for table, rows in (("paths", paths), ("curated", paths.filter(keep))):
-                for batch in rows.to_batches(max_chunksize=50_000):
-                    writer.write(table, batch)
+            counts = {"paths": 0, "curated": 0, "arcs": 0, "circles": 0, "both": 0}
+            for paths in path_batches(mechanisms, simulations, n_joints, self.steps):
+                curated = paths.filter(curated_mask(paths, self.seed))
+                for table, rows in (("paths", paths), ("curated", curated)):
+                    if table in self.tables:
+                        for batch in rows.to_batches(max_chunksize=50_000):
+                            writer.write(table, batch)
+                counts["paths"] += len(paths)
+                counts["curated"] += len(curated)
+                for key, count in arc_circle_counts(paths).items():
+                    counts[key] += count
             stats = {
-                "mechanisms": len(np.unique(paths.column("mechanism_id").to_numpy())),
-                **arc_circle_counts(paths),
+                "mechanisms": len(mechanisms),
+                "resimulated": 0 if simulations is not None else len(mechanisms),
+                **counts,
                 "seconds": time.perf_counter() - start,
             }
             if not holder_still(self.store, "writer", self.lease_token):
@@ -106,28 +127,47 @@ def curate(
     workers: int | None = None,
     address: str | None = None,
     progress: bool = True,
+    tables: str | Iterable[str] = CURATION_TABLES,
 ) -> dict:
-    """Curate every committed generation shard at `root` not curated yet; returns the summary."""
+    """Curate every committed generation shard at `root` not curated yet; returns the summary.
+
+    `tables` are the tables written: `paths`, `curated` or both (names, or one comma-separated
+    string).
+    """
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     if workers is not None and (isinstance(workers, bool) or workers < 1):
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    tables = choose_tables(tables, CURATION_TABLES)
     store = Store.open(root)
     with Lease.acquire(store, "writer", "links curate") as lease:
-        summary = _curate_holding(store, lease, seed, workers, address, progress)
+        summary = _curate_holding(store, lease, seed, tables, workers, address, progress)
     return summary
 
 
 def _curate_holding(
-    store: Store, lease: Lease, seed: int, workers: int | None, address: str | None, progress: bool
+    store: Store,
+    lease: Lease,
+    seed: int,
+    tables: tuple[str, ...],
+    workers: int | None,
+    address: str | None,
+    progress: bool,
 ) -> dict:
     """`curate`'s work, done while holding the root's writer lease."""
     generated = committed_shards(store, "shards")
     if not generated:
         raise StoreError(f"{store.uri} holds no generated shards: run links generate first")
-    store.claim(
-        f"{META}/curation.json", {"seed": seed, "keep_share": KEEP_SHARE, "format": CURATION_FORMAT}
-    )
+    settings = {
+        "seed": seed,
+        "keep_share": KEEP_SHARE,
+        "format": CURATION_FORMAT,
+        "tables": list(tables),
+    }
+    # A pass recorded before tables could be chosen wrote them both.
+    store.claim(f"{META}/curation.json", settings, defaults={"tables": list(CURATION_TABLES)})
+    run = store.read_json(f"{META}/run.json") or {}
+    steps = run.get("steps", DEFAULT_STEPS)  # of shards to simulate again
     curated = committed_shards(store, "curation")
     remove_uncommitted(store, "curation", curated)
     todo = [marker for shard, marker in sorted(generated.items()) if shard not in curated]
@@ -145,7 +185,7 @@ def _curate_holding(
                     "shard": m["shard"],
                     "n_joints": m["n_joints"],
                     "mechanisms_file": m["files"]["mechanisms"],
-                    "simulations_file": m["files"]["simulations"],
+                    "simulations_file": m["files"].get("simulations", ""),
                 }
                 for m in todo
             ],
@@ -153,7 +193,13 @@ def _curate_holding(
         )
         results = shards.map_batches(
             ShardCurator,
-            fn_constructor_kwargs={"uri": store.uri, "seed": seed, "lease_token": lease.token},
+            fn_constructor_kwargs={
+                "uri": store.uri,
+                "seed": seed,
+                "lease_token": lease.token,
+                "tables": tables,
+                "steps": steps,
+            },
             batch_size=1,
             compute=ray.data.ActorPoolStrategy(size=actors),
             num_cpus=1,
@@ -181,24 +227,28 @@ def _curate_holding(
             )
         lease.confirm()
         remove_uncommitted(store, "curation", committed_shards(store, "curation"))
-    summary = summarize_curation(store, time.perf_counter() - start, len(todo))
+    summary = summarize_curation(store, time.perf_counter() - start, len(todo), tables)
     store.write_json(f"{META}/curation_summary.json", summary)
     return summary
 
 
-def summarize_curation(store: Store, seconds: float, curated_now: int) -> dict:
-    """Counts of paths, arcs and circles, and the curated share, over all curated shards."""
+def summarize_curation(
+    store: Store, seconds: float, curated_now: int, tables: tuple[str, ...] = CURATION_TABLES
+) -> dict:
+    """Counts of paths (made, whether or not written), curated paths, arcs and circles, and the
+    curated share, over all curated shards; `resimulated` counts the mechanisms simulated again."""
     markers = committed_shards(store, "curation")
-    totals = {"mechanisms": 0, "paths": 0, "curated": 0, "arcs": 0, "circles": 0, "both": 0}
+    keys = ("mechanisms", "resimulated", "paths", "curated", "arcs", "circles", "both")
+    totals = dict.fromkeys(keys, 0)
     compute_s = 0.0
     for marker in markers.values():
-        totals["paths"] += marker["rows"].get("paths", 0)
-        totals["curated"] += marker["rows"].get("curated", 0)
-        for key in ("mechanisms", "arcs", "circles", "both"):
-            totals[key] += marker["stats"][key]
+        for key in keys:
+            # Markers written before curation could leave tables out count their rows only.
+            totals[key] += marker["stats"].get(key, marker["rows"].get(key, 0))
         compute_s += marker["stats"]["seconds"]
     return {
         "out": store.uri,
+        "tables": list(tables),
         "shards": len(markers),
         "shards_this_run": curated_now,
         **totals,

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import asdict
 
 import ray
@@ -22,6 +23,7 @@ from links_ray.cluster.connect import connect
 from links_ray.cluster.progress import Progress
 from links_ray.data.commit import committed_shards, remove_uncommitted
 from links_ray.data.lease import Lease, LeaseLost, holder_still
+from links_ray.data.schemas import GENERATION_TABLES
 from links_ray.data.shards import GenerationPlan, Shard, write_shard
 from links_ray.data.store import META, Store, StoreError
 
@@ -63,18 +65,22 @@ def generate(
     address: str | None = None,
     progress: bool = True,
     topologies_per_shard: int | None = None,
+    tables: str | Iterable[str] = GENERATION_TABLES,
 ) -> dict:
     """Generate `mechanisms` valid mechanisms into `out` on Ray; returns the run summary.
 
-    Resumable: shards committed by an earlier run of the same plan are kept, the rest are made.
+    `tables` are the tables written: `mechanisms` and any of `simulations` and `negatives`
+    (names, or one comma-separated string). Resumable: shards committed by an earlier run of
+    the same plan are kept, the rest are made.
     """
     if workers is not None and (isinstance(workers, bool) or workers < 1):
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
     extra = {} if topologies_per_shard is None else {"topologies_per_shard": topologies_per_shard}
-    plan = GenerationPlan(seed=seed, mechanisms=mechanisms, sampler=sampler, **extra)
+    plan = GenerationPlan(seed=seed, mechanisms=mechanisms, sampler=sampler, tables=tables, **extra)
     store = Store.open(out)
     with Lease.acquire(store, "writer", "links generate") as lease:
-        store.claim(f"{META}/run.json", plan.config())
+        # A run recorded before tables could be chosen wrote them all.
+        store.claim(f"{META}/run.json", plan.config(), defaults={"tables": list(GENERATION_TABLES)})
         committed = committed_shards(store, "shards")
         remove_uncommitted(store, "shards", committed)
         todo = deque(shard for shard in plan.shards() if shard.shard_id not in committed)
@@ -232,7 +238,7 @@ def summarize(
 ) -> dict:
     """The run summary: counts, candidates per valid mechanism by joint count, throughput."""
     by_size: dict[int, dict] = {}
-    rows = {"mechanisms": 0, "simulations": 0, "negatives": 0}
+    rows = dict.fromkeys(plan.tables, 0)
     compute_s = 0.0
     for marker in markers.values():
         stats = marker["stats"]

@@ -1,5 +1,10 @@
 """From simulations to path rows (docs/CONTRACT.md, Dataset layout), for one shard at a time.
 
+The trajectories come from the shard's `simulations` table or, when generation left it out,
+from the engine: `simulated_trajectories` casts them to the stored type exactly as generation
+does, so both give the same rows bit for bit. `trajectory_paths` is the one place rows are
+made from trajectories.
+
 One path per moving joint (simple or actuated) of every mechanism, normalized; `is_arc` when
 the joint is linked to a fixed joint (the engine's `arc_flags`), `is_circle` when the variance
 of the normalized points' distances from (0.5, 0.5) is below 5e-4. Curation keeps every other
@@ -14,14 +19,22 @@ Pure numpy/pyarrow: no Ray.
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Iterator
+
 import numpy as np
 import pyarrow as pa
 
-from links_ray.data.schemas import SCHEMAS
+from links_ray.data.schemas import MAX_LIST_VALUES, SCHEMAS, TRAJECTORY_DTYPE, list_array
+from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.mechanism import FIXED, arc_flags
 from links_ray.engine.paths import CIRCLE_VARIANCE_THRESHOLD, circle_variances, normalize_paths
+from links_ray.engine.solver import TopologySimulator
 
 JOINT_BITS = 5
+#: Mechanisms turned into paths at once (a default shard's 1,000 topologies): bounds a
+#: curator's memory whatever the shard size.
+MECHANISMS_PER_BATCH = 5000
 #: Share of arcs and circles curation keeps (the paper's 0.5%).
 KEEP_SHARE = 0.005
 
@@ -40,10 +53,11 @@ def keep_draw(ids: np.ndarray, seed: int) -> np.ndarray:
     return (z >> np.uint64(11)).astype(np.float64) / float(1 << 53)
 
 
-def _list_values(column: pa.ChunkedArray, width: int) -> np.ndarray:
+def _list_values(column: pa.ChunkedArray | pa.Array, width: int) -> np.ndarray:
     """A list column whose rows all hold `width` values, as a (rows, width) array."""
-    flat = column.combine_chunks().flatten().to_numpy(zero_copy_only=False)
-    return flat.reshape(-1, width)
+    if isinstance(column, pa.ChunkedArray):
+        column = column.combine_chunks()
+    return column.flatten().to_numpy(zero_copy_only=False).reshape(-1, width)
 
 
 def _by_id(table: pa.Table) -> pa.Table:
@@ -52,39 +66,107 @@ def _by_id(table: pa.Table) -> pa.Table:
     return table if np.all(ids[1:] > ids[:-1]) else table.sort_by("mechanism_id")
 
 
-def path_table(mechanisms: pa.Table, simulations: pa.Table, n_joints: int) -> pa.Table:
-    """Every moving joint's normalized path of one shard's mechanisms (any row order)."""
-    mechanisms, simulations = _by_id(mechanisms), _by_id(simulations)
-    ids = mechanisms.column("mechanism_id").to_numpy()
-    if not np.array_equal(ids, simulations.column("mechanism_id").to_numpy()):
-        raise ValueError("the shard's mechanisms and simulations hold different mechanism ids")
+def simulated_trajectories(mechanisms: pa.Table, n_joints: int, steps: int) -> np.ndarray:
+    """The trajectories (rows, n, steps, 2) of mechanisms rows of `n_joints` joints, simulated
+    by the engine and cast to the stored type as generation casts them: the paths made from
+    them are bit for bit those made from the `simulations` table.
+
+    Consecutive rows of one topology (a topology's variants) share one simulator. A mechanism
+    that locks raises ValueError: the table holds valid mechanisms only.
+    """
     n = n_joints
-    steps = int(simulations.column("steps")[0].as_py()) if len(simulations) else 200
+    adjacency = _list_values(mechanisms.column("adjacency"), n * n)
+    node_types = _list_values(mechanisms.column("node_types"), n)
+    positions = _list_values(mechanisms.column("positions"), 2 * n).reshape(-1, n, 2)
+    positions = np.ascontiguousarray(positions, dtype=np.float64)
+    out = np.empty((len(positions), n, steps, 2), dtype=TRAJECTORY_DTYPE)
+    changes = np.any(adjacency[1:] != adjacency[:-1], axis=1)
+    changes |= np.any(node_types[1:] != node_types[:-1], axis=1)
+    starts = [0, *(np.flatnonzero(changes) + 1).tolist(), len(positions)]
+    scratch = np.empty((0, n, steps, 2))  # float64, reused: fresh pages cost more than solving
+    for start, stop in itertools.pairwise(starts):
+        if len(scratch) < stop - start:
+            scratch = np.empty((stop - start, n, steps, 2))
+        simulator = TopologySimulator(adjacency[start].reshape(n, n), node_types[start])
+        # The checked path's position checks cost as much as the simulation: a bad position
+        # shows up as a lock or, when not finite, in the normalization.
+        trajectories, lock_step, _ = simulator.run(
+            positions[start:stop], steps, out=scratch[: stop - start]
+        )
+        if np.any(lock_step >= 0):
+            row = start + int(np.argmax(lock_step >= 0))
+            mechanism_id = mechanisms.column("mechanism_id")[row].as_py()
+            raise ValueError(f"mechanism {mechanism_id} locks: it is not a valid mechanism")
+        out[start:stop] = trajectories.astype(TRAJECTORY_DTYPE)  # as generation casts them
+    return out
+
+
+def trajectory_paths(mechanisms: pa.Table, trajectories: np.ndarray, n_joints: int) -> pa.Table:
+    """Every moving joint's normalized path of `mechanisms` rows (in mechanism_id order), from
+    their trajectories (rows, n, steps, 2) in the stored type."""
+    n = n_joints
+    ids = mechanisms.column("mechanism_id").to_numpy()
+    steps = trajectories.shape[2]
     node_types = _list_values(mechanisms.column("node_types"), n)
     adjacency = _list_values(mechanisms.column("adjacency"), n * n).reshape(-1, n, n)
-    trajectories = _list_values(simulations.column("trajectories"), n * steps * 2)
-    trajectories = trajectories.reshape(-1, n, steps, 2)
-
     is_arc = arc_flags(adjacency, node_types)
     rows, joints = np.nonzero(node_types != FIXED)
     points = normalize_paths(trajectories[rows, joints]).astype(np.float32)
     # Classified from the points as stored, so a reader recomputing it gets the same answer.
     variance = circle_variances(points)
+    # One list array holds at most MAX_LIST_VALUES values (32-bit offsets): split if need be.
+    per_chunk = max(1, MAX_LIST_VALUES // (steps * 2))
+    flat = points.reshape(len(points), -1)
+    chunks = [
+        list_array(flat[start : start + per_chunk], pa.float32())
+        for start in range(0, len(flat), per_chunk)
+    ]
     return pa.table(
         {
             "path_id": path_ids(ids[rows], joints),
             "mechanism_id": ids[rows],
             "joint": joints.astype(np.int8),
-            "points": pa.ListArray.from_arrays(
-                pa.array(np.arange(0, (len(rows) + 1) * steps * 2, steps * 2, dtype=np.int32)),
-                pa.array(points.ravel(), type=pa.float32()),
-            ),
+            "points": pa.chunked_array(chunks, type=pa.list_(pa.float32())),
             "is_arc": is_arc[rows, joints],
             "is_circle": variance < CIRCLE_VARIANCE_THRESHOLD,
             "circle_variance": variance.astype(np.float32),
         },
         schema=SCHEMAS["paths"],
     )
+
+
+def path_batches(
+    mechanisms: pa.Table, simulations: pa.Table | None, n_joints: int, steps: int = DEFAULT_STEPS
+) -> Iterator[pa.Table]:
+    """One shard's path rows in mechanism_id order, MECHANISMS_PER_BATCH mechanisms at a time
+    (any row order in). Trajectories come from `simulations` (of the same mechanisms), or,
+    when it is None, are simulated over `steps` steps: the rows are the same either way."""
+    mechanisms = _by_id(mechanisms)
+    ids = mechanisms.column("mechanism_id").to_numpy()
+    if simulations is not None:
+        simulations = _by_id(simulations)
+        if not np.array_equal(ids, simulations.column("mechanism_id").to_numpy()):
+            raise ValueError("the shard's mechanisms and simulations hold different mechanism ids")
+        if len(simulations):
+            steps = int(simulations.column("steps")[0].as_py())
+    for start in range(0, len(ids), MECHANISMS_PER_BATCH):
+        part = mechanisms.slice(start, MECHANISMS_PER_BATCH)
+        if simulations is None:
+            trajectories = simulated_trajectories(part, n_joints, steps)
+        else:
+            stored = simulations.column("trajectories").slice(start, MECHANISMS_PER_BATCH)
+            trajectories = _list_values(stored, n_joints * steps * 2)
+            trajectories = trajectories.reshape(-1, n_joints, steps, 2)
+        yield trajectory_paths(part, trajectories, n_joints)
+
+
+def path_table(
+    mechanisms: pa.Table, simulations: pa.Table | None, n_joints: int, steps: int = DEFAULT_STEPS
+) -> pa.Table:
+    """Every moving joint's normalized path of one shard's mechanisms (`path_batches` as one
+    table)."""
+    batches = list(path_batches(mechanisms, simulations, n_joints, steps))
+    return pa.concat_tables(batches) if batches else SCHEMAS["paths"].empty_table()
 
 
 def curated_mask(paths: pa.Table, seed: int) -> np.ndarray:

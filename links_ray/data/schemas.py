@@ -7,10 +7,18 @@ Each table is Hive-partitioned Parquet under the root (docs/CONTRACT.md, Dataset
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
+import numpy as np
 import pyarrow as pa
 
 GENERATION_TABLES = ("mechanisms", "simulations", "negatives")
 CURATION_TABLES = ("paths", "curated")
+#: Trajectories are simulated in float64 and stored in this type. Curation casts the
+#: trajectories it simulates itself the same way, so its paths are those of stored ones.
+TRAJECTORY_DTYPE = np.float32
+#: Values one list array may hold: its offsets are 32-bit.
+MAX_LIST_VALUES = 2**31 - 1
 
 _MECHANISM_FIELDS = [
     pa.field("mechanism_id", pa.int64(), nullable=False),
@@ -38,7 +46,9 @@ SCHEMAS: dict[str, pa.Schema] = {
         [
             pa.field("mechanism_id", pa.int64(), nullable=False),
             pa.field("steps", pa.int16(), nullable=False),
-            pa.field("trajectories", pa.list_(pa.float32()), nullable=False),
+            pa.field(
+                "trajectories", pa.list_(pa.from_numpy_dtype(TRAJECTORY_DTYPE)), nullable=False
+            ),
         ]
     ),
     "negatives": pa.schema(
@@ -54,3 +64,39 @@ SCHEMAS: dict[str, pa.Schema] = {
 #: zstd, no dictionary: floats do not repeat, and dictionary pages only cost time and space.
 PARQUET_OPTIONS = {"compression": "zstd", "use_dictionary": False, "write_statistics": True}
 TABLE_NAMES = GENERATION_TABLES + CURATION_TABLES
+
+
+def choose_tables(
+    tables: str | Iterable[str], stage_tables: tuple[str, ...], required: str | None = None
+) -> tuple[str, ...]:
+    """The tables a run writes, in `stage_tables` order, from names or a comma-separated string.
+
+    Raises ValueError for an unknown name, for none at all, or without `required`.
+    """
+    names = tables.split(",") if isinstance(tables, str) else list(tables)
+    names = [name.strip() if isinstance(name, str) else name for name in names]
+    unknown = [name for name in names if name not in stage_tables]
+    if unknown:
+        raise ValueError(
+            f"tables must be among {', '.join(stage_tables)}, got {', '.join(map(repr, unknown))}"
+        )
+    if not names:
+        raise ValueError(f"tables must name at least one of {', '.join(stage_tables)}")
+    if required is not None and required not in names:
+        raise ValueError(f"tables must include {required}, got {', '.join(names)}")
+    return tuple(table for table in stage_tables if table in names)
+
+
+def list_array(rows: np.ndarray, value_type: pa.DataType) -> pa.ListArray:
+    """A list array of the rows of a (rows, width) array, every row of `width` values.
+
+    Its offsets are 32-bit: more than MAX_LIST_VALUES values in all is refused, never wrapped.
+    """
+    count, width = rows.shape
+    if count * width > MAX_LIST_VALUES:
+        raise ValueError(
+            f"{count} lists of {width} values exceed the {MAX_LIST_VALUES} values a list array "
+            "can hold: split the rows"
+        )
+    offsets = (np.arange(count + 1, dtype=np.int64) * width).astype(np.int32)
+    return pa.ListArray.from_arrays(pa.array(offsets), pa.array(rows.ravel(), type=value_type))

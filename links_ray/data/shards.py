@@ -21,7 +21,13 @@ import numpy as np
 import pyarrow as pa
 
 from links_ray.data.commit import Failpoint, ShardWriter
-from links_ray.data.schemas import GENERATION_TABLES, SCHEMAS
+from links_ray.data.schemas import (
+    GENERATION_TABLES,
+    SCHEMAS,
+    TRAJECTORY_DTYPE,
+    choose_tables,
+    list_array,
+)
 from links_ray.data.store import Store
 from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
@@ -57,7 +63,11 @@ class Shard:
 
 @dataclass(frozen=True)
 class GenerationPlan:
-    """What a run produces; equal plans produce equal rows."""
+    """What a run produces; equal plans produce equal rows.
+
+    `tables` are the tables written (`mechanisms` always): leaving a table out changes no row
+    of the others, since every topology draws the same whatever is written.
+    """
 
     seed: int
     mechanisms: int
@@ -66,6 +76,7 @@ class GenerationPlan:
     variants: int = VARIANTS
     steps: int = DEFAULT_STEPS
     format: int = FORMAT_VERSION
+    tables: tuple[str, ...] = GENERATION_TABLES
 
     def __post_init__(self) -> None:
         for name in ("seed", "mechanisms", "topologies_per_shard"):
@@ -80,13 +91,16 @@ class GenerationPlan:
             raise ValueError("topologies_per_shard must be at least 1")
         if self.sampler not in SAMPLERS:
             raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)}, got {self.sampler!r}")
+        tables = choose_tables(self.tables, GENERATION_TABLES, required="mechanisms")
+        object.__setattr__(self, "tables", tables)  # frozen: set once, in canonical order
 
     @property
     def topologies(self) -> int:
         return -(-self.mechanisms // self.variants)
 
     def config(self) -> dict:
-        return asdict(self)
+        """The plan as `run.json` records it (JSON types: `tables` is a list)."""
+        return {**asdict(self), "tables": list(self.tables)}
 
     def shards(self) -> list[Shard]:
         """Every shard of the run, in a fixed order."""
@@ -130,10 +144,7 @@ class _Rows:
             parts = self.columns[field.name]
             if pa.types.is_list(field.type):
                 rows = np.concatenate([p.reshape(len(p), -1) for p in parts])
-                width = rows.shape[1]
-                offsets = np.arange(0, (len(rows) + 1) * width, width, dtype=np.int32)
-                values = pa.array(rows.ravel(), type=field.type.value_type)
-                arrays.append(pa.ListArray.from_arrays(pa.array(offsets), values))
+                arrays.append(list_array(rows, field.type.value_type))
             else:
                 arrays.append(pa.array(np.concatenate(parts), type=field.type))
         return pa.RecordBatch.from_arrays(arrays, schema=schema)
@@ -147,7 +158,8 @@ def topology_rng(seed: int, topology_id: int) -> np.random.Generator:
 def generate_shard(
     plan: GenerationPlan, shard: Shard, write: Callable[[str, pa.RecordBatch], None]
 ) -> dict:
-    """Generate a shard's rows, handing record batches to `write(table, batch)`.
+    """Generate a shard's rows, handing record batches of the plan's tables to
+    `write(table, batch)`.
 
     Returns the shard's statistics: topologies, mechanisms, candidates tried (abandoned
     topologies' included), negatives, topologies abandoned, and the seconds it took.
@@ -162,7 +174,7 @@ def generate_shard(
         "abandoned": 0,
     }
     for chunk in _chunks(shard.topology_ids(), TOPOLOGIES_PER_BATCH):
-        rows = {table: _Rows.empty(table) for table in GENERATION_TABLES}
+        rows = {table: _Rows.empty(table) for table in plan.tables}
         for topology_id in chunk:
             _generate_topology(plan, shard.n_joints, topology_id, rows, stats)
         for table, buffer in rows.items():
@@ -228,13 +240,14 @@ def _generate_topology(
         positions=found.positions[:keep],
         **shared,
     )
-    rows["simulations"].add(
-        mechanism_id=ids,
-        steps=np.full(keep, plan.steps, dtype=np.int16),
-        trajectories=found.trajectories[:keep].astype(np.float32),
-    )
+    if "simulations" in rows:
+        rows["simulations"].add(
+            mechanism_id=ids,
+            steps=np.full(keep, plan.steps, dtype=np.int16),
+            trajectories=found.trajectories[:keep].astype(TRAJECTORY_DTYPE),
+        )
     negatives = len(found.negatives)
-    if negatives:
+    if negatives and "negatives" in rows:
         rows["negatives"].add(
             mechanism_id=NEGATIVE_ID_BASE + plan.variants * topology_id + np.arange(negatives),
             topology_id=np.full(negatives, topology_id, dtype=np.int64),

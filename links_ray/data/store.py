@@ -191,12 +191,13 @@ class Store:
         )
         return files if with_times else [path for path, _ in files]
 
-    def claim(self, relative: str, config: dict) -> None:
+    def claim(self, relative: str, config: dict, defaults: dict | None = None) -> None:
         """Record what a run asks for at `relative`, or check it matches what is recorded.
 
         A root holds one dataset: resuming with other options would mix two datasets' rows.
         The record is created only if absent, so two runs racing to claim a root cannot both
-        win; an unreadable record counts as absent.
+        win; an unreadable record counts as absent. `defaults` are the values of options a
+        record made before they existed holds implicitly.
         """
         encoded = (json.dumps(config, indent=1) + "\n").encode()
         recorded = self.read_json(relative)
@@ -207,9 +208,10 @@ class Store:
             if recorded is None:  # there, but unreadable: written by nobody whole, so ours
                 self.write_bytes(relative, encoded)
                 return
+        recorded = {**(defaults or {}), **recorded}
         if recorded != config:
             differ = ", ".join(
-                f"{k}={recorded.get(k)}" for k in config if recorded.get(k) != config[k]
+                f"{k}={_option(recorded.get(k))}" for k in config if recorded.get(k) != config[k]
             )
             raise StoreError(
                 f"{self.uri} holds another run ({differ}); use a new root or the same options"
@@ -360,3 +362,8 @@ def diagnose(exc: BaseException) -> str:
         if code in text:
             return f"{meaning} [{code}]"
     return text.splitlines()[0]
+
+
+def _option(value: object) -> str:
+    """A recorded option as a command line gives it: a list as comma-separated names."""
+    return ",".join(map(str, value)) if isinstance(value, list) else str(value)
