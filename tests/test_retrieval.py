@@ -4,6 +4,7 @@ query's own frame."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -17,10 +18,12 @@ from links_ray.cluster.generation import generate
 from links_ray.data.store import Store
 from links_ray.engine.inputs import validate_query
 from links_ray.engine.paths import chamfer, chamfer_to_many, normalization, normalize_path
+from links_ray.search import index as search_index
 from links_ray.search import kernels as kernels
 from links_ray.search.index import (
     RetrievalIndex,
     _about_least,
+    _nearest_centroid,
     cache_folder,
     distance_table,
     query_variants,
@@ -61,8 +64,8 @@ def test_top3_is_exactly_the_brute_force_top3(index: RetrievalIndex) -> None:
 
 
 def stored_points(index: RetrievalIndex) -> np.ndarray:
-    """Every path's points as the curated table stores them, in row order."""
-    return np.concatenate([points for _, points in index.iter_points()])
+    """Every path's points as the curated table stores them, in the index's row order."""
+    return np.concatenate([points for _, points in index.iter_points()])[index.file_row]
 
 
 def test_paths_traced_again_are_the_stored_points_bit_for_bit(index: RetrievalIndex) -> None:
@@ -233,6 +236,49 @@ def test_bad_queries_are_refused(points: object, k: object, message: str) -> Non
         validate_query(points, k)
 
 
+def test_coarse_lists_group_rows_and_probing_finds_the_near_ones(
+    index: RetrievalIndex, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """With lists of about 100 rows, rows are grouped by the list of their nearest centroid;
+    a query scanning only its nearest lists (a quarter of the rows) still finds a stored path
+    drawn in another frame, and scanning all lists answers as the index without lists."""
+    monkeypatch.setattr(search_index, "ROWS_PER_LIST", 100)
+    monkeypatch.setitem(search_index.BUILD_SETTINGS, "rows_per_list", 100)
+    copy = tmp_path / "data"  # its saved index is built otherwise: keep the fixture's
+    shutil.copytree(index.store.uri, copy)
+    lists = RetrievalIndex.open(str(copy))
+    assert lists.build_s > 0
+    count = len(lists.centroids)
+    assert count == len(index) // 100
+    assert sorted(lists.file_row.tolist()) == list(range(len(index)))
+    sizes = np.diff(lists.list_start)
+    assert lists.list_start[0] == 0 and lists.list_start[-1] == len(index) and sizes.min() >= 0
+    codes = lists.basis.field_codes(lists.head, lists.tail)
+    np.testing.assert_array_equal(
+        _nearest_centroid(codes, lists.centroids), np.repeat(np.arange(count), sizes)
+    )
+    stored = stored_points(index)
+    np.testing.assert_array_equal(lists.paths(np.arange(len(lists))), stored_points(lists))
+    # Every list scanned: the same answers as the index of one list.
+    for query in queries():
+        assert lists.retrieve(query, k=5) == index.retrieve(query, k=5)
+    # A quarter of the rows scanned, a tenth of those passed on: a stored path finds itself.
+    monkeypatch.setattr(search_index, "PROBED_ROWS", len(index) // 4)
+    rng = np.random.default_rng(6)
+    path_ids = lists.path_id
+    for row in rng.choice(len(index), 10, replace=False):
+        angle = rng.uniform(0, 2 * np.pi)
+        turn = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        query = stored[row].astype(float) @ turn.T * 3.0 - [1, 2]
+        field_codes = lists.basis.query(query_variants(normalization(query)[0]))[2]
+        starts, ends, _ = lists.probe(field_codes, len(index) // 4)
+        assert len(index) // 4 <= (ends - starts).sum() < len(index) // 2
+        best = lists.ranked(normalization(query)[0], k=1, candidates=len(index) // 40)[0]
+        assert best[1] < 1e-5
+        assert np.allclose(stored_points(lists)[best[0]], stored[row], atol=1e-6)
+        assert path_ids[best[0]] in index.path_id
+
+
 def test_saved_index_is_reused(index: RetrievalIndex) -> None:
     assert Store.open(index.store.uri).read_json(f"{cache_folder(0, 1)}/current.json")
     again = RetrievalIndex.open(index.store.uri)
@@ -301,10 +347,15 @@ def test_scan_scores_and_selection_match_numpy() -> None:
     offsets = rng.normal(size=4).astype(np.float32)
     bias = rng.normal(size=5000).astype(np.float32)
 
-    scanned = np.empty(5000, dtype=np.float32)
-    kernels.scan(head, head_weights, offsets, bias, scanned)
     expected = bias + (head @ head_weights.T.astype(np.float64) + offsets).min(axis=1)
-    np.testing.assert_allclose(scanned, expected, rtol=1e-5, atol=1e-2)
+    # Two row ranges of uneven length, cut into pieces: scores packed in range order.
+    starts, ends = np.array([3000, 100]), np.array([5000, 1337])
+    pieces = kernels.scan_pieces(starts, ends, piece=300)
+    assert (pieces[1] - pieces[0]).max() == 300
+    packed = np.empty(2000 + 1237, dtype=np.float32)
+    kernels.scan(head, *pieces, head_weights, offsets, bias, packed)
+    rows = np.r_[3000:5000, 100:1337]
+    np.testing.assert_allclose(packed, expected[rows], rtol=1e-5, atol=1e-2)
 
     rows = np.arange(0, 5000, 3)
     scores = np.empty(len(rows), dtype=np.float32)

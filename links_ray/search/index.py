@@ -7,10 +7,13 @@ query's four variants (as drawn, turned 180 degrees, mirrored, both). Search has
 1. Scan. Chamfer's two halves are, on a grid, dot products: the query's point mass against a
    path's distance field, and the path's point mass against the query's distance field. With
    the fields reduced by PCA to `DIMENSIONS` per half (and int8 codes), every path gets a
-   linear estimate of its chamfer distance to each variant. One pass over the leading
-   `HEAD_COMPONENTS` of every code keeps `HEAD_KEEP` times as many rows as there are
-   candidates; their whole codes keep the candidates (`CANDIDATE_SHARE` of the paths, at least
-   `MIN_CANDIDATES`), each with its likeliest variant (and the second, if within `VARIANT_MARGIN`).
+   linear estimate of its chamfer distance to each variant. Rows are grouped in coarse lists
+   by their field codes (k-means); a query scans the lists nearest its own field codes until
+   they hold `PROBED_ROWS` rows (all of them, up to that size). One pass over the leading
+   `HEAD_COMPONENTS` of the scanned codes keeps `HEAD_KEEP` times as many rows as there are
+   candidates; their whole codes keep the candidates (`CANDIDATE_SHARE` of the rows scanned, at
+   least `MIN_CANDIDATES`), each with its likeliest variant (and the second, if within
+   `VARIANT_MARGIN`).
 2. Estimate. Each candidate pair gets nearest-point distances from a sample of query points,
    plus the path's distance to the query from the query's table of nearest points. Roughly
    for all, from the first half of the paths' 256-byte sketches, then from the whole sketch
@@ -62,8 +65,8 @@ from links_ray.search.mechanisms import MechanismBank
 
 #: PCA components of the distance fields; a path's code holds two sets (2 * DIMENSIONS int8).
 DIMENSIONS = 64
-#: Paths passed from the scan to the estimate: this share of all, and at least MIN_CANDIDATES
-#: (every path, in every variant, when there are no more than that).
+#: Paths passed from the scan to the estimate: this share of the rows scanned, and at least
+#: MIN_CANDIDATES (every path, in every variant, when there are no more than that).
 CANDIDATE_SHARE, MIN_CANDIDATES = 0.025, 3_000
 #: Components per half in the head of a code; the head scan keeps HEAD_KEEP times as many rows
 #: as there are candidates, for the whole codes to rank.
@@ -90,7 +93,13 @@ INDEX_FOLDER = f"{META}/index"
 #: How far a lower bound may exceed the exact distance it bounds by rounding (they are
 #: computed differently).
 ROUNDING = 1e-9
-INDEX_FORMAT = 4
+INDEX_FORMAT = 5
+#: The coarse partition (an inverted file): about this many rows per list (at most
+#: MAX_LISTS lists), fitted by KMEANS_ROUNDS rounds of k-means on KMEANS_SAMPLE rows' field
+#: codes. A query scans the lists nearest it until they hold PROBED_ROWS rows (every list of
+#: an index no larger), so a scan costs the same at 10 million paths as at 1 million.
+ROWS_PER_LIST, MAX_LISTS, KMEANS_ROUNDS, KMEANS_SAMPLE = 10_000, 4_096, 8, 100_000
+PROBED_ROWS = 1_000_000
 #: Exact brute force: queries bounded together in one pass over the points, the nodes a
 #: side of their distance tables (a finer grid than the search's: tighter bounds), and how
 #: far a float32 sum of 200 bounds may exceed its exact value.
@@ -165,14 +174,23 @@ class Basis:
         )
         return codes, mass @ self.mean - (fields * mass).sum(axis=1)
 
-    def query(self, variants: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def query(self, variants: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Scan weights (4, 2 * DIMENSIONS) against int8 codes, and offsets (4,), of the
-        query's variants: code . weight + offset + bias estimates the chamfer distance."""
+        query's variants: code . weight + offset + bias estimates the chamfer distance; and
+        the variants' own field codes (4, DIMENSIONS), unquantized, to find the lists near."""
         fields, mass = path_features(variants)
-        weights = np.concatenate(
-            [mass @ self.components, (fields - self.mean) @ self.components], axis=1
+        field_codes = (fields - self.mean) @ self.components
+        weights = np.concatenate([mass @ self.components, field_codes], axis=1)
+        return (
+            (weights * self.scale).astype(np.float32),
+            (mass @ self.mean).astype(np.float32),
+            field_codes.astype(np.float32),
         )
-        return (weights * self.scale).astype(np.float32), (mass @ self.mean).astype(np.float32)
+
+    def field_codes(self, head: np.ndarray, tail: np.ndarray) -> np.ndarray:
+        """The field half of int8 codes split as `head` and `tail`, unquantized (R, DIMENSIONS)."""
+        halves = (head[:, :HEAD_COMPONENTS], tail[:, : DIMENSIONS - HEAD_COMPONENTS])
+        return np.concatenate(halves, axis=1).astype(np.float32) * self.scale[:DIMENSIONS]
 
 
 def check_part(part: int, parts: int) -> None:
@@ -208,6 +226,11 @@ class RetrievalIndex:
     tail: np.ndarray  # (N, 2 * (DIMENSIONS - HEAD_COMPONENTS)) int8
     bias: np.ndarray  # (N,) float32
     sketches: np.ndarray  # (N, 2 * SKETCH_POINTS) uint8, see `search_kernels`
+    # Rows are grouped by coarse list: list l is rows list_start[l]:list_start[l + 1], its
+    # centroid centroids[l] (field codes). file_row[r] is row r's place in the curated files.
+    list_start: np.ndarray  # (L + 1,) int64
+    centroids: np.ndarray  # (L, DIMENSIONS) float32
+    file_row: np.ndarray  # (N,) int32 or int64
     basis: Basis
     bank: MechanismBank
     part: int = 0
@@ -221,7 +244,11 @@ class RetrievalIndex:
     @property
     def nbytes(self) -> int:
         """Memory the index holds, the scan's output buffer included."""
-        arrays = (self.mechanism_row, self.joint, self.head, self.tail, self.bias, self.sketches)
+        arrays = (
+            *(getattr(self, name) for name in ROW_ARRAYS),
+            self.list_start,
+            self.centroids,
+        )
         basis = self.basis.mean.nbytes + self.basis.components.nbytes + self.basis.scale.nbytes
         return sum(a.nbytes for a in arrays) + basis + self.bank.nbytes + 4 * len(self)
 
@@ -289,28 +316,48 @@ class RetrievalIndex:
         return index
 
     def iter_points(self, block: int = BUILD_BLOCK) -> Iterator[tuple[int, np.ndarray]]:
-        """(first row, points (B, steps, 2) float32) of every path, in row order, read from
-        the curated Parquet files (the index holds no points)."""
+        """(first file row, points (B, steps, 2) float32) of every path, in the curated
+        files' order (row r of the index is file row `file_row[r]`), read from Parquet: the
+        index holds no points."""
         start = 0
         for batch in _curated_batches(self.store, self.files, ["points"], block):
             points = _batch_points(batch)
             yield start, points
             start += len(points)
 
+    def probe(self, field_codes: np.ndarray, rows: int = PROBED_ROWS) -> tuple[np.ndarray, ...]:
+        """The row ranges to scan for a query whose variants have these field codes: the
+        lists nearest any variant, nearest first, until they hold `rows` rows, in row order
+        (`scan_pieces`: starts, ends, at)."""
+        sizes = np.diff(self.list_start)
+        if len(sizes) == 1 or rows >= len(self):
+            chosen = np.arange(len(sizes))
+        else:
+            gaps = (self.centroids**2).sum(axis=1) - 2 * field_codes @ self.centroids.T
+            order = np.argsort(gaps.min(axis=0), kind="stable")
+            enough = np.searchsorted(np.cumsum(sizes[order]), rows) + 1
+            chosen = np.sort(order[:enough])
+        return kernels.scan_pieces(self.list_start[chosen], self.list_start[chosen + 1])
+
     def candidates(
-        self, weights: np.ndarray, offsets: np.ndarray, count: int
+        self, weights: np.ndarray, offsets: np.ndarray, count: int, pieces: tuple[np.ndarray, ...]
     ) -> tuple[np.ndarray, np.ndarray]:
-        """About `count` rows whose scanned estimate, at their best variant, is least (every
-        row when `count` reaches the total), for the query weights and offsets of
-        `Basis.query`; and for each, 4 * its likeliest variant + the second likeliest if
-        nearly as likely (`score_rows`), or -1 when every row is returned."""
+        """About `count` rows of the scanned `pieces` (`probe`) whose estimate, at their best
+        variant, is least (every row when `count` reaches the total), for the query weights
+        and offsets of `Basis.query`; and for each, 4 * its likeliest variant + the second
+        likeliest if nearly as likely (`score_rows`), or -1 when every row is returned."""
         if count >= len(self):
             return np.arange(len(self)), np.full(len(self), -1, dtype=np.int8)
+        starts, ends, at = pieces
+        scanned = int(at[-1] + ends[-1] - starts[-1])
         if self._scores is None:
             self._scores = np.empty(len(self), dtype=np.float32)
         head_weights = np.ascontiguousarray(weights[:, HEAD_COLUMNS])
-        kernels.scan(self.head, head_weights, offsets, self.bias, self._scores)
-        wide = _about_least(self._scores, HEAD_KEEP * count)
+        scores = self._scores[:scanned]
+        kernels.scan(self.head, starts, ends, at, head_weights, offsets, self.bias, scores)
+        positions = _about_least(scores, HEAD_KEEP * count)
+        piece = np.searchsorted(at, positions, side="right") - 1
+        wide = starts[piece] + positions - at[piece]
         scores = np.empty(len(wide), dtype=np.float32)
         likely = np.empty(len(wide), dtype=np.int8)
         kernels.score_rows(
@@ -332,12 +379,15 @@ class RetrievalIndex:
         self, normalized: np.ndarray, k: int = DEFAULT_K, candidates: int | None = None
     ) -> list[tuple[int, float, int]]:
         """The k best (row, chamfer, variant), best first, for a normalized query; the scan
-        passes on `candidates` paths (by default `CANDIDATE_SHARE` of them)."""
-        if candidates is None:
-            candidates = max(MIN_CANDIDATES, round(CANDIDATE_SHARE * len(self)))
+        of the probed lists passes on `candidates` paths (by default `CANDIDATE_SHARE` of the
+        rows scanned)."""
         variants = query_variants(normalized)
-        weights, offsets = self.basis.query(variants)
-        rows, likely = self.candidates(weights, offsets, candidates)
+        weights, offsets, field_codes = self.basis.query(variants)
+        pieces = self.probe(field_codes)
+        if candidates is None:
+            scanned = int(pieces[2][-1] + pieces[1][-1] - pieces[0][-1])
+            candidates = max(MIN_CANDIDATES, round(CANDIDATE_SHARE * scanned))
+        rows, likely = self.candidates(weights, offsets, candidates, pieces)
         # Each candidate with its likely variants (every variant on the exhaustive path).
         if len(rows) == len(self):
             pair_rows, pair_variants = np.repeat(rows, 4), np.tile(np.arange(4), len(rows))
@@ -511,9 +561,12 @@ class RetrievalIndex:
                     local, which = np.nonzero(able[:, :, column])
                     distances = _exact_pairs(variants[column], block, local, which)
                     found[q].append((local + start, which, distances))
+        index_row = np.empty(len(self), dtype=np.int64)
+        index_row[self.file_row] = np.arange(len(self))
         answers = []
         for parts in found:
             rows, which, distances = (np.concatenate(column) for column in zip(*parts, strict=True))
+            rows = index_row[rows]
             answers.append(_best_rows(rows, self.path_ids(rows), which, distances, k))
         return answers
 
@@ -597,17 +650,58 @@ def _build(store: Store, files: list[str], rows: int) -> dict:
     if start != rows:
         raise ValueError(f"{store.uri}: the curated files hold fewer rows than their markers")
     bank = MechanismBank.from_table(_source_mechanisms(store, mechanism_id))
-    return {
-        "steps": steps,
+    by_row = {
         "mechanism_row": bank.rows_of(mechanism_id),
         "joint": joint,
         "head": head,
         "tail": tail,
         "bias": bias,
         "sketches": sketches,
+    }
+    lists, centroids = _coarse_lists(basis, head, tail)
+    file_row = np.argsort(lists, kind="stable").astype(np.int32 if rows < 2**31 else np.int64)
+    list_start = np.searchsorted(lists[file_row], np.arange(len(centroids) + 1)).astype(np.int64)
+    if len(centroids) > 1:  # rows grouped by list: a list is scanned in one sweep
+        by_row = {name: array[file_row] for name, array in by_row.items()}
+    return {
+        **by_row,
+        "steps": steps,
+        "file_row": file_row,
+        "list_start": list_start,
+        "centroids": centroids,
         "basis": basis,
         "bank": bank,
     }
+
+
+def _coarse_lists(basis: Basis, head: np.ndarray, tail: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Each row's coarse list (N,) and the lists' centroids (L, DIMENSIONS): k-means on the
+    field codes of a sample, every row then in the list of its nearest centroid."""
+    rows = len(head)
+    count = min(MAX_LISTS, max(1, rows // ROWS_PER_LIST))
+    if count == 1:
+        return np.zeros(rows, dtype=np.int32), np.zeros((1, DIMENSIONS), dtype=np.float32)
+    rng = np.random.default_rng(0)
+    sample = np.sort(rng.permutation(rows)[: max(KMEANS_SAMPLE, 20 * count)])
+    points = basis.field_codes(head[sample], tail[sample])
+    centroids = points[rng.permutation(len(points))[:count]]
+    for _ in range(KMEANS_ROUNDS):
+        nearest = _nearest_centroid(points, centroids)
+        sizes = np.bincount(nearest, minlength=count)
+        for d in range(centroids.shape[1]):
+            sums = np.bincount(nearest, weights=points[:, d], minlength=count)
+            centroids[:, d] = np.where(sizes > 0, sums / np.maximum(sizes, 1), centroids[:, d])
+    lists = np.empty(rows, dtype=np.int32)
+    for start in range(0, rows, 10 * BUILD_BLOCK):
+        block = slice(start, start + 10 * BUILD_BLOCK)
+        lists[block] = _nearest_centroid(basis.field_codes(head[block], tail[block]), centroids)
+    return lists, centroids
+
+
+def _nearest_centroid(points: np.ndarray, centroids: np.ndarray) -> np.ndarray:
+    """The index of the nearest centroid of each point (squared distances through BLAS)."""
+    gaps = (centroids**2).sum(axis=1) - 2 * points @ centroids.T
+    return gaps.argmin(axis=1).astype(np.int32)
 
 
 def _pca_sample(store: Store, files: list[str], rows: int) -> np.ndarray:
@@ -622,9 +716,18 @@ def _pca_sample(store: Store, files: list[str], rows: int) -> np.ndarray:
     return points[np.sort(picked)]
 
 
-#: The arrays a saved index holds, besides the basis.
-SAVED_ARRAYS = ("mechanism_row", "joint", "head", "tail", "bias", "sketches")
+#: The arrays a saved index holds: one entry per row, and the rest, besides the basis.
+ROW_ARRAYS = ("mechanism_row", "joint", "head", "tail", "bias", "sketches", "file_row")
+SAVED_ARRAYS = (*ROW_ARRAYS, "list_start", "centroids")
 BASIS_ARRAYS = ("mean", "components", "scale")
+#: What a saved index was built with: one built otherwise is rebuilt.
+BUILD_SETTINGS = {
+    "dimensions": DIMENSIONS,
+    "head_components": HEAD_COMPONENTS,
+    "sketch_points": kernels.SKETCH_POINTS,
+    "rows_per_list": ROWS_PER_LIST,
+    "max_lists": MAX_LISTS,
+}
 
 
 def _save(store: Store, folder: str, fingerprint: str, arrays: dict) -> None:
@@ -644,6 +747,7 @@ def _save(store: Store, folder: str, fingerprint: str, arrays: dict) -> None:
         "build": build,
         "rows": len(arrays["joint"]),
         "steps": arrays["steps"],
+        "settings": BUILD_SETTINGS,
         "arrays": sorted(named),
     }
     store.write_json(f"{folder}/current.json", current)
@@ -661,6 +765,7 @@ def _load_cache(store: Store, folder: str, fingerprint: str, rows: int) -> dict 
         or current.get("format") != INDEX_FORMAT
         or current.get("fingerprint") != fingerprint
         or current.get("rows") != rows
+        or current.get("settings") != BUILD_SETTINGS
     ):
         return None
     named = {}
@@ -677,7 +782,7 @@ def _load_cache(store: Store, folder: str, fingerprint: str, rows: int) -> dict 
         saved = {name: named.pop(name) for name in SAVED_ARRAYS}
     except (OSError, ValueError, KeyError, TypeError, EOFError):
         return None
-    if named or any(len(saved[name]) != rows for name in SAVED_ARRAYS):
+    if named or any(len(saved[name]) != rows for name in ROW_ARRAYS):
         return None
     return {**saved, "steps": int(current["steps"]), "basis": basis, "bank": bank}
 

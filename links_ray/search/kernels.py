@@ -157,16 +157,40 @@ def _scores(
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
 def scan(
-    codes: np.ndarray, weights: np.ndarray, offsets: np.ndarray, bias: np.ndarray, out: np.ndarray
+    codes: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    at: np.ndarray,
+    weights: np.ndarray,
+    offsets: np.ndarray,
+    bias: np.ndarray,
+    out: np.ndarray,
 ) -> None:
-    """out[i] = bias[i] + min over the four variants v of (codes[i] . weights[v] + offsets[v])."""
-    rows = codes.shape[0]
-    for chunk in prange((rows + _CHUNK - 1) // _CHUNK):
-        for i in range(chunk * _CHUNK, min(rows, (chunk + 1) * _CHUNK)):
+    """For the rows i of each range starts[j]:ends[j] (pieces of a few thousand rows, so the
+    threads share them evenly): out[at[j] + i - starts[j]] = bias[i] + the least over the
+    four variants v of (codes[i] . weights[v] + offsets[v])."""
+    for j in prange(starts.shape[0]):
+        base = at[j] - starts[j]
+        for i in range(starts[j], ends[j]):
             s0, s1, s2, s3 = _scores(codes, i, weights)
-            out[i] = bias[i] + min(
+            out[base + i] = bias[i] + min(
                 min(s0 + offsets[0], s1 + offsets[1]), min(s2 + offsets[2], s3 + offsets[3])
             )
+
+
+def scan_pieces(
+    starts: np.ndarray, ends: np.ndarray, piece: int = _CHUNK
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Row ranges cut into pieces of at most `piece` rows for `scan`: (starts, ends, at),
+    `at` where each piece's scores begin in the output."""
+    lengths = ends - starts
+    counts = (lengths + piece - 1) // piece
+    first = np.repeat(starts, counts)
+    within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    piece_starts = first + within * piece
+    piece_ends = np.minimum(piece_starts + piece, np.repeat(ends, counts))
+    at = np.concatenate([[0], np.cumsum(piece_ends - piece_starts)[:-1]])
+    return piece_starts.astype(np.int64), piece_ends.astype(np.int64), at.astype(np.int64)
 
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
