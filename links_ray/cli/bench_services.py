@@ -190,6 +190,7 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
     for query, exact in zip(held_out[:recall_queries], truth, strict=True):
         found = {row for row, _, _ in index.ranked(normalize_path(query))}
         hits += len(found & {row for row, _, _ in exact})
+    probing = _probing(index, held_out[:recall_queries], truth)
 
     # Served as `links serve` serves: Ray started for it, the replica answering HTTP itself.
     import ray
@@ -236,6 +237,7 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
         "recall_at_3": hits / (3 * recall_queries),
         "recall_queries": recall_queries,
         "brute_force_s": brute_force_s,
+        "probing": probing,
         "queries": queries,
         "targets": {
             "p50_ms": 100 if large else 50,
@@ -244,6 +246,32 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
             "resident_bytes_per_path": 600,
         },
     }
+
+
+def _probing(index: object, queries: list[np.ndarray], truth: list[list]) -> list[dict]:
+    """Recall@3 and the in-process search time (`ranked`) at a few scan sizes: how the
+    coarse lists trade recall for time. One entry, every row, for an index of one list."""
+    from links_ray.search.index import PROBED_ROWS
+
+    sizes = (PROBED_ROWS // 4, PROBED_ROWS // 2, PROBED_ROWS, 2 * PROBED_ROWS)
+    sizes = [size for size in sizes if size < len(index)] + [len(index)]
+    normalized = [normalize_path(query) for query in queries]
+    found = []
+    for size in sizes:
+        hits, times = 0, []
+        for query, exact in zip(normalized, truth, strict=True):
+            start = time.perf_counter()
+            ranked = index.ranked(query, probed=size)
+            times.append(time.perf_counter() - start)
+            hits += len({row for row, _, _ in ranked} & {row for row, _, _ in exact})
+        found.append(
+            {
+                "probed_rows": size,
+                "recall_at_3": hits / (3 * len(queries)),
+                "p50_ms": float(np.percentile(times, 50) * 1e3),
+            }
+        )
+    return found
 
 
 def _held_out_queries(count: int, seed: int) -> list[np.ndarray]:
@@ -287,6 +315,11 @@ def format_retrieve(result: dict) -> str:
             f"recall@3 against exact brute force: {result['recall_at_3']:.3f} on "
             f"{result['recall_queries']} held-out queries (target {targets['recall_at_3']}; "
             f"brute force took {result['brute_force_s']:.0f} s)",
+            "rows scanned per query: "
+            + "; ".join(
+                f"{p['probed_rows']:,} recall {p['recall_at_3']:.3f} p50 {p['p50_ms']:.0f} ms"
+                for p in result["probing"]
+            ),
         ]
     )
 

@@ -376,14 +376,18 @@ class RetrievalIndex:
         return wide[best], likely[best]
 
     def ranked(
-        self, normalized: np.ndarray, k: int = DEFAULT_K, candidates: int | None = None
+        self,
+        normalized: np.ndarray,
+        k: int = DEFAULT_K,
+        candidates: int | None = None,
+        probed: int = PROBED_ROWS,
     ) -> list[tuple[int, float, int]]:
         """The k best (row, chamfer, variant), best first, for a normalized query; the scan
-        of the probed lists passes on `candidates` paths (by default `CANDIDATE_SHARE` of the
-        rows scanned)."""
+        of the lists nearest it, `probed` rows, passes on `candidates` paths (by default
+        `CANDIDATE_SHARE` of the rows scanned)."""
         variants = query_variants(normalized)
         weights, offsets, field_codes = self.basis.query(variants)
-        pieces = self.probe(field_codes)
+        pieces = self.probe(field_codes, probed)
         if candidates is None:
             scanned = int(pieces[2][-1] + pieces[1][-1] - pieces[0][-1])
             candidates = max(MIN_CANDIDATES, round(CANDIDATE_SHARE * scanned))
