@@ -145,7 +145,9 @@ def _resident_bytes(root: str) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: int = 100) -> dict:
+def bench_retrieve(
+    paths: int = 1_000_000, queries: int = 1000, recall_queries: int = 100, rebuild: bool = True
+) -> dict:
     """Index build, load and memory; latency in process and over HTTP; recall@3 against
     exact brute force.
 
@@ -153,10 +155,12 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
     circles, given in a random frame: moved, turned, scaled and sometimes mirrored. Latency
     is timed on `queries` of them after the index's warm-up (`RetrievalIndex.warm`, which the
     Serve replica also runs before it takes traffic); recall on the first `recall_queries`.
+    Without `rebuild`, a saved index is loaded and its recorded build time reported.
     """
     import urllib.request
 
-    from links_ray.search.index import RetrievalIndex
+    from links_ray.data.store import Store
+    from links_ray.search.index import RetrievalIndex, cache_folder
 
     start = time.perf_counter()
     root = retrieval_dataset(paths)
@@ -167,8 +171,11 @@ def bench_retrieve(paths: int = 1_000_000, queries: int = 1000, recall_queries: 
         if not table.startswith("_")
     }
     start = time.perf_counter()
-    index = RetrievalIndex.open(root, rebuild=True)
+    index = RetrievalIndex.open(root, rebuild=rebuild)
     build_s = time.perf_counter() - start
+    if not index.build_s:  # loaded: the saved index's own build time
+        saved = Store.open(root).read_json(f"{cache_folder(0, 1)}/current.json") or {}
+        build_s = float(saved.get("build_s", float("nan")))
     del index
     start = time.perf_counter()
     index = RetrievalIndex.open(root)

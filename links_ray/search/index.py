@@ -307,7 +307,7 @@ class RetrievalIndex:
             arrays = _build(store, files, rows)
             index = cls(**common, **arrays, build_s=time.perf_counter() - start)
             try:
-                _save(store, folder, fingerprint, arrays)
+                _save(store, folder, fingerprint, arrays, index.build_s)
             except OSError:  # a read-only root: serve from memory, build again next time
                 pass
         finally:
@@ -734,7 +734,7 @@ BUILD_SETTINGS = {
 }
 
 
-def _save(store: Store, folder: str, fingerprint: str, arrays: dict) -> None:
+def _save(store: Store, folder: str, fingerprint: str, arrays: dict, build_s: float) -> None:
     """Save an index's arrays in a new build folder, then point `current.json` at it (the
     commit), then delete older builds."""
     build = uuid.uuid4().hex[:12]
@@ -752,6 +752,7 @@ def _save(store: Store, folder: str, fingerprint: str, arrays: dict) -> None:
         "rows": len(arrays["joint"]),
         "steps": arrays["steps"],
         "settings": BUILD_SETTINGS,
+        "build_s": build_s,
         "arrays": sorted(named),
     }
     store.write_json(f"{folder}/current.json", current)
