@@ -12,7 +12,9 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.dataset as pads
+from numpy.typing import ArrayLike
 
 from links_ray.data.commit import committed_files
 from links_ray.data.schemas import TABLE_NAMES
@@ -40,6 +42,26 @@ def open_table(
         partitioning=PARTITIONING,
         partition_base_dir=store.path(table),
     )
+
+
+def isin(column: str, values: ArrayLike) -> pads.Expression:
+    """A scan filter: `column` is one of `values`, held as their distinct values in Arrow's own
+    memory.
+
+    Never NumPy's: `pa.array` of a NumPy array borrows its memory, and a scan may drop its
+    filter on one of Arrow's threads after `to_table` has returned (its asynchronous scanner's
+    last callback). Letting go of borrowed NumPy memory takes the GIL; if Python is finalizing
+    by then (a command that ends right after a scan), the thread is stopped inside a C++
+    destructor and the process aborts: "terminate called without an active exception", exit
+    status 134. `pc.unique` allocates its result from Arrow's memory pool, and the borrowing
+    `pa.array` it reads from is let go here, on the caller's thread.
+    """
+    return pads.field(column).isin(value_set(values))
+
+
+def value_set(values: ArrayLike) -> pa.Array:
+    """The distinct `values`, in Arrow's own memory (see `isin`)."""
+    return pc.unique(pa.array(values))
 
 
 def load(

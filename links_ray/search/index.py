@@ -48,12 +48,11 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.dataset as pads
 import pyarrow.parquet as pq
 from numpy.typing import ArrayLike
 
 from links_ray.data.commit import committed_files, committed_shards
-from links_ray.data.dataset import open_table
+from links_ray.data.dataset import isin, open_table
 from links_ray.data.lease import Lease, index_lease_name
 from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.inputs import DEFAULT_K, validate_query
@@ -845,11 +844,12 @@ def _spread(length: int, count: int) -> np.ndarray:
 
 
 def _source_mechanisms(store: Store, mechanism_ids: np.ndarray) -> pa.Table:
-    """The mechanisms with these ids (each once)."""
-    wanted = pa.array(np.unique(mechanism_ids))
+    """The mechanisms with these ids (each once). The filter holds the ids in Arrow's memory
+    (`dataset.isin`): a command that stops right after building an index would otherwise
+    abort now and then at exit."""
     return open_table(store, "mechanisms").to_table(
         columns=["mechanism_id", "adjacency", "node_types", "positions"],
-        filter=pads.field("mechanism_id").isin(wanted),
+        filter=isin("mechanism_id", mechanism_ids),
     )
 
 
