@@ -693,3 +693,46 @@ def test_scales_beyond_the_accepted_range_are_refused(where: str, match: str) ->
         simulate_batch(adjacency, node_types, positions[None] * scale)
     with pytest.raises(InvalidMechanismError, match=match):
         simulate(adjacency, node_types, positions * scale)
+
+
+def test_packed_mechanisms_trace_as_the_simulator_does_bit_for_bit() -> None:
+    """`MechanismBank` packs mechanisms of many topologies as positions and solution paths;
+    tracing any joint of them equals the topology simulator's trajectory exactly, and the
+    packed mechanism unpacks to the one given."""
+    import pyarrow as pa
+
+    from links_ray.engine.sampling import PositionSampler
+    from links_ray.engine.solver import TopologySimulator
+    from links_ray.engine.topology import random_topology
+    from links_ray.search.mechanisms import MechanismBank
+
+    rng = np.random.default_rng(17)
+    mechanisms = []
+    while len(mechanisms) < 12:
+        adjacency, node_types = random_topology(rng)
+        simulator = TopologySimulator(adjacency, node_types)
+        found = PositionSampler(simulator).search(2, rng, "sequential")
+        for positions, trajectories in zip(found.positions, found.trajectories, strict=True):
+            mechanisms.append((adjacency, node_types, positions, trajectories))
+    ids = rng.permutation(1000)[: len(mechanisms)] * 7
+    table = pa.table(
+        {
+            "mechanism_id": ids,
+            "adjacency": [m[0].ravel().tolist() for m in mechanisms],
+            "node_types": [m[1].tolist() for m in mechanisms],
+            "positions": [m[2].ravel().tolist() for m in mechanisms],
+        }
+    )
+    bank = MechanismBank.from_table(table)
+    assert bank.ids.tolist() == sorted(ids.tolist())
+    rows = bank.rows_of(ids)
+    for row, (adjacency, node_types, positions, trajectories) in zip(rows, mechanisms, strict=True):
+        joints = np.arange(len(node_types))
+        traced = bank.trajectories(np.full(len(joints), row), joints, trajectories.shape[1])
+        np.testing.assert_array_equal(traced, trajectories)
+        unpacked = bank.mechanism(row)
+        np.testing.assert_array_equal(unpacked[0], adjacency)
+        np.testing.assert_array_equal(unpacked[1], node_types)
+        np.testing.assert_array_equal(unpacked[2], positions)
+    with pytest.raises(ValueError, match="mechanism 5 is not in the mechanisms table"):
+        bank.rows_of(np.array([5]))
