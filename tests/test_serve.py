@@ -538,6 +538,8 @@ def test_app_builder_args(dataset: str, tmp_path: Path) -> None:
     from links_ray.serve.app import app_builder, build_app
 
     assert isinstance(app_builder({"root": dataset, "replicas": "2"}), Application)
+    sharded = {"shards": "3", "shard_cpus": "0.5", "shard_memory_gb": 2, "max_retrievals": 4}
+    assert isinstance(app_builder({"root": dataset, **sharded}), Application)
     for bad, message in (
         ({}, "the links application needs args.root"),
         ({"root": ""}, "the links application needs args.root"),
@@ -548,11 +550,42 @@ def test_app_builder_args(dataset: str, tmp_path: Path) -> None:
         ),
         ({"root": dataset, "replicas": True}, "args.replicas must be a positive integer, got True"),
         ({"root": dataset, "x": 1}, r"unknown args for the links application: \['x'\]"),
+        ({"root": dataset, "shards": 0}, "args.shards must be a positive integer, got 0"),
+        ({"root": dataset, "shards": 1.5}, "args.shards must be a positive integer, got 1.5"),
+        (
+            {"root": dataset, "shard_cpus": "nan"},
+            "args.shard_cpus must be a positive number, got 'nan'",
+        ),
+        (
+            {"root": dataset, "shard_memory_gb": -1},
+            "args.shard_memory_gb must be a positive number, got -1",
+        ),
+        # The dataset has 6 curated shards (60 topologies, 10 a shard): a 7th part is empty.
+        (
+            {"root": dataset, "shards": 7},
+            "has 6 curated shards: split in 7 parts, part 6 would have none; use fewer shards",
+        ),
     ):
         with pytest.raises(ValueError, match=message):
             app_builder(bad)
     with pytest.raises(ValueError, match="replicas must be a positive integer, got 0"):
         build_app(dataset, replicas=0)
+    with pytest.raises(ValueError, match="shard_cpus must be a positive number, got 0"):
+        build_app(dataset, shards=2, shard_cpus=0)
+
+
+def test_an_app_that_cannot_fit_is_refused() -> None:
+    """On a Ray `links serve` starts itself, an app larger than the machine is refused in one
+    line, where Serve would wait for resources forever."""
+    from links_ray.serve.app import check_fits
+
+    two_cpus = {"CPU": 2.0, "memory": 8e9}
+    check_fits(1, None, 1.0, None, two_cpus)
+    check_fits(1, 4, 0.25, 1.5, two_cpus)
+    with pytest.raises(ValueError, match=r"the app needs 5 CPUs \(1 a front replica, 1 a shard"):
+        check_fits(1, 4, 1.0, None, two_cpus)
+    with pytest.raises(ValueError, match=r"the shards reserve 12\.0 GB and this Ray has 8\.0 GB"):
+        check_fits(1, 2, 0.5, 6, two_cpus)
 
 
 def listening_process(port: int) -> str:
@@ -581,13 +614,16 @@ def test_the_replica_answers_http_itself(client: Client) -> None:
     assert client.proxy.get("/api/health") == client.get("/api/health")
 
 
+@pytest.mark.parametrize("shards", [None, 2], ids=["one-index", "2-shards"])
 def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
-    dataset: str, curated: Any
+    dataset: str, curated: Any, shards: int | None
 ) -> None:
-    """`links serve` starts its own Ray; the replica answers on --port and Ctrl-C stops all."""
+    """`links serve` starts its own Ray; the replica (the front, with --shards) answers on
+    --port and Ctrl-C stops all."""
     port = bindable_port("127.0.0.1", 0)
+    sharding = [] if shards is None else ["--shards", str(shards), "--shard-cpus", "0.5"]
     server = subprocess.Popen(
-        [sys.executable, "-m", "links_ray.cli", "serve", dataset, "--port", str(port)],
+        [sys.executable, "-m", "links_ray.cli", "serve", dataset, "--port", str(port), *sharding],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -600,7 +636,9 @@ def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
                 break
         assert f"http://127.0.0.1:{port}/" in lines[-1], "".join(lines[-20:])
         served = Client(port)
-        assert served.get("/api/health") == (200, {"status": "ok", "paths": len(curated)})
+        status, health = served.get("/api/health")
+        assert status == 200 and health["paths"] == len(curated)
+        assert len(health.get("shards", [])) == (shards or 0)
         status, data = served.post("/api/retrieve", {"points": [[0, 0], [1, 0.5], [2, 0], [1, -1]]})
         assert status == 200 and len(data["results"]) == 3
         assert "ServeReplica:links:LinksApi" in listening_process(port)
@@ -635,6 +673,29 @@ def test_serve_cli_refuses_a_root_without_curated_paths(
     assert err.count("\n") == 0 and "no curated table" in err
 
 
+def test_serve_cli_refuses_more_shards_than_the_data_splits_into(
+    dataset: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """One line and exit status 2, before Ray or Serve is touched; bad numbers likewise."""
+    from links_ray.cli.main import main
+
+    port = bindable_port("127.0.0.1", 0)
+    assert main(["serve", dataset, "--port", str(port), "--shards", "7"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0
+    assert err.endswith("split in 7 parts, part 6 would have none; use fewer shards")
+    for option, value, words in (
+        ("--shards", "0", "must be a positive integer, got 0"),
+        ("--shard-cpus", "-1", "must be a positive number, got -1"),
+        ("--shard-memory-gb", "inf", "must be a positive number, got inf"),
+    ):
+        with pytest.raises(SystemExit) as exited:
+            main(["serve", dataset, option, value])
+        assert exited.value.code == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and words in err, err
+
+
 def _check_serve_config(config: dict[str, Any]) -> Any:
     from ray.serve.schema import ServeDeploySchema
 
@@ -661,7 +722,14 @@ def test_rayservice_manifest() -> None:
     assert manifest["apiVersion"] == "ray.io/v1" and manifest["kind"] == "RayService"
     spec = manifest["spec"]
     schema = _check_serve_config(yaml.safe_load(spec["serveConfigV2"]))
-    assert schema.applications[0].args["root"] == "s3://links/dataset"
+    args = schema.applications[0].args
+    assert args["root"] == "s3://links/dataset"
+    # The full dataset, sharded (deploy/RUNBOOK.md, 6): args the app builder takes.
+    from links_ray.serve.app import APP_ARGS, _arg
+
+    assert set(args) <= set(APP_ARGS)
+    given = {name: _arg(args, name) for name in args if name != "root"}
+    assert given == {"replicas": 1, "shards": 32, "shard_cpus": 7.0, "shard_memory_gb": 8.0}
     cluster = spec["rayClusterConfig"]
     pods = [cluster["headGroupSpec"]] + cluster["workerGroupSpecs"]
     for pod in pods:

@@ -1,4 +1,5 @@
-"""Benchmarks of the services: `links bench generate` and `links bench retrieve`.
+"""Benchmarks of the services: `links bench generate`, `links bench retrieve` and `links bench
+serve`.
 
 They run on a local Ray (started on demand) and write real datasets; the engine's benchmarks
 are in `links_ray.cli.bench`.
@@ -6,10 +7,15 @@ are in `links_ray.cli.bench`.
 
 from __future__ import annotations
 
+import http.client
 import json
 import os
 import shutil
+import subprocess
+import sys
+import threading
 import time
+import urllib.request
 
 import numpy as np
 
@@ -157,8 +163,6 @@ def bench_retrieve(
     Serve replica also runs before it takes traffic); recall on the first `recall_queries`.
     Without `rebuild`, a saved index is loaded and its recorded build time reported.
     """
-    import urllib.request
-
     from links_ray.data.store import Store
     from links_ray.search.index import RetrievalIndex, cache_folder
 
@@ -356,4 +360,306 @@ def format_generate(result: dict) -> str:
         f"End to end with all workers: {result['valid_per_core_second']:,.0f} valid mechanisms "
         f"per core-second (target {result['target_valid_per_core_second']:,})"
     )
+    return "\n".join(lines)
+
+
+# -- serving under load: `links bench serve` --------------------------------------------------
+
+#: Seconds a load client waits after a 503 that names no `Retry-After` (it waits as long as
+#: one asks, as a well-behaved client does).
+LOAD_PAUSE_S = 1.0
+#: Seconds the probing client waits between its health checks and simulations.
+PROBE_PAUSE_S = 0.02
+#: The mechanism the probing client simulates.
+PROBE_FOUR_BAR = {
+    "adjacency": [[0, 1, 0, 0], [1, 0, 0, 1], [0, 0, 0, 1], [0, 1, 1, 0]],
+    "node_types": [0, 2, 0, 1],
+    "positions": [[0.5, 0.5], [0.55, 0.5], [0.8, 0.5], [0.6, 0.7]],
+}
+
+
+def retrieval_load(
+    port: int, queries: list[np.ndarray], seconds: float, clients: int = 32, k: int = 3
+) -> subprocess.Popen:
+    """Start `clients` clients that post retrievals of `queries` (in turn) to
+    http://127.0.0.1:port/api/retrieve for `seconds`, each on a kept-alive connection,
+    They run in a process of their own, so that their
+    threads do not slow the caller's own requests; this returns once they have started.
+    After a 503 a client waits what its `Retry-After` asks (or `LOAD_PAUSE_S`), and so keeps
+    its place in the load: the server stays full as long as more clients want in than it
+    holds.
+    `finish_load` gives what they saw."""
+    spec = {
+        "port": port,
+        "bodies": [json.dumps({"points": np.asarray(q).tolist(), "k": k}) for q in queries],
+        "seconds": seconds,
+        "clients": clients,
+        "pause_s": LOAD_PAUSE_S,
+    }
+    process = subprocess.Popen(
+        [sys.executable, "-c", "from links_ray.cli.bench_services import _load; _load()"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert process.stdin is not None and process.stdout is not None
+    process.stdin.write(json.dumps(spec))
+    process.stdin.close()
+    process.stdin = None  # all sent: `communicate` must not flush it
+    ready = process.stdout.readline()
+    if ready.strip() != "ready":
+        process.kill()
+        process.wait()
+        raise RuntimeError(f"the load clients did not start: {ready!r}")
+    return process
+
+
+def finish_load(process: subprocess.Popen, timeout: float = 120.0) -> dict:
+    """What the clients of `retrieval_load` saw: `statuses` (count by HTTP status, or by
+    exception name for a request that got no answer), `latencies` (seconds, of the 200s),
+    `seconds` (how long they ran), and the 503s that lacked a `Retry-After` header
+    (`no_retry_after`) or a JSON `error` (`not_json`)."""
+    out, _ = process.communicate(timeout=timeout)
+    if process.returncode != 0:
+        raise RuntimeError(f"the load clients failed with exit status {process.returncode}")
+    return json.loads(out)
+
+
+def _load() -> None:
+    """The load clients' process (`retrieval_load`): the spec on stdin, the record on
+    stdout."""
+    spec = json.loads(sys.stdin.read())
+    bodies = [body.encode() for body in spec["bodies"]]
+    clients, pause_s = spec["clients"], spec["pause_s"]
+    lock = threading.Lock()
+    statuses: dict[str, int] = {}
+    latencies: list[float] = []
+    faults = {"no_retry_after": 0, "not_json": 0}
+
+    def client(number: int, stop: float) -> None:
+        conn = None
+        turn = number
+        while time.monotonic() < stop:
+            body = bodies[turn % len(bodies)]
+            turn += clients
+            if conn is None:
+                conn = http.client.HTTPConnection("127.0.0.1", spec["port"], timeout=60)
+            start = time.perf_counter()
+            try:
+                conn.request("POST", "/api/retrieve", body, {"Content-Type": "application/json"})
+                response = conn.getresponse()
+                raw = response.read()
+            except (OSError, http.client.HTTPException) as exc:
+                conn.close()
+                conn = None
+                with lock:
+                    statuses[type(exc).__name__] = statuses.get(type(exc).__name__, 0) + 1
+                continue
+            elapsed = time.perf_counter() - start
+            with lock:
+                statuses[str(response.status)] = statuses.get(str(response.status), 0) + 1
+                if response.status == 200:
+                    latencies.append(elapsed)
+                elif response.status == 503:
+                    faults["no_retry_after"] += response.getheader("Retry-After") is None
+                    faults["not_json"] += not _json_error(raw)
+            if response.status == 503:
+                time.sleep(_seconds(response.getheader("Retry-After"), pause_s))
+        if conn is not None:
+            conn.close()
+
+    print("ready", flush=True)
+    start = time.monotonic()
+    threads = [
+        threading.Thread(target=client, args=(number, start + spec["seconds"]))
+        for number in range(clients)
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    seconds = time.monotonic() - start
+    print(json.dumps({"statuses": statuses, "latencies": latencies, "seconds": seconds, **faults}))
+
+
+def _seconds(retry_after: str | None, default: float) -> float:
+    """The seconds a `Retry-After` header asks for (`default` if none or not a number)."""
+    try:
+        return max(0.0, float(retry_after)) if retry_after is not None else default
+    except ValueError:
+        return default
+
+
+def _json_error(raw: bytes) -> bool:
+    """Whether a body is a JSON object with an `error` message."""
+    try:
+        data = json.loads(raw)
+    except ValueError:
+        return False
+    return isinstance(data, dict) and isinstance(data.get("error"), str)
+
+
+def probe_loop(port: int, seconds: float) -> dict:
+    """Health checks and simulations, in turn, on one kept-alive connection to
+    127.0.0.1:port for `seconds`: their `health` and `simulate` latencies (seconds) and
+    `statuses` (count by route and HTTP status, e.g. "health 200")."""
+    body = json.dumps(PROBE_FOUR_BAR).encode()
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+    found: dict = {"health": [], "simulate": [], "statuses": {}}
+    stop = time.monotonic() + seconds
+    turn = 0
+    try:
+        while time.monotonic() < stop:
+            kind = ("health", "simulate")[turn % 2]
+            turn += 1
+            start = time.perf_counter()
+            if kind == "health":
+                conn.request("GET", "/api/health")
+            else:
+                conn.request("POST", "/api/simulate", body, {"Content-Type": "application/json"})
+            response = conn.getresponse()
+            response.read()
+            found[kind].append(time.perf_counter() - start)
+            key = f"{kind} {response.status}"
+            found["statuses"][key] = found["statuses"].get(key, 0) + 1
+            time.sleep(PROBE_PAUSE_S)
+    finally:
+        conn.close()
+    return found
+
+
+def _ms(values: list[float], q: float) -> float | None:
+    return float(np.percentile(values, q) * 1e3) if values else None
+
+
+def bench_serve(
+    shards: list[int] | None = None,
+    seconds: float = 30.0,
+    clients: int = 32,
+    paths: int = 60_000,
+    root: str | None = None,
+) -> dict:
+    """Serving under load: `clients` clients retrieving for `seconds` while another checks
+    health and simulates, for each count in `shards` (0: one index in the front). The app is
+    served as `links serve` serves it, on a Ray started for the benchmark (one for all the
+    runs), the front answering HTTP itself.
+
+    Reports retrievals answered per second, p50/p99 of the answered retrievals and of the
+    health checks and simulations, and the 503s. Shard replicas get an equal share of the
+    CPUs the front leaves (at most one each). The clients run on the same machine as the
+    server.
+    """
+    import ray
+    from ray import serve
+
+    from links_ray.cluster.connect import connect
+    from links_ray.search.index import RetrievalIndex
+    from links_ray.serve.app import bindable_port, build_app, check_root, direct_ingress_env
+
+    counts = [0, 1, 2] if shards is None else shards
+    root = root or retrieval_dataset(paths)
+    for count in counts:
+        check_root(root, count or None)
+    queries = _held_out_queries(64, seed=77)
+    cpus = os.cpu_count() or 1
+    ray.shutdown()  # generating the dataset may have started one
+    port = bindable_port("127.0.0.1", 0)
+    os.environ.update(direct_ingress_env(port))
+    connect()
+    no_access_log = {"enable_access_log": False}
+    runs = []
+    try:
+        for count in counts:
+            parts = max(count, 1)
+            for part in range(parts):  # built before the run, not during it
+                RetrievalIndex.open(root, part=part, parts=parts)
+            shard_cpus = min(1.0, max(cpus - 1, 1) / parts)
+            app = build_app(root, shards=count or None, shard_cpus=shard_cpus)
+            wait_for_port(port)  # the last run's front may still be letting go of it
+            serve.start(
+                http_options={"host": "127.0.0.1", "port": bindable_port("127.0.0.1", 0)},
+                logging_config=no_access_log,
+            )
+            try:
+                serve.run(app, name="links", route_prefix="/", logging_config=no_access_log)
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/health") as response:
+                    indexed = json.loads(response.read())["paths"]
+                load = retrieval_load(port, queries, seconds, clients)
+                probes = probe_loop(port, seconds)
+                record = finish_load(load)
+            finally:
+                serve.shutdown()
+            answered = record["statuses"].get("200", 0)
+            runs.append(
+                {
+                    "shards": count,
+                    "shard_cpus": shard_cpus if count else None,
+                    "paths": indexed,
+                    "seconds": record["seconds"],
+                    "retrievals_per_s": answered / record["seconds"],
+                    "retrieve_p50_ms": _ms(record["latencies"], 50),
+                    "retrieve_p99_ms": _ms(record["latencies"], 99),
+                    "health_p50_ms": _ms(probes["health"], 50),
+                    "health_p99_ms": _ms(probes["health"], 99),
+                    "simulate_p50_ms": _ms(probes["simulate"], 50),
+                    "simulate_p99_ms": _ms(probes["simulate"], 99),
+                    "retrieve_statuses": record["statuses"],
+                    "probe_statuses": probes["statuses"],
+                    "busy_503": record["statuses"].get("503", 0),
+                    # The machine's own load meanwhile (other users share it).
+                    "load_average_1min": os.getloadavg()[0],
+                }
+            )
+    finally:
+        ray.shutdown()
+    return {
+        "benchmark": "serve",
+        "machine": machine_info(),
+        "root": root,
+        "clients": clients,
+        "runs": runs,
+    }
+
+
+def wait_for_port(port: int, timeout: float = 60.0) -> None:
+    """Until `port` of 127.0.0.1 can be bound, or `timeout` seconds (then ValueError)."""
+    from links_ray.serve.app import bindable_port
+
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            bindable_port("127.0.0.1", port)
+            return
+        except ValueError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.5)
+
+
+def format_serve(result: dict) -> str:
+    """Throughput and latencies under load, by shard count."""
+    lines = [
+        f"{result['clients']} clients retrieving, one checking health and simulating "
+        f"({result['runs'][0]['paths']:,} curated paths)"
+        if result["runs"]
+        else "no runs",
+        f"{'shards':<8}{'retrievals/s':>13}{'retrieve p50/p99 ms':>22}"
+        f"{'health p50/p99 ms':>20}{'simulate p50/p99 ms':>22}{'503s':>8}{'other':>7}"
+        f"{'load avg':>10}",
+    ]
+    for run in result["runs"]:
+        other = sum(
+            n for status, n in run["retrieve_statuses"].items() if status not in ("200", "503")
+        )
+        other += sum(n for key, n in run["probe_statuses"].items() if not key.endswith(" 200"))
+
+        def pair(name: str, run: dict = run) -> str:
+            p50, p99 = run[f"{name}_p50_ms"], run[f"{name}_p99_ms"]
+            return "-" if p50 is None else f"{p50:.1f} / {p99:.1f}"
+
+        lines.append(
+            f"{run['shards'] or 'none':<8}{run['retrievals_per_s']:>13.1f}"
+            f"{pair('retrieve'):>22}{pair('health'):>20}{pair('simulate'):>22}"
+            f"{run['busy_503']:>8}{other:>7}{run['load_average_1min']:>10.1f}"
+        )
     return "\n".join(lines)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -88,7 +89,15 @@ def _stats(args: argparse.Namespace) -> None:
 def _serve(args: argparse.Namespace) -> None:
     from links_ray.serve.app import run_server  # imports Ray Serve: only when asked for
 
-    run_server(args.root, host=args.host, port=args.port, replicas=args.replicas)
+    run_server(
+        args.root,
+        host=args.host,
+        port=args.port,
+        replicas=args.replicas,
+        shards=args.shards,
+        shard_cpus=args.shard_cpus,
+        shard_memory_gb=args.shard_memory_gb,
+    )
 
 
 def _retrieve(args: argparse.Namespace) -> None:
@@ -103,6 +112,18 @@ def _retrieve(args: argparse.Namespace) -> None:
 
 def _bench_retrieve(args: argparse.Namespace) -> None:
     _bench_service(args, "retrieve", paths=args.paths, rebuild=not args.reuse_index)
+
+
+def _bench_serve(args: argparse.Namespace) -> None:
+    _bench_service(
+        args,
+        "serve",
+        shards=args.shards,
+        seconds=args.seconds,
+        clients=args.clients,
+        paths=args.paths,
+        root=args.root,
+    )
 
 
 def _demo(args: argparse.Namespace) -> None:
@@ -127,6 +148,17 @@ def _int_at_least(minimum: int, name: str) -> Callable[[str], int]:
 
 _positive_int = _int_at_least(1, "positive")
 _non_negative_int = _int_at_least(0, "non-negative")
+
+
+def _positive_float(text: str) -> float:
+    """An argparse type: a positive finite number, refused in words otherwise."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
 
 
 class _Parser(argparse.ArgumentParser):
@@ -229,7 +261,31 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("root", help="dataset root: a folder or s3://...")
     serve.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
     serve.add_argument("--port", type=_positive_int, default=8000)
-    serve.add_argument("--replicas", type=_positive_int, default=1)
+    serve.add_argument(
+        "--replicas",
+        type=_positive_int,
+        default=1,
+        help="replicas of the app (with --shards: of the front and of each shard; default 1)",
+    )
+    serve.add_argument(
+        "--shards",
+        type=_positive_int,
+        default=None,
+        help="split the index into N parts, each served by its own deployment, which the "
+        "front asks at once (default: one index in the front)",
+    )
+    serve.add_argument(
+        "--shard-cpus",
+        type=_positive_float,
+        default=1.0,
+        help="CPUs Ray reserves for each shard replica (default 1)",
+    )
+    serve.add_argument(
+        "--shard-memory-gb",
+        type=_positive_float,
+        default=None,
+        help="memory Ray reserves for each shard replica, in GB (default none)",
+    )
     serve.set_defaults(run=_serve)
 
     retrieve = commands.add_parser(
@@ -282,6 +338,37 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="load the saved index and report its recorded build time instead of rebuilding",
     )
+    serve_bench = benches.add_parser(
+        "serve",
+        help="serving under load: retrievals per second, latencies, 503s, by shard count",
+    )
+    serve_bench.add_argument("--json", action="store_true", help="print one JSON object")
+    serve_bench.add_argument(
+        "--shards",
+        type=_non_negative_int,
+        action="append",
+        default=None,
+        help="shard count to serve with, 0 for one index in the front; repeat for several "
+        "runs (default: 0, 1 and 2)",
+    )
+    serve_bench.add_argument(
+        "--seconds", type=_positive_float, default=30.0, help="load per run (default 30)"
+    )
+    serve_bench.add_argument(
+        "--clients", type=_positive_int, default=32, help="retrieving clients (default 32)"
+    )
+    serve_bench.add_argument(
+        "--root",
+        default=None,
+        help="a curated dataset to serve (default: a cached one of --paths curated paths)",
+    )
+    serve_bench.add_argument(
+        "--paths",
+        type=_positive_int,
+        default=60_000,
+        help="curated paths of the cached dataset (default 60,000)",
+    )
+    serve_bench.set_defaults(run=_bench_serve)
     return parser
 
 

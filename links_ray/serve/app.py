@@ -2,9 +2,9 @@
 
 | route | answers |
 |---|---|
-| `GET /api/health` | `{"status": "ok", "paths": <indexed paths>}` |
+| `GET /api/health` | `{"status": "ok", "paths": <indexed paths>}`; sharded also `"shards"` |
 | `POST /api/simulate` | 200 `{"trajectories"}`, 422 `{"error": "locking", "step", "node"}` |
-| `POST /api/retrieve` | 200 `{"results", "took_ms"}`, best first |
+| `POST /api/retrieve` | 200 `{"results", "took_ms"}`, best first; 503 when busy |
 | `POST /api/analyze` | 200 the studio's analysis: mobility, dyadic solvability, where it locks |
 | `GET /` | the web studio (`links_ray/serve/studio/index.html`) |
 | `GET /studio/<file>` | the studio's scripts and style sheet, from the package |
@@ -20,17 +20,28 @@ unexpected is logged by exception type and location only (never a request body) 
 
 Each replica opens the retrieval index once, in its constructor. Retrievals run one at a time
 per replica (the index's compiled kernels are parallel, and the JIT's workqueue threading layer,
-its fallback without TBB or OpenMP, cannot take concurrent callers), in a worker thread, so
-health checks and simulations are answered meanwhile.
+its fallback without TBB or OpenMP, cannot take concurrent callers), in a thread of their own,
+so health checks and simulations, in the default thread pool, are answered meanwhile. A replica
+holds at most `MAX_RETRIEVALS` retrievals, running or waiting; one more is answered 503 with
+`Retry-After` at once, and Serve's own `max_ongoing_requests` and `max_queued_requests` bound
+everything else.
+
+Sharded (`build_app(root, shards=N)`, `links serve --shards N`): N `IndexShard` deployments
+each open part P of the index (`RetrievalIndex.open(root, part=P, parts=N)`: the curated
+shards numbered P modulo N), and the front, `LinksApi`, holds no index: it asks every part for
+its own top k through their deployment handles, at once, and keeps the k best by (chamfer,
+path id), as one index over all the paths would. A part that is unavailable, or parts that do
+not all answer within `SHARD_TIMEOUT_S`, give 503 with `Retry-After`.
 
 `run_server` (what `links serve` runs) starts its own Ray and, with one replica, has the replica
-answer HTTP itself, on the port asked for: Ray Serve's *direct ingress*, which its throughput
-mode uses. Through Serve's HTTP proxy every request costs about 12 ms more here (an actor hop
-and a second one to fetch the body). Serve's proxy then listens on another loopback port.
-With several replicas, or on a cluster that Ray was already running, the proxy answers on the
-port and balances the replicas.
+(the front, with shards) answer HTTP itself, on the port asked for: Ray Serve's *direct
+ingress*, which its throughput mode uses. Through Serve's HTTP proxy every request costs about
+12 ms more here (an actor hop and a second one to fetch the body). Serve's proxy then listens on
+another loopback port. With several replicas, or on a cluster that Ray was already running, the
+proxy answers on the port and balances the replicas.
 """
 
+import asyncio
 import functools
 import importlib.resources
 import json
@@ -41,6 +52,7 @@ import socket
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -48,13 +60,29 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 from ray import serve
+from ray.exceptions import (
+    NodeDiedError,
+    ObjectLostError,
+    RayActorError,
+    RayTaskError,
+    TaskCancelledError,
+    WorkerCrashedError,
+)
 from ray.serve.deployment import Application
+from ray.serve.exceptions import (
+    BackPressureError,
+    DeploymentUnavailableError,
+    ReplicaUnavailableError,
+)
+from ray.serve.handle import DeploymentHandle, DeploymentResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
+from links_ray.data.store import Store
 from links_ray.engine.inputs import (
     DEFAULT_K,
     DEFAULT_STEPS,
@@ -116,12 +144,16 @@ def studio_response(name: str) -> Response:
 
 
 class ApiError(Exception):
-    """A request the API refuses: its HTTP status and the JSON body's `error` message."""
+    """A request the API refuses: its HTTP status, the JSON body's `error` message, other
+    fields of the body (`extra`) and headers of the answer (`headers`)."""
 
-    def __init__(self, status: int, message: str, **extra: Any) -> None:
+    def __init__(
+        self, status: int, message: str, headers: dict[str, str] | None = None, **extra: Any
+    ) -> None:
         super().__init__(message)
         self.status = status
         self.message = message
+        self.headers = headers or {}
         self.extra = extra
 
 
@@ -202,7 +234,9 @@ api.add_middleware(InternalErrorGuard)
 
 @api.exception_handler(ApiError)
 async def _api_error(request: Request, exc: ApiError) -> JsonResponse:
-    return _error(exc.status, exc.message, **exc.extra)
+    response = _error(exc.status, exc.message, **exc.extra)
+    response.headers.update(exc.headers)
+    return response
 
 
 @api.exception_handler(StarletteHTTPException)
@@ -426,29 +460,168 @@ def _simulate_lists(adjacency: list, node_types: list, positions: list, steps: i
     return simulate(adjacency, node_types, positions, steps).tolist()
 
 
-# -- the deployment -----------------------------------------------------------------------------
+# -- the deployments ----------------------------------------------------------------------------
 
 
 #: Ray starts worker processes at niceness 15, below its own control plane (GCS, raylet,
 #: dashboard agent) at 0. A replica answers users, and its parallel kernels wait for their
 #: slowest thread, so it runs at 0: in-replica time per retrieval fell from about 46 to 42 ms.
 REPLICA_ENV = {"RAY_worker_niceness": "0"}
+#: Retrievals are the throughput work; health checks and simulations must be answered at
+#: once. So the thread that retrieves, and the kernels' worker threads it starts, run at this
+#: niceness (Linux niceness is per thread, and new threads inherit it), below the replica's
+#: event loop and thread pool and any front on the same node, still above Ray's workers.
+RETRIEVAL_NICENESS = 5
+#: Retrievals one front replica holds at once, running or waiting for the index (its own or
+#: the shards'). One more is answered at once with 503, `Retry-After` and a JSON `error`: a
+#: burst of retrievals neither piles up without bound nor holds what health checks and
+#: simulations need.
+MAX_RETRIEVALS = 8
+#: Seconds a refused client is asked to wait (`Retry-After`).
+RETRY_AFTER_S = 1
+#: Serve's own bounds on a front replica: requests it runs at once, and requests waiting for
+#: one of those slots. Beyond them Serve answers 503 with `Retry-After` itself (its body is
+#: Serve's plain text, not JSON). Far above MAX_RETRIEVALS, so that health checks and
+#: simulations never wait behind retrievals.
+FRONT_MAX_ONGOING, FRONT_MAX_QUEUED = 100, 100
+#: Retrievals a shard replica takes at once (it runs them one after another); further ones
+#: wait in the callers' routers, which send them to the least busy replica of the shard.
+SHARD_MAX_ONGOING = 4
+#: How long the front waits for all the shards' answers before answering 503.
+SHARD_TIMEOUT_S = 30.0
+#: Shard failures that mean "not there now" (a replica that died or is restarting, a shard
+#: with no replica, backpressure): answered 503 with `Retry-After`, not 500.
+SHARD_UNAVAILABLE = (
+    RayActorError,
+    WorkerCrashedError,
+    NodeDiedError,
+    ObjectLostError,
+    TaskCancelledError,  # RequestCancelledError too: a replica stopping under it
+    BackPressureError,
+    DeploymentUnavailableError,
+    ReplicaUnavailableError,
+)
+#: A four-bar the front simulates once at start, so the solver is loaded before any user asks.
+WARM_FOUR_BAR = (
+    [[0, 1, 0, 0], [1, 0, 0, 1], [0, 0, 0, 1], [0, 1, 1, 0]],
+    [0, 2, 0, 1],
+    [[0.5, 0.5], [0.55, 0.5], [0.8, 0.5], [0.6, 0.7]],
+)
+
+
+def _busy(message: str) -> ApiError:
+    """503 with `Retry-After`: come back in a moment."""
+    return ApiError(503, message, headers={"Retry-After": str(RETRY_AFTER_S)})
+
+
+def merge_results(answers: list[list[dict]], k: int) -> list[dict]:
+    """The k best of several shards' answers (each best first), ordered as one index orders
+    them: by chamfer distance, ties to the lower path id."""
+    merged = [result for answer in answers for result in answer]
+    merged.sort(key=lambda result: (result["chamfer"], result["path_id"]))
+    return merged[:k]
+
+
+class _Retrieving:
+    """An index and the one thread its retrievals run in: one at a time (the index's compiled
+    kernels are parallel, and the JIT's workqueue threading layer, its fallback without TBB
+    or OpenMP, cannot take concurrent callers), never in the thread pool that simulations
+    and analyses run in, and at `RETRIEVAL_NICENESS`. The index is warmed in that thread, so
+    the kernels' worker threads exist, at that niceness, before the first user asks."""
+
+    def __init__(self, index: RetrievalIndex) -> None:
+        self.index = index
+        self.pool = ThreadPoolExecutor(
+            max_workers=1, thread_name_prefix="links-retrieve", initializer=_lower_priority
+        )
+        self.pool.submit(index.warm).result()
+
+    async def retrieve(self, points: np.ndarray, k: int) -> list[dict]:
+        return await asyncio.get_running_loop().run_in_executor(
+            self.pool, self.index.retrieve, points, k
+        )
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _lower_priority() -> None:
+    """This thread (and the threads it starts) at RETRIEVAL_NICENESS, if that is lower
+    priority than it has; where threads have no niceness of their own, nothing."""
+    try:
+        thread = threading.get_native_id()
+        if os.getpriority(os.PRIO_PROCESS, thread) < RETRIEVAL_NICENESS:
+            os.setpriority(os.PRIO_PROCESS, thread, RETRIEVAL_NICENESS)
+    except (AttributeError, OSError):  # not Linux
+        pass
+
+
+@serve.deployment(
+    name="IndexShard",
+    max_ongoing_requests=SHARD_MAX_ONGOING,
+    ray_actor_options={"num_cpus": 1, "runtime_env": {"env_vars": REPLICA_ENV}},
+)
+class IndexShard:
+    """One part of the retrieval index: the curated shards numbered `part` modulo `parts`.
+
+    Called by the front (`LinksApi`) through its deployment handle, never over HTTP. It opens
+    (or builds and saves, under `_links/index/part-P-of-N/`) its part once, warms it, and
+    answers each query with its own top k, as a whole index over its paths would.
+    """
+
+    def __init__(self, root: str, part: int, parts: int) -> None:
+        self.part, self.parts = part, parts
+        self._retrieving = _Retrieving(RetrievalIndex.open(root, part=part, parts=parts))
+
+    async def info(self) -> dict[str, int]:
+        """`{"part", "parts", "paths"}` of this shard."""
+        return {"part": self.part, "parts": self.parts, "paths": len(self._retrieving.index)}
+
+    async def retrieve(self, points: np.ndarray, k: int) -> list[dict]:
+        """The k best results of this part, best first (`RetrievalIndex.retrieve`)."""
+        return await self._retrieving.retrieve(points, k)
+
+    def __del__(self) -> None:
+        if hasattr(self, "_retrieving"):
+            self._retrieving.close()
 
 
 @serve.deployment(
     name="LinksApi",
+    max_ongoing_requests=FRONT_MAX_ONGOING,
+    max_queued_requests=FRONT_MAX_QUEUED,
+    backpressure_config={"status_code": 503, "retry_after_s": RETRY_AFTER_S},
     ray_actor_options={"num_cpus": 1, "runtime_env": {"env_vars": REPLICA_ENV}},
 )
 @serve.ingress(api)
 class LinksApi:
-    """The HTTP API of one replica: the retrieval index of `root`, opened once."""
+    """The HTTP API of one replica: the retrieval index of `root`, opened once; or, given
+    `shards` (deployment handles of `IndexShard` parts 0..N-1, in order), the front that asks
+    them all and merges their answers, holding no index itself."""
 
-    def __init__(self, root: str) -> None:
+    def __init__(
+        self,
+        root: str,
+        shards: list[DeploymentHandle] | None = None,
+        max_retrievals: int = MAX_RETRIEVALS,
+        shard_timeout_s: float = SHARD_TIMEOUT_S,
+    ) -> None:
         self.root = root
-        self.index = RetrievalIndex.open(root)
-        self.index.warm()  # also loads the solver /api/simulate uses
-        self._retrieving = threading.Lock()
+        self.shards = list(shards or [])
+        self.max_retrievals = max_retrievals
+        self.shard_timeout_s = shard_timeout_s
+        self._retrievals = 0  # running or waiting; only the event loop's thread counts
+        self._shard_paths: list[int] | None = None  # learned from the shards once
+        self._retrieving: _Retrieving | None = None
+        if self.shards:
+            simulate(*WARM_FOUR_BAR, steps=8)  # loads the solver /api/simulate uses
+        else:  # warming the index also loads the solver /api/simulate uses
+            self._retrieving = _Retrieving(RetrievalIndex.open(root))
         studio_files()  # a package without the studio fails here, not on a user's first visit
+
+    def __del__(self) -> None:
+        if getattr(self, "_retrieving", None) is not None:
+            self._retrieving.close()
 
     @api.get("/", response_class=HTMLResponse)
     async def api_studio(self) -> Response:
@@ -462,8 +635,12 @@ class LinksApi:
 
     @api.get("/api/health")
     async def api_health(self) -> JsonResponse:
-        """`{"status": "ok", "paths": <indexed paths>}`."""
-        return JsonResponse({"status": "ok", "paths": len(self.index)})
+        """`{"status": "ok", "paths": <indexed paths>}`, and with shards their parts' paths."""
+        if self._retrieving is not None:
+            return JsonResponse({"status": "ok", "paths": len(self._retrieving.index)})
+        counts = await self._shard_counts()
+        shards = [{"part": part, "paths": paths} for part, paths in enumerate(counts)]
+        return JsonResponse({"status": "ok", "paths": sum(counts), "shards": shards})
 
     @api.post("/api/simulate")
     async def api_simulate(self, request: Request) -> Response:
@@ -494,47 +671,193 @@ class LinksApi:
 
     @api.post("/api/retrieve")
     async def api_retrieve(self, request: Request) -> JsonResponse:
-        """The k curated paths nearest to a drawn curve, best first, with their mechanisms."""
-        points, k = retrieve_args(await read_json_object(request))
-        start = time.perf_counter()
+        """The k curated paths nearest to a drawn curve, best first, with their mechanisms;
+        503 with `Retry-After` when MAX_RETRIEVALS are already under way here."""
+        if self._retrievals >= self.max_retrievals:  # refused before reading the body
+            raise _busy(
+                f"busy: {self._retrievals} retrievals under way, the most this server "
+                f"holds; retry after {RETRY_AFTER_S} s"
+            )
+        self._retrievals += 1
         try:
-            results = await run_in_threadpool(self._retrieve, points, k)
-        except ValueError as exc:
-            raise ApiError(400, str(exc)) from None
-        took_ms = (time.perf_counter() - start) * 1e3
+            points, k = retrieve_args(await read_json_object(request))
+            start = time.perf_counter()
+            if self._retrieving is not None:
+                try:
+                    results = await self._retrieving.retrieve(points, k)
+                except ValueError as exc:
+                    raise ApiError(400, str(exc)) from None
+            else:
+                results = merge_results(await self._ask_shards("retrieve", points, k), k)
+            took_ms = (time.perf_counter() - start) * 1e3
+        finally:
+            self._retrievals -= 1
         return JsonResponse({"results": results, "took_ms": round(took_ms, 3)})
 
-    def _retrieve(self, points: np.ndarray, k: int) -> list[dict]:
-        with self._retrieving:
-            return self.index.retrieve(points, k)
+    async def _shard_counts(self) -> list[int]:
+        """Each shard's paths, asked once (a shard's index does not change while it serves)."""
+        if self._shard_paths is None:
+            infos = await self._ask_shards("info")
+            self._shard_paths = [info["paths"] for info in infos]
+        return self._shard_paths
+
+    async def _ask_shards(self, method: str, *args: Any) -> list[Any]:
+        """Every shard's answer to `method(*args)`, in part order, asked at once; ApiError
+        503 if one is unavailable or they do not all answer within `shard_timeout_s`."""
+        tasks = [
+            asyncio.ensure_future(self._ask_shard(part, getattr(shard, method).remote(*args)))
+            for part, shard in enumerate(self.shards)
+        ]
+        try:
+            return await asyncio.wait_for(asyncio.gather(*tasks), self.shard_timeout_s)
+        except TimeoutError:
+            raise _busy(
+                f"the index shards did not answer within {self.shard_timeout_s:g} s"
+            ) from None
+        finally:
+            for task in tasks:  # after a failure, stop asking the others
+                task.cancel()
+
+    async def _ask_shard(self, part: int, response: DeploymentResponse) -> Any:
+        """One shard's answer; its failures as ApiErrors: 503 for a shard that is not there
+        now, 400 for a query it refuses, else 500 (logged by type, never the request)."""
+        try:
+            return await response
+        except asyncio.CancelledError:  # another part failed, or time ran out: stop this one
+            response.cancel()
+            raise
+        except SHARD_UNAVAILABLE as exc:
+            logger.warning(
+                "links-ray API: shard %d of %d unavailable (%s)",
+                part,
+                len(self.shards),
+                type(exc).__name__,
+            )
+            raise _busy(f"index shard {part} of {len(self.shards)} is unavailable") from None
+        except RayTaskError as exc:  # the shard's own exception
+            if isinstance(exc.cause, ValueError):
+                raise ApiError(400, str(exc.cause)) from None
+            logger.error(
+                "links-ray API: shard %d of %d failed with %s",
+                part,
+                len(self.shards),
+                type(exc.cause).__name__,
+            )
+            raise ApiError(500, "internal error") from None
 
 
-def check_root(root: str) -> None:
-    """Fail early, with ValueError naming the problem, if `root` has no curated table."""
-    open_table(root, "curated")
+def check_root(root: str, shards: int | None = None) -> None:
+    """Fail early, with ValueError naming the problem, if `root` has no curated table, or has
+    a part without curated shards when split in `shards` parts."""
+    store = Store.open(root, writable=False)
+    open_table(store, "curated")
+    if shards:
+        numbers = [
+            shard
+            for shard, marker in committed_shards(store, "curation").items()
+            if "curated" in marker["files"]
+        ]
+        empty = sorted(set(range(shards)) - {shard % shards for shard in numbers})
+        if empty:
+            raise ValueError(
+                f"{store.uri} has {len(numbers)} curated shards: split in {shards} parts, "
+                f"part {empty[0]} would have none; use fewer shards"
+            )
 
 
-def build_app(root: str, replicas: int = 1) -> Application:
-    """The Serve application for dataset `root` with `replicas` replicas (not yet running)."""
-    if isinstance(replicas, bool) or not isinstance(replicas, int) or replicas < 1:
-        raise ValueError(f"replicas must be a positive integer, got {replicas!r}")
-    return LinksApi.options(num_replicas=replicas).bind(root)
+def _positive(name: str, value: object, kind: type = int) -> Any:
+    """`value` if it is a positive integer (`kind` int) or a positive finite number (`kind`
+    float, which takes integers too), else ValueError naming `name`."""
+    accepted = (int, float) if kind is float else (int,)
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, accepted)
+        or not (value > 0 and math.isfinite(value))
+    ):
+        what = "integer" if kind is int else "number"
+        raise ValueError(f"{name} must be a positive {what}, got {value!r}")
+    return value
+
+
+def build_app(
+    root: str,
+    replicas: int = 1,
+    shards: int | None = None,
+    shard_cpus: float = 1.0,
+    shard_memory_gb: float | None = None,
+    max_retrievals: int = MAX_RETRIEVALS,
+    shard_timeout_s: float = SHARD_TIMEOUT_S,
+) -> Application:
+    """The Serve application for dataset `root` (not yet running).
+
+    Without `shards`, `replicas` replicas of `LinksApi`, each holding the whole index. With
+    `shards` = N, N `IndexShard` deployments (`IndexShard-P-of-N`), each of `replicas`
+    replicas holding part P, with `shard_cpus` CPUs and `shard_memory_gb` GB of memory
+    reserved in Ray per replica, placed wherever the cluster has room; and `replicas`
+    replicas of the front, `LinksApi`, which asks them all.
+    """
+    _positive("replicas", replicas)
+    _positive("max_retrievals", max_retrievals)
+    _positive("shard_timeout_s", shard_timeout_s, float)
+    front = LinksApi.options(num_replicas=replicas)
+    if shards is None:
+        return front.bind(root, max_retrievals=max_retrievals, shard_timeout_s=shard_timeout_s)
+    _positive("shards", shards)
+    options: dict[str, Any] = {
+        "num_cpus": _positive("shard_cpus", shard_cpus, float),
+        "runtime_env": {"env_vars": REPLICA_ENV},
+    }
+    if shard_memory_gb is not None:
+        options["memory"] = round(_positive("shard_memory_gb", shard_memory_gb, float) * 1e9)
+    parts = [
+        IndexShard.options(
+            name=f"IndexShard-{part}-of-{shards}",
+            num_replicas=replicas,
+            ray_actor_options=options,
+        ).bind(root, part, shards)
+        for part in range(shards)
+    ]
+    return front.bind(root, parts, max_retrievals=max_retrievals, shard_timeout_s=shard_timeout_s)
+
+
+#: The args of the Serve config application (`app_builder`), and how each is read.
+APP_ARGS = {
+    "root": str,
+    "replicas": int,
+    "shards": int,
+    "shard_cpus": float,
+    "shard_memory_gb": float,
+    "max_retrievals": int,
+}
+
+
+def _arg(args: dict[str, Any], name: str) -> Any:
+    """Config arg `name`, checked as its type in APP_ARGS (`serve run ... replicas=2` passes
+    strings, which are read as numbers first)."""
+    value, kind = args[name], APP_ARGS[name]
+    if isinstance(value, str):
+        try:
+            value = kind(value.strip())
+        except ValueError:
+            pass
+    try:
+        return _positive(name, value, kind)
+    except ValueError:
+        what = "integer" if kind is int else "number"
+        raise ValueError(f"args.{name} must be a positive {what}, got {args[name]!r}") from None
 
 
 def app_builder(args: dict[str, Any]) -> Application:
-    """Application builder for Serve config files: args `root` (required) and `replicas`."""
+    """Application builder for Serve config files: args `root` (required), `replicas`,
+    `shards`, `shard_cpus`, `shard_memory_gb` and `max_retrievals` (see `build_app`)."""
     if "root" not in args or not str(args["root"]).strip():
         raise ValueError("the links application needs args.root: a dataset folder or s3://...")
-    unknown = sorted(set(args) - {"root", "replicas"})
+    unknown = sorted(set(args) - set(APP_ARGS))
     if unknown:
         raise ValueError(f"unknown args for the links application: {unknown}")
-    replicas = args.get("replicas", 1)
-    if isinstance(replicas, str) and replicas.strip().isdigit():
-        replicas = int(replicas)  # `serve run ... replicas=2` passes strings
-    if isinstance(replicas, bool) or not isinstance(replicas, int):
-        raise ValueError(f"args.replicas must be a positive integer, got {replicas!r}")
-    check_root(str(args["root"]))
-    return build_app(str(args["root"]), replicas)
+    given = {name: _arg(args, name) for name in args if name != "root"}
+    check_root(str(args["root"]), given.get("shards"))
+    return build_app(str(args["root"]), **given)
 
 
 def direct_ingress_env(port: int) -> dict[str, str]:
@@ -565,31 +888,72 @@ def bindable_port(host: str, port: int) -> int:
         raise ValueError(f"cannot serve on {host} port {port}: {exc.strerror}") from None
 
 
+def check_fits(
+    replicas: int,
+    shards: int | None,
+    shard_cpus: float,
+    shard_memory_gb: float | None,
+    resources: dict[str, float],
+) -> None:
+    """ValueError unless the app of `build_app` fits in a Ray of these total `resources`."""
+    cpus = float(replicas)  # the front: one CPU a replica
+    memory = 0.0
+    if shards:
+        cpus += shards * replicas * shard_cpus
+        memory = shards * replicas * (shard_memory_gb or 0.0) * 1e9
+    have_cpus = resources.get("CPU", 0.0)
+    if cpus > have_cpus + 1e-9:
+        each = "1 a front replica" + (f", {shard_cpus:g} a shard replica" if shards else "")
+        raise ValueError(
+            f"the app needs {cpus:g} CPUs ({each}) and this Ray has {have_cpus:g}: "
+            "serve fewer replicas or shards, or give shards fewer CPUs (--shard-cpus)"
+        )
+    have_memory = resources.get("memory", 0.0)
+    if memory > have_memory:
+        raise ValueError(
+            f"the shards reserve {memory / 1e9:.1f} GB and this Ray has "
+            f"{have_memory / 1e9:.1f} GB to give: lower --shard-memory-gb"
+        )
+
+
 def run_server(
     root: str,
     host: str = "127.0.0.1",
     port: int = 8000,
     replicas: int = 1,
     blocking: bool = True,
+    shards: int | None = None,
+    shard_cpus: float = 1.0,
+    shard_memory_gb: float | None = None,
 ) -> None:
-    """Serve `root` on http://host:port/ (Ray local unless RAY_ADDRESS) until Ctrl-C.
+    """Serve `root` on http://host:port/ (Ray local unless RAY_ADDRESS) until Ctrl-C; with
+    `shards`, split the index into that many `IndexShard` deployments (`build_app`).
 
-    When this call starts Ray and serves one replica, the replica answers on `port` directly
-    (`direct_ingress_env`) and Serve's proxy takes a free port; otherwise the proxy answers.
+    When this call starts Ray and serves one replica (of the front, with shards), the replica
+    answers on `port` directly (`direct_ingress_env`) and Serve's proxy takes a free port;
+    otherwise the proxy answers. On a Ray it starts itself, an app that cannot fit is refused
+    at once (ValueError naming what it needs), where Serve would wait for resources forever.
     """
     import ray
 
     from links_ray.cluster.connect import connect
 
-    check_root(root)  # a wrong ROOT is one line here, not a replica failing to start
-    app = build_app(root, replicas)
-    direct = replicas == 1 and not ray.is_initialized() and not os.environ.get("RAY_ADDRESS")
+    check_root(root, shards)  # a wrong ROOT is one line here, not a replica failing to start
+    app = build_app(root, replicas, shards, shard_cpus, shard_memory_gb)
+    local = not ray.is_initialized() and not os.environ.get("RAY_ADDRESS")
+    direct = replicas == 1 and local
     proxy_port = port
     if direct:
         bindable_port(host, port)  # else the replica retries and fails without saying why
         os.environ.update(direct_ingress_env(port))
         proxy_port = bindable_port(host, 0)
     connect()
+    if local:
+        try:
+            check_fits(replicas, shards, shard_cpus, shard_memory_gb, ray.cluster_resources())
+        except ValueError:
+            ray.shutdown()
+            raise
     no_access_log = {"enable_access_log": False}
     serve.start(http_options={"host": host, "port": proxy_port}, logging_config=no_access_log)
     try:
