@@ -379,12 +379,28 @@ def s3_env(s3_server: S3Server, monkeypatch: pytest.MonkeyPatch) -> Iterator[str
     yield f"s3://{bucket}"
 
 
+#: Where `serve_port` is drawn: below Linux's ephemeral range (32768+), where every outgoing
+#: connection takes its local port (Ray opens many whenever an app starts, and one can take
+#: the port while no app holds it, between two apps), and clear of weed's ports (P and
+#: P + 10000 for P in [_PORT_LOW, _PORT_HIGH]).
+_SERVE_PORT_LOW, _SERVE_PORT_HIGH = 23_000, 29_999
+
+
 @pytest.fixture(scope="session")
 def serve_port() -> int:
-    """The loopback port the Serve app's replica answers HTTP on, as under `links serve`."""
+    """The loopback port the Serve app's replica answers HTTP on, as under `links serve`.
+
+    Fixed for the session (Ray's direct ingress takes it when Ray starts), and used by one app
+    after another."""
     from links_ray.serve.app import bindable_port
 
-    return bindable_port("127.0.0.1", 0)
+    rng = random.Random()
+    for _ in range(200):
+        try:
+            return bindable_port("127.0.0.1", rng.randint(_SERVE_PORT_LOW, _SERVE_PORT_HIGH))
+        except ValueError:
+            continue
+    raise RuntimeError("no free port for the Serve app")
 
 
 @pytest.fixture(scope="session")

@@ -1,11 +1,16 @@
-"""Helpers for tests of the Serve app: a small JSON client over `http.client`, and
-mechanisms the tests share."""
+"""Helpers for tests of the Serve app: a small JSON client over `http.client`, running an app,
+and mechanisms and curves the tests share."""
 
 from __future__ import annotations
 
+import contextlib
 import http.client
 import json
+import time
+from collections.abc import Iterator
 from typing import Any
+
+import numpy as np
 
 FOUR_BAR = {
     "adjacency": [[0, 1, 0, 0], [1, 0, 0, 1], [0, 0, 0, 1], [0, 1, 1, 0]],
@@ -62,3 +67,56 @@ class Client:
     def post(self, path: str, body: Any) -> tuple[int, Any]:
         status, _, data = self.request("POST", path, body)
         return status, data
+
+
+@contextlib.contextmanager
+def serving(app: Any, port: int) -> Iterator[Client]:
+    """Run the Serve application `app`, its HTTP replica answering on `port` (Serve's direct
+    ingress, as under `links serve`: the `ray_cluster` fixture set Ray up for it); shut Serve
+    down after. No other app may be running."""
+    from ray import serve
+
+    from links_ray.cli.bench_services import wait_for_port
+    from links_ray.serve.app import bindable_port
+
+    wait_for_port(port)  # the last app's replica may still be letting go of it
+    no_access_log = {"enable_access_log": False}
+    serve.start(
+        http_options={"host": "127.0.0.1", "port": bindable_port("127.0.0.1", 0)},
+        logging_config=no_access_log,
+    )
+    try:
+        start = time.perf_counter()
+        serve.run(app, name="links", route_prefix="/", logging_config=no_access_log)
+        print(f"\nServe app ready in {time.perf_counter() - start:.1f} s")
+        yield Client(port)
+    finally:
+        serve.shutdown()
+
+
+def hand_drawn() -> list[np.ndarray]:
+    """Curves as a user draws them: an ellipse, a figure eight, a zigzag of five clicks, an
+    arc and a kidney, in screen-like coordinates."""
+    t = np.linspace(0, 2 * np.pi, 120)
+    kidney = np.column_stack(
+        [(1 + 0.4 * np.cos(t)) * np.cos(t), 0.7 * np.sin(t) + 0.2 * np.sin(2 * t)]
+    )
+    return [
+        np.column_stack([300 + 120 * np.cos(t), 200 + 50 * np.sin(t)]),
+        np.column_stack([np.sin(t), np.sin(t) * np.cos(t)]),
+        np.array([[0, 0], [1, 0.4], [2, 0.1], [1.5, -0.6], [0.3, -0.4]], dtype=float),
+        np.column_stack([np.cos(t[:50]), np.sin(t[:50])]) * 40,
+        kidney,
+    ]
+
+
+def retrieved(client: Client, query: np.ndarray, k: int) -> list[dict]:
+    """The results of a retrieval that must succeed."""
+    status, data = client.post("/api/retrieve", {"points": np.asarray(query).tolist(), "k": k})
+    assert status == 200, data
+    return data["results"]
+
+
+def as_served(results: list[dict]) -> list[dict]:
+    """Results as they come back over HTTP (JSON round-trips floats exactly)."""
+    return json.loads(json.dumps(results))

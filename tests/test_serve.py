@@ -560,10 +560,12 @@ def test_app_builder_args(dataset: str, tmp_path: Path) -> None:
             {"root": dataset, "shard_memory_gb": -1},
             "args.shard_memory_gb must be a positive number, got -1",
         ),
-        # The dataset has 6 curated shards (60 topologies, 10 a shard): a 7th part is empty.
+        # One part more than the dataset's curated shards: the last one would be empty.
         (
-            {"root": dataset, "shards": 7},
-            "has 6 curated shards: split in 7 parts, part 6 would have none; use fewer shards",
+            {"root": dataset, "shards": _curated_shards(dataset) + 1},
+            f"has {_curated_shards(dataset)} curated shards: split in "
+            f"{_curated_shards(dataset) + 1} parts, part {_curated_shards(dataset)} would have "
+            "none; use fewer shards",
         ),
     ):
         with pytest.raises(ValueError, match=message):
@@ -572,6 +574,13 @@ def test_app_builder_args(dataset: str, tmp_path: Path) -> None:
         build_app(dataset, replicas=0)
     with pytest.raises(ValueError, match="shard_cpus must be a positive number, got 0"):
         build_app(dataset, shards=2, shard_cpus=0)
+
+
+def _curated_shards(root: str) -> int:
+    from links_ray.data.commit import committed_shards
+    from links_ray.data.store import Store
+
+    return len(committed_shards(Store.open(root), "curation"))
 
 
 def test_an_app_that_cannot_fit_is_refused() -> None:
@@ -680,10 +689,11 @@ def test_serve_cli_refuses_more_shards_than_the_data_splits_into(
     from links_ray.cli.main import main
 
     port = bindable_port("127.0.0.1", 0)
-    assert main(["serve", dataset, "--port", str(port), "--shards", "7"]) == 2
+    count = _curated_shards(dataset)
+    assert main(["serve", dataset, "--port", str(port), "--shards", str(count + 1)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0
-    assert err.endswith("split in 7 parts, part 6 would have none; use fewer shards")
+    assert err.endswith(f"in {count + 1} parts, part {count} would have none; use fewer shards")
     for option, value, words in (
         ("--shards", "0", "must be a positive integer, got 0"),
         ("--shard-cpus", "-1", "must be a positive number, got -1"),

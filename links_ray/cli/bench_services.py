@@ -563,7 +563,7 @@ def bench_serve(
     queries = _held_out_queries(64, seed=77)
     cpus = os.cpu_count() or 1
     ray.shutdown()  # generating the dataset may have started one
-    port = bindable_port("127.0.0.1", 0)
+    port = _listening_port()
     os.environ.update(direct_ingress_env(port))
     connect()
     no_access_log = {"enable_access_log": False}
@@ -619,6 +619,21 @@ def bench_serve(
         "clients": clients,
         "runs": runs,
     }
+
+
+def _listening_port() -> int:
+    """A free loopback port below Linux's ephemeral range (32768+), for the front to answer on
+    run after run: in that range an outgoing connection (Ray opens many as an app starts) may
+    take it between two runs."""
+    from links_ray.serve.app import bindable_port
+
+    rng = np.random.default_rng()
+    for _ in range(200):
+        try:
+            return bindable_port("127.0.0.1", int(rng.integers(23_000, 30_000)))
+        except ValueError:
+            continue
+    return bindable_port("127.0.0.1", 0)
 
 
 def wait_for_port(port: int, timeout: float = 60.0) -> None:

@@ -1,0 +1,142 @@
+"""The Serve app under load and when a shard fails (docs/CONTRACT.md, HTTP API: 503 and
+`Retry-After`), on real Ray (2 CPUs) over real HTTP on loopback.
+
+`LOAD_CLIENTS` clients retrieve for `LOAD_SECONDS` (in a process of their own, each waiting
+the `Retry-After` it is given) while another checks health and simulates: retrievals beyond
+the front's bound are refused at once with 503, `Retry-After` and a JSON error, nothing else
+fails, health checks and simulations stay fast, and afterwards the server answers as before;
+with one index in the front and with two shards. A shard whose replica dies makes retrievals
+503 until Serve has replaced it.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from serving import FOUR_BAR, as_served, hand_drawn, retrieved, serving
+
+import links_ray
+from links_ray.cli.bench_services import (
+    _held_out_queries,
+    finish_load,
+    probe_loop,
+    retrieval_load,
+)
+from links_ray.search.index import RetrievalIndex
+from links_ray.serve.app import build_app
+
+#: Results per query in the comparisons.
+K = 5
+#: The load: clients retrieving at once, and for how long (seconds) in each setting.
+LOAD_CLIENTS = 32
+LOAD_SECONDS = 20.0
+#: What health checks and simulations must stay under, at the 99th percentile, meanwhile.
+PROBE_P99_S = 0.100
+#: Shard replicas' CPUs, so that the shards and the front (one CPU) fit the 2-CPU cluster.
+SHARD_CPUS = 0.25
+
+
+@pytest.fixture(scope="module")
+def queries() -> list[np.ndarray]:
+    """Paths of mechanisms held out of the dataset, in random frames, and hand-drawn curves."""
+    return _held_out_queries(6, seed=31) + hand_drawn()
+
+
+@pytest.fixture(scope="module")
+def reference(dataset: str) -> RetrievalIndex:
+    """One index over every curated path of the dataset."""
+    return RetrievalIndex.open(dataset)
+
+
+def _kill_replicas(deployment: str) -> int:
+    """Kill the Serve replica actors of `deployment` (by their own handles); how many."""
+    import ray
+
+    killed = 0
+    for actor in ray.util.list_named_actors(all_namespaces=True):
+        if f"#{deployment}#" in actor["name"]:
+            ray.kill(ray.get_actor(actor["name"], namespace=actor["namespace"]), no_restart=True)
+            killed += 1
+    return killed
+
+
+def test_a_lost_shard_is_503_until_serve_replaces_it(
+    dataset: str, serve_port: int, reference: RetrievalIndex, queries: list[np.ndarray]
+) -> None:
+    """Retrievals while a part is gone are 503 with Retry-After and a JSON error, never a
+    500 or a dropped connection; health keeps answering; then answers come back as before."""
+    app = build_app(dataset, shards=2, shard_cpus=SHARD_CPUS, shard_timeout_s=2.0)
+    query = queries[0]
+    expected = as_served(reference.retrieve(query, K))
+    with serving(app, serve_port) as client:
+        assert client.get("/api/health")[0] == 200
+        assert retrieved(client, query, K) == expected
+        assert _kill_replicas("IndexShard-1-of-2") == 1
+        seen: list[int] = []
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            status, headers, data = client.request(
+                "POST", "/api/retrieve", {"points": query.tolist(), "k": K}
+            )
+            seen.append(status)
+            assert status in (200, 503), (status, data)
+            if status == 503:
+                assert headers.get("retry-after") == "1"
+                assert set(data) == {"error"}, data
+                assert "index shard 1 of 2 is unavailable" in data["error"] or (
+                    "did not answer" in data["error"]
+                ), data
+                assert client.get("/api/health")[0] == 200
+            elif 503 in seen:
+                assert data["results"] == expected
+                break
+            time.sleep(0.2)
+        assert 503 in seen and seen[-1] == 200, seen
+
+
+@pytest.mark.parametrize("shards", [None, 2], ids=["one-index", "2-shards"])
+def test_under_load(
+    shards: int | None,
+    dataset: str,
+    serve_port: int,
+    reference: RetrievalIndex,
+    queries: list[np.ndarray],
+) -> None:
+    """LOAD_CLIENTS clients retrieve for LOAD_SECONDS while another checks health and
+    simulates: only 200s and 503s (with Retry-After and a JSON error), health and simulate
+    p99 under PROBE_P99_S, and afterwards the server answers as before."""
+    app = build_app(dataset, shards=shards, shard_cpus=SHARD_CPUS)
+    with serving(app, serve_port) as client:
+        load = retrieval_load(client.port, queries, LOAD_SECONDS, LOAD_CLIENTS)
+        try:
+            probes = probe_loop(client.port, LOAD_SECONDS)
+        finally:
+            record = finish_load(load)
+        statuses = record["statuses"]
+        answered = statuses.get("200", 0)
+
+        def ms(values: list[float], q: float) -> str:
+            return f"{np.percentile(values, q) * 1e3:.1f}" if values else "-"
+
+        print(
+            f"\n{shards or 'no'} shards: {statuses} in {record['seconds']:.1f} s "
+            f"({answered / record['seconds']:.1f} retrievals/s); health p50/p99 "
+            f"{ms(probes['health'], 50)}/{ms(probes['health'], 99)} ms, simulate p50/p99 "
+            f"{ms(probes['simulate'], 50)}/{ms(probes['simulate'], 99)} ms; retrieve p50/p99 "
+            f"{ms(record['latencies'], 50)}/{ms(record['latencies'], 99)} ms"
+        )
+        assert set(statuses) <= {"200", "503"}, statuses
+        assert answered > 0 and statuses.get("503", 0) > 0, statuses
+        assert record["no_retry_after"] == 0 and record["not_json"] == 0, record
+        assert set(probes["statuses"]) == {"health 200", "simulate 200"}, probes["statuses"]
+        assert len(probes["health"]) > 20 and len(probes["simulate"]) > 20
+        assert np.percentile(probes["health"], 99) < PROBE_P99_S
+        assert np.percentile(probes["simulate"], 99) < PROBE_P99_S
+        # Afterwards: answers as before.
+        status, data = client.get("/api/health")
+        assert status == 200 and data["paths"] == len(reference)
+        status, data = client.post("/api/simulate", FOUR_BAR)
+        assert status == 200 and data["trajectories"] == links_ray.simulate(**FOUR_BAR).tolist()
+        assert retrieved(client, queries[1], K) == as_served(reference.retrieve(queries[1], K))
