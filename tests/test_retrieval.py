@@ -193,6 +193,17 @@ def test_bounds_of_many_queries_never_exceed_the_true_distance() -> None:
                 nearest = np.sqrt(((path[:, None] - moved[None]) ** 2).sum(-1)).min(axis=1).mean()
                 assert bounds[p, variant, q] <= nearest + 1e-5
                 assert bounds[p, variant, q] >= nearest - 2 * reach  # and tight
+    # The other half from a sample of a query's points: their summed distances to the path.
+    sample = queries[0][::7]
+    rows, variants = np.repeat(np.arange(len(paths)), 4), np.tile(np.arange(4), len(paths))
+    sums = np.empty(len(rows))
+    kernels.sample_to_path_sums(sample, paths, rows, variants, sums)
+    for row, variant, total in zip(rows, variants, sums, strict=True):
+        matrix, offset = variant_map(variant)
+        moved = sample @ matrix.T + offset
+        path = paths[row].astype(np.float64)
+        expected = np.sqrt(((moved[:, None] - path[None]) ** 2).sum(-1)).min(axis=1).sum()
+        assert total == pytest.approx(expected, rel=1e-9)
 
 
 def test_returned_mechanism_traces_the_query_where_it_was_drawn(index: RetrievalIndex) -> None:

@@ -40,9 +40,11 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import time
 import uuid
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -540,8 +542,9 @@ class RetrievalIndex:
         """`brute_force` of each query, in one pass over the curated points.
 
         The exact distances of `ranked`'s answer bound the k-th best from above; a path whose
-        path-to-query half alone is bounded below (`nearest_node_bounds`) by more than that
-        cannot be among the best. The rest get the exact distance.
+        path-to-query half bounded below (`nearest_node_bounds`), plus its query-to-path half
+        bounded below from `QUERY_SAMPLE` of the query's points, exceeds that cannot be among
+        the best. The rest get the exact distance.
         """
         k = min(k, len(self))
         normalized = [normalization(validate_query(q, k)[0])[0] for q in queries]
@@ -556,12 +559,19 @@ class RetrievalIndex:
                 kernels.distance_table(normalized[q], table, owners)
                 tables[:, :, column] = table
             variants = [query_variants(normalized[q]) for q in group]
+            samples = [normalized[q][_spread(len(normalized[q]), QUERY_SAMPLE)] for q in group]
             for start, block in self.iter_points():
                 bounds = np.empty((len(block), 4, len(group)), dtype=np.float32)
                 kernels.nearest_node_bounds(tables, block, bounds)
                 able = bounds <= limits + BOUND_ROUNDING
                 for column, q in enumerate(group):
                     local, which = np.nonzero(able[:, :, column])
+                    # The query-to-path half, bounded from a sample of the query's points.
+                    sums = np.empty(len(local))
+                    kernels.sample_to_path_sums(samples[column], block, local, which, sums)
+                    lower = bounds[local, which, column] + sums / len(normalized[q])
+                    keep = lower <= limits[column] + BOUND_ROUNDING
+                    local, which = local[keep], which[keep]
                     distances = _exact_pairs(variants[column], block, local, which)
                     found[q].append((local + start, which, distances))
         index_row = np.empty(len(self), dtype=np.int64)
@@ -856,13 +866,24 @@ def _source_mechanisms(store: Store, mechanism_ids: np.ndarray) -> pa.Table:
 def _exact_pairs(
     variants: np.ndarray, points: np.ndarray, rows: np.ndarray, which: np.ndarray
 ) -> np.ndarray:
-    """Exact chamfer distances between query variant which[i] and path points[rows[i]]."""
+    """Exact chamfer distances between query variant which[i] and path points[rows[i]]; many
+    pairs are measured on every core (the kernel releases the GIL)."""
     distances = np.empty(len(rows))
+
+    def measure(variant: int, block: np.ndarray) -> None:
+        distances[block] = chamfer_to_many(variants[variant], points[rows[block]])
+
+    blocks = []
     for variant in range(4):
         chosen = np.flatnonzero(which == variant)
-        for block in np.array_split(chosen, max(1, len(chosen) // 8192)):
-            if len(block):
-                distances[block] = chamfer_to_many(variants[variant], points[rows[block]])
+        parts = max(1, len(chosen) // 2048)
+        blocks += [(variant, block) for block in np.array_split(chosen, parts) if len(block)]
+    if len(rows) > 4096:  # worth the threads (a query's few finalists are not)
+        with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
+            list(pool.map(lambda job: measure(*job), blocks))
+    else:
+        for job in blocks:
+            measure(*job)
     # A path that no longer traces (damaged data) is never an answer.
     return np.nan_to_num(distances, nan=np.inf)
 

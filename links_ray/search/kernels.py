@@ -447,3 +447,33 @@ def nearest_node_bounds(tables: np.ndarray, points: np.ndarray, out: np.ndarray)
             for v in range(4):
                 for q in range(queries):
                     out[p, v, q] = total[v, q] / count
+
+
+@njit(cache=True, nogil=True, parallel=True, fastmath=True)
+def sample_to_path_sums(
+    sample: np.ndarray, points: np.ndarray, rows: np.ndarray, variants: np.ndarray, out: np.ndarray
+) -> None:
+    """out[r] = the sum over the query points `sample` (S, 2) of their distance to path
+    rows[r] as variant variants[r]. Over a subset of a query's points, divided by all its
+    points, it bounds the query-to-path half of the chamfer distance from below."""
+    count = points.shape[1]
+    taken = sample.shape[0]
+    for chunk in prange((rows.shape[0] + 63) // 64):
+        nearest = np.empty(taken)
+        for r in range(chunk * 64, min(rows.shape[0], (chunk + 1) * 64)):
+            p = rows[r]
+            shift_x, shift_y = _flip(0.0, 0.0, variants[r])
+            sign_x = 1.0 - 2.0 * shift_x
+            sign_y = 1.0 - 2.0 * shift_y
+            nearest[:] = np.inf
+            for t in range(count):
+                px = shift_x + sign_x * points[p, t, 0]
+                py = shift_y + sign_y * points[p, t, 1]
+                for i in range(taken):
+                    dx = sample[i, 0] - px
+                    dy = sample[i, 1] - py
+                    nearest[i] = min(nearest[i], dx * dx + dy * dy)
+            total = 0.0
+            for i in range(taken):
+                total += math.sqrt(nearest[i])
+            out[r] = total
