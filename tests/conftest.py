@@ -475,3 +475,22 @@ def curated(dataset: str) -> Any:
     import links_ray
 
     return links_ray.load(dataset, "curated", columns=["path_id", "points"], reshape=True)
+
+
+@pytest.fixture(scope="module")
+def queries() -> list:
+    """The serving tests' queries: paths of mechanisms held out of the Serve tests' dataset,
+    in random frames, and hand-drawn curves."""
+    from serving import hand_drawn
+
+    from links_ray.cli.bench_services import _held_out_queries
+
+    return _held_out_queries(6, seed=31) + hand_drawn()
+
+
+@pytest.fixture(scope="module")
+def reference(dataset: str) -> Any:
+    """One index over every curated path of the Serve tests' dataset."""
+    from links_ray.search.index import RetrievalIndex
+
+    return RetrievalIndex.open(dataset)

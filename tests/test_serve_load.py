@@ -15,11 +15,10 @@ import time
 
 import numpy as np
 import pytest
-from serving import FOUR_BAR, as_served, hand_drawn, retrieved, serving
+from serving import FOUR_BAR, as_served, retrieved, serving
 
 import links_ray
 from links_ray.cli.bench_services import (
-    _held_out_queries,
     finish_load,
     probe_loop,
     retrieval_load,
@@ -36,18 +35,6 @@ LOAD_SECONDS = 20.0
 PROBE_P99_S = 0.100
 #: Shard replicas' CPUs, so that the shards and the front (one CPU) fit the 2-CPU cluster.
 SHARD_CPUS = 0.25
-
-
-@pytest.fixture(scope="module")
-def queries() -> list[np.ndarray]:
-    """Paths of mechanisms held out of the dataset, in random frames, and hand-drawn curves."""
-    return _held_out_queries(6, seed=31) + hand_drawn()
-
-
-@pytest.fixture(scope="module")
-def reference(dataset: str) -> RetrievalIndex:
-    """One index over every curated path of the dataset."""
-    return RetrievalIndex.open(dataset)
 
 
 def _kill_replicas(deployment: str) -> int:

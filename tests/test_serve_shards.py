@@ -19,10 +19,9 @@ from typing import Any
 
 import numpy as np
 import pytest
-from serving import as_served, hand_drawn, retrieved, serving
+from serving import as_served, retrieved, serving
 
 import links_ray
-from links_ray.cli.bench_services import _held_out_queries
 from links_ray.data.commit import committed_shards
 from links_ray.data.store import Store
 from links_ray.search.index import RetrievalIndex
@@ -32,18 +31,6 @@ from links_ray.serve.app import build_app
 K = 5
 #: Shard replicas' CPUs: four shards and the front (one CPU) fill the 2-CPU test cluster.
 SHARD_CPUS = 0.25
-
-
-@pytest.fixture(scope="module")
-def queries() -> list[np.ndarray]:
-    """Paths of mechanisms held out of the dataset, in random frames, and hand-drawn curves."""
-    return _held_out_queries(6, seed=31) + hand_drawn()
-
-
-@pytest.fixture(scope="module")
-def reference(dataset: str) -> RetrievalIndex:
-    """One index over every curated path of the dataset."""
-    return RetrievalIndex.open(dataset)
 
 
 @pytest.fixture(scope="module")

@@ -133,7 +133,6 @@ import json, sys
 def rss():
     return int(open("/proc/self/status").read().split("VmRSS:")[1].split()[0]) * 1024
 from links_ray.search.index import RetrievalIndex
-import numpy, pyarrow, numba
 before = rss()
 index = RetrievalIndex.open(sys.argv[1])
 index.warm(seconds=1.0)
