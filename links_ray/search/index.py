@@ -237,6 +237,7 @@ class RetrievalIndex:
     part: int = 0
     parts: int = 1
     build_s: float = 0.0
+    fingerprint: str = ""  # of the curated shards indexed (changes when any is redone)
     _scores: np.ndarray | None = field(default=None, repr=False)  # the scan's, reused
 
     def __len__(self) -> int:
@@ -296,7 +297,13 @@ class RetrievalIndex:
         folder = cache_folder(part, parts)
         fingerprint = _fingerprint(markers)
         rows = sum(marker["rows"].get("curated", 0) for marker in markers.values())
-        common = {"store": store, "files": files, "part": part, "parts": parts}
+        common = {
+            "store": store,
+            "files": files,
+            "part": part,
+            "parts": parts,
+            "fingerprint": fingerprint,
+        }
         saved = None if rebuild else _load_cache(store, folder, fingerprint, rows)
         if saved is not None:
             return cls(**common, **saved)
