@@ -66,8 +66,9 @@ from links_ray.search.mechanisms import MechanismBank
 
 #: PCA components of the distance fields; a path's code holds two sets (2 * DIMENSIONS int8).
 DIMENSIONS = 64
-#: Paths passed from the scan to the estimate: this share of the rows scanned, and at least
-#: MIN_CANDIDATES (every path, in every variant, when there are no more than that).
+#: Paths passed from the scan to the estimate: this share of the index's paths, and at least
+#: MIN_CANDIDATES (every path, in every variant, when there are no more than that); past
+#: GROWTH_ROWS paths, see `stage_sizes`.
 CANDIDATE_SHARE, MIN_CANDIDATES = 0.025, 3_000
 #: Components per half in the head of a code; the head scan keeps HEAD_KEEP times as many rows
 #: as there are candidates, for the whole codes to rank.
@@ -79,10 +80,16 @@ TAIL_COLUMNS = np.r_[HEAD_COMPONENTS:DIMENSIONS, DIMENSIONS + HEAD_COMPONENTS : 
 VARIANT_MARGIN = 0.002
 #: Candidate pairs estimated from their whole sketches, and the query points that estimate
 #: measures from (the rough one measures from `search_kernels.ROUGH_SAMPLE`).
-REFINED, QUERY_SAMPLE = 3_000, 32
+REFINED, QUERY_SAMPLE = 2_500, 48
 #: Paths traced again and given the exact chamfer distance (in their likeliest variant, and
 #: in the others where a lower bound leaves them able to matter).
-FINALISTS = 96
+FINALISTS = 128
+#: Past GROWTH_ROWS paths, the candidates, the pairs estimated from whole sketches and the
+#: finalists grow as (paths / GROWTH_ROWS) ** GROWTH_POWER: ten times the paths put about
+#: ten times as many near copies around a query, too close for the estimates to tell apart.
+#: At 10 million paths the 1-million sizes found 0.76 of the true best three; grown by 3.2,
+#: 0.93 (README, retrieval at the paper's scale, has the trade measured).
+GROWTH_ROWS, GROWTH_POWER = 1_000_000, 0.5
 #: Every second point of a stored path makes its distance field.
 FIELD_STRIDE = 2
 #: Distance fields used to fit the PCA basis, and rows read and featurized per block.
@@ -100,7 +107,7 @@ INDEX_FORMAT = 5
 #: codes. A query scans the lists nearest it until they hold PROBED_ROWS rows (every list of
 #: an index no larger), so a scan costs the same at 10 million paths as at 1 million.
 ROWS_PER_LIST, MAX_LISTS, KMEANS_ROUNDS, KMEANS_SAMPLE = 10_000, 4_096, 8, 100_000
-PROBED_ROWS = 1_000_000
+PROBED_ROWS = 250_000
 #: Exact brute force: queries bounded together in one pass over the points, the nodes a
 #: side of their distance tables (a finer grid than the search's: tighter bounds), and how
 #: far a float32 sum of 200 bounds may exceed its exact value.
@@ -192,6 +199,19 @@ class Basis:
         """The field half of int8 codes split as `head` and `tail`, unquantized (R, DIMENSIONS)."""
         halves = (head[:, :HEAD_COMPONENTS], tail[:, : DIMENSIONS - HEAD_COMPONENTS])
         return np.concatenate(halves, axis=1).astype(np.float32) * self.scale[:DIMENSIONS]
+
+
+def stage_sizes(paths: int) -> tuple[int, int, int]:
+    """(candidates, refined, finalists) of a search over an index of `paths` paths: the scan
+    passes on the candidates, the best `refined` candidate pairs by rough estimate get the
+    fine one, and the best `finalists` rows by fine estimate the exact distance."""
+    growth = max(1.0, paths / GROWTH_ROWS) ** GROWTH_POWER
+    candidates = CANDIDATE_SHARE * min(paths, GROWTH_ROWS) * growth
+    return (
+        max(MIN_CANDIDATES, round(candidates)),
+        round(REFINED * growth),
+        round(FINALISTS * growth),
+    )
 
 
 def check_part(part: int, parts: int) -> None:
@@ -391,15 +411,13 @@ class RetrievalIndex:
         probed: int = PROBED_ROWS,
     ) -> list[tuple[int, float, int]]:
         """The k best (row, chamfer, variant), best first, for a normalized query; the scan
-        of the lists nearest it, `probed` rows, passes on `candidates` paths (by default
-        `CANDIDATE_SHARE` of the rows scanned)."""
+        of the lists nearest it, `probed` rows, passes on `candidates` paths (by default as
+        `stage_sizes` says)."""
+        default_candidates, refined, finalists = stage_sizes(len(self))
         variants = query_variants(normalized)
         weights, offsets, field_codes = self.basis.query(variants)
         pieces = self.probe(field_codes, probed)
-        if candidates is None:
-            scanned = int(pieces[2][-1] + pieces[1][-1] - pieces[0][-1])
-            candidates = max(MIN_CANDIDATES, round(CANDIDATE_SHARE * scanned))
-        rows, likely = self.candidates(weights, offsets, candidates, pieces)
+        rows, likely = self.candidates(weights, offsets, candidates or default_candidates, pieces)
         # Each candidate with its likely variants (every variant on the exhaustive path).
         if len(rows) == len(self):
             pair_rows, pair_variants = np.repeat(rows, 4), np.tile(np.arange(4), len(rows))
@@ -411,20 +429,18 @@ class RetrievalIndex:
         table, owners = distance_table(normalized)
         levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
         kernels.level_table(normalized, owners, levels)
-        if len(pair_rows) > REFINED:  # a rough estimate of every pair first
+        if len(pair_rows) > refined:  # a rough estimate of every pair first
             rough = self._estimate(
                 normalized, levels, pair_rows, pair_variants, kernels.ROUGH_SAMPLE, rough=True
             )
-            best = np.argpartition(rough, REFINED)[:REFINED]
+            best = np.argpartition(rough, refined)[:refined]
             pair_rows, pair_variants = pair_rows[best], pair_variants[best]
         fine = self._estimate(normalized, levels, pair_rows, pair_variants, QUERY_SAMPLE)
         # Rows by their best estimate (a row may come twice, once per variant).
         order = np.argsort(fine, kind="stable")
         _, first = np.unique(pair_rows[order], return_index=True)
-        finalists = order[np.sort(first)][: max(FINALISTS, k)]
-        return self._exact_finalists(
-            variants, table, pair_rows[finalists], pair_variants[finalists], k
-        )
+        chosen = order[np.sort(first)][: max(finalists, k)]
+        return self._exact_finalists(variants, table, pair_rows[chosen], pair_variants[chosen], k)
 
     def _exact_finalists(
         self,
