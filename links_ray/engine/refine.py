@@ -20,8 +20,9 @@ A step is kept only if the true chamfer falls and the mechanism stays valid: it 
 the simulation's steps and at REFINE_CHECK_STEPS steps, every joint keeps its assembly branch
 (the signs of `dyad_geometry`), its links keep MIN_LINK_LENGTH, and every dyad keeps a
 transmission angle of at least the margin at every check step (a dyad that starts below the
-margin may not fall further). Otherwise the damping grows and a shorter step is tried. So the
-chamfer never rises, and the result is valid whenever the input was.
+margin keeps half its starting sine until it reaches the margin, and the margin from then on;
+rigid dyads, whose angle never changes, have none). Otherwise the damping grows and a shorter
+step is tried. So the chamfer never rises, and the result is valid whenever the input was.
 
 Partial strokes (`partial=True`): an open stroke matches part of a turn. The measure is then the
 least chamfer between the stroke and a run of consecutive steps (cyclic) of the path, over
@@ -80,6 +81,8 @@ CONVERGED, STALL, STALL_GAIN = 1e-12, 5, 1e-8
 #: Most a step moves any joint coordinate, per chord length of the drawing: the nearest-point
 #: correspondences hold only nearby, and a long step lands among other local minima.
 MAX_MOVE = 0.25
+#: A dyad below the margin at the start keeps at least this share of its starting sine.
+BELOW_MARGIN = 0.5
 #: Damping (times the system's diagonal): start, growth on a rejected step, shrink on a kept
 #: one, the least it shrinks to, the least it grows to on a rejection (below it a rejected step
 #: barely shortens), and the end of trying. Steps stay damped (DAMPING_MIN): undamped
@@ -321,10 +324,16 @@ def _refine_one(
     margin = math.sin(math.radians(margin_deg))
     soft = math.sin(math.radians(margin_deg + SOFT_DEG))
     sides = check.sides
-    # A dyad already below the margin may not fall further; the others keep the margin. Rigid
-    # dyads (decided once, from the input) have no margin: their sines are >= 0 > -1.
+    # Dyads keep the margin once they have it. One below it at the start may not fall under
+    # BELOW_MARGIN of its starting sine: "not at all" would freeze it, as every step moves its
+    # least angle a little. Rigid dyads (decided once, from the input) have no margin: their
+    # sines are >= 0 > -1.
     rigid = check.rigid
-    floors = np.where(rigid, -1.0, np.minimum(margin, check.min_transmission))
+    floors = np.where(
+        rigid,
+        -1.0,
+        np.where(check.min_transmission >= margin, margin, BELOW_MARGIN * check.min_transmission),
+    )
     value, interval = _measure(target, traj[joint])
     before = value
     pos = start.copy()
@@ -364,7 +373,8 @@ def _refine_one(
                             trial_interval,
                             trial_check,
                         )
-                        floors = np.where(rigid, -1.0, np.minimum(margin, check.min_transmission))
+                        gained = ~rigid & (check.min_transmission >= margin)
+                        floors = np.where(gained, margin, floors)
                         damping = max(damping / DAMPING_DOWN, DAMPING_MIN)
                         accepted = True
                         break
