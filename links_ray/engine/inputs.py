@@ -49,6 +49,12 @@ DEFAULT_REFINE_ITERATIONS, MAX_REFINE_ITERATIONS = 200, 10_000
 #: that may be asked: a margin near 90 degrees leaves no mechanism).
 DEFAULT_MARGIN_DEG, MAX_MARGIN_DEG = 3.0, 45.0
 
+# -- synthesis (engine.synthesis) ----------------------------------------------------------
+
+#: Seconds a synthesis takes by default (retrieval included), and the most it may be given:
+#: a synthesis holds a core for its whole budget, so a request may not hold one for long.
+DEFAULT_SYNTHESIS_SECONDS, MAX_SYNTHESIS_SECONDS = 3.0, 30.0
+
 # -- one HTTP request -------------------------------------------------------------------------
 
 #: Largest mechanism one request may carry, in joints. Smaller than MAX_JOINTS: a request holds
@@ -253,3 +259,32 @@ def check_refine_size(n_joints: int, steps: int) -> None:
         )
     if steps > MAX_REFINE_STEPS:
         raise ValueError(f"refinement takes at most {MAX_REFINE_STEPS} steps, got {steps}")
+
+
+# -- synthesis --------------------------------------------------------------------------------
+
+
+def as_seconds(value: object) -> float:
+    """A synthesis time budget in seconds: more than 0 and at most MAX_SYNTHESIS_SECONDS;
+    None gives DEFAULT_SYNTHESIS_SECONDS."""
+    if value is None:
+        return DEFAULT_SYNTHESIS_SECONDS
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"seconds must be a number, got {shown(value)}")
+    seconds = float(value)
+    if not 0.0 < seconds <= MAX_SYNTHESIS_SECONDS:
+        raise ValueError(
+            f"seconds must be more than 0 and at most {MAX_SYNTHESIS_SECONDS:g}, got {seconds:g}"
+        )
+    return seconds
+
+
+def validate_synthesis(
+    points: object, k: object = DEFAULT_K, seconds: object = None, partial: object = False
+) -> tuple[np.ndarray, int, float, bool]:
+    """A synthesis request as (points (T, 2) float64, k, seconds, partial), or ValueError
+    naming the problem."""
+    points, k = validate_query(points, k)
+    if not isinstance(partial, bool | np.bool_):
+        raise ValueError(f"partial must be true or false, got {shown(partial)}")
+    return points, k, as_seconds(seconds), bool(partial)

@@ -34,6 +34,7 @@ Pure numpy/numba: no Ray, no files.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -308,8 +309,15 @@ def _refine_one(
     steps: int,
     iterations: int,
     margin_deg: float,
+    deadline: float | None = None,
+    origin: np.ndarray | None = None,
 ) -> Refinement:
-    """Refine a validated mechanism; raises LockingError if it locks as given."""
+    """Refine a validated mechanism; raises LockingError if it locks as given.
+
+    Stops after the iteration during which `time.perf_counter()` passes `deadline`. With
+    `origin` (positions `start` was refined from), the transmission floors are the origin's,
+    so refining in several calls keeps the same floors as one call would.
+    """
     lock, traj, _, _, _, _ = _solve(topology, start, steps, False)
     if lock[0] >= 0:
         raise LockingError(*lock)
@@ -329,17 +337,22 @@ def _refine_one(
     # least angle a little. Rigid dyads (decided once, from the input) have no margin: their
     # sines are >= 0 > -1.
     rigid = check.rigid
+    first = check if origin is None else check_mechanism(topology, origin)
     floors = np.where(
         rigid,
         -1.0,
-        np.where(check.min_transmission >= margin, margin, BELOW_MARGIN * check.min_transmission),
+        np.where(first.min_transmission >= margin, margin, BELOW_MARGIN * first.min_transmission),
     )
+    if origin is not None:  # what the origin gained since, it keeps
+        floors = np.where(~rigid & (check.min_transmission >= margin), margin, floors)
     value, interval = _measure(target, traj[joint])
     before = value
     pos = start.copy()
     damping = DAMPING_START
     done = evaluations = stalled = 0
     while done < iterations and value > CONVERGED * target.chord and stalled < STALL:
+        if deadline is not None and done and time.perf_counter() > deadline:
+            break
         done += 1
         _, traj, dtraj, trans, dtrans, _ = _solve(topology, pos, steps, True)
         hessian, gradient = _normal_equations(target, traj[joint], dtraj[joint], interval)
@@ -367,6 +380,8 @@ def _refine_one(
                         else None
                     )
                     if trial_check is not None:
+                        gain = value - trial_value
+                        stalled = stalled + 1 if gain < STALL_GAIN * target.chord else 0
                         pos, value, interval, check = (
                             trial,
                             trial_value,
