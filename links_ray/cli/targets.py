@@ -8,7 +8,7 @@ code as point lists (closed curves, counter-clockwise, evenly spaced in their pa
 | `teardrop` | a drop with one sharp end, a cusp-like turn coupler curves make near dead centres |
 | `crescent` | a banana: two near-parallel arcs joined by tight turns |
 | `figure_eight` | a lemniscate of Gerono: the curve crosses itself |
-| `letter_d` | a D: a straight stroke and a half circle, corners rounded a little |
+| `letter_d` | a D: a straight stem and a half-ellipse bowl, meeting at two right angles |
 | `rounded_triangle` | a triangle with rounded corners and straight sides |
 | `gait` | a walking foot's path: a long flat stride on the ground and a lifted return arc |
 
@@ -42,7 +42,11 @@ def _polyline_loop(corners: np.ndarray, radius: float, count: int) -> np.ndarray
         sweep = (last - first + np.pi) % (2 * np.pi) - np.pi
         angles = first + sweep * np.linspace(0, 1, 16)
         pieces.append(centre + radius * np.column_stack([np.cos(angles), np.sin(angles)]))
-    outline = np.concatenate(pieces)
+    return _even(np.concatenate(pieces), count)
+
+
+def _even(outline: np.ndarray, count: int) -> np.ndarray:
+    """`count` points evenly spaced along the closed polyline `outline`."""
     outline = np.concatenate([outline, outline[:1]])
     lengths = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(outline, axis=0), axis=1))])
     at = np.linspace(0, lengths[-1], count, endpoint=False)
@@ -54,6 +58,7 @@ def _polyline_loop(corners: np.ndarray, radius: float, count: int) -> np.ndarray
 def target_curves(points: int = TARGET_POINTS) -> dict[str, np.ndarray]:
     """The bench's target curves by name, each (points, 2), in their own frame."""
     t = np.linspace(0, 2 * np.pi, points, endpoint=False)
+    bowl = np.linspace(-np.pi / 2, np.pi / 2, 100, endpoint=False)
     gait_stride = np.linspace(-1, 1, points // 2, endpoint=False)
     gait_lift = np.linspace(0, np.pi, points - points // 2, endpoint=False)
     return {
@@ -64,11 +69,13 @@ def target_curves(points: int = TARGET_POINTS) -> dict[str, np.ndarray]:
         "teardrop": np.column_stack([np.cos(t), np.sin(t) * np.sin(t / 2) ** 2]),
         "crescent": np.column_stack([np.cos(t), 0.15 * np.sin(t) + 0.45 * np.cos(t) ** 2]),
         "figure_eight": np.column_stack([np.sin(t), np.sin(t) * np.cos(t)]),
-        "letter_d": _polyline_loop(
-            np.array(
-                [[0.0, -1.0], [0.55, -0.92], [0.95, -0.45], [0.95, 0.45], [0.55, 0.92], [0.0, 1.0]]
+        "letter_d": _even(
+            np.concatenate(
+                [
+                    np.column_stack([np.zeros(50), np.linspace(1, -1, 50, endpoint=False)]),
+                    np.column_stack([0.9 * np.cos(bowl), np.sin(bowl)]),
+                ]
             ),
-            0.12,
             points,
         ),
         "rounded_triangle": _polyline_loop(

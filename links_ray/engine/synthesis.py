@@ -62,9 +62,9 @@ __all__ = ["Retriever", "fit", "refine_retrieved", "synthesize"]
 #: Retrieved candidates the short pass refines.
 CANDIDATES = 32
 #: Iterations of the short pass, and the most share of the budget it may take.
-FIRST_ITERATIONS, FIRST_SHARE = 15, 0.4
+FIRST_ITERATIONS, FIRST_SHARE = 40, 0.4
 #: Candidates the long pass refines on (at least k).
-FINALISTS = 6
+FINALISTS = 4
 #: Iterations a long-pass refinement may take (it stops earlier when it converges).
 LONG_ITERATIONS = 2_000
 #: Restarts move every joint by up to this share of the drawing's chord.
