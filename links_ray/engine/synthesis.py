@@ -67,8 +67,11 @@ FIRST_ITERATIONS, FIRST_SHARE = 40, 0.4
 FINALISTS = 4
 #: Iterations a long-pass refinement may take (it stops earlier when it converges).
 LONG_ITERATIONS = 2_000
-#: Restarts move every joint by up to this share of the drawing's chord.
-SHAKE = 0.03
+#: Restarts move every joint by up to a share of the drawing's chord drawn log-uniformly
+#: between these (the basin to leave may be narrow or wide), and refine for at most
+#: HOP_ITERATIONS.
+SHAKE = (0.003, 0.05)
+HOP_ITERATIONS = 300
 
 
 class Retriever(Protocol):
@@ -206,13 +209,14 @@ def refine_retrieved(
             # Each round shakes the current best ones, one per worker.
             finalists.sort(key=lambda c: c.chamfer)
             chosen = finalists[: max(workers, k)]
+            shakes = np.exp(rng.uniform(*np.log(SHAKE), len(chosen))) * target.chord
             starts = [
-                c.positions + rng.uniform(-SHAKE, SHAKE, c.positions.shape) * target.chord
-                for c in chosen
+                c.positions + rng.uniform(-1.0, 1.0, c.positions.shape) * shake
+                for c, shake in zip(chosen, shakes, strict=True)
             ]
 
             def hop(c: _Candidate, start: np.ndarray) -> None:
-                _keep(c, _refined(c, target, start, LONG_ITERATIONS, deadline, margin), 0)
+                _keep(c, _refined(c, target, start, HOP_ITERATIONS, deadline, margin), 0)
 
             list(pool.map(hop, chosen, starts))
             rounds += 1
