@@ -4,14 +4,16 @@
 the drawing (their mechanisms already placed in the drawing's frame), then refines them toward
 the drawing itself (`engine.refine`) within a time budget:
 
-1. A short pass: every candidate gets `FIRST_ITERATIONS` refinement iterations (at most
-   `FIRST_SHARE` of the time left). Retrieval ranks by normalized shape alone; a few iterations
-   show which candidates can really move onto the curve.
+1. A short pass: every candidate gets up to `FIRST_ITERATIONS` refinement iterations, in
+   rounds of `FIRST_ROUND` over them all, within `FIRST_SHARE` of the time left. Retrieval
+   ranks by normalized shape alone; a few iterations show which candidates can really move
+   onto the curve.
 2. A long pass: the best `FINALISTS` after the first pass are refined on until they converge
    or the budget is spent, each continuing where the first pass left it.
-3. Restarts: while time remains, the best results are shaken (every joint moved by up to
-   `SHAKE` of the drawing's chord) and refined again, keeping the shaken result only if it is
-   better (a basin hop: the point-sampled chamfer has many local minima).
+3. Restarts: while time remains, the best results are shaken (every joint moved by a random
+   share of the drawing's chord, log-uniform in `SHAKE`) and refined again for at most
+   `HOP_ITERATIONS`, keeping the shaken result only if it is better (a basin hop: the
+   point-sampled chamfer has many local minima).
 
 Refinements run on every core, in threads (the refinement kernels release the GIL).
 
@@ -61,12 +63,14 @@ __all__ = ["Retriever", "fit", "refine_retrieved", "synthesize"]
 
 #: Retrieved candidates the short pass refines.
 CANDIDATES = 32
-#: Iterations of the short pass, and the most share of the budget it may take.
-FIRST_ITERATIONS, FIRST_SHARE = 40, 0.4
+#: Iterations of the short pass, in rounds of FIRST_ROUND for every candidate, and the most
+#: share of the budget it may take.
+FIRST_ITERATIONS, FIRST_ROUND, FIRST_SHARE = 40, 10, 0.4
 #: Candidates the long pass refines on (at least k).
 FINALISTS = 4
-#: Iterations a long-pass refinement may take (it stops earlier when it converges).
-LONG_ITERATIONS = 2_000
+#: Iterations a long-pass refinement may take (it stops earlier when it converges), in
+#: rounds of LONG_ROUND over the finalists.
+LONG_ITERATIONS, LONG_ROUND = 2_000, 50
 #: Restarts move every joint by up to a share of the drawing's chord drawn log-uniformly
 #: between these (the basin to leave may be narrow or wide), and refine for at most
 #: HOP_ITERATIONS.
@@ -189,22 +193,37 @@ def refine_retrieved(
         candidates = [c for c in found if c is not None]
 
         def short(c: _Candidate) -> None:
-            _keep(c, _refined(c, target, c.origin, FIRST_ITERATIONS, first_end, margin), 0)
+            refinement = _refined(c, target, c.positions, FIRST_ROUND, first_end, margin)
+            if not _keep(c, refinement, FIRST_ROUND):  # no step helped: it will not move
+                c.converged = True
 
         now = time.perf_counter()
         first_end = now + FIRST_SHARE * max(0.0, deadline - now)
-        list(pool.map(short, candidates))
+        # In rounds, so that when time runs short every candidate has had as many iterations
+        # (large mechanisms take ten times as long per iteration as small ones).
+        for _ in range(0, FIRST_ITERATIONS, FIRST_ROUND):
+            moving = [c for c in candidates if not c.converged]
+            if not moving or time.perf_counter() >= first_end:
+                break
+            list(pool.map(short, moving))
         candidates.sort(key=lambda c: c.chamfer)
         finalists = candidates[: max(FINALISTS, k)]
 
-        def long(c: _Candidate) -> None:
-            refinement = _refined(c, target, c.positions, LONG_ITERATIONS, deadline, margin)
-            if not _keep(c, refinement, LONG_ITERATIONS) and refinement is not None:
-                c.converged = refinement.iterations < LONG_ITERATIONS
+        for c in finalists:  # a round cut short by the deadline is no sign of convergence
+            c.converged = False
 
-        list(pool.map(long, finalists))
+        def long(c: _Candidate) -> None:
+            refinement = _refined(c, target, c.positions, LONG_ROUND, deadline, margin)
+            if not _keep(c, refinement, LONG_ROUND):
+                c.converged = True
+
+        # In rounds too: one finalist refined to the end would leave the others none.
+        for _ in range(0, LONG_ITERATIONS, LONG_ROUND):
+            moving = [c for c in finalists if not c.converged]
+            if not moving or time.perf_counter() >= deadline:
+                break
+            list(pool.map(long, moving))
         rng = np.random.default_rng(seed)
-        rounds = 0
         while time.perf_counter() < deadline and finalists:
             # Each round shakes the current best ones, one per worker.
             finalists.sort(key=lambda c: c.chamfer)
@@ -219,7 +238,6 @@ def refine_retrieved(
                 _keep(c, _refined(c, target, start, HOP_ITERATIONS, deadline, margin), 0)
 
             list(pool.map(hop, chosen, starts))
-            rounds += 1
     candidates.sort(key=lambda c: (c.chamfer, c.result["path_id"]))
     return [_as_result(c, target) for c in candidates[:k]]
 
