@@ -15,6 +15,7 @@ from collections.abc import Callable, Sequence
 from typing import NoReturn
 
 from links_ray.cli import bench
+from links_ray.cli.bench_synthesis import BENCH_SECONDS
 from links_ray.cli.demo import run_demo
 from links_ray.engine.inputs import (
     DEFAULT_K,
@@ -146,7 +147,7 @@ def _synthesize(args: argparse.Namespace) -> None:
 
 
 def _bench_synthesize(args: argparse.Namespace) -> None:
-    from links_ray.cli import bench_synthesis  # imports Ray: only when asked for
+    from links_ray.cli import bench_synthesis
 
     with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
         result = bench_synthesis.bench_synthesize(seconds=args.seconds, paths=args.paths)
@@ -420,7 +421,10 @@ def build_parser() -> argparse.ArgumentParser:
         ("--paths", 1_000_000, "curated paths in the index"),
     )
     synthesize_bench.add_argument(
-        "--seconds", type=_positive_float, default=4.5, help="budget per curve (default 4.5)"
+        "--seconds",
+        type=_positive_float,
+        default=BENCH_SECONDS,
+        help=f"budget per curve (default {BENCH_SECONDS:g})",
     )
     serve_bench = benches.add_parser(
         "serve",
