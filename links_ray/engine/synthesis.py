@@ -46,6 +46,7 @@ from links_ray.engine.inputs import (
     DEFAULT_K,
     DEFAULT_MARGIN_DEG,
     DEFAULT_STEPS,
+    check_refine_size,
     validate_synthesis,
 )
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
@@ -124,6 +125,7 @@ def _candidate(result: dict, target: _Target) -> _Candidate | None:
         topology = analyze_topology(mechanism["adjacency"], mechanism["node_types"])
         positions = np.ascontiguousarray(mechanism["positions"], dtype=np.float64)
         joint = int(result["mechanism_joint"])
+        check_refine_size(topology.n_joints, DEFAULT_STEPS)
         if check_mechanism(topology, positions).lock[0] >= 0:
             return None
         path = simulate(topology.adjacency, topology.node_types, positions, DEFAULT_STEPS)[joint]
