@@ -13,6 +13,7 @@ from links_ray.engine.mechanism import (
 from links_ray.engine.paths import chamfer, circle_variance, is_circle, normalize_path
 from links_ray.engine.sampling import PositionSampler, PositionSearch, sample_positions
 from links_ray.engine.solver import TopologySimulator, simulate, simulate_batch
+from links_ray.engine.synthesis import synthesize
 from links_ray.engine.topology import random_topology
 
 __all__ = [
@@ -31,5 +32,6 @@ __all__ = [
     "sample_positions",
     "simulate",
     "simulate_batch",
+    "synthesize",
 ]
 __version__ = "0.1.0"

@@ -607,3 +607,31 @@ def test_retrieval_errors_are_shown_in_words(studio: Studio) -> None:
     status = studio.text("retrieve-status")
     assert "Retrieval failed" in status and "3 to 10000" in status and "(HTTP 400)" in status
     assert studio.page.get_by_test_id("result").count() == 0
+
+
+def test_draw_and_synthesize(studio: Studio, client: Client) -> None:
+    """The Synthesize button: the API's refined mechanisms, best first, each no worse than it
+    was retrieved, animated over the curve."""
+    t = np.linspace(0, 2 * np.pi, 90)
+    curve = np.stack([0.5 + 0.3 * np.cos(t), 0.5 + 0.2 * np.sin(t) + 0.06 * np.sin(2 * t)], 1)
+    draw(studio, curve.tolist())
+    studio.page.get_by_test_id("k").fill("3")
+    studio.click("synthesize-button")
+    results = studio.page.get_by_test_id("result")
+    results.nth(2).wait_for()
+    assert results.count() == 3
+    assert "synthesis" in studio.text("retrieve-status")
+    chamfers = [float(results.nth(i).get_attribute("data-chamfer")) for i in range(3)]
+    assert chamfers == sorted(chamfers)
+    for i in range(3):
+        retrieved = float(results.nth(i).inner_text().split("refined from ", 1)[1].split(",")[0])
+        assert chamfers[i] <= retrieved * (1 + 1e-3)
+    results.nth(0).click()
+    studio.wait(
+        "() => document.querySelector('[data-testid=draw-canvas]').dataset.animating === 'true'"
+    )
+    chosen = studio.js("() => window.studio.retriever.chosen")
+    best = chosen["result"]
+    traced = np.array(chosen["trajectories"])[best["mechanism_joint"]]
+    np.testing.assert_array_equal(traced, simulate(best["mechanism"])[best["mechanism_joint"]])
+    np.testing.assert_array_equal(traced, np.array(best["path"]))

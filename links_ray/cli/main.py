@@ -15,8 +15,15 @@ from collections.abc import Callable, Sequence
 from typing import NoReturn
 
 from links_ray.cli import bench
+from links_ray.cli.bench_synthesis import BENCH_SECONDS
 from links_ray.cli.demo import run_demo
-from links_ray.engine.inputs import DEFAULT_K, MAX_K
+from links_ray.engine.inputs import (
+    DEFAULT_K,
+    DEFAULT_SYNTHESIS_SECONDS,
+    MAX_K,
+    MAX_SYNTHESIS_SECONDS,
+    validate_synthesis,
+)
 
 
 def _report(args: argparse.Namespace, result: dict, formatted: Callable[[dict], str]) -> None:
@@ -108,6 +115,43 @@ def _retrieve(args: argparse.Namespace) -> None:
     results = index.retrieve(read_points(args.points), k=args.k)
     took_ms = (time.perf_counter() - start) * 1e3
     print(json.dumps({"results": results, "took_ms": took_ms}))
+
+
+def _synthesize(args: argparse.Namespace) -> None:
+    from links_ray.engine.synthesis import synthesize
+    from links_ray.search.index import RetrievalIndex, read_points
+
+    points = read_points(args.points)
+    validate_synthesis(points, args.k, args.seconds, args.partial)  # before the index loads
+    index = RetrievalIndex.open(args.root)
+    start = time.perf_counter()
+    results = synthesize(index, points, k=args.k, seconds=args.seconds, partial=args.partial)
+    took_ms = (time.perf_counter() - start) * 1e3
+    if args.json:
+        print(json.dumps({"results": results, "took_ms": took_ms}))
+        return
+    print(f"{len(results)} mechanisms in {took_ms / 1e3:.1f} s (chamfer / the drawing's chord)")
+    for rank, result in enumerate(results, 1):
+        interval = result["interval"]
+        where = (
+            f", crank {interval['start_deg']:.1f} to "
+            f"{interval['start_deg'] + interval['sweep_deg']:.1f} deg"
+            if interval
+            else ""
+        )
+        print(
+            f"{rank}. chamfer {result['chamfer']:.4f} (retrieved {result['retrieved_chamfer']:.4f}"
+            f"), {len(result['mechanism']['node_types'])} joints, joint "
+            f"{result['mechanism_joint']}, from path {result['path_id']}{where}"
+        )
+
+
+def _bench_synthesize(args: argparse.Namespace) -> None:
+    from links_ray.cli import bench_synthesis
+
+    with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
+        result = bench_synthesis.bench_synthesize(seconds=args.seconds, paths=args.paths)
+    _report(args, result, bench_synthesis.format_synthesize)
 
 
 def _bench_retrieve(args: argparse.Namespace) -> None:
@@ -303,6 +347,37 @@ def build_parser() -> argparse.ArgumentParser:
     )
     retrieve.set_defaults(run=_retrieve)
 
+    synthesize = commands.add_parser(
+        "synthesize",
+        help="find mechanisms for the curve in FILE and refine them onto it (offline)",
+    )
+    synthesize.add_argument("root", help="dataset root: a folder or s3://...")
+    synthesize.add_argument(
+        "--points", required=True, help='JSON file: [[x, y], ...] or {"points": [...]}'
+    )
+    synthesize.add_argument(
+        "-k",
+        type=_positive_int,
+        default=DEFAULT_K,
+        help=f"results (1-{MAX_K}, default {DEFAULT_K})",
+    )
+    synthesize.add_argument(
+        "--seconds",
+        type=_positive_float,
+        default=DEFAULT_SYNTHESIS_SECONDS,
+        help=f"time budget, retrieval included (at most {MAX_SYNTHESIS_SECONDS:g}, "
+        f"default {DEFAULT_SYNTHESIS_SECONDS:g})",
+    )
+    synthesize.add_argument(
+        "--partial",
+        action="store_true",
+        help="the points are an open stroke: match them to part of a crank turn",
+    )
+    synthesize.add_argument(
+        "--json", action="store_true", help="print the results as JSON (mechanisms included)"
+    )
+    synthesize.set_defaults(run=_synthesize)
+
     bench_parser = commands.add_parser("bench", help="benchmarks")
     benches = bench_parser.add_subparsers(dest="bench", required=True)
     _add_bench(
@@ -337,6 +412,19 @@ def build_parser() -> argparse.ArgumentParser:
         "--reuse-index",
         action="store_true",
         help="load the saved index and report its recorded build time instead of rebuilding",
+    )
+    synthesize_bench = _add_bench(
+        benches,
+        "synthesize",
+        "synthesis of the shipped target curves: retrieval-only and refined chamfer, seconds",
+        _bench_synthesize,
+        ("--paths", 1_000_000, "curated paths in the index"),
+    )
+    synthesize_bench.add_argument(
+        "--seconds",
+        type=_positive_float,
+        default=BENCH_SECONDS,
+        help=f"budget per curve (default {BENCH_SECONDS:g})",
     )
     serve_bench = benches.add_parser(
         "serve",

@@ -34,6 +34,27 @@ MIN_POINTS, MAX_POINTS = 3, 10_000
 MIN_EXTENT = 1e-9
 DEFAULT_K, MAX_K = 3, 100
 
+# -- refinement (engine.refine) ----------------------------------------------------------------
+
+#: Largest mechanism refinement takes, in joints: it keeps d(trajectory)/d(positions), joints x
+#: steps x 2 x 2 joints numbers (32 MB at 50 joints and 200 steps).
+MAX_REFINE_JOINTS = 50
+#: Most simulation steps refinement takes (its derivatives grow with the steps).
+MAX_REFINE_STEPS = 1000
+#: Crank steps of the final check of a refined mechanism: finer than any simulation it is given,
+#: so a lock or a dead centre between the simulation's steps is caught.
+REFINE_CHECK_STEPS = 2000
+DEFAULT_REFINE_ITERATIONS, MAX_REFINE_ITERATIONS = 200, 10_000
+#: Least transmission angle, in degrees, every dyad keeps at every check step (and the most
+#: that may be asked: a margin near 90 degrees leaves no mechanism).
+DEFAULT_MARGIN_DEG, MAX_MARGIN_DEG = 3.0, 45.0
+
+# -- synthesis (engine.synthesis) ----------------------------------------------------------
+
+#: Seconds a synthesis takes by default (retrieval included), and the most it may be given:
+#: a synthesis holds a core for its whole budget, so a request may not hold one for long.
+DEFAULT_SYNTHESIS_SECONDS, MAX_SYNTHESIS_SECONDS = 3.0, 30.0
+
 # -- one HTTP request -------------------------------------------------------------------------
 
 #: Largest mechanism one request may carry, in joints. Smaller than MAX_JOINTS: a request holds
@@ -184,27 +205,86 @@ def check_positions(adjacency: np.ndarray, positions: np.ndarray) -> None:
 # -- retrieval queries ------------------------------------------------------------------------
 
 
-def validate_query(points: object, k: object = DEFAULT_K) -> tuple[np.ndarray, int]:
-    """A retrieval query as a float64 (T, 2) array and k, or ValueError naming the problem."""
-    k = as_int("k", k, 1, MAX_K)
+def as_drawn_points(points: object, name: str = "points") -> np.ndarray:
+    """Drawn points as a float64 (T, 2) array: MIN_POINTS to MAX_POINTS finite [x, y] pairs
+    within +-MAX_COORDINATE spanning at least MIN_EXTENT, or ValueError naming the problem."""
     try:
         array = np.asarray(points)
     except (TypeError, ValueError):
-        raise ValueError("points must be a list of [x, y] number pairs") from None
+        raise ValueError(f"{name} must be a list of [x, y] number pairs") from None
     if array.dtype.kind not in "iuf":
-        raise ValueError("points must be a list of [x, y] number pairs")
+        raise ValueError(f"{name} must be a list of [x, y] number pairs")
     array = array.astype(np.float64)
     # The count first: an empty list has no pairs to have a shape.
     if array.ndim and not MIN_POINTS <= len(array) <= MAX_POINTS:
-        raise ValueError(f"points must hold {MIN_POINTS} to {MAX_POINTS} pairs, got {len(array)}")
+        raise ValueError(f"{name} must hold {MIN_POINTS} to {MAX_POINTS} pairs, got {len(array)}")
     if array.ndim != 2 or array.shape[1] != 2:
-        raise ValueError(f"points must be [x, y] pairs, got an array of shape {array.shape}")
+        raise ValueError(f"{name} must be [x, y] pairs, got an array of shape {array.shape}")
     if not np.all(np.isfinite(array)):
-        raise ValueError("points must be finite numbers")
+        raise ValueError(f"{name} must be finite numbers")
     if np.any(np.abs(array) > MAX_COORDINATE):
-        raise ValueError(f"points must lie within +-{MAX_COORDINATE:g}")
+        raise ValueError(f"{name} must lie within +-{MAX_COORDINATE:g}")
     if np.all(array == array[0]):
-        raise ValueError("points are all the same point: there is no curve")
+        raise ValueError(f"{name} are all the same point: there is no curve")
     if np.ptp(array, axis=0).max() < MIN_EXTENT:
-        raise ValueError(f"points span less than {MIN_EXTENT:g}: there is no curve to match")
-    return array, k
+        raise ValueError(f"{name} span less than {MIN_EXTENT:g}: there is no curve to match")
+    return array
+
+
+def validate_query(points: object, k: object = DEFAULT_K) -> tuple[np.ndarray, int]:
+    """A retrieval query as a float64 (T, 2) array and k, or ValueError naming the problem."""
+    k = as_int("k", k, 1, MAX_K)
+    return as_drawn_points(points), k
+
+
+# -- refinement -------------------------------------------------------------------------------
+
+
+def as_margin_deg(value: object) -> float:
+    """A transmission margin in degrees, from 0 to MAX_MARGIN_DEG, or ValueError."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"margin_deg must be a number of degrees, got {shown(value)}")
+    margin = float(value)
+    if not 0.0 <= margin <= MAX_MARGIN_DEG:
+        raise ValueError(f"margin_deg must be from 0 to {MAX_MARGIN_DEG:g} degrees, got {margin:g}")
+    return margin
+
+
+def check_refine_size(n_joints: int, steps: int) -> None:
+    """Refuse a refinement whose derivatives would be too large (MAX_REFINE_JOINTS joints,
+    MAX_REFINE_STEPS steps)."""
+    if n_joints > MAX_REFINE_JOINTS:
+        raise InvalidMechanismError(
+            f"refinement takes at most {MAX_REFINE_JOINTS} joints, got {n_joints}"
+        )
+    if steps > MAX_REFINE_STEPS:
+        raise ValueError(f"refinement takes at most {MAX_REFINE_STEPS} steps, got {steps}")
+
+
+# -- synthesis --------------------------------------------------------------------------------
+
+
+def as_seconds(value: object) -> float:
+    """A synthesis time budget in seconds: more than 0 and at most MAX_SYNTHESIS_SECONDS;
+    None gives DEFAULT_SYNTHESIS_SECONDS."""
+    if value is None:
+        return DEFAULT_SYNTHESIS_SECONDS
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"seconds must be a number, got {shown(value)}")
+    seconds = float(value)
+    if not 0.0 < seconds <= MAX_SYNTHESIS_SECONDS:
+        raise ValueError(
+            f"seconds must be more than 0 and at most {MAX_SYNTHESIS_SECONDS:g}, got {seconds:g}"
+        )
+    return seconds
+
+
+def validate_synthesis(
+    points: object, k: object = DEFAULT_K, seconds: object = None, partial: object = False
+) -> tuple[np.ndarray, int, float, bool]:
+    """A synthesis request as (points (T, 2) float64, k, seconds, partial), or ValueError
+    naming the problem."""
+    points, k = validate_query(points, k)
+    if not isinstance(partial, bool | np.bool_):
+        raise ValueError(f"partial must be true or false, got {shown(partial)}")
+    return points, k, as_seconds(seconds), bool(partial)

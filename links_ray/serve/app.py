@@ -5,6 +5,7 @@
 | `GET /api/health` | `{"status": "ok", "paths": <indexed paths>}`; sharded also `"shards"` |
 | `POST /api/simulate` | 200 `{"trajectories"}`, 422 `{"error": "locking", "step", "node"}` |
 | `POST /api/retrieve` | 200 `{"results", "took_ms"}`, best first; 503 when busy |
+| `POST /api/synthesize` | 200 `{"results", "took_ms"}`, retrieved and refined; 503 when busy |
 | `POST /api/analyze` | 200 the studio's analysis: mobility, dyadic solvability, where it locks |
 | `GET /` | the web studio (`links_ray/serve/studio/index.html`) |
 | `GET /studio/<file>` | the studio's scripts and style sheet, from the package |
@@ -25,6 +26,10 @@ so health checks and simulations, in the default thread pool, are answered meanw
 holds at most `MAX_RETRIEVALS` retrievals, running or waiting; one more is answered 503 with
 `Retry-After` at once, and Serve's own `max_ongoing_requests` and `max_queued_requests` bound
 everything else.
+
+Syntheses (`engine.synthesis`) retrieve their candidates as retrievals do, then refine them
+in a thread of their own at `RETRIEVAL_NICENESS`, for at most their `seconds`; a replica holds
+at most `MAX_SYNTHESES`, running or waiting, and answers one more 503 at once.
 
 Sharded (`build_app(root, shards=N)`, `links serve --shards N`): N `IndexShard` deployments
 each open part P of the index (`RetrievalIndex.open(root, part=P, parts=N)`: the curated
@@ -91,6 +96,7 @@ from links_ray.engine.inputs import (
     MAX_REQUEST_JOINTS,
     as_steps,
     validate_query,
+    validate_synthesis,
 )
 from links_ray.engine.mechanism import (
     InvalidMechanismError,
@@ -100,6 +106,7 @@ from links_ray.engine.mechanism import (
     mobility,
 )
 from links_ray.engine.solver import simulate, simulate_until_lock
+from links_ray.engine.synthesis import CANDIDATES, refine_retrieved
 from links_ray.search.index import RetrievalIndex
 
 logger = logging.getLogger("ray.serve")
@@ -389,6 +396,20 @@ def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int]:
     return _checked(validate_query, points, DEFAULT_K if k is None else k)
 
 
+def synthesize_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float, bool]:
+    """(points (T, 2), k, seconds, partial) of a /api/synthesize body, or ApiError naming the
+    problem: the points and k as /api/retrieve takes them."""
+    points = _pairs("points", _required(body, "points"))
+    k = body.get("k")
+    return _checked(
+        validate_synthesis,
+        points,
+        DEFAULT_K if k is None else k,
+        body.get("seconds"),
+        body.get("partial", False),
+    )
+
+
 def topology_args(body: dict[str, Any]) -> tuple[list, list]:
     """(adjacency, node_types) of a /api/simulate or /api/analyze body, shapes checked."""
     adjacency = _required(body, "adjacency")
@@ -477,6 +498,9 @@ RETRIEVAL_NICENESS = 5
 #: burst of retrievals neither piles up without bound nor holds what health checks and
 #: simulations need.
 MAX_RETRIEVALS = 8
+#: Syntheses one front replica holds at once, running or waiting. Each holds the replica's
+#: cores for its whole budget (up to MAX_SYNTHESIS_SECONDS), so few; one more is answered 503.
+MAX_SYNTHESES = 2
 #: Seconds a refused client is asked to wait (`Retry-After`).
 RETRY_AFTER_S = 1
 #: Serve's own bounds on a front replica: requests it runs at once, and requests waiting for
@@ -613,6 +637,12 @@ class LinksApi:
         self._retrievals = 0  # running or waiting; only the event loop's thread counts
         self._shard_paths: list[int] | None = None  # learned from the shards once
         self._retrieving: _Retrieving | None = None
+        self._syntheses = 0  # running or waiting; only the event loop's thread counts
+        # Refinement runs here, one synthesis at a time (each uses every core itself), at the
+        # retrievals' niceness, never in the thread pool health checks and simulations use.
+        self._refining = ThreadPoolExecutor(
+            max_workers=1, thread_name_prefix="links-synthesize", initializer=_lower_priority
+        )
         if self.shards:
             simulate(*WARM_FOUR_BAR, steps=8)  # loads the solver /api/simulate uses
         else:  # warming the index also loads the solver /api/simulate uses
@@ -622,6 +652,8 @@ class LinksApi:
     def __del__(self) -> None:
         if getattr(self, "_retrieving", None) is not None:
             self._retrieving.close()
+        if hasattr(self, "_refining"):
+            self._refining.shutdown(wait=False, cancel_futures=True)
 
     @api.get("/", response_class=HTMLResponse)
     async def api_studio(self) -> Response:
@@ -692,6 +724,33 @@ class LinksApi:
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
             self._retrievals -= 1
+        return JsonResponse({"results": results, "took_ms": round(took_ms, 3)})
+
+    @api.post("/api/synthesize")
+    async def api_synthesize(self, request: Request) -> JsonResponse:
+        """Mechanisms retrieved for a drawn curve and refined onto it, best first, within the
+        request's `seconds`; 503 with `Retry-After` when MAX_SYNTHESES are under way here."""
+        if self._syntheses >= MAX_SYNTHESES:  # refused before reading the body
+            raise _busy(
+                f"busy: {self._syntheses} syntheses under way, the most this server holds; "
+                f"retry after {RETRY_AFTER_S} s"
+            )
+        self._syntheses += 1
+        try:
+            points, k, seconds, partial = synthesize_args(await read_json_object(request))
+            start = time.perf_counter()
+            count = max(CANDIDATES, k)
+            if self._retrieving is not None:
+                retrieved = await self._retrieving.retrieve(points, count)
+            else:
+                retrieved = merge_results(await self._ask_shards("retrieve", points, count), count)
+            refine = functools.partial(
+                refine_retrieved, points, retrieved, k, seconds, partial, started=start
+            )
+            results = await asyncio.get_running_loop().run_in_executor(self._refining, refine)
+            took_ms = (time.perf_counter() - start) * 1e3
+        finally:
+            self._syntheses -= 1
         return JsonResponse({"results": results, "took_ms": round(took_ms, 3)})
 
     async def _shard_counts(self) -> list[int]:

@@ -1,6 +1,7 @@
 // Draw to retrieve: the user draws a curve, POST /api/retrieve finds curated paths of that
-// shape, and a chosen result's mechanism (already moved into the drawing's frame by the
-// server) is simulated and animated over the curve.
+// shape (or POST /api/synthesize finds them and refines their mechanisms onto the curve), and
+// a chosen result's mechanism (already in the drawing's frame, placed by the server) is
+// simulated and animated over the curve.
 
 import { explain, postJson } from "./api.js";
 import { parseMechanism } from "./mechanism.js";
@@ -22,7 +23,8 @@ const MAX_DRAWN_POINTS = 5000; // the API takes up to 10,000
 const UNIT = { minX: 0, minY: 0, maxX: 1, maxY: 1 };
 
 export class Retriever {
-  /** `ui`: retrieve, clear, open, k, status, list; `editor` receives "Open in editor". */
+  /** `ui`: retrieve, synthesize, clear, open, k, status, list; `editor` receives "Open in
+   * editor". */
   constructor({ canvas, ui, notify, editor }) {
     this.canvas = canvas;
     this.ui = ui;
@@ -45,6 +47,7 @@ export class Retriever {
     canvas.addEventListener("pointerup", (e) => this.pointerUp(e));
     canvas.addEventListener("pointercancel", (e) => this.pointerUp(e));
     ui.retrieve.addEventListener("click", () => this.retrieve());
+    ui.synthesize?.addEventListener("click", () => this.retrieve(true));
     ui.clear.addEventListener("click", () => this.clear());
     ui.open.addEventListener("click", () => this.openInEditor());
   }
@@ -120,36 +123,40 @@ export class Retriever {
 
   // -- retrieval ----------------------------------------------------------------------------
 
-  async retrieve() {
+  /** Retrieve (or, with `synthesize`, retrieve and refine) mechanisms for the drawn curve. */
+  async retrieve(synthesize = false) {
     if (!this.points.length) {
       this.say("Draw a curve first: press and drag on the drawing area.", true);
       return;
     }
     const k = this.ui.k.valueAsNumber;
     const body = { points: this.points, ...(Number.isFinite(k) ? { k } : {}) };
-    this.ui.retrieve.disabled = true;
-    this.say("Searching…");
+    const what = synthesize ? "Synthesis" : "Retrieval";
+    const buttons = [this.ui.retrieve, this.ui.synthesize].filter(Boolean);
+    buttons.forEach((button) => (button.disabled = true));
+    this.say(synthesize ? "Searching, then refining (a few seconds)…" : "Searching…");
     try {
-      const answer = await postJson("/api/retrieve", body);
+      const answer = await postJson(synthesize ? "/api/synthesize" : "/api/retrieve", body);
       if (answer.status !== 200 || !answer.data || !Array.isArray(answer.data.results)) {
-        this.say(`Retrieval failed: ${explain(answer)}`, true);
+        this.say(`${what} failed: ${explain(answer)}`, true);
         return;
       }
       this.stop();
       this.results = answer.data.results;
       this.renderResults();
       const count = this.results.length;
+      const took = `${synthesize ? "synthesis" : "search"} ${answer.data.took_ms.toFixed(0)} ms`;
       this.say(
         count
-          ? `${count} mechanisms, best first (search ${answer.data.took_ms.toFixed(0)} ms, ` +
+          ? `${count} mechanisms, best first (${took}, ` +
               `round trip ${answer.ms.toFixed(0)} ms). Choose one to watch it trace your curve.`
           : "No curated paths to compare with: the dataset is empty.",
       );
     } catch (err) {
-      this.say(`Retrieval failed: ${err.message}`, true);
-      this.notify(`Retrieval failed: ${err.message}`, "network");
+      this.say(`${what} failed: ${err.message}`, true);
+      this.notify(`${what} failed: ${err.message}`, "network");
     } finally {
-      this.ui.retrieve.disabled = false;
+      buttons.forEach((button) => (button.disabled = false));
     }
   }
 
@@ -172,15 +179,19 @@ export class Retriever {
       const meta = document.createElement("span");
       meta.className = "meta";
       const n = result.mechanism.node_types.length;
+      // A synthesis result has no stored joint: it says what refinement gained instead.
       meta.textContent =
-        ` · mechanism ${result.mechanism_id}, joint ${result.joint} ` +
-        `(${n} joints after reduction)`;
+        result.retrieved_chamfer === undefined
+          ? ` · mechanism ${result.mechanism_id}, joint ${result.joint} ` +
+            `(${n} joints after reduction)`
+          : ` · refined from ${result.retrieved_chamfer.toPrecision(4)}, ` +
+            `from mechanism ${result.mechanism_id} (${n} joints)`;
       text.append(chamfer, meta);
       button.append(thumb, text);
       button.addEventListener("click", () => this.choose(i));
       item.append(button);
       list.append(item);
-      drawThumbnail(thumb, result.points);
+      drawThumbnail(thumb, result.points ?? result.path);
     });
     this.ui.open.disabled = true;
   }
@@ -265,7 +276,8 @@ export class Retriever {
   }
 }
 
-/** A result's normalized path in a small canvas. */
+/** A result's path (normalized, or a synthesis result's in the drawing's frame) in a small
+ * canvas. */
 function drawThumbnail(canvas, points) {
   const size = 56;
   const ratio = window.devicePixelRatio || 1;

@@ -55,6 +55,7 @@ const retriever = new Retriever({
   editor,
   ui: {
     retrieve: $("retrieve"),
+    synthesize: $("synthesize"),
     clear: $("clear-drawing"),
     open: $("open-in-editor"),
     k: $("k"),

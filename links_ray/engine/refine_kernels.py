@@ -1,0 +1,211 @@
+"""Kernels of refinement: the dyadic solver with forward-mode derivatives, and the nearest-point
+work of the chamfer objective.
+
+`solve_tangents` runs the solver's own arithmetic (`place_crank`, `place_fixed`, `dyad_geometry`
+and the formulas of `solve_span`), so its trajectories equal `simulate`'s, and carries beside
+every value its exact derivative with respect to all 2n initial coordinates. The radii and the
+lever of each dyad are functions of the initial positions, so their derivatives count; the
+branch sign is piecewise constant and contributes none.
+
+Pure numpy/numba, plain-array signatures: no Ray.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from links_ray.engine.solver import dyad_fails, dyad_geometry, place_crank, place_fixed
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def solve_tangents(
+    order: np.ndarray,
+    fixed: np.ndarray,
+    pos: np.ndarray,
+    crank: np.ndarray,
+    traj: np.ndarray,
+    dtraj: np.ndarray,
+    trans: np.ndarray,
+    dtrans: np.ndarray,
+    geometry: np.ndarray,
+) -> tuple[int, int]:
+    """Trajectories, transmission and (optionally) their derivatives, for one mechanism.
+
+    Writes traj (n, steps, 2), the solver's trajectories; trans (m, steps), per dyad k of
+    `order` the sine of the angle at its solved joint between the links to its two parents
+    (0 at a dead centre); geometry (m, 3) as `dyad_geometry`. If dtraj has shape
+    (n, steps, 2, 2n) it receives d traj / d pos, column 2i + c for coordinate c of joint i, and
+    dtrans (m, steps, 2n) likewise; pass zero-width arrays (last axis 0) for values only.
+    Returns (-1, -1) when every step assembles, else (first locking step, joint) as
+    `simulate_one` reports them; values at and after a lock are meaningless.
+    """
+    steps = crank.shape[0]
+    cols = dtraj.shape[3]
+    dyad_geometry(order, pos, geometry)
+    place_fixed(fixed, pos, traj, steps)
+    place_crank(pos, crank, traj, 0, steps, 0)
+    if cols:
+        dtraj[:] = 0.0
+        for i in range(fixed.shape[0]):
+            f = fixed[i]
+            for s in range(steps):
+                dtraj[f, s, 0, 2 * f] = 1.0
+                dtraj[f, s, 1, 2 * f + 1] = 1.0
+        # Joint 1 is pos[0] + R(t) (pos[1] - pos[0]).
+        for s in range(steps):
+            c, si = crank[s, 0], crank[s, 1]
+            dtraj[1, s, 0, 0] = 1.0 - c
+            dtraj[1, s, 0, 1] = si
+            dtraj[1, s, 0, 2] = c
+            dtraj[1, s, 0, 3] = -si
+            dtraj[1, s, 1, 0] = -si
+            dtraj[1, s, 1, 1] = 1.0 - c
+            dtraj[1, s, 1, 2] = si
+            dtraj[1, s, 1, 3] = c
+    # Derivatives of the frozen dyad constants: r1^2, r2^2 (so the lever) and r1, r2.
+    dr1_sq = np.zeros(cols)
+    dr2_sq = np.zeros(cols)
+    lock_step, lock_node = -1, -1
+    for k in range(order.shape[0]):
+        j, a, b = order[k, 0], order[k, 1], order[k, 2]
+        r1, r2, side = geometry[k, 0], geometry[k, 1], geometry[k, 2]
+        r1_sq = r1 * r1
+        lever = r1_sq - r2 * r2
+        if cols:
+            dr1_sq[:] = 0.0
+            dr2_sq[:] = 0.0
+            for c in range(2):
+                u = 2.0 * (pos[j, c] - pos[a, c])
+                v = 2.0 * (pos[j, c] - pos[b, c])
+                dr1_sq[2 * j + c] += u
+                dr1_sq[2 * a + c] -= u
+                dr2_sq[2 * j + c] += v
+                dr2_sq[2 * b + c] -= v
+        inv_r12 = 1.0 / (r1 * r2)
+        for s in range(steps):
+            ax = traj[a, s, 0]
+            ay = traj[a, s, 1]
+            dx = traj[b, s, 0] - ax
+            dy = traj[b, s, 1] - ay
+            d_sq = dx * dx + dy * dy
+            if dyad_fails(d_sq, r1, r2) and (lock_step < 0 or s < lock_step):
+                lock_step, lock_node = s, j
+            # Exactly `solve_span`'s expressions, in its order: the values match bit for bit.
+            inv_d_sq = 1.0 / d_sq
+            along = 0.5 * (d_sq + lever) * inv_d_sq
+            h_sq = r1_sq * inv_d_sq - along * along
+            root = np.sqrt(max(h_sq, 0.0))
+            height = side * root
+            traj[j, s, 0] = ax + along * dx - height * dy
+            traj[j, s, 1] = ay + along * dy + height * dx
+            # Triangle a-j-b: twice its area is root * d_sq = r1 r2 sin(angle at j).
+            tau = root * d_sq * inv_r12
+            trans[k, s] = tau
+            if cols == 0:
+                continue
+            # d root is unbounded at a dead centre (root = 0); the margin keeps steps away.
+            half_inv_root = 0.5 / root if root > 0.0 else 0.0
+            for p in range(cols):
+                ddx = dtraj[b, s, 0, p] - dtraj[a, s, 0, p]
+                ddy = dtraj[b, s, 1, p] - dtraj[a, s, 1, p]
+                dd_sq = 2.0 * (dx * ddx + dy * ddy)
+                dinv = -inv_d_sq * inv_d_sq * dd_sq
+                dlever = dr1_sq[p] - dr2_sq[p]
+                dalong = 0.5 * (dd_sq + dlever) * inv_d_sq + 0.5 * (d_sq + lever) * dinv
+                dh_sq = dr1_sq[p] * inv_d_sq + r1_sq * dinv - 2.0 * along * dalong
+                droot = dh_sq * half_inv_root
+                dheight = side * droot
+                dtraj[j, s, 0, p] = (
+                    dtraj[a, s, 0, p] + dalong * dx + along * ddx - dheight * dy - height * ddy
+                )
+                dtraj[j, s, 1, p] = (
+                    dtraj[a, s, 1, p] + dalong * dy + along * ddy + dheight * dx + height * ddx
+                )
+                # d(r1 r2) / (r1 r2) = dr1/r1 + dr2/r2 = (dr1_sq/r1^2 + dr2_sq/r2^2) / 2.
+                rel = 0.5 * (dr1_sq[p] / r1_sq + dr2_sq[p] / (r2 * r2))
+                dtrans[k, s, p] = (droot * d_sq + root * dd_sq) * inv_r12 - tau * rel
+    return lock_step, lock_node
+
+
+@njit(cache=True, nogil=True)
+def nearest_pairs(
+    path: np.ndarray,
+    target: np.ndarray,
+    path_nn: np.ndarray,
+    path_d: np.ndarray,
+    target_nn: np.ndarray,
+    target_d: np.ndarray,
+) -> None:
+    """For each path point its nearest target point (index, distance), and the other way."""
+    target_d[:] = np.inf
+    for s in range(path.shape[0]):
+        best = np.inf
+        arg = 0
+        x = path[s, 0]
+        y = path[s, 1]
+        for i in range(target.shape[0]):
+            dx = target[i, 0] - x
+            dy = target[i, 1] - y
+            d = dx * dx + dy * dy
+            if d < best:
+                best = d
+                arg = i
+            if d < target_d[i]:
+                target_d[i] = d
+                target_nn[i] = s
+        path_nn[s] = arg
+        path_d[s] = best
+    for s in range(path.shape[0]):
+        path_d[s] = np.sqrt(path_d[s])
+    for i in range(target.shape[0]):
+        target_d[i] = np.sqrt(target_d[i])
+
+
+@njit(cache=True, nogil=True)
+def best_interval(path: np.ndarray, stroke: np.ndarray, min_count: int) -> tuple[int, int, float]:
+    """The run of consecutive path points (cyclic) whose chamfer to `stroke` is least.
+
+    Tries every start and every count from `min_count` to all the points: (start, count,
+    chamfer), the shortest run and then the lowest start on ties. O(steps^2 x points): the
+    stroke's running nearest distances are kept while a run grows one point at a time.
+    """
+    steps = path.shape[0]
+    m = stroke.shape[0]
+    dist = np.empty((steps, m))
+    column = np.empty(steps)  # nearest stroke distance of each path point
+    for s in range(steps):
+        best = np.inf
+        for i in range(m):
+            dx = stroke[i, 0] - path[s, 0]
+            dy = stroke[i, 1] - path[s, 1]
+            d = np.sqrt(dx * dx + dy * dy)
+            dist[s, i] = d
+            best = min(best, d)
+        column[s] = best
+    nearest = np.empty(m)
+    best_start, best_count, best_value = 0, steps, np.inf
+    for start in range(steps):
+        nearest[:] = np.inf
+        total = np.inf  # sum of `nearest`, once finite
+        path_sum = 0.0
+        for count in range(1, steps + 1):
+            s = (start + count - 1) % steps
+            path_sum += column[s]
+            if count == 1:
+                total = 0.0
+                for i in range(m):
+                    nearest[i] = dist[s, i]
+                    total += dist[s, i]
+            else:
+                for i in range(m):
+                    d = dist[s, i]
+                    if d < nearest[i]:
+                        total -= nearest[i] - d
+                        nearest[i] = d
+            if count < min_count:
+                continue
+            value = total / m + path_sum / count
+            if value < best_value or (value == best_value and count < best_count):
+                best_start, best_count, best_value = start, count, value
+    return best_start, best_count, best_value

@@ -1,0 +1,293 @@
+"""Synthesis: mechanisms whose joint traces a drawn curve, found by retrieval and then refined.
+
+`synthesize(index, points)` asks a retrieval index for the `CANDIDATES` stored paths nearest
+the drawing (their mechanisms already placed in the drawing's frame), then refines them toward
+the drawing itself (`engine.refine`) within a time budget:
+
+1. A short pass: every candidate gets up to `FIRST_ITERATIONS` refinement iterations, in
+   rounds of `FIRST_ROUND` over them all, within `FIRST_SHARE` of the time left. Retrieval
+   ranks by normalized shape alone; a few iterations show which candidates can really move
+   onto the curve.
+2. A long pass: the best `FINALISTS` after the first pass are refined on until they converge
+   or the budget is spent, each continuing where the first pass left it.
+3. Restarts: while time remains, the best results are shaken (every joint moved by a random
+   share of the drawing's chord, log-uniform in `SHAKE`) and refined again for at most
+   `HOP_ITERATIONS`, keeping the shaken result only if it is better (a basin hop: the
+   point-sampled chamfer has many local minima).
+
+Refinements run on every core, in threads (the refinement kernels release the GIL).
+
+What is measured. A result's `chamfer` is the bidirectional chamfer distance between the drawn
+points and the path the result's `mechanism_joint` traces over a full crank turn at
+`DEFAULT_STEPS` steps (for a partial stroke, over the run of steps that fits it best), divided
+by the drawing's longest chord: for an unrefined retrieval result it equals retrieval's chamfer
+between the normalized query and the normalized path. Every refined mechanism is valid as
+`engine.refine` keeps it: it turns fully at `REFINE_CHECK_STEPS` steps, keeps its assembly
+branches and its transmission margin.
+
+`index` is anything with `retrieve(points, k) -> list[dict]` answering as
+`links_ray.search.index.RetrievalIndex.retrieve` does (the engine imports no index).
+
+Pure numpy/numba and threads: no Ray, no files.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from links_ray.engine.inputs import (
+    DEFAULT_K,
+    DEFAULT_MARGIN_DEG,
+    DEFAULT_STEPS,
+    check_refine_size,
+    validate_synthesis,
+)
+from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
+from links_ray.engine.refine import (
+    Refinement,
+    _as_target,
+    _measure,
+    _refine_one,
+    _Target,
+    check_mechanism,
+)
+from links_ray.engine.solver import simulate
+
+__all__ = ["Retriever", "fit", "refine_retrieved", "synthesize"]
+
+#: Retrieved candidates the short pass refines.
+CANDIDATES = 32
+#: Iterations of the short pass, in rounds of FIRST_ROUND for every candidate, and the most
+#: share of the budget it may take.
+FIRST_ITERATIONS, FIRST_ROUND, FIRST_SHARE = 40, 10, 0.4
+#: Candidates the long pass refines on (at least k).
+FINALISTS = 4
+#: Iterations a long-pass refinement may take (it stops earlier when it converges), in
+#: rounds of LONG_ROUND over the finalists.
+LONG_ITERATIONS, LONG_ROUND = 2_000, 50
+#: Restarts move every joint by up to a share of the drawing's chord drawn log-uniformly
+#: between these (the basin to leave may be narrow or wide), and refine for at most
+#: HOP_ITERATIONS.
+SHAKE = (0.003, 0.05)
+HOP_ITERATIONS = 300
+
+
+class Retriever(Protocol):
+    """What synthesis needs of a retrieval index."""
+
+    def retrieve(self, points: object, k: int = DEFAULT_K) -> list[dict]: ...
+
+
+@dataclass
+class _Candidate:
+    """One retrieved mechanism on its way through the passes."""
+
+    result: dict  # the retrieval result it started from
+    topology: Topology
+    joint: int
+    origin: np.ndarray  # the retrieved positions
+    positions: np.ndarray  # the best so far
+    chamfer: float  # of `positions`, divided by the chord
+    retrieved: float  # of `origin`, divided by the chord
+    interval: tuple[int, int] | None
+    converged: bool = False
+
+
+def fit(
+    points: object,
+    positions: object,
+    adjacency: object,
+    node_types: object,
+    joint: int,
+    partial: bool = False,
+) -> tuple[float, tuple[int, int] | None]:
+    """(chamfer divided by the drawing's longest chord, interval) of the path `joint` traces
+    at DEFAULT_STEPS steps against the drawn `points`; `interval` is (start step, count) of the
+    run matched to a partial stroke, else None."""
+    target = _as_target(points, partial)
+    path = simulate(adjacency, node_types, positions, DEFAULT_STEPS)[joint]
+    value, interval = _measure(target, path)
+    return value / target.chord, interval
+
+
+def _candidate(result: dict, target: _Target) -> _Candidate | None:
+    """A retrieval result ready to refine, or None if it cannot be (it locks between the
+    simulation's steps, or is too large to refine)."""
+    mechanism = result["mechanism"]
+    try:
+        topology = analyze_topology(mechanism["adjacency"], mechanism["node_types"])
+        positions = np.ascontiguousarray(mechanism["positions"], dtype=np.float64)
+        joint = int(result["mechanism_joint"])
+        check_refine_size(topology.n_joints, DEFAULT_STEPS)
+        if check_mechanism(topology, positions).lock[0] >= 0:
+            return None
+        path = simulate(topology.adjacency, topology.node_types, positions, DEFAULT_STEPS)[joint]
+    except (ValueError, LockingError):
+        return None
+    value, interval = _measure(target, path)
+    chamfer = value / target.chord
+    return _Candidate(result, topology, joint, positions, positions, chamfer, chamfer, interval)
+
+
+def _refined(
+    candidate: _Candidate,
+    target: _Target,
+    start: np.ndarray,
+    iterations: int,
+    deadline: float,
+    margin_deg: float,
+) -> Refinement | None:
+    try:
+        return _refine_one(
+            candidate.topology,
+            start,
+            candidate.joint,
+            target,
+            DEFAULT_STEPS,
+            iterations,
+            margin_deg,
+            deadline=deadline,
+            origin=candidate.origin,
+        )
+    except (LockingError, ValueError):  # a shaken start that locks or is degenerate
+        return None
+
+
+def _keep(candidate: _Candidate, refinement: Refinement | None, iterations: int) -> bool:
+    """Take `refinement` if it is better; True if it did."""
+    if refinement is None or not refinement.chamfer_after < candidate.chamfer:
+        return False
+    candidate.positions = refinement.positions
+    candidate.chamfer = refinement.chamfer_after
+    candidate.interval = refinement.interval
+    candidate.converged = refinement.iterations < iterations
+    return True
+
+
+def refine_retrieved(
+    points: object,
+    retrieved: Sequence[dict],
+    k: int = DEFAULT_K,
+    seconds: float | None = None,
+    partial: bool = False,
+    *,
+    started: float | None = None,
+    seed: int = 0,
+) -> list[dict]:
+    """The k best synthesis results (best first) refined from retrieval results of `points`
+    (`RetrievalIndex.retrieve`'s, in the drawing's frame), within `seconds` counted from
+    `started` (a `time.perf_counter()` value; now if None). The module docstring says how."""
+    started = time.perf_counter() if started is None else started
+    _, k, seconds, partial = validate_synthesis(points, k, seconds, partial)
+    target = _as_target(points, partial)
+    deadline = started + seconds
+    margin = DEFAULT_MARGIN_DEG
+    workers = max(1, min(os.cpu_count() or 1, len(retrieved)))
+    with ThreadPoolExecutor(workers, thread_name_prefix="links-synthesize") as pool:
+        found = pool.map(lambda result: _candidate(result, target), retrieved)
+        candidates = [c for c in found if c is not None]
+
+        def short(c: _Candidate) -> None:
+            refinement = _refined(c, target, c.positions, FIRST_ROUND, first_end, margin)
+            if not _keep(c, refinement, FIRST_ROUND):  # no step helped: it will not move
+                c.converged = True
+
+        now = time.perf_counter()
+        first_end = now + FIRST_SHARE * max(0.0, deadline - now)
+        # In rounds, so that when time runs short every candidate has had as many iterations
+        # (large mechanisms take ten times as long per iteration as small ones).
+        for _ in range(0, FIRST_ITERATIONS, FIRST_ROUND):
+            moving = [c for c in candidates if not c.converged]
+            if not moving or time.perf_counter() >= first_end:
+                break
+            list(pool.map(short, moving))
+        candidates.sort(key=lambda c: c.chamfer)
+        finalists = candidates[: max(FINALISTS, k)]
+
+        for c in finalists:  # a round cut short by the deadline is no sign of convergence
+            c.converged = False
+
+        def long(c: _Candidate) -> None:
+            refinement = _refined(c, target, c.positions, LONG_ROUND, deadline, margin)
+            if not _keep(c, refinement, LONG_ROUND):
+                c.converged = True
+
+        # In rounds too: one finalist refined to the end would leave the others none.
+        for _ in range(0, LONG_ITERATIONS, LONG_ROUND):
+            moving = [c for c in finalists if not c.converged]
+            if not moving or time.perf_counter() >= deadline:
+                break
+            list(pool.map(long, moving))
+        rng = np.random.default_rng(seed)
+        while time.perf_counter() < deadline and finalists:
+            # Each round shakes the current best ones, one per worker.
+            finalists.sort(key=lambda c: c.chamfer)
+            chosen = finalists[: max(workers, k)]
+            shakes = np.exp(rng.uniform(*np.log(SHAKE), len(chosen))) * target.chord
+            starts = [
+                c.positions + rng.uniform(-1.0, 1.0, c.positions.shape) * shake
+                for c, shake in zip(chosen, shakes, strict=True)
+            ]
+
+            def hop(c: _Candidate, start: np.ndarray) -> None:
+                _keep(c, _refined(c, target, start, HOP_ITERATIONS, deadline, margin), 0)
+
+            list(pool.map(hop, chosen, starts))
+    candidates.sort(key=lambda c: (c.chamfer, c.result["path_id"]))
+    return [_as_result(c, target) for c in candidates[:k]]
+
+
+def _as_result(candidate: _Candidate, target: _Target) -> dict[str, Any]:
+    """A candidate as an answer (docs/CONTRACT.md, HTTP API, describes it)."""
+    topology = candidate.topology
+    positions = candidate.positions
+    path = simulate(topology.adjacency, topology.node_types, positions, DEFAULT_STEPS)
+    value, interval = _measure(target, path[candidate.joint])
+    result = candidate.result
+    answer: dict[str, Any] = {
+        "path_id": result["path_id"],
+        "mechanism_id": result["mechanism_id"],
+        "chamfer": value / target.chord,
+        "retrieved_chamfer": candidate.retrieved,
+        "mechanism": {
+            "adjacency": topology.adjacency.tolist(),
+            "node_types": topology.node_types.tolist(),
+            "positions": positions.tolist(),
+        },
+        "mechanism_joint": candidate.joint,
+        "path": path[candidate.joint].tolist(),
+        "interval": None,
+    }
+    if interval is not None:
+        start, count = interval
+        answer["interval"] = {
+            "start_step": start,
+            "steps": count,
+            "start_deg": 360.0 * start / DEFAULT_STEPS,
+            "sweep_deg": 360.0 * (count - 1) / DEFAULT_STEPS,
+        }
+    return answer
+
+
+def synthesize(
+    index: Retriever,
+    points: object,
+    k: int = DEFAULT_K,
+    seconds: float | None = None,
+    partial: bool = False,
+) -> list[dict]:
+    """The k best mechanisms found for a drawn curve, best first, each refined so that its
+    `mechanism_joint` traces `points` in the drawing's own frame, within `seconds` (default
+    DEFAULT_SYNTHESIS_SECONDS, at most MAX_SYNTHESIS_SECONDS). `partial`: the points are an
+    open stroke, matched to part of a turn. Raises ValueError naming bad input."""
+    started = time.perf_counter()
+    drawn, k, seconds, partial = validate_synthesis(points, k, seconds, partial)
+    retrieved = index.retrieve(drawn, max(CANDIDATES, k))
+    return refine_retrieved(drawn, retrieved, k, seconds, partial, started=started)
