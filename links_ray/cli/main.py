@@ -175,6 +175,20 @@ def _demo(args: argparse.Namespace) -> None:
     print(json.dumps(summary, indent=2))
 
 
+def _query_arguments(command: argparse.ArgumentParser) -> None:
+    """The dataset root, the drawn points' file and k, as retrieve and synthesize take them."""
+    command.add_argument("root", help="dataset root: a folder or s3://...")
+    command.add_argument(
+        "--points", required=True, help='JSON file: [[x, y], ...] or {"points": [...]}'
+    )
+    command.add_argument(
+        "-k",
+        type=_positive_int,
+        default=DEFAULT_K,
+        help=f"results (1-{MAX_K}, default {DEFAULT_K})",
+    )
+
+
 def _int_at_least(minimum: int, name: str) -> Callable[[str], int]:
     """An argparse type: an integer >= `minimum`, refused in words otherwise."""
 
@@ -335,32 +349,14 @@ def build_parser() -> argparse.ArgumentParser:
     retrieve = commands.add_parser(
         "retrieve", help="find mechanisms whose path matches the points in FILE (offline)"
     )
-    retrieve.add_argument("root", help="dataset root: a folder or s3://...")
-    retrieve.add_argument(
-        "--points", required=True, help='JSON file: [[x, y], ...] or {"points": [...]}'
-    )
-    retrieve.add_argument(
-        "-k",
-        type=_positive_int,
-        default=DEFAULT_K,
-        help=f"results (1-{MAX_K}, default {DEFAULT_K})",
-    )
+    _query_arguments(retrieve)
     retrieve.set_defaults(run=_retrieve)
 
     synthesize = commands.add_parser(
         "synthesize",
         help="find mechanisms for the curve in FILE and refine them onto it (offline)",
     )
-    synthesize.add_argument("root", help="dataset root: a folder or s3://...")
-    synthesize.add_argument(
-        "--points", required=True, help='JSON file: [[x, y], ...] or {"points": [...]}'
-    )
-    synthesize.add_argument(
-        "-k",
-        type=_positive_int,
-        default=DEFAULT_K,
-        help=f"results (1-{MAX_K}, default {DEFAULT_K})",
-    )
+    _query_arguments(synthesize)
     synthesize.add_argument(
         "--seconds",
         type=_positive_float,
