@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from fourbars import stretched_four_bar, window_slack
 from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
 
 import links_ray
@@ -70,6 +71,15 @@ def test_simulate_locking_is_422_with_step_and_node(client: Client) -> None:
     status, data = client.post("/api/simulate", LOCKING_FOUR_BAR)
     assert status == 422
     assert data == {"error": "locking", "step": locked.value.step, "node": locked.value.node}
+
+
+def test_simulate_locking_between_steps_is_422(client: Client) -> None:
+    """A four-bar that assembles at all 200 steps but locks between steps 37 and 38."""
+    four_bar = stretched_four_bar(37, 200, window_slack(200))
+    body = {name: value.tolist() for name, value in four_bar.items()}
+    status, data = client.post("/api/simulate", body)
+    assert status == 422
+    assert data == {"error": "locking", "step": 38, "node": 3}
 
 
 def _check_result(result: dict[str, Any]) -> None:

@@ -17,12 +17,13 @@ derivatives of the path come from `refine_kernels.solve_tangents`. A soft penalt
 transmission sine falls near the margin steers steps away from dead centres.
 
 A step is kept only if the true chamfer falls and the mechanism stays valid: it turns fully at
-the simulation's steps and at REFINE_CHECK_STEPS steps, every joint keeps its assembly branch
-(the signs of `dyad_geometry`), its links keep MIN_LINK_LENGTH, and every dyad keeps a
-transmission angle of at least the margin at every check step (a dyad that starts below the
-margin keeps half its starting sine until it reaches the margin, and the margin from then on;
-rigid dyads, whose angle never changes, have none). Otherwise the damping grows and a shorter
-step is tried. So the chamfer never rises, and the result is valid whenever the input was.
+the simulation's steps and at REFINE_CHECK_STEPS steps and between them (`engine.turning`),
+every joint keeps its assembly branch (the signs of `dyad_geometry`), its links keep
+MIN_LINK_LENGTH, and every dyad keeps a transmission angle of at least the margin at every
+check step (a dyad that starts below the margin keeps half its starting sine until it reaches
+the margin, and the margin from then on; rigid dyads, whose angle never changes, have none).
+Otherwise the damping grows and a shorter step is tried. So the chamfer never rises, and the
+result is valid whenever the input was.
 
 Partial strokes (`partial=True`): an open stroke matches part of a turn. The measure is then the
 least chamfer between the stroke and a run of consecutive steps (cyclic) of the path, over
@@ -61,6 +62,7 @@ from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.paths import chamfer, longest_chord
 from links_ray.engine.refine_kernels import best_interval, nearest_pairs, solve_tangents
 from links_ray.engine.solver import crank_table
+from links_ray.engine.turning import turn_lock
 
 __all__ = ["Refinement", "check_mechanism", "refine", "refine_many"]
 
@@ -166,6 +168,8 @@ def check_mechanism(topology: Topology, positions: np.ndarray) -> Check:
     """Simulate at REFINE_CHECK_STEPS steps: lock, branch signs, least transmission per dyad,
     rigid dyads."""
     lock, traj, _, trans, _, geometry = _solve(topology, positions, REFINE_CHECK_STEPS, False)
+    if lock[0] < 0:  # and between the steps: valid means it turns
+        lock = turn_lock(topology.order, positions, geometry, traj)
     order = topology.order
     gap = np.linalg.norm(traj[order[:, 2]] - traj[order[:, 1]], axis=-1)  # (m, steps)
     rigid = np.ptp(gap, axis=1) <= RIGID_TOLERANCE * gap.max(axis=1)

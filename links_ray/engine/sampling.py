@@ -5,12 +5,14 @@ other joint uniform in [0, 1]^2, and no lock over a full crank turn. Two sampler
 
 - ``rejection`` (the paper's): draw every joint at once, check the mechanism at 50 crank steps,
   then verify survivors at full resolution. A candidate costs only the steps it survives.
-- ``sequential``: in solution order, draw each joint until its dyad can be assembled over the whole
-  turn given its parents' trajectories: ``|r1 - r2| <= min d(t)`` and ``max d(t) <= r1 + r2``
+- ``sequential``: in solution order, draw each joint until its dyad can be assembled at every
+  step given its parents' trajectories: ``|r1 - r2| <= min d(t)`` and ``max d(t) <= r1 + r2``
   for the distance d between the parents. A joint that finds no place after a few draws restarts
-  the mechanism. The test is exact, so every finished set is valid; it is far faster for large
-  mechanisms, but its distribution differs from the rejection sampler's: joints drawn early are
-  not conditioned on the ones after them.
+  the mechanism. It is far faster for large mechanisms, but its distribution differs from the
+  rejection sampler's: joints drawn early are not conditioned on the ones after them.
+
+Either way a set is valid only if the turn also assembles between the steps (`engine.turning`);
+one that fails there is a negative.
 
 Both also keep some of the locking candidates they met (the dataset's negatives).
 
@@ -36,9 +38,11 @@ from links_ray.engine.solver import (
     place_crank,
     place_fixed,
     simulate_one,
+    simulate_turn,
     solve_span,
 )
 from links_ray.engine.topology import SeedLike, grow_topology
+from links_ray.engine.turning import turn_lock
 
 Sampler = Literal["sequential", "rejection"]
 SAMPLERS: tuple[str, ...] = ("sequential", "rejection")
@@ -113,7 +117,7 @@ def _rejection_kernel(
             pos[order[k, 0], 1] = np.random.random()
         step, _ = simulate_one(order, fixed, pos, crank_low, False, scratch, geometry)
         if step < 0:
-            step, _ = simulate_one(order, fixed, pos, crank, True, trajectories[found], geometry)
+            step, _ = simulate_turn(order, fixed, pos, crank, trajectories[found], geometry)
         if step < 0:
             positions[found] = pos
             found += 1
@@ -144,6 +148,7 @@ def _sequential_kernel(
     n = positions.shape[1]
     steps = crank.shape[0]
     geometry = np.empty((order.shape[0], 3))
+    whole = np.empty((order.shape[0], 3))  # every dyad's, for the check between steps
     pos = np.empty((n, 2))
     found = kept = attempts = 0
     while found < positions.shape[0] and attempts < max_attempts:
@@ -182,8 +187,15 @@ def _sequential_kernel(
                 placed_all = False
                 break
         if placed_all:
-            positions[found] = pos
-            found += 1
+            # Every dyad assembles at every step; the turn must also pass between them.
+            dyad_geometry(order, pos, whole)
+            if turn_lock(order, pos, whole, traj)[0] < 0:
+                positions[found] = pos
+                found += 1
+            elif kept < negatives.shape[0]:
+                negatives[kept] = pos
+                negative_joint[kept] = order.shape[0] - 1
+                kept += 1
     return found, attempts, kept
 
 

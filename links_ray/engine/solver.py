@@ -2,7 +2,8 @@
 
 One numba kernel serves every topology: the topology enters as data (its solution path), so
 nothing is compiled per topology. A candidate is simulated step by step and stops at its first
-lock, so rejecting a locking candidate costs only the steps it survived.
+lock, so rejecting a locking candidate costs only the steps it survived. A turn that assembles
+at every sampled step is then checked between them (`engine.turning`): valid means it turns.
 
 Pure numpy/numba: no Ray.
 """
@@ -15,6 +16,7 @@ from numpy.typing import ArrayLike
 
 from links_ray.engine.inputs import DEFAULT_STEPS, as_positions, as_steps, check_positions
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
+from links_ray.engine.turning import turn_lock
 
 #: Steps solved together per joint when trajectories are kept (see `simulate_one`).
 BLOCK = 16
@@ -170,6 +172,23 @@ def simulate_one(
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def simulate_turn(
+    order: np.ndarray,
+    fixed: np.ndarray,
+    pos: np.ndarray,
+    crank: np.ndarray,
+    out: np.ndarray,
+    geometry: np.ndarray,
+) -> tuple[int, int]:
+    """`simulate_one` keeping every step in `out` (n, steps, 2), then the check between the
+    steps (`turning.turn_lock`): (-1, -1) only if the crank certainly turns fully."""
+    step, node = simulate_one(order, fixed, pos, crank, True, out, geometry)
+    if step < 0:
+        step, node = turn_lock(order, pos, geometry, out)
+    return step, node
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def simulate_candidates(
     order: np.ndarray,
     fixed: np.ndarray,
@@ -180,15 +199,23 @@ def simulate_candidates(
     lock_step: np.ndarray,
     lock_node: np.ndarray,
 ) -> None:
-    """Simulate position sets (B, n, 2) of one topology, one thread.
+    """Simulate position sets (B, n, 2) of one topology, one thread, each checked between its
+    steps too (`simulate_turn`).
 
     With `keep`, `out` is (B, n, steps, 2) and a locking candidate's rows become NaN; without,
     `out` is scratch of shape (1, n, block, 2) and only the lock results are produced.
     """
     geometry = np.empty((order.shape[0], 3))
+    turn = np.empty((0, 0, 2))  # a whole turn, for candidates a blockwise check passes
     for b in range(positions.shape[0]):
-        slot = b if keep else 0
-        step, node = simulate_one(order, fixed, positions[b], crank, keep, out[slot], geometry)
+        if keep:
+            step, node = simulate_turn(order, fixed, positions[b], crank, out[b], geometry)
+        else:
+            step, node = simulate_one(order, fixed, positions[b], crank, False, out[0], geometry)
+            if step < 0:
+                if turn.shape[0] == 0:
+                    turn = np.empty((positions.shape[1], crank.shape[0], 2))
+                step, node = simulate_turn(order, fixed, positions[b], crank, turn, geometry)
         lock_step[b] = step
         lock_node[b] = node
         if keep and step >= 0:

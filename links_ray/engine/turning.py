@@ -1,0 +1,200 @@
+"""Whether a mechanism that assembles at every sampled crank angle also assembles between them.
+
+A dyad (joint j on parents a and b, radii r1 and r2) assembles while its parents' distance d
+stays in [|r1 - r2|, r1 + r2]. Its slack, g = min(r1 + r2 - d, d - |r1 - r2|), changes no
+faster than d, and d no faster than the vector b - a: over a crank interval, g can fall by at
+most the length L of the path that b - a draws across it. So if g at the interval's two ends
+adds up to more than L, g stays positive in between: g(t) >= max(g0 - L(t), g1 - (L - L(t)))
+>= (g0 + g1 - L) / 2 > 0.
+
+A dyad whose parents are one rigid body (one is the other's parent, say, or both are joints of
+a triangle of links) keeps d fixed: assembled once, it assembles everywhere, and is not
+checked. It is recognised by d varying less than `RIGID_TOLERANCE` (relative) over the sampled
+steps: rounding moves a rigid body's distances by about 1e-15, and a distance that moves
+does so far more than 1e-9 somewhere among 200 samples of a smooth turn.
+
+A path's length over a short interval is its chord unless it turns sharply inside it, which
+happens only near a dead centre of some dyad up the chain, where that dyad's own slack is
+small and its interval is split anyway. The check asks `ARC_FACTOR` times the chord, splits an
+interval that fails into `SPLIT` parts (solved at the crank angles in between, on the same
+frozen branches) and checks those in turn. An interval still unsure after `MAX_DEPTH` splits
+(SPLIT ** MAX_DEPTH times finer than the sampled steps) counts as a lock: a dead centre touched.
+
+Most intervals of most mechanisms pass at once: the check costs about one more simulation.
+
+Pure numpy/numba: no Ray.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+#: The parents' path length over an interval is taken as at most this times their chord.
+ARC_FACTOR = 2.0
+#: Parts an unsure interval is split into, and how many times it may be split.
+SPLIT, MAX_DEPTH = 8, 6
+#: A dyad whose parents' distance varies less than this (relative) over the turn is rigid.
+RIGID_TOLERANCE = 1e-9
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _slack(ax: float, ay: float, bx: float, by: float, r1: float, r2: float) -> float:
+    """How far the parents' distance is inside [|r1 - r2|, r1 + r2] (negative outside)."""
+    d = np.hypot(bx - ax, by - ay)
+    if d == 0.0:
+        return -1.0
+    return min(r1 + r2 - d, d - abs(r1 - r2))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pose_at(
+    order: np.ndarray, pos: np.ndarray, geometry: np.ndarray, angle: float, out: np.ndarray
+) -> int:
+    """Every joint at crank `angle` into `out` (n, 2), on the branches of `geometry`; returns
+    the solution-path index of the first dyad that cannot be assembled, else -1."""
+    out[:] = pos
+    c, s = np.cos(angle), np.sin(angle)
+    vx, vy = pos[1, 0] - pos[0, 0], pos[1, 1] - pos[0, 1]
+    out[1, 0] = pos[0, 0] + c * vx - s * vy
+    out[1, 1] = pos[0, 1] + s * vx + c * vy
+    for k in range(order.shape[0]):
+        j, a, b = order[k, 0], order[k, 1], order[k, 2]
+        r1, r2, side = geometry[k, 0], geometry[k, 1], geometry[k, 2]
+        ax, ay = out[a, 0], out[a, 1]
+        dx, dy = out[b, 0] - ax, out[b, 1] - ay
+        if _slack(ax, ay, out[b, 0], out[b, 1], r1, r2) < 0.0:
+            return k
+        inv_d_sq = 1.0 / (dx * dx + dy * dy)
+        along = 0.5 * (dx * dx + dy * dy + r1 * r1 - r2 * r2) * inv_d_sq
+        height = side * np.sqrt(max(r1 * r1 * inv_d_sq - along * along, 0.0))
+        out[j, 0] = ax + along * dx - height * dy
+        out[j, 1] = ay + along * dy + height * dx
+    return -1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def rigid_dyads(order: np.ndarray, traj: np.ndarray) -> np.ndarray:
+    """(m,) bool: dyads whose parents keep their distance over the sampled turn `traj`
+    (n, steps, 2) to within `RIGID_TOLERANCE` of it: parts of one rigid body."""
+    rigid = np.empty(order.shape[0], dtype=np.bool_)
+    for k in range(order.shape[0]):
+        a, b = order[k, 1], order[k, 2]
+        low, high = np.inf, 0.0
+        for t in range(traj.shape[1]):
+            d = np.hypot(traj[b, t, 0] - traj[a, t, 0], traj[b, t, 1] - traj[a, t, 1])
+            low = min(low, d)
+            high = max(high, d)
+        rigid[k] = high - low <= RIGID_TOLERANCE * high
+    return rigid
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def unsure_dyad(
+    order: np.ndarray,
+    geometry: np.ndarray,
+    rigid: np.ndarray,
+    start: np.ndarray,
+    end: np.ndarray,
+) -> int:
+    """The first dyad (solution-path index) whose slack at poses `start` and `end` (n, 2)
+    does not prove it assembles in between, else -1."""
+    for k in range(order.shape[0]):
+        if rigid[k]:
+            continue
+        a, b = order[k, 1], order[k, 2]
+        r1, r2 = geometry[k, 0], geometry[k, 1]
+        g0 = _slack(start[a, 0], start[a, 1], start[b, 0], start[b, 1], r1, r2)
+        g1 = _slack(end[a, 0], end[a, 1], end[b, 0], end[b, 1], r1, r2)
+        # How far b - a moved: d changes by no more.
+        moved = np.hypot(
+            (end[b, 0] - end[a, 0]) - (start[b, 0] - start[a, 0]),
+            (end[b, 1] - end[a, 1]) - (start[b, 1] - start[a, 1]),
+        )
+        if not g0 + g1 > ARC_FACTOR * moved:
+            return k
+    return -1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _interval_lock(
+    order: np.ndarray,
+    pos: np.ndarray,
+    geometry: np.ndarray,
+    rigid: np.ndarray,
+    lo: float,
+    hi: float,
+    start: np.ndarray,
+    end: np.ndarray,
+) -> int:
+    """The dyad that locks (or may) somewhere in crank angles (lo, hi), whose poses are
+    `start` and `end`; -1 when it certainly turns through. Splits depth first, in angle order,
+    so the lock reported is the earliest."""
+    n = pos.shape[0]
+    stack_size = MAX_DEPTH * SPLIT + 1
+    lows = np.empty(stack_size)
+    highs = np.empty(stack_size)
+    depths = np.empty(stack_size, dtype=np.int64)
+    poses = np.empty((SPLIT + 1, n, 2))
+    a_pose = np.empty((n, 2))
+    b_pose = np.empty((n, 2))
+    lows[0], highs[0], depths[0] = lo, hi, 0
+    top = 1
+    first = True
+    while top > 0:
+        top -= 1
+        lo, hi, depth = lows[top], highs[top], depths[top]
+        if first:
+            a_pose[:] = start
+            b_pose[:] = end
+            first = False
+        else:
+            pose_at(order, pos, geometry, lo, a_pose)
+            pose_at(order, pos, geometry, hi, b_pose)
+        k = unsure_dyad(order, geometry, rigid, a_pose, b_pose)
+        if k < 0:
+            continue
+        if depth == MAX_DEPTH:
+            return k
+        poses[0] = a_pose
+        poses[SPLIT] = b_pose
+        for s in range(1, SPLIT):
+            failed = pose_at(order, pos, geometry, lo + (hi - lo) * s / SPLIT, poses[s])
+            if failed >= 0:
+                return failed
+        # Only the unsure parts go on the stack, the latest first so the earliest comes out.
+        for s in range(SPLIT - 1, -1, -1):
+            if unsure_dyad(order, geometry, rigid, poses[s], poses[s + 1]) >= 0:
+                lows[top] = lo + (hi - lo) * s / SPLIT
+                highs[top] = lo + (hi - lo) * (s + 1) / SPLIT
+                depths[top] = depth + 1
+                top += 1
+    return -1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def turn_lock(
+    order: np.ndarray, pos: np.ndarray, geometry: np.ndarray, traj: np.ndarray
+) -> tuple[int, int]:
+    """(step, joint) of the first lock between the sampled steps of `traj` (n, steps, 2), a
+    turn that assembles at every one of them, else (-1, -1). A lock between steps t - 1 and t
+    is reported at step t (the first the crank cannot reach); after the last step, at `steps`.
+    """
+    n, steps = traj.shape[0], traj.shape[1]
+    start = np.empty((n, 2))
+    end = np.empty((n, 2))
+    step_angle = 2.0 * np.pi / steps
+    rigid = rigid_dyads(order, traj)
+    for t in range(steps):
+        start[:] = traj[:, t]
+        if t + 1 < steps:
+            end[:] = traj[:, t + 1]
+        else:
+            end[:] = traj[:, 0]
+        if unsure_dyad(order, geometry, rigid, start, end) < 0:
+            continue
+        lo, hi = t * step_angle, (t + 1) * step_angle
+        k = _interval_lock(order, pos, geometry, rigid, lo, hi, start, end)
+        if k >= 0:
+            return t + 1, order[k, 0]
+    return -1, -1
