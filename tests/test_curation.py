@@ -394,7 +394,19 @@ def test_stats_cli_reports_and_draws(curated_run: dict, tmp_path: Path) -> None:
         str(n): entry["candidates_per_valid"] for n, entry in measured.items()
     }
     assert stats["candidates_per_valid_source"].startswith("measured here")
-    assert stats["paper"]["shares"] == {"circle": 0.34, "arc": 0.28, "arc_or_circle": 0.62}
+    assert stats["paper"]["shares"] == {
+        "circle": 0.34,
+        "arc_not_circle": 0.28,
+        "arc_or_circle": 0.62,
+    }
+    assert stats["paths_per_mechanism"] == len(tables["paths"]) / MECHANISMS
+    angles = read_table(Store.open(curated_run["out"]), "mechanisms").column("min_transmission_deg")
+    angles = angles.to_numpy()
+    transmission = stats["min_transmission_deg"]
+    assert transmission["mechanisms"] == MECHANISMS
+    assert sum(transmission["histogram"]["counts"]) == MECHANISMS
+    assert transmission["share_below"]["10"] == np.mean(angles < 10)
+    assert transmission["quantiles"]["0.5"] == pytest.approx(np.median(angles))
     names = ("candidates_per_valid", "joint_counts", "curation", "mechanisms")
     assert sorted(stats["plots"]) == sorted(str(plots / f"{name}.png") for name in names)
     for name in names:

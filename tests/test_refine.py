@@ -22,9 +22,9 @@ from test_solver import fourbar_positions, fourbar_topology, fourbar_truth, gras
 import links_ray
 from links_ray import LockingError, TopologySimulator, chamfer, random_topology, simulate
 from links_ray.engine.inputs import (
-    MAX_MARGIN_DEG,
     MAX_REFINE_JOINTS,
     MAX_REFINE_STEPS,
+    MAX_TRANSMISSION_DEG,
     REFINE_CHECK_STEPS,
 )
 from links_ray.engine.mechanism import analyze_topology
@@ -395,7 +395,7 @@ def test_bad_input_raises_value_error() -> None:
         ({"target_points": target[:, :1]}, r"target_points must be \[x, y\] pairs"),
         ({"positions": positions[:4]}, "positions must have shape"),
         ({"partial": "yes"}, "partial must be True or False"),
-        ({"margin_deg": MAX_MARGIN_DEG + 1}, "margin_deg must be from 0"),
+        ({"margin_deg": MAX_TRANSMISSION_DEG + 1}, "margin_deg must be from 0"),
         ({"margin_deg": float("nan")}, "margin_deg must be from 0"),
         ({"margin_deg": "3"}, "margin_deg must be a number"),
         ({"iterations": -1}, "iterations must be from 0"),

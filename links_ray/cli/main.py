@@ -22,8 +22,10 @@ from links_ray.engine.inputs import (
     DEFAULT_SYNTHESIS_SECONDS,
     MAX_K,
     MAX_SYNTHESIS_SECONDS,
+    MAX_TRANSMISSION_DEG,
     validate_synthesis,
 )
+from links_ray.engine.topology import TOPOLOGY_RULES
 
 
 def _report(args: argparse.Namespace, result: dict, formatted: Callable[[dict], str]) -> None:
@@ -55,6 +57,8 @@ def _generate(args: argparse.Namespace) -> None:
         sampler=args.sampler,
         address=args.address,
         topologies_per_shard=args.shard_topologies,
+        topology_rules=args.topology_rules,
+        min_transmission_deg=args.min_transmission,
         **_tables(args),
     )
     print(json.dumps(summary, indent=2))
@@ -286,6 +290,21 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="TABLES",
         help="tables to write, comma-separated: mechanisms and any of simulations, negatives "
         "(default all three); a resumed run must use the same",
+    )
+    generate.add_argument(
+        "--topology-rules",
+        choices=TOPOLOGY_RULES,
+        default=TOPOLOGY_RULES[0],
+        help="topology generator: links (the LINKS release's rules) or feasible (default "
+        "%(default)s)",
+    )
+    generate.add_argument(
+        "--min-transmission",
+        type=float,
+        default=0.0,
+        metavar="DEG",
+        help="keep only mechanisms whose least transmission angle is at least DEG degrees, "
+        f"0 to {MAX_TRANSMISSION_DEG:g} (default 0: the paper's distribution)",
     )
     generate.set_defaults(run=_generate)
 

@@ -26,6 +26,7 @@ from links_ray.data.lease import Lease, LeaseLost, holder_still
 from links_ray.data.schemas import GENERATION_TABLES
 from links_ray.data.shards import GenerationPlan, Shard, write_shard
 from links_ray.data.store import META, Store, StoreError
+from links_ray.engine.topology import TOPOLOGY_RULES
 
 #: Shards queued on an actor at once: one running, one ready, so no actor waits on the driver.
 SHARDS_IN_FLIGHT = 2
@@ -66,8 +67,14 @@ def generate(
     progress: bool = True,
     topologies_per_shard: int | None = None,
     tables: str | Iterable[str] = GENERATION_TABLES,
+    topology_rules: str = TOPOLOGY_RULES[0],
+    min_transmission_deg: float = 0.0,
 ) -> dict:
     """Generate `mechanisms` valid mechanisms into `out` on Ray; returns the run summary.
+
+    `topology_rules` picks the topology generator (`links`, the LINKS release's rules, or
+    `feasible`: engine.topology); `min_transmission_deg` above 0 keeps only mechanisms whose
+    least transmission angle reaches it (0, the default, is the paper's distribution).
 
     `tables` are the tables written: `mechanisms` and any of `simulations` and `negatives`
     (names, or one comma-separated string). Resumable: shards committed by an earlier run of
@@ -76,11 +83,25 @@ def generate(
     if workers is not None and (isinstance(workers, bool) or workers < 1):
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
     extra = {} if topologies_per_shard is None else {"topologies_per_shard": topologies_per_shard}
-    plan = GenerationPlan(seed=seed, mechanisms=mechanisms, sampler=sampler, tables=tables, **extra)
+    plan = GenerationPlan(
+        seed=seed,
+        mechanisms=mechanisms,
+        sampler=sampler,
+        tables=tables,
+        topology_rules=topology_rules,
+        min_transmission_deg=min_transmission_deg,
+        **extra,
+    )
     store = Store.open(out)
     with Lease.acquire(store, "writer", "links generate") as lease:
-        # A run recorded before tables could be chosen wrote them all.
-        store.claim(f"{META}/run.json", plan.config(), defaults={"tables": list(GENERATION_TABLES)})
+        # What a run recorded before an option existed did: all tables, the first topology
+        # generator, no transmission threshold.
+        before_options = {
+            "tables": list(GENERATION_TABLES),
+            "topology_rules": "feasible",
+            "min_transmission_deg": 0.0,
+        }
+        store.claim(f"{META}/run.json", plan.config(), defaults=before_options)
         committed = committed_shards(store, "shards")
         remove_uncommitted(store, "shards", committed)
         todo = deque(shard for shard in plan.shards() if shard.shard_id not in committed)
@@ -233,6 +254,17 @@ def _request_cpus(cpus: int) -> None:
         pass
 
 
+#: The counts each shard's marker holds (data.shards.generate_shard), summed by joint count.
+SHARD_COUNTS = (
+    "topologies",
+    "mechanisms",
+    "candidates",
+    "valid",
+    "below_transmission",
+    "abandoned",
+)
+
+
 def summarize(
     plan: GenerationPlan, markers: dict[int, dict], uri: str, seconds: float, workers: int
 ) -> dict:
@@ -244,7 +276,7 @@ def summarize(
         stats = marker["stats"]
         entry = by_size.setdefault(
             marker["n_joints"],
-            {"topologies": 0, "mechanisms": 0, "candidates": 0, "valid": 0, "abandoned": 0},
+            dict.fromkeys(SHARD_COUNTS, 0),
         )
         for key in entry:
             entry[key] += stats.get(key, 0)

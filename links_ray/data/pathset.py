@@ -27,9 +27,10 @@ import pyarrow as pa
 
 from links_ray.data.schemas import MAX_LIST_VALUES, SCHEMAS, TRAJECTORY_DTYPE, list_array
 from links_ray.engine.inputs import DEFAULT_STEPS
-from links_ray.engine.mechanism import FIXED, arc_flags
+from links_ray.engine.mechanism import FIXED, analyze_topology, arc_flags
 from links_ray.engine.paths import CIRCLE_VARIANCE_THRESHOLD, circle_variances, normalize_paths
 from links_ray.engine.solver import TopologySimulator
+from links_ray.engine.transmission import joint_transmission_deg
 
 JOINT_BITS = 5
 #: Mechanisms turned into paths at once (a default shard's 1,000 topologies): bounds a
@@ -130,9 +131,27 @@ def trajectory_paths(mechanisms: pa.Table, trajectories: np.ndarray, n_joints: i
             "is_arc": is_arc[rows, joints],
             "is_circle": variance < CIRCLE_VARIANCE_THRESHOLD,
             "circle_variance": variance.astype(np.float32),
+            "min_transmission_deg": _joint_transmission(adjacency, node_types, trajectories)[
+                rows, joints
+            ],
         },
         schema=SCHEMAS["paths"],
     )
+
+
+def _joint_transmission(
+    adjacency: np.ndarray, node_types: np.ndarray, trajectories: np.ndarray
+) -> np.ndarray:
+    """(rows, n) each joint's least transmission angle (`engine.transmission`), topology by
+    topology (consecutive rows of one topology share its solution path)."""
+    out = np.empty(trajectories.shape[:2], dtype=np.float32)
+    changes = np.any(adjacency[1:] != adjacency[:-1], axis=(1, 2))
+    changes |= np.any(node_types[1:] != node_types[:-1], axis=1)
+    starts = [0, *(np.flatnonzero(changes) + 1).tolist(), len(out)]
+    for start, stop in itertools.pairwise(starts):
+        order = analyze_topology(adjacency[start], node_types[start]).order
+        out[start:stop] = joint_transmission_deg(order, trajectories[start:stop])
+    return out
 
 
 def path_batches(

@@ -37,11 +37,19 @@ _PATH_SCHEMA = pa.schema(
         pa.field("is_arc", pa.bool_(), nullable=False),
         pa.field("is_circle", pa.bool_(), nullable=False),
         pa.field("circle_variance", pa.float32(), nullable=False),
+        # The path's joint's least transmission angle: over the dyads its motion needs.
+        pa.field("min_transmission_deg", pa.float32(), nullable=False),
     ]
 )
 #: Columns of each table as written; `n_joints` is the Hive partition (the folder name).
 SCHEMAS: dict[str, pa.Schema] = {
-    "mechanisms": pa.schema(_MECHANISM_FIELDS),
+    "mechanisms": pa.schema(
+        [
+            *_MECHANISM_FIELDS,
+            # The least transmission angle over the turn, in degrees (engine.transmission).
+            pa.field("min_transmission_deg", pa.float32(), nullable=False),
+        ]
+    ),
     "simulations": pa.schema(
         [
             pa.field("mechanism_id", pa.int64(), nullable=False),

@@ -29,11 +29,17 @@ from links_ray.data.schemas import (
     list_array,
 )
 from links_ray.data.store import Store
-from links_ray.engine.inputs import DEFAULT_STEPS
-from links_ray.engine.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
-from links_ray.engine.sampling import SAMPLERS, PositionSampler, PositionSearchError
+from links_ray.engine.inputs import DEFAULT_STEPS, as_transmission_deg
+from links_ray.engine.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS, Topology
+from links_ray.engine.sampling import (
+    SAMPLERS,
+    PositionSampler,
+    PositionSearch,
+    PositionSearchError,
+)
 from links_ray.engine.solver import TopologySimulator
-from links_ray.engine.topology import grow_topology
+from links_ray.engine.topology import TOPOLOGY_RULES, grow_topology
+from links_ray.engine.transmission import mechanism_transmission_deg
 
 VARIANTS = 5
 JOINT_COUNTS = MAX_DATASET_JOINTS - MIN_DATASET_JOINTS + 1
@@ -45,7 +51,8 @@ TOPOLOGIES_PER_BATCH = 100
 #: exhausts it is replaced by the next one its generator draws, and counted as abandoned.
 SEARCH_BUDGET = {"rejection": 1_000_000, "sequential": 10_000}
 NEGATIVE_ID_BASE = 1 << 62
-FORMAT_VERSION = 1
+#: 2: the `min_transmission_deg` column, the turn checked between steps, `topology_rules`.
+FORMAT_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -67,6 +74,9 @@ class GenerationPlan:
 
     `tables` are the tables written (`mechanisms` always): leaving a table out changes no row
     of the others, since every topology draws the same whatever is written.
+    `topology_rules` picks the topology generator (engine.topology). `min_transmission_deg`
+    above 0 rejects valid mechanisms whose least transmission angle is below it, and searches
+    on until the topology has its variants (or abandons it when its budget is spent).
     """
 
     seed: int
@@ -77,6 +87,8 @@ class GenerationPlan:
     steps: int = DEFAULT_STEPS
     format: int = FORMAT_VERSION
     tables: tuple[str, ...] = GENERATION_TABLES
+    topology_rules: str = TOPOLOGY_RULES[0]
+    min_transmission_deg: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("seed", "mechanisms", "topologies_per_shard"):
@@ -91,8 +103,16 @@ class GenerationPlan:
             raise ValueError("topologies_per_shard must be at least 1")
         if self.sampler not in SAMPLERS:
             raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)}, got {self.sampler!r}")
+        if self.topology_rules not in TOPOLOGY_RULES:
+            raise ValueError(
+                f"topology_rules must be one of {', '.join(TOPOLOGY_RULES)}, "
+                f"got {self.topology_rules!r}"
+            )
+        # frozen: each set once, in canonical form
+        degrees = as_transmission_deg(self.min_transmission_deg, "min_transmission_deg")
+        object.__setattr__(self, "min_transmission_deg", degrees)
         tables = choose_tables(self.tables, GENERATION_TABLES, required="mechanisms")
-        object.__setattr__(self, "tables", tables)  # frozen: set once, in canonical order
+        object.__setattr__(self, "tables", tables)
 
     @property
     def topologies(self) -> int:
@@ -161,8 +181,9 @@ def generate_shard(
     """Generate a shard's rows, handing record batches of the plan's tables to
     `write(table, batch)`.
 
-    Returns the shard's statistics: topologies, mechanisms, candidates tried (abandoned
-    topologies' included), negatives, topologies abandoned, and the seconds it took.
+    Returns the shard's statistics: topologies, mechanisms, candidates tried and valid sets
+    found (abandoned topologies' included), valid sets below the plan's least transmission
+    angle, negatives, topologies abandoned, and the seconds it took.
     """
     start = time.perf_counter()
     stats = {
@@ -170,6 +191,7 @@ def generate_shard(
         "mechanisms": 0,
         "candidates": 0,
         "valid": 0,
+        "below_transmission": 0,
         "negatives": 0,
         "abandoned": 0,
     }
@@ -207,25 +229,54 @@ def write_shard(
         raise
 
 
+def _search_topology(
+    plan: GenerationPlan, n_joints: int, topology_id: int, stats: dict
+) -> tuple[Topology, PositionSearch, np.ndarray, np.ndarray]:
+    """A topology with `plan.variants` valid position sets, each at least as far from a dead
+    centre as the plan asks: (topology, its first search, the kept positions, their
+    trajectories as stored). Topologies whose search spends its budget are replaced."""
+    rng = topology_rng(plan.seed, topology_id)
+    budget = SEARCH_BUDGET[plan.sampler]
+    while True:
+        topology = grow_topology(rng, n_joints, plan.topology_rules)
+        sampler = PositionSampler(TopologySimulator.from_topology(topology), plan.steps)
+        spent, positions, stored, first = 0, [], [], None
+        try:
+            while sum(map(len, positions)) < plan.variants:
+                found = sampler.search(
+                    plan.variants,
+                    rng,
+                    plan.sampler,
+                    max_negatives=plan.variants if first is None else 0,
+                    max_candidates=budget - spent,
+                )
+                if first is None:
+                    first = found
+                spent += found.candidates
+                trajectories = found.trajectories.astype(TRAJECTORY_DTYPE)
+                passing = np.ones(len(trajectories), dtype=bool)
+                if plan.min_transmission_deg > 0:
+                    angles = mechanism_transmission_deg(topology.order, trajectories)
+                    passing = angles >= plan.min_transmission_deg
+                    stats["below_transmission"] += int((~passing).sum())
+                stats["valid"] += len(trajectories)
+                positions.append(found.positions[passing])
+                stored.append(trajectories[passing])
+                if spent >= budget and sum(map(len, positions)) < plan.variants:
+                    raise PositionSearchError(f"budget of {budget} spent")
+        except PositionSearchError:
+            stats["abandoned"] += 1
+            stats["candidates"] += budget
+            continue
+        stats["candidates"] += spent
+        keep = plan.variants
+        return topology, first, np.concatenate(positions)[:keep], np.concatenate(stored)[:keep]
+
+
 def _generate_topology(
     plan: GenerationPlan, n_joints: int, topology_id: int, rows: dict[str, _Rows], stats: dict
 ) -> None:
-    rng = topology_rng(plan.seed, topology_id)
-    while True:
-        topology = grow_topology(rng, n_joints)
-        simulator = TopologySimulator.from_topology(topology)
-        try:
-            found = PositionSampler(simulator, plan.steps).search(
-                plan.variants,
-                rng,
-                plan.sampler,
-                max_negatives=plan.variants,
-                max_candidates=SEARCH_BUDGET[plan.sampler],
-            )
-            break
-        except PositionSearchError:
-            stats["abandoned"] += 1
-            stats["candidates"] += SEARCH_BUDGET[plan.sampler]
+    topology, found, positions, stored = _search_topology(plan, n_joints, topology_id, stats)
     adjacency, node_types = topology.adjacency, topology.node_types
     keep = min(plan.variants, plan.mechanisms - plan.variants * topology_id)
     ids = plan.variants * topology_id + np.arange(keep, dtype=np.int64)
@@ -234,17 +285,19 @@ def _generate_topology(
         "adjacency": np.broadcast_to(adjacency.ravel(), (keep, adjacency.size)),
         "node_types": np.broadcast_to(node_types, (keep, n_joints)),
     }
+    # From the trajectories as stored, so curation's per-path angles agree with these.
     rows["mechanisms"].add(
         mechanism_id=ids,
         variant=np.arange(keep, dtype=np.int8),
-        positions=found.positions[:keep],
+        positions=positions[:keep],
+        min_transmission_deg=mechanism_transmission_deg(topology.order, stored[:keep]),
         **shared,
     )
     if "simulations" in rows:
         rows["simulations"].add(
             mechanism_id=ids,
             steps=np.full(keep, plan.steps, dtype=np.int16),
-            trajectories=found.trajectories[:keep].astype(TRAJECTORY_DTYPE),
+            trajectories=stored[:keep],
         )
     negatives = len(found.negatives)
     if negatives and "negatives" in rows:
@@ -260,8 +313,6 @@ def _generate_topology(
         )
     stats["topologies"] += 1
     stats["mechanisms"] += keep
-    stats["candidates"] += found.candidates
-    stats["valid"] += plan.variants
     stats["negatives"] += negatives
 
 

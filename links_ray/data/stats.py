@@ -1,7 +1,8 @@
 """What a dataset holds, beside the paper's own figures (`links stats`).
 
-Counts per table and joint count, the shares of circles and arcs before and after curation,
-candidates tried per valid mechanism by joint count (from the run when it used the paper's
+Counts per table and joint count, paths per mechanism, the shares of circles and arcs before
+and after curation, the distribution of the mechanisms' least transmission angles, candidates
+tried per valid mechanism by joint count (from the run when it used the paper's
 rejection sampler, otherwise measured here on a sample of topologies), and the throughput the
 runs recorded. Reads only small columns; no Ray.
 """
@@ -19,11 +20,20 @@ from links_ray.data.store import META, Store
 from links_ray.engine.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
 from links_ray.engine.sampling import measure_candidates_per_valid
 
-#: The paper's figures ("Dataset Curation & Processing", "Scale of Infeasibilities").
+#: The paper's figures ("Dataset Curation & Processing", "Scale of Infeasibilities"). Its
+#: circle and arc shares add up to its arc-or-circle share: its arcs are the arcs that are not
+#: circles. 1.1 billion curves of 100 million mechanisms make 11 paths a mechanism.
 PAPER = {
-    "shares": {"circle": 0.34, "arc": 0.28, "arc_or_circle": 0.62},
+    "paths_per_mechanism": 11,
+    "shares": {"circle": 0.34, "arc_not_circle": 0.28, "arc_or_circle": 0.62},
     "candidates_per_valid_mean": ">500",
 }
+#: Least transmission angles (degrees) whose shares below them `links stats` reports, and
+#: the quantiles it reports.
+TRANSMISSION_THRESHOLDS = (1, 3, 10, 20)
+TRANSMISSION_QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
+#: Width of the histogram's bins, in degrees.
+TRANSMISSION_BIN_DEG = 5
 
 
 def _read(store: Store, table: str, columns: list[str]) -> pa.Table | None:
@@ -55,6 +65,26 @@ def _shares(flags: pa.Table | None) -> dict | None:
     return {"paths": len(flags), **shares, "arc_not_circle": arc_not_circle}
 
 
+def _transmission(angles: pa.Table | None) -> dict | None:
+    """The distribution of the mechanisms' least transmission angles, in degrees."""
+    if angles is None or len(angles) == 0:
+        return None
+    degrees = angles.column("min_transmission_deg").to_numpy()
+    edges = np.arange(0, 90 + TRANSMISSION_BIN_DEG, TRANSMISSION_BIN_DEG)
+    counts, _ = np.histogram(degrees, bins=edges)
+    return {
+        "mechanisms": len(degrees),
+        "quantiles": {
+            str(q): float(v)
+            for q, v in zip(
+                TRANSMISSION_QUANTILES, np.quantile(degrees, TRANSMISSION_QUANTILES), strict=True
+            )
+        },
+        "share_below": {str(t): float(np.mean(degrees < t)) for t in TRANSMISSION_THRESHOLDS},
+        "histogram": {"bin_deg": TRANSMISSION_BIN_DEG, "counts": counts.tolist()},
+    }
+
+
 def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
     """The statistics of the dataset at `root` as one JSON-ready dict."""
     store = Store.open(root, writable=False)
@@ -69,6 +99,10 @@ def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
     counts = {table: _counts(rows) for table, rows in tables.items()}
     if not any(counts.values()):
         raise ValueError(f"{store.uri} holds no dataset tables")
+    paths, mechanisms = counts["paths"], counts["mechanisms"]
+    paths_per_mechanism = paths and mechanisms and paths["rows"] / mechanisms["rows"]
+    # None for a dataset made before the column existed, too (pyarrow's ValueError).
+    angles = _read(store, "mechanisms", ["min_transmission_deg"])
 
     if run and run["plan"]["sampler"] == "rejection":
         candidates = {
@@ -92,7 +126,9 @@ def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
     return {
         "root": store.uri,
         "counts": counts,
+        "paths_per_mechanism": paths_per_mechanism,
         "shares": {table: _shares(tables[table]) for table in CURATION_TABLES},
+        "min_transmission_deg": _transmission(angles),
         "candidates_per_valid": candidates,
         "candidates_per_valid_source": source,
         "throughput": {

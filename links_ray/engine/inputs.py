@@ -45,9 +45,11 @@ MAX_REFINE_STEPS = 1000
 #: so a lock or a dead centre between the simulation's steps is caught.
 REFINE_CHECK_STEPS = 2000
 DEFAULT_REFINE_ITERATIONS, MAX_REFINE_ITERATIONS = 200, 10_000
-#: Least transmission angle, in degrees, every dyad keeps at every check step (and the most
-#: that may be asked: a margin near 90 degrees leaves no mechanism).
-DEFAULT_MARGIN_DEG, MAX_MARGIN_DEG = 3.0, 45.0
+#: Least transmission angle, in degrees, every dyad keeps at every check step.
+DEFAULT_MARGIN_DEG = 3.0
+#: The most any least transmission angle may be asked to be (refinement's margin, generation's
+#: and retrieval's thresholds): near 90 degrees no mechanism of several dyads is left.
+MAX_TRANSMISSION_DEG = 45.0
 
 # -- synthesis (engine.synthesis) ----------------------------------------------------------
 
@@ -240,14 +242,17 @@ def validate_query(points: object, k: object = DEFAULT_K) -> tuple[np.ndarray, i
 # -- refinement -------------------------------------------------------------------------------
 
 
-def as_margin_deg(value: object) -> float:
-    """A transmission margin in degrees, from 0 to MAX_MARGIN_DEG, or ValueError."""
+def as_transmission_deg(value: object, name: str = "margin_deg") -> float:
+    """A least transmission angle in degrees, from 0 to MAX_TRANSMISSION_DEG, or ValueError
+    naming the option `name`."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ValueError(f"margin_deg must be a number of degrees, got {shown(value)}")
-    margin = float(value)
-    if not 0.0 <= margin <= MAX_MARGIN_DEG:
-        raise ValueError(f"margin_deg must be from 0 to {MAX_MARGIN_DEG:g} degrees, got {margin:g}")
-    return margin
+        raise ValueError(f"{name} must be a number of degrees, got {shown(value)}")
+    degrees = float(value)
+    if not 0.0 <= degrees <= MAX_TRANSMISSION_DEG:
+        raise ValueError(
+            f"{name} must be from 0 to {MAX_TRANSMISSION_DEG:g} degrees, got {degrees:g}"
+        )
+    return degrees
 
 
 def check_refine_size(n_joints: int, steps: int) -> None:

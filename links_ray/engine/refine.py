@@ -53,8 +53,8 @@ from links_ray.engine.inputs import (
     InvalidMechanismError,
     as_drawn_points,
     as_int,
-    as_margin_deg,
     as_positions,
+    as_transmission_deg,
     check_positions,
     check_refine_size,
 )
@@ -62,7 +62,7 @@ from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.paths import chamfer, longest_chord
 from links_ray.engine.refine_kernels import best_interval, nearest_pairs, solve_tangents
 from links_ray.engine.solver import crank_table
-from links_ray.engine.turning import turn_lock
+from links_ray.engine.turning import rigid_dyads, turn_lock
 
 __all__ = ["Refinement", "check_mechanism", "refine", "refine_many"]
 
@@ -73,11 +73,6 @@ IRLS_FLOOR = 1e-4
 SOFT_DEG = 1.0
 #: Penalty weight, per chord length.
 PENALTY = 1.0
-#: A dyad whose parents' distance varies by less than this share over a turn is rigid (a
-#: triangle of links, or two fixed parents): its angle is constant, so it has no dead centre
-#: and no margin to keep. Rounding moves a rigid distance by about 1e-16 of itself; any
-#: other moves by a sizeable share.
-RIGID_TOLERANCE = 1e-9
 #: Refinement stops once the chamfer is below this share of the chord, or after STALL kept
 #: steps in a row each gaining less than STALL_GAIN of it.
 CONVERGED, STALL, STALL_GAIN = 1e-12, 5, 1e-8
@@ -170,9 +165,8 @@ def check_mechanism(topology: Topology, positions: np.ndarray) -> Check:
     lock, traj, _, trans, _, geometry = _solve(topology, positions, REFINE_CHECK_STEPS, False)
     if lock[0] < 0:  # and between the steps: valid means it turns
         lock = turn_lock(topology.order, positions, geometry, traj)
-    order = topology.order
-    gap = np.linalg.norm(traj[order[:, 2]] - traj[order[:, 1]], axis=-1)  # (m, steps)
-    rigid = np.ptp(gap, axis=1) <= RIGID_TOLERANCE * gap.max(axis=1)
+    # A rigid dyad (a triangle of links) keeps its angle: no dead centre, no margin to keep.
+    rigid = rigid_dyads(topology.order, traj)
     return Check(lock, geometry[:, 2].copy(), trans.min(axis=1), rigid)
 
 
@@ -319,8 +313,9 @@ def _refine_one(
     """Refine a validated mechanism; raises LockingError if it locks as given.
 
     Stops after the iteration during which `time.perf_counter()` passes `deadline`. With
-    `origin` (positions `start` was refined from), the transmission floors are the origin's,
-    so refining in several calls keeps the same floors as one call would.
+    `origin` (positions `start` was refined from), the transmission floors and the assembly
+    branches are the origin's, so refining in several calls keeps what one call would; a
+    `start` on other branches than `origin` raises ValueError.
     """
     lock, traj, _, _, _, _ = _solve(topology, start, steps, False)
     if lock[0] >= 0:
@@ -335,13 +330,16 @@ def _refine_one(
         raise error
     margin = math.sin(math.radians(margin_deg))
     soft = math.sin(math.radians(margin_deg + SOFT_DEG))
-    sides = check.sides
     # Dyads keep the margin once they have it. One below it at the start may not fall under
     # BELOW_MARGIN of its starting sine: "not at all" would freeze it, as every step moves its
     # least angle a little. Rigid dyads (decided once, from the input) have no margin: their
     # sines are >= 0 > -1.
     rigid = check.rigid
     first = check if origin is None else check_mechanism(topology, origin)
+    # Every joint keeps the origin's assembly branch: a start shaken off it is no start.
+    sides = first.sides
+    if not np.array_equal(check.sides, sides):
+        raise ValueError("the start is assembled on other branches than its origin")
     floors = np.where(
         rigid,
         -1.0,
@@ -435,7 +433,7 @@ def refine(
     topology, pos, joint = _prepare(adjacency, node_types, positions, joint, steps)
     target = _as_target(target_points, partial)
     iterations = as_int("iterations", iterations, 0, MAX_REFINE_ITERATIONS)
-    margin_deg = as_margin_deg(margin_deg)
+    margin_deg = as_transmission_deg(margin_deg)
     return _refine_one(topology, pos, joint, target, steps, iterations, margin_deg)
 
 
@@ -457,7 +455,7 @@ def refine_many(
     steps = as_int("steps", steps, MIN_POINTS, None, InvalidMechanismError)
     target = _as_target(target_points, partial)
     iterations = as_int("iterations", iterations, 0, MAX_REFINE_ITERATIONS)
-    margin_deg = as_margin_deg(margin_deg)
+    margin_deg = as_transmission_deg(margin_deg)
     prepared = []
     for index, candidate in enumerate(candidates):
         try:

@@ -402,17 +402,11 @@ def simulate_until_lock(
     step, node = int(lock_step[0]), int(lock_node[0])
     if step < 0:
         return trajectories[0], -1, -1
-    # Every step before the first lock assembles: solve just those, on the same crank angles.
-    before = np.empty((1, simulator.n_joints, step, 2))
+    # Every step before the first lock assembles: solve just those, on the same crank angles,
+    # without the check between steps (the part of a turn before a lock does not close).
+    before = np.empty((simulator.n_joints, step, 2))
     topology = simulator.topology
-    simulate_candidates(
-        topology.order,
-        topology.fixed_joints,
-        positions,
-        simulator.crank(steps)[:step],
-        True,
-        before,
-        np.empty(1, dtype=np.int64),
-        np.empty(1, dtype=np.int64),
-    )
-    return before[0], step, node
+    geometry = np.empty((topology.order.shape[0], 3))
+    crank = simulator.crank(steps)[:step]
+    simulate_one(topology.order, topology.fixed_joints, positions[0], crank, True, before, geometry)
+    return before, step, node

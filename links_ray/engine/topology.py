@@ -1,16 +1,29 @@
 """Random topologies from the J-operator (paper: "1-DOF Operator", "Generating Valid Topologies").
 
 The start is the simplest one-degree-of-freedom mechanism: joint 0 fixed, the crank tip joint 1,
-and a floating fixed joint 2. Each step applies one of two operators:
+and a floating fixed joint 2. Each step adds a joint by one of two operators, which both keep
+mobility one (two new links for one new moving joint) and every loop dyadic:
 
-- N_s: add a simple joint linked to two existing joints that are not both fixed;
-- N_g: add a fixed joint, one third as likely as N_s.
+- N_s: a simple joint linked to two existing joints that are not both fixed;
+- N_g: a fixed joint.
 
-Both keep mobility one (two new links for one new moving joint) and keep every loop dyadic.
 The dataset rules also ask that the last joint depends on every joint (non-reducible) and is not
-linked to a fixed joint. In a graph grown by N_s every joint except the last must therefore be a
-parent of some later joint; the generator tracks the joints nobody depends on yet ("leaves") and
-only picks moves after which the remaining steps can still absorb them all.
+linked to a fixed joint: every joint but the last must be a parent of a later joint. Two sets of
+rules pick the operators and the parents, both tracking the joints nobody depends on yet
+("leaves"):
+
+- `links` (the default), the rules of the LINKS release's own generator: a new joint is fixed
+  only if the newest fixed joint already has a dependent, a draw of GROUND_SHARE succeeds, it is
+  not one of the last two joints, and there are fewer leaves than joints left to add. A simple
+  joint is linked to two leaves drawn uniformly when there are at least as many leaves as joints
+  left to add; otherwise to a moving joint drawn uniformly and a second joint drawn uniformly
+  from the other moving joints and all fixed joints (so never to two fixed joints). The
+  second-to-last joint is linked to the newest fixed joint if it is still a leaf, and the last
+  joint to two leaves, or to the only leaf (the joint before it) and a moving joint: never to
+  ground.
+- `feasible`: N_g is drawn with GROUND_SHARE, and a simple joint's parents are drawn uniformly
+  among all pairs after which the remaining steps can still absorb every leaf. It links more
+  moving joints to ground than `links` does (measured in the README).
 
 Pure numpy/numba: no Ray.
 """
@@ -34,8 +47,10 @@ from links_ray.engine.mechanism import (
 
 #: The smallest mechanism the rules allow: crank, floating ground, two simple joints.
 MIN_TOPOLOGY_JOINTS = 5
-#: P(N_g) / P(N_s) = 1/3, as in the paper: N_g is a quarter of all steps.
+#: The chance that a step may add a fixed joint (N_g), when its rules allow one.
 GROUND_SHARE = 0.25
+#: The generators' rules (the module says what each does); the first is the default.
+TOPOLOGY_RULES = ("links", "feasible")
 
 SeedLike = int | np.random.Generator | None
 
@@ -55,7 +70,7 @@ def _can_finish(leaves: int, fixed_leaves: int, remaining: int) -> bool:
 
 
 @njit(cache=True, nogil=True)
-def _grow(uniforms: np.ndarray, adjacency: np.ndarray, node_types: np.ndarray) -> None:
+def _grow_feasible(uniforms: np.ndarray, adjacency: np.ndarray, node_types: np.ndarray) -> None:
     """Apply the operators from the start mechanism until `adjacency` (n, n) is full.
 
     `uniforms` holds two draws per step: one picks the operator, one picks among the joint
@@ -104,11 +119,88 @@ def _grow(uniforms: np.ndarray, adjacency: np.ndarray, node_types: np.ndarray) -
         is_leaf[size] = True
 
 
-def grow_topology(rng: np.random.Generator, n_joints: int) -> Topology:
-    """A validated random topology of `n_joints` joints drawn from `rng` (see the module)."""
+@njit(cache=True, nogil=True, inline="always")
+def _draw(uniform: float, count: int) -> int:
+    """An index below `count`, uniformly, from one uniform draw."""
+    return min(int(uniform * count), count - 1)
+
+
+@njit(cache=True, nogil=True)
+def _pick(uniform: float, allowed: np.ndarray, size: int, exclude: int) -> int:
+    """A joint below `size` drawn uniformly among those `allowed`, `exclude` left out."""
+    count = 0
+    for k in range(size):
+        count += allowed[k] and k != exclude
+    chosen = _draw(uniform, count)
+    for k in range(size):
+        if allowed[k] and k != exclude:
+            if chosen == 0:
+                return k
+            chosen -= 1
+    return -1
+
+
+@njit(cache=True, nogil=True)
+def _grow_links(uniforms: np.ndarray, adjacency: np.ndarray, node_types: np.ndarray) -> None:
+    """Add joints by the LINKS release's rules (the module) until `adjacency` (n, n) is full.
+
+    `uniforms` holds three draws per step: the operator and the two parents.
+    """
+    n = node_types.shape[0]
+    node_types[:] = SIMPLE
+    node_types[0] = node_types[2] = FIXED
+    node_types[1] = ACTUATED
+    adjacency[:] = 0
+    adjacency[0, 1] = adjacency[1, 0] = 1
+    is_leaf = np.zeros(n, dtype=np.bool_)
+    is_leaf[1] = is_leaf[2] = True
+    fixed = node_types == FIXED
+    moving = ~fixed
+    anything = np.ones(n, dtype=np.bool_)
+    newest_fixed = 2
+    for size in range(3, n):
+        draws = uniforms[3 * (size - 3) : 3 * (size - 2)]
+        left = n - size  # joints left to add, this one included
+        leaves = 0
+        for k in range(size):
+            leaves += is_leaf[k]
+        if not is_leaf[newest_fixed] and draws[0] < GROUND_SHARE and left > 2 and leaves < left:
+            node_types[size] = FIXED
+            fixed[size] = is_leaf[size] = True
+            moving[size] = False
+            newest_fixed = size
+            continue
+        if left == 2 and is_leaf[newest_fixed]:
+            a = newest_fixed
+            moving_leaves = is_leaf & moving
+            b = _pick(draws[2], moving_leaves if moving_leaves[:size].any() else moving, size, a)
+        elif left == 1 and leaves == 1:  # the only leaf is the joint before
+            a = size - 1
+            b = _pick(draws[2], moving, size, a)
+        elif leaves >= left:
+            a = _pick(draws[1], is_leaf, size, -1)
+            b = _pick(draws[2], is_leaf, size, a)
+        else:
+            a = _pick(draws[1], moving, size, -1)
+            b = _pick(draws[2], anything, size, a)
+        adjacency[size, a] = adjacency[a, size] = 1
+        adjacency[size, b] = adjacency[b, size] = 1
+        is_leaf[a] = is_leaf[b] = False
+        is_leaf[size] = True
+        moving[size] = True
+
+
+def grow_topology(rng: np.random.Generator, n_joints: int, rules: str = "links") -> Topology:
+    """A validated random topology of `n_joints` joints drawn from `rng` by `rules` (one of
+    TOPOLOGY_RULES: see the module)."""
+    if rules not in TOPOLOGY_RULES:
+        raise ValueError(f"rules must be one of {', '.join(TOPOLOGY_RULES)}, got {rules!r}")
     adjacency = np.empty((n_joints, n_joints), dtype=np.uint8)
     node_types = np.empty(n_joints, dtype=np.int8)
-    _grow(rng.random(2 * (n_joints - 3)), adjacency, node_types)
+    if rules == "links":
+        _grow_links(rng.random(3 * (n_joints - 3)), adjacency, node_types)
+    else:
+        _grow_feasible(rng.random(2 * (n_joints - 3)), adjacency, node_types)
     topology = analyze_topology(adjacency, node_types)
     problems = structure_violations(topology)
     if problems:  # the construction rules this out; fail loudly rather than emit a bad row
@@ -117,17 +209,17 @@ def grow_topology(rng: np.random.Generator, n_joints: int) -> Topology:
 
 
 def random_topology(
-    seed: SeedLike = None, n_joints: int | None = None
+    seed: SeedLike = None, n_joints: int | None = None, rules: str = "links"
 ) -> tuple[np.ndarray, np.ndarray]:
     """A random topology obeying the dataset rules: (adjacency (n, n) uint8, node_types (n,) int8).
 
     `n_joints` defaults to a uniform draw from 8 to 20. The same `seed` gives the same topology;
-    a `numpy.random.Generator` is advanced in place.
+    a `numpy.random.Generator` is advanced in place. `rules` is one of TOPOLOGY_RULES.
     """
     rng = np.random.default_rng(seed)
     if n_joints is None:
         n = int(rng.integers(MIN_DATASET_JOINTS, MAX_DATASET_JOINTS + 1))
     else:
         n = as_int("n_joints", n_joints, MIN_TOPOLOGY_JOINTS, MAX_JOINTS)
-    topology = grow_topology(rng, n)
+    topology = grow_topology(rng, n, rules)
     return topology.adjacency, topology.node_types
