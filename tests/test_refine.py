@@ -29,7 +29,7 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.paths import longest_chord
-from links_ray.engine.refine import refine, refine_many
+from links_ray.engine.refine import _as_target, _refine_one, refine, refine_many
 from links_ray.engine.refine_kernels import best_interval, solve_tangents
 from links_ray.engine.solver import crank_table, dyad_geometry
 
@@ -253,6 +253,27 @@ def assert_valid(
     floor = np.where(start_least >= margin, margin, 0.5 * start_least)
     least = angle_sines(order, traj).min(axis=1)
     assert np.all(least[moving] >= floor[moving] - 1e-9)
+
+
+def test_a_start_refined_from_an_origin_keeps_the_origins_floors_and_branches() -> None:
+    """Synthesis shakes a refined mechanism and refines it again from there: a shaken start
+    nearer a dead centre than its origin's margin, or on another branch, is refused rather
+    than handed back."""
+    adjacency, node_types, origin = fourbar(GOOD_FOURBAR)
+    _, _, low = fourbar(LOW_FOURBAR)  # 31 degrees at its worst: below a 40-degree margin
+    topology = analyze_topology(adjacency, node_types)
+    target = _as_target(fourbar_truth(low, 200)[4], False)
+    args = (topology, low, 4, target, 200, 5, 40.0)
+    with pytest.raises(ValueError, match="nearer a dead centre than its origin allows"):
+        _refine_one(*args, origin=origin)
+    assert _refine_one(*args).min_transmission_deg < 40  # alone, it is its own origin
+    mirrored = origin.copy()
+    (j, a, b) = topology.order[-1]
+    gap = origin[b] - origin[a]
+    normal = np.array([-gap[1], gap[0]]) / np.linalg.norm(gap)
+    mirrored[j] -= 2 * np.dot(origin[j] - origin[a], normal) * normal  # across its parents' line
+    with pytest.raises(ValueError, match="other branches than its origin"):
+        _refine_one(topology, mirrored, 4, target, 200, 5, 3.0, origin=origin)
 
 
 def test_margin_is_kept_when_the_best_fit_breaks_it() -> None:

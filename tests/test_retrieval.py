@@ -127,6 +127,35 @@ def test_brute_force_equals_every_path_against_every_variant(index: RetrievalInd
         assert [v for _, _, v in found] == plain[:, expected].argmin(axis=0).tolist()
 
 
+def test_min_transmission_keeps_the_exact_best_of_the_paths_that_keep_it(
+    index: RetrievalIndex,
+) -> None:
+    """With `min_transmission` the answer is the plain brute force over only the curated
+    paths whose stored angle reaches it; each result says its angle."""
+    curated = links_ray.load(index.store, "curated", columns=["path_id", "min_transmission_deg"])
+    angle_of = dict(zip(curated["path_id"], curated["min_transmission_deg"], strict=True))
+    angles = np.array([angle_of[int(p)] for p in index.path_id])
+    np.testing.assert_array_equal(index.transmission, angles)
+    floor = float(np.quantile(angles, 0.7))
+    keeps = angles >= floor
+    stored = stored_points(index)
+    path_ids = index.path_id
+    for query in queries():
+        results = index.retrieve(query, k=5, min_transmission=floor)
+        normalized = normalization(query)[0]
+        plain = np.stack([chamfer_to_many(v, stored) for v in query_variants(normalized)])
+        best = np.where(keeps, plain.min(axis=0), np.inf)
+        expected = np.lexsort((path_ids, best))[:5]
+        assert [r["path_id"] for r in results] == path_ids[expected].tolist()
+        np.testing.assert_allclose([r["chamfer"] for r in results], best[expected], rtol=1e-9)
+        assert all(r["min_transmission_deg"] >= floor for r in results)
+    # A floor no path reaches gives no results; a bad one a clear error.
+    above_all = float(angles.max()) + 1.0
+    assert index.ranked(normalization(queries()[0])[0], 3, min_transmission=above_all) == []
+    with pytest.raises(ValueError, match="min_transmission must be from 0 to 45 degrees"):
+        index.retrieve(queries()[0], k=3, min_transmission=60)
+
+
 def test_finalists_are_measured_as_if_every_variant_were(index: RetrievalIndex) -> None:
     """Measuring each finalist's likeliest variant, then only the variants its lower bound
     leaves able to matter, gives the answer of measuring all four."""

@@ -117,6 +117,16 @@ def test_retrieve_finds_a_stored_path_and_a_mechanism_that_traces_it(
     assert chamfers[0] < 1e-6
     best = results[0]
     assert best["path_id"] == int(curated.path_id.iloc[row]) or chamfers[1] < 1e-6
+    # A floor on the transmission angle: only paths keeping it, the best of them first.
+    floor = 5.0
+    _, kept = _post(
+        client, "/api/retrieve", {"points": query.tolist(), "k": 5, "min_transmission": floor}
+    )
+    keeping = [r for r in results if r["min_transmission_deg"] >= floor]
+    assert all(r["min_transmission_deg"] >= floor for r in kept["results"])
+    assert [r["path_id"] for r in kept["results"]][: len(keeping)] == [
+        r["path_id"] for r in keeping
+    ]
     # The mechanism comes back in the query's frame: its joint traces the query itself.
     _, traced = _post(client, "/api/simulate", best["mechanism"])
     path = np.array(traced["trajectories"])[best["mechanism_joint"]]
@@ -392,6 +402,18 @@ BAD_REQUESTS = [
     ret("k string", "k must be an integer from 1 to 100, got '3'", points=POINTS, k="3"),
     ret("k float", "k must be an integer from 1 to 100, got 2.5", points=POINTS, k=2.5),
     ret("k array", "k must be an integer from 1 to 100, got [3]", points=POINTS, k=[3]),
+    ret(
+        "min_transmission 50",
+        "min_transmission must be from 0 to 45 degrees, got 50",
+        points=POINTS,
+        min_transmission=50,
+    ),
+    ret(
+        "min_transmission text",
+        "min_transmission must be a number of degrees, got '5'",
+        points=POINTS,
+        min_transmission="5",
+    ),
     # Size limits and routes.
     ret("oversized body", OVER_LIMIT, 413, points=POINTS, pad=PAD),
     ret(

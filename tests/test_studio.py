@@ -593,6 +593,43 @@ def test_draw_retrieve_animate_and_open_in_editor(
     studio.click("play")
 
 
+def test_retrieve_with_a_least_transmission_angle(studio: Studio, client: Client) -> None:
+    """The floor set on the page goes to the API, and each result shows its angle."""
+    t = np.linspace(0, 2 * np.pi, 90)
+    curve = np.stack([0.5 + 0.3 * np.cos(t), 0.5 + 0.15 * np.sin(t)], 1)
+    draw(studio, curve.tolist())
+    drawn = studio.js("() => window.studio.retriever.points")
+    studio.page.get_by_test_id("k").fill("4")
+    studio.page.get_by_test_id("min-transmission").fill("5")
+    studio.click("retrieve-button")
+    _, expected = client.post("/api/retrieve", {"points": drawn, "k": 4, "min_transmission": 5})
+    count = len(expected["results"])
+    assert count > 0
+    results = studio.page.get_by_test_id("result")
+    results.nth(count - 1).wait_for()
+    assert results.count() == count
+    for i, result in enumerate(expected["results"]):
+        shown = float(results.nth(i).get_attribute("data-transmission"))
+        assert shown == result["min_transmission_deg"] >= 5
+        assert f"least transmission {shown:.1f}°" in results.nth(i).inner_text()
+    # At the highest floor the page still shows the API's answer; none at all, it says why.
+    studio.page.get_by_test_id("min-transmission").fill("45")
+    studio.click("retrieve-button")
+    _, highest = client.post("/api/retrieve", {"points": drawn, "k": 4, "min_transmission": 45})
+    if highest["results"]:
+        shown = "[...document.querySelectorAll('[data-testid=result]')]"
+        studio.wait(
+            f"() => {shown}.length === {len(highest['results'])} && "
+            f"{shown}.every((item) => Number(item.dataset.transmission) >= 45)"
+        )
+    else:
+        studio.wait(
+            "() => document.querySelector('[data-testid=retrieve-status]').textContent"
+            ".includes('No curated path keeps a transmission angle of 45')"
+        )
+    studio.page.get_by_test_id("min-transmission").fill("0")
+
+
 def test_retrieval_errors_are_shown_in_words(studio: Studio) -> None:
     studio.allow("status of 400")
     studio.click("retrieve-button")

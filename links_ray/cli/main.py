@@ -23,6 +23,7 @@ from links_ray.engine.inputs import (
     MAX_K,
     MAX_SYNTHESIS_SECONDS,
     MAX_TRANSMISSION_DEG,
+    as_transmission_deg,
     validate_synthesis,
 )
 from links_ray.engine.topology import TOPOLOGY_RULES
@@ -116,7 +117,9 @@ def _retrieve(args: argparse.Namespace) -> None:
 
     index = RetrievalIndex.open(args.root)
     start = time.perf_counter()
-    results = index.retrieve(read_points(args.points), k=args.k)
+    results = index.retrieve(
+        read_points(args.points), k=args.k, min_transmission=args.min_transmission
+    )
     took_ms = (time.perf_counter() - start) * 1e3
     print(json.dumps({"results": results, "took_ms": took_ms}))
 
@@ -126,10 +129,19 @@ def _synthesize(args: argparse.Namespace) -> None:
     from links_ray.search.index import RetrievalIndex, read_points
 
     points = read_points(args.points)
-    validate_synthesis(points, args.k, args.seconds, args.partial)  # before the index loads
+    # Before the index loads:
+    validate_synthesis(points, args.k, args.seconds, args.partial)
+    as_transmission_deg(args.min_transmission, "min_transmission")
     index = RetrievalIndex.open(args.root)
     start = time.perf_counter()
-    results = synthesize(index, points, k=args.k, seconds=args.seconds, partial=args.partial)
+    results = synthesize(
+        index,
+        points,
+        k=args.k,
+        seconds=args.seconds,
+        partial=args.partial,
+        min_transmission=args.min_transmission,
+    )
     took_ms = (time.perf_counter() - start) * 1e3
     if args.json:
         print(json.dumps({"results": results, "took_ms": took_ms}))
@@ -190,6 +202,14 @@ def _query_arguments(command: argparse.ArgumentParser) -> None:
         type=_positive_int,
         default=DEFAULT_K,
         help=f"results (1-{MAX_K}, default {DEFAULT_K})",
+    )
+    command.add_argument(
+        "--min-transmission",
+        type=float,
+        default=0.0,
+        metavar="DEG",
+        help="only mechanisms whose least transmission angle is at least DEG degrees "
+        f"(0-{MAX_TRANSMISSION_DEG:g}, default 0: all)",
     )
 
 

@@ -315,7 +315,7 @@ def _refine_one(
     Stops after the iteration during which `time.perf_counter()` passes `deadline`. With
     `origin` (positions `start` was refined from), the transmission floors and the assembly
     branches are the origin's, so refining in several calls keeps what one call would; a
-    `start` on other branches than `origin` raises ValueError.
+    `start` on other branches than `origin`, or below its floors, raises ValueError.
     """
     lock, traj, _, _, _, _ = _solve(topology, start, steps, False)
     if lock[0] >= 0:
@@ -347,6 +347,10 @@ def _refine_one(
     )
     if origin is not None:  # what the origin gained since, it keeps
         floors = np.where(~rigid & (check.min_transmission >= margin), margin, floors)
+        # A start shaken below the origin's margins is no start either: kept as it is, it
+        # would hand back a mechanism nearer a dead centre than refinement allows.
+        if np.any(check.min_transmission < floors):
+            raise ValueError("the start is nearer a dead centre than its origin allows")
     value, interval = _measure(target, traj[joint])
     before = value
     pos = start.copy()

@@ -25,7 +25,7 @@ between the normalized query and the normalized path. Every refined mechanism is
 `engine.refine` keeps it: it turns fully at `REFINE_CHECK_STEPS` steps, keeps its assembly
 branches and its transmission margin.
 
-`index` is anything with `retrieve(points, k) -> list[dict]` answering as
+`index` is anything with `retrieve(points, k, min_transmission) -> list[dict]` answering as
 `links_ray.search.index.RetrievalIndex.retrieve` does (the engine imports no index).
 
 Pure numpy/numba and threads: no Ray, no files.
@@ -46,6 +46,7 @@ from links_ray.engine.inputs import (
     DEFAULT_K,
     DEFAULT_MARGIN_DEG,
     DEFAULT_STEPS,
+    as_transmission_deg,
     check_refine_size,
     validate_synthesis,
 )
@@ -82,7 +83,9 @@ HOP_ITERATIONS = 300
 class Retriever(Protocol):
     """What synthesis needs of a retrieval index."""
 
-    def retrieve(self, points: object, k: int = DEFAULT_K) -> list[dict]: ...
+    def retrieve(
+        self, points: object, k: int = DEFAULT_K, min_transmission: float = 0.0
+    ) -> list[dict]: ...
 
 
 @dataclass
@@ -180,15 +183,17 @@ def refine_retrieved(
     *,
     started: float | None = None,
     seed: int = 0,
+    margin_deg: float = DEFAULT_MARGIN_DEG,
 ) -> list[dict]:
     """The k best synthesis results (best first) refined from retrieval results of `points`
     (`RetrievalIndex.retrieve`'s, in the drawing's frame), within `seconds` counted from
-    `started` (a `time.perf_counter()` value; now if None). The module docstring says how."""
+    `started` (a `time.perf_counter()` value; now if None), keeping a transmission margin of
+    at least DEFAULT_MARGIN_DEG and `margin_deg`. The module docstring says how."""
     started = time.perf_counter() if started is None else started
     _, k, seconds, partial = validate_synthesis(points, k, seconds, partial)
     target = _as_target(points, partial)
     deadline = started + seconds
-    margin = DEFAULT_MARGIN_DEG
+    margin = max(DEFAULT_MARGIN_DEG, as_transmission_deg(margin_deg))
     workers = max(1, min(os.cpu_count() or 1, len(retrieved)))
     with ThreadPoolExecutor(workers, thread_name_prefix="links-synthesize") as pool:
         found = pool.map(lambda result: _candidate(result, target), retrieved)
@@ -282,12 +287,18 @@ def synthesize(
     k: int = DEFAULT_K,
     seconds: float | None = None,
     partial: bool = False,
+    min_transmission: float = 0.0,
 ) -> list[dict]:
     """The k best mechanisms found for a drawn curve, best first, each refined so that its
     `mechanism_joint` traces `points` in the drawing's own frame, within `seconds` (default
     DEFAULT_SYNTHESIS_SECONDS, at most MAX_SYNTHESIS_SECONDS). `partial`: the points are an
-    open stroke, matched to part of a turn. Raises ValueError naming bad input."""
+    open stroke, matched to part of a turn. `min_transmission` (degrees): only paths keeping
+    it are retrieved, and refinement keeps it as its margin (at least DEFAULT_MARGIN_DEG).
+    Raises ValueError naming bad input."""
     started = time.perf_counter()
     drawn, k, seconds, partial = validate_synthesis(points, k, seconds, partial)
-    retrieved = index.retrieve(drawn, max(CANDIDATES, k))
-    return refine_retrieved(drawn, retrieved, k, seconds, partial, started=started)
+    floor = as_transmission_deg(min_transmission, "min_transmission")
+    retrieved = index.retrieve(drawn, max(CANDIDATES, k), floor)
+    return refine_retrieved(
+        drawn, retrieved, k, seconds, partial, started=started, margin_deg=floor
+    )

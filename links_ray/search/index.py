@@ -57,7 +57,7 @@ from links_ray.data.commit import committed_files, committed_shards
 from links_ray.data.dataset import isin, open_table
 from links_ray.data.lease import Lease, index_lease_name
 from links_ray.data.store import META, Store, StoreError
-from links_ray.engine.inputs import DEFAULT_K, validate_query
+from links_ray.engine.inputs import DEFAULT_K, as_transmission_deg, validate_query
 from links_ray.engine.mechanism import reduce_mechanism
 from links_ray.engine.paths import chamfer_to_many, normalization
 from links_ray.engine.solver import simulate
@@ -101,7 +101,7 @@ INDEX_FOLDER = f"{META}/index"
 #: How far a lower bound may exceed the exact distance it bounds by rounding (they are
 #: computed differently).
 ROUNDING = 1e-9
-INDEX_FORMAT = 5
+INDEX_FORMAT = 6  # 6: each path's least transmission angle
 #: The coarse partition (an inverted file): about this many rows per list (at most
 #: MAX_LISTS lists), fitted by KMEANS_ROUNDS rounds of k-means on KMEANS_SAMPLE rows' field
 #: codes. A query scans the lists nearest it until they hold PROBED_ROWS rows (every list of
@@ -247,6 +247,7 @@ class RetrievalIndex:
     tail: np.ndarray  # (N, 2 * (DIMENSIONS - HEAD_COMPONENTS)) int8
     bias: np.ndarray  # (N,) float32
     sketches: np.ndarray  # (N, 2 * SKETCH_POINTS) uint8, see `search_kernels`
+    transmission: np.ndarray  # (N,) float32: min_transmission_deg (NaN where not stored)
     # Rows are grouped by coarse list: list l is rows list_start[l]:list_start[l + 1], its
     # centroid centroids[l] (field codes). file_row[r] is row r's place in the curated files.
     list_start: np.ndarray  # (L + 1,) int64
@@ -368,14 +369,23 @@ class RetrievalIndex:
         return kernels.scan_pieces(self.list_start[chosen], self.list_start[chosen + 1])
 
     def candidates(
-        self, weights: np.ndarray, offsets: np.ndarray, count: int, pieces: tuple[np.ndarray, ...]
+        self,
+        weights: np.ndarray,
+        offsets: np.ndarray,
+        count: int,
+        pieces: tuple[np.ndarray, ...],
+        min_transmission: float = 0.0,
     ) -> tuple[np.ndarray, np.ndarray]:
         """About `count` rows of the scanned `pieces` (`probe`) whose estimate, at their best
         variant, is least (every row when `count` reaches the total), for the query weights
         and offsets of `Basis.query`; and for each, 4 * its likeliest variant + the second
-        likeliest if nearly as likely (`score_rows`), or -1 when every row is returned."""
+        likeliest if nearly as likely (`score_rows`), or -1 when every row is returned. Only
+        rows whose path keeps `min_transmission` degrees (when above 0) are passed on."""
         if count >= len(self):
-            return np.arange(len(self)), np.full(len(self), -1, dtype=np.int8)
+            rows = np.arange(len(self))
+            if min_transmission > 0:
+                rows = np.flatnonzero(self.transmission >= min_transmission)
+            return rows, np.full(len(rows), -1, dtype=np.int8)
         starts, ends, at = pieces
         scanned = int(at[-1] + ends[-1] - starts[-1])
         if self._scores is None:
@@ -383,7 +393,13 @@ class RetrievalIndex:
         head_weights = np.ascontiguousarray(weights[:, HEAD_COLUMNS])
         scores = self._scores[:scanned]
         kernels.scan(self.head, starts, ends, at, head_weights, offsets, self.bias, scores)
+        if min_transmission > 0:
+            angles = np.concatenate(
+                [self.transmission[s:e] for s, e in zip(starts, ends, strict=True)]
+            )
+            scores[~(angles >= min_transmission)] = np.inf
         positions = _about_least(scores, HEAD_KEEP * count)
+        positions = positions[np.isfinite(scores[positions])]
         piece = np.searchsorted(at, positions, side="right") - 1
         wide = starts[piece] + positions - at[piece]
         scores = np.empty(len(wide), dtype=np.float32)
@@ -409,17 +425,21 @@ class RetrievalIndex:
         k: int = DEFAULT_K,
         candidates: int | None = None,
         probed: int = PROBED_ROWS,
+        min_transmission: float = 0.0,
     ) -> list[tuple[int, float, int]]:
-        """The k best (row, chamfer, variant), best first, for a normalized query; the scan
-        of the lists nearest it, `probed` rows, passes on `candidates` paths (by default as
-        `stage_sizes` says)."""
+        """The k best (row, chamfer, variant), best first, for a normalized query, among the
+        paths keeping `min_transmission` degrees (all, at 0); the scan of the lists nearest
+        it, `probed` rows, passes on `candidates` paths (by default as `stage_sizes` says)."""
         default_candidates, refined, finalists = stage_sizes(len(self))
+        count = candidates or default_candidates
         variants = query_variants(normalized)
         weights, offsets, field_codes = self.basis.query(variants)
         pieces = self.probe(field_codes, probed)
-        rows, likely = self.candidates(weights, offsets, candidates or default_candidates, pieces)
+        rows, likely = self.candidates(weights, offsets, count, pieces, min_transmission)
+        if len(rows) == 0:
+            return []
         # Each candidate with its likely variants (every variant on the exhaustive path).
-        if len(rows) == len(self):
+        if count >= len(self):
             pair_rows, pair_variants = np.repeat(rows, 4), np.tile(np.arange(4), len(rows))
         else:
             first, second = likely // 4, likely % 4
@@ -503,12 +523,16 @@ class RetrievalIndex:
             answered += 1
         return answered
 
-    def retrieve(self, points: object, k: int = DEFAULT_K) -> list[dict]:
+    def retrieve(
+        self, points: object, k: int = DEFAULT_K, min_transmission: object = 0.0
+    ) -> list[dict]:
         """The k best results for a query, best first, each with its mechanism in the query's
-        frame (docs/CONTRACT.md, HTTP API, describes a result)."""
+        frame (docs/CONTRACT.md, HTTP API, describes a result), among the paths whose least
+        transmission angle is at least `min_transmission` degrees (fewer than k if fewer do)."""
         query, k = validate_query(points, k)
+        floor = as_transmission_deg(min_transmission, "min_transmission")
         normalized, query_matrix, query_offset = normalization(query)
-        ranked = self.ranked(normalized, k)
+        ranked = self.ranked(normalized, k, min_transmission=floor)
         rows = np.array([row for row, _, _ in ranked], dtype=np.int64)
         paths = self.paths(rows)
         results = []
@@ -526,6 +550,7 @@ class RetrievalIndex:
                     "mechanism_id": int(self.bank.ids[self.mechanism_row[row]]),
                     "joint": joint,
                     "chamfer": distance,
+                    "min_transmission_deg": _degrees_or_none(self.transmission[row]),
                     "points": path.astype(float).tolist(),
                     "mechanism": {
                         "adjacency": adjacency.tolist(),
@@ -607,6 +632,11 @@ class RetrievalIndex:
         return answers
 
 
+def _degrees_or_none(angle: np.floating) -> float | None:
+    """An angle for JSON: None where the dataset stores none (NaN)."""
+    return None if np.isnan(angle) else float(angle)
+
+
 def _into_query_frame(
     adjacency: np.ndarray,
     node_types: np.ndarray,
@@ -643,6 +673,12 @@ def _curated_batches(
             yield from pq.ParquetFile(source).iter_batches(batch_size=block, columns=columns)
 
 
+def _curated_schema(store: Store, files: list[str]) -> pa.Schema:
+    """The columns of the first curated file (all of a dataset's are written alike)."""
+    with store.fs.open_input_file(store.path(files[0])) as source:
+        return pq.ParquetFile(source).schema_arrow
+
+
 def _batch_points(batch: pa.RecordBatch) -> np.ndarray:
     """The `points` of a record batch as (rows, steps, 2) float32 (a batch's own offsets are
     32-bit, and never overflow: a batch holds at most `BUILD_BLOCK` paths)."""
@@ -666,8 +702,11 @@ def _build(store: Store, files: list[str], rows: int) -> dict:
     sketches = np.empty((rows, 2 * kernels.SKETCH_POINTS), dtype=np.uint8)
     mechanism_id = np.empty(rows, dtype=np.int64)
     joint = np.empty(rows, dtype=np.int8)
+    transmission = np.full(rows, np.nan, dtype=np.float32)  # NaN: a dataset made before it
     start = 0
     columns = ["mechanism_id", "joint", "points"]
+    if "min_transmission_deg" in _curated_schema(store, files).names:
+        columns.append("min_transmission_deg")
     for batch in _curated_batches(store, files, columns, BUILD_BLOCK):
         end = start + batch.num_rows
         if end > rows:
@@ -682,6 +721,8 @@ def _build(store: Store, files: list[str], rows: int) -> dict:
         kernels.sketch_paths(points, sketches[start:end])
         mechanism_id[start:end] = batch.column("mechanism_id").to_numpy()
         joint[start:end] = batch.column("joint").to_numpy()
+        if "min_transmission_deg" in columns:
+            transmission[start:end] = batch.column("min_transmission_deg").to_numpy()
         start = end
     if start != rows:
         raise ValueError(f"{store.uri}: the curated files hold fewer rows than their markers")
@@ -693,6 +734,7 @@ def _build(store: Store, files: list[str], rows: int) -> dict:
         "tail": tail,
         "bias": bias,
         "sketches": sketches,
+        "transmission": transmission,
     }
     lists, centroids = _coarse_lists(basis, head, tail)
     file_row = np.argsort(lists, kind="stable").astype(np.int32 if rows < 2**31 else np.int64)
@@ -753,7 +795,16 @@ def _pca_sample(store: Store, files: list[str], rows: int) -> np.ndarray:
 
 
 #: The arrays a saved index holds: one entry per row, and the rest, besides the basis.
-ROW_ARRAYS = ("mechanism_row", "joint", "head", "tail", "bias", "sketches", "file_row")
+ROW_ARRAYS = (
+    "mechanism_row",
+    "joint",
+    "head",
+    "tail",
+    "bias",
+    "sketches",
+    "transmission",
+    "file_row",
+)
 SAVED_ARRAYS = (*ROW_ARRAYS, "list_start", "centroids")
 BASIS_ARRAYS = ("mean", "components", "scale")
 #: What a saved index was built with: one built otherwise is rebuilt.

@@ -95,6 +95,7 @@ from links_ray.engine.inputs import (
     MAX_REQUEST_JOINT_STEPS,
     MAX_REQUEST_JOINTS,
     as_steps,
+    as_transmission_deg,
     validate_query,
     validate_synthesis,
 )
@@ -389,25 +390,35 @@ def _pairs(name: str, value: object, count: int | None = None) -> list[list[floa
     return value
 
 
-def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int]:
-    """The query points (T, 2) and k of a /api/retrieve body, or ApiError naming the problem."""
+def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float]:
+    """The query points (T, 2), k and min_transmission of a /api/retrieve body, or ApiError
+    naming the problem."""
     points = _pairs("points", _required(body, "points"))
     k = body.get("k")
-    return _checked(validate_query, points, DEFAULT_K if k is None else k)
+    points, k = _checked(validate_query, points, DEFAULT_K if k is None else k)
+    return points, k, _min_transmission(body)
 
 
-def synthesize_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float, bool]:
-    """(points (T, 2), k, seconds, partial) of a /api/synthesize body, or ApiError naming the
-    problem: the points and k as /api/retrieve takes them."""
+def synthesize_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float, bool, float]:
+    """(points (T, 2), k, seconds, partial, min_transmission) of a /api/synthesize body, or
+    ApiError naming the problem: the points, k and min_transmission as /api/retrieve takes
+    them."""
     points = _pairs("points", _required(body, "points"))
     k = body.get("k")
-    return _checked(
+    checked = _checked(
         validate_synthesis,
         points,
         DEFAULT_K if k is None else k,
         body.get("seconds"),
         body.get("partial", False),
     )
+    return (*checked, _min_transmission(body))
+
+
+def _min_transmission(body: dict[str, Any]) -> float:
+    """A body's `min_transmission` in degrees (0 when absent), or ApiError naming it."""
+    value = body.get("min_transmission")
+    return 0.0 if value is None else _checked(as_transmission_deg, value, "min_transmission")
 
 
 def topology_args(body: dict[str, Any]) -> tuple[list, list]:
@@ -560,9 +571,9 @@ class _Retrieving:
         )
         self.pool.submit(index.warm).result()
 
-    async def retrieve(self, points: np.ndarray, k: int) -> list[dict]:
+    async def retrieve(self, points: np.ndarray, k: int, min_transmission: float) -> list[dict]:
         return await asyncio.get_running_loop().run_in_executor(
-            self.pool, self.index.retrieve, points, k
+            self.pool, self.index.retrieve, points, k, min_transmission
         )
 
     def close(self) -> None:
@@ -601,9 +612,11 @@ class IndexShard:
         """`{"part", "parts", "paths"}` of this shard."""
         return {"part": self.part, "parts": self.parts, "paths": len(self._retrieving.index)}
 
-    async def retrieve(self, points: np.ndarray, k: int) -> list[dict]:
+    async def retrieve(
+        self, points: np.ndarray, k: int, min_transmission: float = 0.0
+    ) -> list[dict]:
         """The k best results of this part, best first (`RetrievalIndex.retrieve`)."""
-        return await self._retrieving.retrieve(points, k)
+        return await self._retrieving.retrieve(points, k, min_transmission)
 
     def __del__(self) -> None:
         if hasattr(self, "_retrieving"):
@@ -712,15 +725,16 @@ class LinksApi:
             )
         self._retrievals += 1
         try:
-            points, k = retrieve_args(await read_json_object(request))
+            points, k, floor = retrieve_args(await read_json_object(request))
             start = time.perf_counter()
             if self._retrieving is not None:
                 try:
-                    results = await self._retrieving.retrieve(points, k)
+                    results = await self._retrieving.retrieve(points, k, floor)
                 except ValueError as exc:
                     raise ApiError(400, str(exc)) from None
             else:
-                results = merge_results(await self._ask_shards("retrieve", points, k), k)
+                answers = await self._ask_shards("retrieve", points, k, floor)
+                results = merge_results(answers, k)
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
             self._retrievals -= 1
@@ -737,15 +751,23 @@ class LinksApi:
             )
         self._syntheses += 1
         try:
-            points, k, seconds, partial = synthesize_args(await read_json_object(request))
+            points, k, seconds, partial, floor = synthesize_args(await read_json_object(request))
             start = time.perf_counter()
             count = max(CANDIDATES, k)
             if self._retrieving is not None:
-                retrieved = await self._retrieving.retrieve(points, count)
+                retrieved = await self._retrieving.retrieve(points, count, floor)
             else:
-                retrieved = merge_results(await self._ask_shards("retrieve", points, count), count)
+                answers = await self._ask_shards("retrieve", points, count, floor)
+                retrieved = merge_results(answers, count)
             refine = functools.partial(
-                refine_retrieved, points, retrieved, k, seconds, partial, started=start
+                refine_retrieved,
+                points,
+                retrieved,
+                k,
+                seconds,
+                partial,
+                started=start,
+                margin_deg=floor,
             )
             results = await asyncio.get_running_loop().run_in_executor(self._refining, refine)
             took_ms = (time.perf_counter() - start) * 1e3

@@ -130,7 +130,12 @@ export class Retriever {
       return;
     }
     const k = this.ui.k.valueAsNumber;
-    const body = { points: this.points, ...(Number.isFinite(k) ? { k } : {}) };
+    const floor = this.ui.minTransmission ? this.ui.minTransmission.valueAsNumber : 0;
+    const body = {
+      points: this.points,
+      ...(Number.isFinite(k) ? { k } : {}),
+      ...(Number.isFinite(floor) && floor > 0 ? { min_transmission: floor } : {}),
+    };
     const what = synthesize ? "Synthesis" : "Retrieval";
     const buttons = [this.ui.retrieve, this.ui.synthesize].filter(Boolean);
     buttons.forEach((button) => (button.disabled = true));
@@ -150,7 +155,9 @@ export class Retriever {
         count
           ? `${count} mechanisms, best first (${took}, ` +
               `round trip ${answer.ms.toFixed(0)} ms). Choose one to watch it trace your curve.`
-          : "No curated paths to compare with: the dataset is empty.",
+          : body.min_transmission
+            ? `No curated path keeps a transmission angle of ${floor}°: lower it.`
+            : "No curated paths to compare with: the dataset is empty.",
       );
     } catch (err) {
       this.say(`${what} failed: ${err.message}`, true);
@@ -167,6 +174,8 @@ export class Retriever {
       const item = document.createElement("li");
       item.dataset.testid = "result";
       item.dataset.chamfer = String(result.chamfer);
+      const angle = result.min_transmission_deg;
+      if (typeof angle === "number") item.dataset.transmission = String(angle);
       const button = document.createElement("button");
       button.type = "button";
       button.setAttribute("aria-pressed", "false");
@@ -183,7 +192,8 @@ export class Retriever {
       meta.textContent =
         result.retrieved_chamfer === undefined
           ? ` · mechanism ${result.mechanism_id}, joint ${result.joint} ` +
-            `(${n} joints after reduction)`
+            `(${n} joints after reduction)` +
+            (typeof angle === "number" ? `, least transmission ${angle.toFixed(1)}°` : "")
           : ` · refined from ${result.retrieved_chamfer.toPrecision(4)}, ` +
             `from mechanism ${result.mechanism_id} (${n} joints)`;
       text.append(chamfer, meta);

@@ -59,6 +59,7 @@ const retriever = new Retriever({
     clear: $("clear-drawing"),
     open: $("open-in-editor"),
     k: $("k"),
+    minTransmission: $("min-transmission"),
     status: $("retrieve-status"),
     list: $("results"),
   },
