@@ -6,7 +6,7 @@ dyad's branch (the side of its parents' line) at the start instead. The two agre
 dyad comes near a dead centre, where its two intersections meet. This one is plain numpy and
 shares no code with the engine: it finds its own solving order from the graph.
 
-Run as a script for the README's figures: `python tests/nearest_point.py [MECHANISMS]`.
+Run as a script for the README's figures: `python tests/nearest_point.py [PER_FLOOR]`.
 """
 
 from __future__ import annotations
@@ -75,31 +75,37 @@ def nearest_point_simulate(
     return out
 
 
-def agreement(mechanisms: int, seed: int = 0) -> dict[str, tuple[int, int]]:
-    """(agreeing, of) valid random mechanisms of 8-20 joints, all and at 10 and 20 degrees
-    or more of least transmission angle."""
+def agreement(per_floor: int, seed: int = 0) -> dict[str, tuple[int, int]]:
+    """(agreeing, of) valid random mechanisms of 8-20 joints: the first `per_floor` drawn, and
+    the first `per_floor` keeping at least 10 and at least 20 degrees of least transmission
+    angle (drawn on until each floor has them, as `links generate --min-transmission` does)."""
     import links_ray
     from links_ray.engine.mechanism import analyze_topology
     from links_ray.engine.transmission import mechanism_transmission_deg
 
     rng = np.random.default_rng(seed)
-    tally = {"all": [0, 0], "10": [0, 0], "20": [0, 0]}
-    for _ in range(mechanisms):
+    floors = {"all": 0.0, "10": 10.0, "20": 20.0}
+    tally = {key: [0, 0] for key in floors}
+    while any(of < per_floor for _, of in tally.values()):
         adjacency, node_types = links_ray.random_topology(rng)
         positions = links_ray.sample_positions(adjacency, node_types, 1, seed=rng)[0]
         ours = links_ray.simulate(adjacency, node_types, positions)
         order = analyze_topology(adjacency, node_types).order
         angle = mechanism_transmission_deg(order, ours[None].astype(np.float32))[0]
+        wanted = [
+            key for key, floor in floors.items() if angle >= floor and tally[key][1] < per_floor
+        ]
+        if not wanted:
+            continue
         theirs = nearest_point_simulate(adjacency, node_types, positions)
         same = theirs is not None and np.abs(theirs - ours).max() < SAME
-        for key, floor in (("all", 0), ("10", 10), ("20", 20)):
-            if angle >= floor:
-                tally[key][0] += same
-                tally[key][1] += 1
+        for key in wanted:
+            tally[key][0] += same
+            tally[key][1] += 1
     return {key: (agree, of) for key, (agree, of) in tally.items()}
 
 
 if __name__ == "__main__":
-    count = int(sys.argv[1]) if len(sys.argv) > 1 else 2000
+    count = int(sys.argv[1]) if len(sys.argv) > 1 else 500
     for key, (agree, of) in agreement(count).items():
         print(f"{key}: {agree} of {of} agree ({agree / max(of, 1):.1%})")

@@ -24,6 +24,7 @@ from serving import as_served, retrieved, serving
 import links_ray
 from links_ray.data.commit import committed_shards
 from links_ray.data.store import Store
+from links_ray.engine.synthesis import CANDIDATES
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.app import build_app
 
@@ -122,3 +123,38 @@ def test_each_shard_wrote_only_its_own_part(sharded: Any, shard_root: str) -> No
     for part in range(shards):
         current = json.loads((folder / f"part-{part}-of-{shards}" / "current.json").read_text())
         assert current["rows"] == rows[part]
+
+
+def test_a_floor_on_the_transmission_angle_is_one_index_answer(
+    sharded: Any, reference: RetrievalIndex, queries: list[np.ndarray]
+) -> None:
+    """`min_transmission` goes to every part: the merged answer is one index's."""
+    _, client = sharded
+    floor = float(np.quantile(reference.transmission, 0.5))
+    for query in queries[:3]:
+        body = {"points": np.asarray(query).tolist(), "k": K, "min_transmission": floor}
+        status, data = client.post("/api/retrieve", body)
+        assert status == 200, data
+        expected = as_served(reference.retrieve(query, K, min_transmission=floor))
+        assert data["results"] == expected
+        assert all(result["min_transmission_deg"] >= floor for result in expected)
+
+
+def test_synthesis_refines_what_the_shards_retrieve(
+    sharded: Any, reference: RetrievalIndex, queries: list[np.ndarray]
+) -> None:
+    """/api/synthesize on a sharded app starts from the merged retrieval's candidates and
+    refines them: each result no worse than its retrieved path, which is among the
+    CANDIDATES one index returns."""
+    _, client = sharded
+    query = queries[0]
+    body = {"points": np.asarray(query).tolist(), "k": 2, "seconds": 0.5}
+    status, data = client.post("/api/synthesize", body)
+    assert status == 200, data
+    results = data["results"]
+    assert len(results) == 2
+    candidates = {r["path_id"]: r for r in reference.retrieve(query, CANDIDATES)}
+    for result in results:
+        start = candidates[result["path_id"]]
+        assert result["retrieved_chamfer"] == pytest.approx(start["chamfer"], abs=5e-7)
+        assert result["chamfer"] <= result["retrieved_chamfer"] + 1e-12
