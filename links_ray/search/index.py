@@ -576,8 +576,9 @@ class RetrievalIndex:
         picked = normalized[_spread(len(normalized), sample_size)]
         sample = np.rint(picked * kernels.SKETCH_LEVELS).astype(np.int32)
         used = kernels.ROUGH_POINTS if rough else kernels.SKETCH_POINTS
+        midpoints = _NO_MIDPOINTS if rough else kernels.sketch_midpoints(self.steps)
         out = np.empty(len(rows))
-        kernels.sketch_chamfer(sample, levels, self.sketches, rows, variants, used, out)
+        kernels.sketch_chamfer(sample, levels, self.sketches, rows, variants, used, midpoints, out)
         return out
 
     def brute_force(self, points: ArrayLike, k: int = DEFAULT_K) -> list[tuple[int, float, int]]:
@@ -630,6 +631,9 @@ class RetrievalIndex:
             rows = index_row[rows]
             answers.append(_best_rows(rows, self.path_ids(rows), which, distances, k))
         return answers
+
+
+_NO_MIDPOINTS = np.empty(0, dtype=np.int32)
 
 
 def _degrees_or_none(angle: np.floating) -> float | None:
