@@ -25,6 +25,16 @@ def links(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.parametrize("module", ["links_ray.cli", "links_ray"])
+def test_version(module: str) -> None:
+    """`links --version` and `python -m links_ray --version` name the installed package."""
+    result = subprocess.run(
+        [sys.executable, "-m", module, "--version"], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == f"links-ray {links_ray.__version__}"
+
+
 def test_demo_writes_valid_mechanisms(tmp_path: Path) -> None:
     """12 mechanisms at five variants per topology: topologies 0, 1 and 2 (two variants of the
     last), every row valid by the dataset rules and its stored path re-simulated."""

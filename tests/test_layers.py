@@ -76,10 +76,13 @@ def imported(path: Path, module: str, known: set[str]) -> list[tuple[int, str]]:
 
 
 def layer_of(module: str) -> str | None:
-    """The layer a dotted name of ours lives in: "root" for the package itself."""
+    """The layer a dotted name of ours lives in: "root" for the package itself, and the
+    command line's for `links_ray.__main__` (`python -m links_ray` is the `links` command)."""
     parts = module.split(".")
     if parts[0] != PACKAGE:
         return None
+    if parts[1:] == ["__main__"]:
+        return "cli"
     return "root" if len(parts) == 1 else parts[1]
 
 

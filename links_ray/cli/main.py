@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import NoReturn
 
+from links_ray import __version__
 from links_ray.cli import bench
 from links_ray.cli.bench_synthesis import BENCH_SECONDS
 from links_ray.cli.demo import run_demo
@@ -270,6 +271,7 @@ def _add_bench(
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="links", description="LINKS: planar linkage mechanisms and their paths.")
+    parser.add_argument("--version", action="version", version=f"links-ray {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     demo = commands.add_parser(
