@@ -1,7 +1,8 @@
 """links-ray: the LINKS dataset of planar linkage mechanisms, generated and served on Ray.
 
 `import links_ray` loads the engine (numpy/numba) and `load` (pyarrow), and nothing of Ray:
-the package is built in layers (ARCHITECTURE.md), held by tests/test_layers.py.
+the package is built in layers (ARCHITECTURE.md), held by tests/test_layers.py. `ray_dataset`
+is the one name that needs Ray: it is loaded when first asked for.
 """
 
 from links_ray.data.dataset import load
@@ -35,3 +36,11 @@ __all__ = [
     "synthesize",
 ]
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> object:
+    if name == "ray_dataset":  # loads Ray, so only when asked for
+        from links_ray.cluster.datasets import ray_dataset
+
+        return ray_dataset
+    raise AttributeError(f"module 'links_ray' has no attribute {name!r}")

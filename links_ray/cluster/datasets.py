@@ -1,0 +1,67 @@
+"""`ray_dataset`: one table's committed rows as a Ray Dataset, to stream into training.
+
+The files are those commit markers name (`links_ray.data.commit`), as for `links_ray.load`, so
+an interrupted shard shows no row; Ray Data reads them block by block, so a table far larger
+than memory streams through `iter_batches` or `iter_torch_batches` without pandas in between.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable
+
+import numpy as np
+import pyarrow.dataset as pads
+import ray
+from ray.data.datasource import Partitioning
+
+from links_ray.cluster.connect import connect
+from links_ray.data.dataset import open_table
+from links_ray.data.store import Store
+
+_JOINTS = re.compile(r"/n_joints=(\d+)/")
+
+
+def ray_dataset(
+    root: str | Store,
+    table: str,
+    n_joints: int | Iterable[int] | None = None,
+    columns: list[str] | None = None,
+    filter: pads.Expression | None = None,
+) -> ray.data.Dataset:
+    """The committed rows of `table` at `root` (a folder, s3://bucket/prefix or a Store) as a
+    `ray.data.Dataset`, with the partition column `n_joints`.
+
+    `n_joints` keeps one joint count or several (only their files are read); `columns` keeps
+    those columns; `filter` is a pyarrow expression on any column, applied as the files are
+    read (`pyarrow.dataset.field("min_transmission_deg") >= 10`). Joins the Ray cluster of
+    `RAY_ADDRESS`, or starts a local Ray, unless one is running.
+    """
+    store = root if isinstance(root, Store) else Store.open(root, writable=False)
+    dataset = open_table(store, table)
+    files = list(dataset.files)
+    if n_joints is not None:
+        sizes = [n_joints] if isinstance(n_joints, int | np.integer) else list(n_joints)
+        if not all(isinstance(n, int | np.integer) and not isinstance(n, bool) for n in sizes):
+            raise ValueError(f"n_joints must be an integer or integers, got {n_joints!r}")
+        wanted = {int(n) for n in sizes}
+        files = [f for f in files if int(_JOINTS.search(f).group(1)) in wanted]
+        if not files:
+            raise ValueError(f"{store.uri} has no {table} rows of {sorted(wanted)} joints")
+    if columns is not None:
+        unknown = sorted(set(columns) - set(dataset.schema.names))
+        if unknown:
+            raise ValueError(f"{table} has no column {', '.join(unknown)}")
+    if filter is not None and not isinstance(filter, pads.Expression):
+        raise ValueError(f"filter must be a pyarrow.dataset expression, got {filter!r}")
+    connect()
+    options = {} if filter is None else {"filter": filter}
+    return ray.data.read_parquet(
+        files,
+        filesystem=store.fs,
+        columns=columns,
+        partitioning=Partitioning(
+            "hive", base_dir=store.path(table), field_types={"n_joints": int}
+        ),
+        **options,
+    )

@@ -1,0 +1,77 @@
+"""`links_ray.ray_dataset`: a table's committed rows as a Ray Dataset, the same rows `load`
+reads, filtered by joint count and by any column, streamed in batches."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow.dataset as pads
+import pytest
+
+import links_ray
+
+
+def _ids(table: object, column: str) -> list[int]:
+    return sorted(int(i) for i in table[column])
+
+
+def test_the_rows_are_loads_rows(dataset: str) -> None:
+    rows = links_ray.ray_dataset(dataset, "mechanisms").to_pandas()
+    expected = links_ray.load(dataset, "mechanisms")
+    assert len(rows) == len(expected) == 300
+    assert _ids(rows, "mechanism_id") == _ids(expected, "mechanism_id")
+    assert set(rows["n_joints"]) == set(expected["n_joints"])
+    first = rows.sort_values("mechanism_id").iloc[0]
+    truth = expected.sort_values("mechanism_id").iloc[0]
+    np.testing.assert_array_equal(first["positions"], truth["positions"])
+
+
+def test_filters_on_joint_count_and_any_column(dataset: str) -> None:
+    counts = sorted(set(links_ray.load(dataset, "curated", columns=["n_joints"])["n_joints"]))
+    wanted = counts[:2]
+    floor = 5.0
+    rows = links_ray.ray_dataset(
+        dataset,
+        "curated",
+        n_joints=wanted,
+        columns=["path_id", "min_transmission_deg", "n_joints"],
+        filter=pads.field("min_transmission_deg") >= floor,
+    ).to_pandas()
+    expected = links_ray.load(dataset, "curated", n_joints=wanted)
+    expected = expected[expected["min_transmission_deg"] >= floor]
+    assert 0 < len(rows) == len(expected)
+    assert _ids(rows, "path_id") == _ids(expected, "path_id")
+    assert set(rows["n_joints"]) <= set(wanted)
+    assert list(rows.columns) == ["path_id", "min_transmission_deg", "n_joints"]
+
+
+def test_batches_stream_as_numpy(dataset: str) -> None:
+    """`iter_batches` hands a training loop numpy arrays, a fixed number of paths a batch."""
+    data = links_ray.ray_dataset(dataset, "curated", columns=["path_id", "points"])
+    seen = 0
+    for batch in data.iter_batches(batch_size=64, batch_format="numpy"):
+        points = np.stack(batch["points"]).reshape(len(batch["path_id"]), -1, 2)
+        assert points.shape[1:] == (200, 2) and len(points) <= 64
+        seen += len(points)
+    assert seen == len(links_ray.load(dataset, "curated", columns=["path_id"]))
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        ({"table": "nope"}, "table must be one of"),
+        ({"table": "mechanisms", "columns": ["nope"]}, "has no column nope"),
+        ({"table": "mechanisms", "n_joints": 3}, "no mechanisms rows of [3] joints"),
+        ({"table": "mechanisms", "n_joints": "8"}, "n_joints must be an integer"),
+        ({"table": "mechanisms", "filter": "n_joints > 8"}, "filter must be a pyarrow"),
+    ],
+)
+def test_bad_arguments_are_value_errors(dataset: str, arguments: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        links_ray.ray_dataset(dataset, **arguments)
+
+
+def test_a_root_without_the_table_is_a_value_error(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="has no mechanisms table"):
+        links_ray.ray_dataset(str(tmp_path), "mechanisms")
