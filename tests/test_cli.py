@@ -79,6 +79,11 @@ def test_bad_arguments_fail_with_one_line(tmp_path: Path) -> None:
             f"links {bad[0]}: error: argument --mechanisms: must be a positive integer, "
             f"{what} (see --help)\n"
         )
+    for port in ("70000", "0"):
+        result = links("serve", str(tmp_path), "--port", port)
+        assert result.returncode == 2
+        assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
+        assert result.stderr.startswith("links serve: error: argument --port: must be a ")
     result = links("generate", "--out", "ftp://host/x", "--mechanisms", "5")
     assert result.returncode == 2
     assert result.stderr == (

@@ -230,6 +230,16 @@ def _int_at_least(minimum: int, name: str) -> Callable[[str], int]:
 
 
 _positive_int = _int_at_least(1, "positive")
+
+
+def _port(text: str) -> int:
+    """An argparse type: a TCP port, 1 to 65535."""
+    port = _positive_int(text)
+    if port > 65535:
+        raise argparse.ArgumentTypeError(f"must be a port from 1 to 65535, got {text}")
+    return port
+
+
 _non_negative_int = _int_at_least(0, "non-negative")
 
 
@@ -359,7 +369,7 @@ def build_parser() -> argparse.ArgumentParser:
     serve = commands.add_parser("serve", help="Ray Serve app: the HTTP API and the studio at /")
     serve.add_argument("root", help="dataset root: a folder or s3://...")
     serve.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
-    serve.add_argument("--port", type=_positive_int, default=8000)
+    serve.add_argument("--port", type=_port, default=8000, help="port (default 8000)")
     serve.add_argument(
         "--replicas",
         type=_positive_int,
