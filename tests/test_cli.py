@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import subprocess
 import sys
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -146,3 +148,28 @@ def test_bench_sample_cli_prints_json() -> None:
         seconds = sum(5 / entry["valid_per_second"] for entry in by_size.values())
         throughput = data["samplers"][kind]["valid_per_core_second"]
         assert throughput == pytest.approx(5 * 13 / seconds, rel=1e-12)
+
+
+def _parsers(parser: argparse.ArgumentParser) -> Iterator[argparse.ArgumentParser]:
+    """A parser and every subcommand's, at any depth."""
+    yield parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                yield from _parsers(sub)
+
+
+def test_every_option_says_its_default() -> None:
+    """In `--help`, every option with a default names it (`links serve --help`: port 8000)."""
+    from links_ray.cli.main import build_parser
+
+    silent = []
+    for parser in _parsers(build_parser()):
+        for action in parser._actions:
+            has_default = not any(
+                action.default is nothing for nothing in (None, False, argparse.SUPPRESS)
+            )
+            if action.option_strings and has_default and "default" not in (action.help or ""):
+                silent.append(f"{parser.prog} {action.option_strings[0]}")
+    assert silent == []
+    assert "(default 8000)" in " ".join(links("serve", "--help").stdout.split())

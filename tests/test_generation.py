@@ -26,6 +26,7 @@ import pyarrow.dataset as pads
 import pytest
 
 import links_ray
+from links_ray.cluster import generation
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
 from links_ray.data.commit import committed_shards, marker_file
@@ -122,14 +123,24 @@ def test_same_rows_whatever_the_workers_or_shards(
     assert_same_rows(read_all(out), reference_run["tables"])
 
 
-def test_rerun_keeps_committed_shards(ray_cluster: str, reference_run: dict) -> None:
+def test_rerun_keeps_committed_shards(
+    ray_cluster: str, reference_run: dict, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A finished run asked again changes nothing and starts no Ray: it says so, with the
+    saved summary."""
     store = Store.open(reference_run["out"])
     before = {
         f: store.fs.get_file_info(store.path(f)).mtime for f in store.list_files("mechanisms")
     }
+
+    def no_ray(address: object = None) -> None:
+        raise AssertionError("a finished run started Ray")
+
+    monkeypatch.setattr(generation, "connect", no_ray)
     summary = generate(reference_run["out"], 137, seed=3, progress=False, topologies_per_shard=2)
     after = {f: store.fs.get_file_info(store.path(f)).mtime for f in store.list_files("mechanisms")}
-    assert before == after and summary["complete"]
+    assert before == after and summary["complete"] and summary["nothing_to_do"]
+    assert summary["rows"] == reference_run["summary"]["rows"]
 
 
 def test_another_run_in_the_same_place_is_refused(reference_run: dict) -> None:

@@ -660,7 +660,7 @@ def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
     dataset: str, curated: Any, shards: int | None
 ) -> None:
     """`links serve` starts its own Ray; the replica (the front, with --shards) answers on
-    --port and Ctrl-C stops all."""
+    --port, and Ctrl-C (one index) or SIGTERM (shards) stops all, cleanly."""
     port = bindable_port("127.0.0.1", 0)
     sharding = [] if shards is None else ["--shards", str(shards), "--shard-cpus", "0.5"]
     server = subprocess.Popen(
@@ -692,9 +692,10 @@ def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
         )
         assert taken.returncode == 2
         assert taken.stderr.strip().endswith(f"port {port}: Address already in use")
-        server.send_signal(signal.SIGINT)
-        server.wait(timeout=120)
-        assert server.returncode == 0
+        server.send_signal(signal.SIGINT if shards is None else signal.SIGTERM)
+        rest, _ = server.communicate(timeout=120)
+        assert server.returncode == 0, rest
+        assert "links-ray: shutting down" in rest and "Traceback" not in rest
         assert listening_process(port) == ""
     finally:
         if server.poll() is None:

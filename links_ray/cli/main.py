@@ -12,7 +12,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Sequence
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from links_ray import __version__
 from links_ray.cli import bench
@@ -63,6 +63,12 @@ def _generate(args: argparse.Namespace) -> None:
         min_transmission_deg=args.min_transmission,
         **_tables(args),
     )
+    if summary.get("nothing_to_do"):
+        print(
+            f"links generate: nothing to do: {args.out} holds all {args.mechanisms:,} "
+            "mechanisms of this plan",
+            file=sys.stderr,
+        )
     print(json.dumps(summary, indent=2))
 
 
@@ -255,10 +261,23 @@ def _positive_float(text: str) -> float:
 
 
 class _Parser(argparse.ArgumentParser):
-    """Usage mistakes end as one line (the usage is one `--help` away), exit status 2."""
+    """Usage mistakes end as one line (the usage is one `--help` away), exit status 2; every
+    option's help says its default."""
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+    def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
+        action = super().add_argument(*args, **kwargs)
+        default = action.default
+        if isinstance(default, list | tuple):
+            default = ",".join(map(str, default))
+        # By identity: a default of 0 is worth showing, unlike a flag's False.
+        shown = not any(action.default is nothing for nothing in (None, False, argparse.SUPPRESS))
+        if action.option_strings and shown and "default" not in (action.help or ""):
+            said = f"default {default}"
+            action.help = f"{action.help} ({said})" if action.help else said
+        return action
 
 
 def _add_bench(

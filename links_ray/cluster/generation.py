@@ -78,7 +78,8 @@ def generate(
 
     `tables` are the tables written: `mechanisms` and any of `simulations` and `negatives`
     (names, or one comma-separated string). Resumable: shards committed by an earlier run of
-    the same plan are kept, the rest are made.
+    the same plan are kept, the rest are made; when none is left the saved summary is
+    returned, with `nothing_to_do`, and Ray is not started.
     """
     if workers is not None and (isinstance(workers, bool) or workers < 1):
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
@@ -105,6 +106,10 @@ def generate(
         committed = committed_shards(store, "shards")
         remove_uncommitted(store, "shards", committed)
         todo = deque(shard for shard in plan.shards() if shard.shard_id not in committed)
+        saved = None if todo else store.read_json(f"{META}/summary.json")
+        if saved is not None and saved.get("complete"):
+            # A finished run asked again: its summary, without starting Ray for nothing.
+            return {**saved, "nothing_to_do": True}
 
         connect(address)
         start = time.perf_counter()

@@ -53,6 +53,7 @@ import json
 import logging
 import math
 import os
+import signal
 import socket
 import threading
 import time
@@ -957,6 +958,10 @@ def direct_ingress_env(port: int) -> dict[str, str]:
     }
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def bindable_port(host: str, port: int) -> int:
     """`port` (a free one if 0) if it can be bound on `host`, else ValueError naming why."""
     try:
@@ -1046,6 +1051,8 @@ def run_server(
     print(f"links-ray: serving {root} at http://{shown}:{port}/ (API under /api)", flush=True)
     if not blocking:
         return
+    # A service manager stops with SIGTERM: shut down as on Ctrl-C, not with a stack trace.
+    signal.signal(signal.SIGTERM, _interrupt)
     try:
         while True:
             time.sleep(1.0)
