@@ -11,6 +11,7 @@ import re
 from collections.abc import Iterable
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.dataset as pads
 import ray
 from ray.data.datasource import Partitioning
@@ -33,9 +34,9 @@ def ray_dataset(
     `ray.data.Dataset`, with the partition column `n_joints`.
 
     `n_joints` keeps one joint count or several (only their files are read); `columns` keeps
-    those columns; `filter` is a pyarrow expression on any column, applied as the files are
-    read (`pyarrow.dataset.field("min_transmission_deg") >= 10`). Joins the Ray cluster of
-    `RAY_ADDRESS`, or starts a local Ray, unless one is running.
+    those columns; `filter` is a pyarrow expression on any column read, applied block by block
+    as the files are read (`pyarrow.dataset.field("min_transmission_deg") >= 10`). Joins the
+    Ray cluster of `RAY_ADDRESS`, or starts a local Ray, unless one is running.
     """
     store = root if isinstance(root, Store) else Store.open(root, writable=False)
     dataset = open_table(store, table)
@@ -55,13 +56,19 @@ def ray_dataset(
     if filter is not None and not isinstance(filter, pads.Expression):
         raise ValueError(f"filter must be a pyarrow.dataset expression, got {filter!r}")
     connect()
-    options = {} if filter is None else {"filter": filter}
-    return ray.data.read_parquet(
+    rows = ray.data.read_parquet(
         files,
         filesystem=store.fs,
         columns=columns,
         partitioning=Partitioning(
             "hive", base_dir=store.path(table), field_types={"n_joints": int}
         ),
-        **options,
     )
+    if filter is None:
+        return rows
+    # Ray's read_parquet takes no pyarrow filter: each block is filtered as it is read.
+    return rows.map_batches(_keep, fn_kwargs={"where": filter}, batch_format="pyarrow")
+
+
+def _keep(block: pa.Table, where: pads.Expression) -> pa.Table:
+    return block.filter(where)
