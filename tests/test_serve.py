@@ -53,6 +53,19 @@ def test_health_counts_the_curated_paths(client: Client, curated: Any) -> None:
     assert client.get("/api/health") == (200, {"status": "ok", "paths": len(curated)})
 
 
+def test_openapi_describes_the_routes(client: Client) -> None:
+    status, spec = client.get("/openapi.json")
+    assert status == 200 and spec["info"]["title"] == "links-ray"
+    routes = {(path, method) for path, item in spec["paths"].items() for method in item}
+    assert {
+        ("/api/health", "get"),
+        ("/api/simulate", "post"),
+        ("/api/retrieve", "post"),
+        ("/api/synthesize", "post"),
+        ("/api/analyze", "post"),
+    } <= routes
+
+
 @pytest.mark.parametrize("steps", [None, 50, 1])
 def test_simulate_matches_the_engine(client: Client, steps: int | None) -> None:
     body = FOUR_BAR if steps is None else {**FOUR_BAR, "steps": steps}

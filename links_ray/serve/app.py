@@ -86,6 +86,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from links_ray import __version__
 from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
 from links_ray.data.store import Store
@@ -231,11 +232,14 @@ class InternalErrorGuard:
             await _error(500, "internal error")(scope, receive, send)
 
 
+# `/openapi.json` describes the routes; no interactive docs page, which would load its
+# scripts from a CDN.
 api = FastAPI(
     title="links-ray",
+    version=__version__,
     docs_url=None,
     redoc_url=None,
-    openapi_url=None,
+    openapi_url="/openapi.json",
     default_response_class=JsonResponse,
 )
 api.add_middleware(InternalErrorGuard)
