@@ -236,6 +236,7 @@ def _int_at_least(minimum: int, name: str) -> Callable[[str], int]:
 
 
 _positive_int = _int_at_least(1, "positive")
+_non_negative_int = _int_at_least(0, "non-negative")
 
 
 def _port(text: str) -> int:
@@ -244,9 +245,6 @@ def _port(text: str) -> int:
     if port > 65535:
         raise argparse.ArgumentTypeError(f"must be a port from 1 to 65535, got {text}")
     return port
-
-
-_non_negative_int = _int_at_least(0, "non-negative")
 
 
 def _positive_float(text: str) -> float:
@@ -270,13 +268,14 @@ class _Parser(argparse.ArgumentParser):
     def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
         action = super().add_argument(*args, **kwargs)
         default = action.default
-        if isinstance(default, list | tuple):
-            default = ",".join(map(str, default))
         # By identity: a default of 0 is worth showing, unlike a flag's False.
-        shown = not any(action.default is nothing for nothing in (None, False, argparse.SUPPRESS))
+        shown = not any(default is nothing for nothing in (None, False, argparse.SUPPRESS))
         if action.option_strings and shown and "default" not in (action.help or ""):
-            said = f"default {default}"
-            action.help = f"{action.help} ({said})" if action.help else said
+            if isinstance(default, list | tuple):
+                default = ",".join(map(str, default))
+            action.help = (
+                f"{action.help} (default {default})" if action.help else f"default {default}"
+            )
         return action
 
 

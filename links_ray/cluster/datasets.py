@@ -7,7 +7,6 @@ than memory streams through `iter_batches` or `iter_torch_batches` without panda
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterable
 
 import numpy as np
@@ -17,10 +16,8 @@ import ray
 from ray.data.datasource import Partitioning
 
 from links_ray.cluster.connect import connect
-from links_ray.data.dataset import open_table
+from links_ray.data.dataset import check_columns, joint_count_filter, open_table
 from links_ray.data.store import Store
-
-_JOINTS = re.compile(r"/n_joints=(\d+)/")
 
 
 def ray_dataset(
@@ -40,19 +37,16 @@ def ray_dataset(
     """
     store = root if isinstance(root, Store) else Store.open(root, writable=False)
     dataset = open_table(store, table)
-    files = list(dataset.files)
     if n_joints is not None:
         sizes = [n_joints] if isinstance(n_joints, int | np.integer) else list(n_joints)
         if not all(isinstance(n, int | np.integer) and not isinstance(n, bool) for n in sizes):
             raise ValueError(f"n_joints must be an integer or integers, got {n_joints!r}")
-        wanted = {int(n) for n in sizes}
-        files = [f for f in files if int(_JOINTS.search(f).group(1)) in wanted]
-        if not files:
-            raise ValueError(f"{store.uri} has no {table} rows of {sorted(wanted)} joints")
-    if columns is not None:
-        unknown = sorted(set(columns) - set(dataset.schema.names))
-        if unknown:
-            raise ValueError(f"{table} has no column {', '.join(unknown)}")
+    # Only the files of the joint counts asked for, chosen by the table's own partitioning.
+    files = [f.path for f in dataset.get_fragments(filter=joint_count_filter(n_joints))]
+    if n_joints is not None and not files:
+        wanted = sorted({int(n) for n in sizes})
+        raise ValueError(f"{store.uri} has no {table} rows of {wanted} joints")
+    check_columns(dataset, table, columns)
     if filter is not None and not isinstance(filter, pads.Expression):
         raise ValueError(f"filter must be a pyarrow.dataset expression, got {filter!r}")
     connect()

@@ -64,6 +64,21 @@ def value_set(values: ArrayLike) -> pa.Array:
     return pc.unique(pa.array(values))
 
 
+def joint_count_filter(n_joints: int | Iterable[int] | None) -> pads.Expression | None:
+    """A scan filter keeping one joint count or several (None: every row)."""
+    if n_joints is None:
+        return None
+    sizes = [n_joints] if isinstance(n_joints, int | np.integer) else list(n_joints)
+    return pads.field("n_joints").isin([int(n) for n in sizes])
+
+
+def check_columns(dataset: pads.Dataset, table: str, columns: list[str] | None) -> None:
+    """ValueError naming the `columns` that `table` does not have."""
+    unknown = sorted(set(columns or ()) - set(dataset.schema.names))
+    if unknown:
+        raise ValueError(f"{table} has no column {', '.join(unknown)}")
+
+
 def load(
     root: str | Store,
     table: str,
@@ -82,15 +97,8 @@ def load(
     if reshape and format != "pandas":
         raise ValueError("reshape applies to format='pandas'")
     dataset = open_table(root, table)
-    wanted = None
-    if n_joints is not None:
-        sizes = [n_joints] if isinstance(n_joints, int | np.integer) else list(n_joints)
-        wanted = pads.field("n_joints").isin([int(n) for n in sizes])
-    if columns is not None:
-        unknown = sorted(set(columns) - set(dataset.schema.names))
-        if unknown:
-            raise ValueError(f"{table} has no column {', '.join(unknown)}")
-    rows = dataset.to_table(columns=columns, filter=wanted)
+    check_columns(dataset, table, columns)
+    rows = dataset.to_table(columns=columns, filter=joint_count_filter(n_joints))
     if format == "arrow":
         return rows
     frame = rows.to_pandas()

@@ -27,6 +27,7 @@ without it they wait on memory most of the time.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -289,16 +290,27 @@ def _nearest(query: np.ndarray, x: float, y: float) -> float:
     return math.sqrt(best)
 
 
+@njit(cache=True)
+def _sketch_time(s: int, steps: int) -> int:
+    """The step of a path of `steps` points that time-ordered sketch point s holds."""
+    return int(s * (steps - 1) / (SKETCH_POINTS - 1) + 0.5)
+
+
+@njit(cache=True, inline="always")
+def _slot(s: int) -> int:
+    """Where time-ordered sketch point s is stored: even points first."""
+    return s // 2 + (s % 2) * (SKETCH_POINTS // 2)
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def sketch_paths(points: np.ndarray, out: np.ndarray) -> None:
     """out[p] = the sketch of normalized path p (T, 2): the levels of SKETCH_POINTS points
     evenly spaced in time, even points first, x levels first, then y."""
     count = points.shape[1]
-    half = SKETCH_POINTS // 2
     for p in prange(points.shape[0]):
         for s in range(SKETCH_POINTS):
-            t = int(s * (count - 1) / (SKETCH_POINTS - 1) + 0.5)
-            slot = s // 2 + (s % 2) * half
+            t = _sketch_time(s, count)
+            slot = _slot(s)
             for axis in range(2):
                 level = math.floor(points[p, t, axis] * SKETCH_LEVELS + 0.5)
                 out[p, axis * SKETCH_POINTS + slot] = min(max(level, 0), SKETCH_LEVELS)
@@ -330,18 +342,14 @@ def level_table(query: np.ndarray, owners: np.ndarray, out: np.ndarray) -> None:
             out[i, j] = _owned_distance(query, owners, i / SKETCH_LEVELS, j / SKETCH_LEVELS)
 
 
+@functools.cache
 def sketch_midpoints(steps: int) -> np.ndarray:
     """The time-ordered sketch points s (int32) of a path of `steps` points that are more than
     one step before the next (s + 1): a midpoint between them stands in for what the sketch
-    left out (`sketch_chamfer`). At 200 steps, 72 of the 127 gaps."""
-    times = np.floor(np.arange(SKETCH_POINTS) * (steps - 1) / (SKETCH_POINTS - 1) + 0.5)
+    left out (`sketch_chamfer`). At 200 steps, 72 of the 127 gaps. Made once per `steps` and
+    shared: not to be written to."""
+    times = np.array([_sketch_time(s, steps) for s in range(SKETCH_POINTS)])
     return np.flatnonzero(np.diff(times) >= 2).astype(np.int32)
-
-
-@njit(cache=True, inline="always")
-def _slot(s: int) -> int:
-    """Where time-ordered sketch point s is stored: even points first."""
-    return s // 2 + (s % 2) * (SKETCH_POINTS // 2)
 
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)

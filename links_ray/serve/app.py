@@ -962,10 +962,6 @@ def direct_ingress_env(port: int) -> dict[str, str]:
     }
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 def bindable_port(host: str, port: int) -> int:
     """`port` (a free one if 0) if it can be bound on `host`, else ValueError naming why."""
     try:
@@ -1056,7 +1052,7 @@ def run_server(
     if not blocking:
         return
     # A service manager stops with SIGTERM: shut down as on Ctrl-C, not with a stack trace.
-    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
     try:
         while True:
             time.sleep(1.0)
