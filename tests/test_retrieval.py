@@ -25,6 +25,7 @@ from links_ray.search.index import (
     _about_least,
     _nearest_centroid,
     cache_folder,
+    distance_fields,
     distance_table,
     query_variants,
     sketch_paths,
@@ -85,10 +86,10 @@ def test_paths_traced_again_are_the_stored_points_bit_for_bit(index: RetrievalIn
 
 
 def test_memory_per_path_is_small(index: RetrievalIndex) -> None:
-    """Codes, sketch, bias and mechanism row per path, and the packed mechanisms: no points
-    (1,600 bytes a path) in memory."""
-    basis = sum(a.nbytes for a in (index.basis.mean, index.basis.components, index.basis.scale))
-    assert (index.nbytes - basis) / len(index) < 600  # the basis is the same at any size
+    """Sketch and mechanism row per path, and the packed mechanisms: no points (1,600 bytes a
+    path) in memory."""
+    basis = index.basis.mean.nbytes + index.basis.components.nbytes
+    assert (index.nbytes - basis) / len(index) < 450  # the basis is the same at any size
     assert not any(
         getattr(array, "nbytes", 0) >= 1600 * len(index) for array in vars(index).values()
     )
@@ -293,11 +294,12 @@ def test_coarse_lists_group_rows_and_probing_finds_the_near_ones(
     assert sorted(lists.file_row.tolist()) == list(range(len(index)))
     sizes = np.diff(lists.list_start)
     assert lists.list_start[0] == 0 and lists.list_start[-1] == len(index) and sizes.min() >= 0
-    codes = lists.basis.field_codes(lists.head, lists.tail)
-    np.testing.assert_array_equal(
-        _nearest_centroid(codes, lists.centroids), np.repeat(np.arange(count), sizes)
-    )
     stored = stored_points(index)
+    fields = distance_fields(stored_points(lists), search_index.FIELD_STRIDE)
+    np.testing.assert_array_equal(
+        _nearest_centroid(lists.basis.field_codes(fields), lists.centroids),
+        np.repeat(np.arange(count), sizes),
+    )
     np.testing.assert_array_equal(lists.paths(np.arange(len(lists))), stored_points(lists))
     # Every list scanned: the same answers as the index of one list.
     for query in queries():
@@ -312,7 +314,7 @@ def test_coarse_lists_group_rows_and_probing_finds_the_near_ones(
         angle = rng.uniform(0, 2 * np.pi)
         turn = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
         query = stored[row].astype(float) @ turn.T * 3.0 - [1, 2]
-        field_codes = lists.basis.query(query_variants(normalization(query)[0]))[2]
+        field_codes = lists.basis.query(query_variants(normalization(query)[0]))
         starts, ends, _ = lists.probe(field_codes, len(index) // 4)
         assert len(index) // 4 <= (ends - starts).sum() < len(index) // 2
         best = lists.ranked(normalization(query)[0], k=1, candidates=len(index) // 20)[0]
@@ -324,7 +326,7 @@ def test_coarse_lists_group_rows_and_probing_finds_the_near_ones(
 def test_saved_index_is_reused(index: RetrievalIndex) -> None:
     assert Store.open(index.store.uri).read_json(f"{cache_folder(0, 1)}/current.json")
     again = RetrievalIndex.open(index.store.uri)
-    for name in ("head", "tail", "bias", "sketches", "mechanism_row", "joint"):
+    for name in search_index.ROW_ARRAYS:
         np.testing.assert_array_equal(getattr(again, name), getattr(index, name))
     for name, array in index.bank.arrays().items():
         np.testing.assert_array_equal(getattr(again.bank, name), array)
@@ -380,39 +382,42 @@ def test_offline_cli(index: RetrievalIndex, tmp_path: Path) -> None:
     assert result.stderr == "links retrieve: error: points must hold 3 to 10000 pairs, got 2\n"
 
 
-def test_scan_scores_and_selection_match_numpy() -> None:
+def test_sketch_scan_is_the_mean_distance_of_its_points_in_the_best_variants() -> None:
+    """The scan's score is the least over the variants of the mean of the level table at the
+    chosen sketch points, the variant flipped as `variant_map` flips it; with the second
+    variant passed on exactly when within the margin."""
     rng = np.random.default_rng(2)
-    head = rng.integers(-127, 128, (5000, 8), dtype=np.int8)
-    tail = rng.integers(-127, 128, (5000, 12), dtype=np.int8)
-    head_weights = rng.normal(size=(4, 8)).astype(np.float32)
-    tail_weights = rng.normal(size=(4, 12)).astype(np.float32)
-    offsets = rng.normal(size=4).astype(np.float32)
-    bias = rng.normal(size=5000).astype(np.float32)
-
-    expected = bias + (head @ head_weights.T.astype(np.float64) + offsets).min(axis=1)
+    query = smooth_paths(rng, 1)[0].astype(np.float64)
+    _, owners = distance_table(query)
+    levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
+    kernels.level_table(query, owners, levels)
+    sketches = sketch_paths(smooth_paths(rng, 5000))
+    slots = kernels.scan_slots(16)
     # Two row ranges of uneven length, cut into pieces: scores packed in range order.
     starts, ends = np.array([3000, 100]), np.array([5000, 1337])
     pieces = kernels.scan_pieces(starts, ends, piece=300)
     assert (pieces[1] - pieces[0]).max() == 300
-    packed = np.empty(2000 + 1237, dtype=np.float32)
-    kernels.scan(head, *pieces, head_weights, offsets, bias, packed)
+    scores = np.empty(2000 + 1237, dtype=np.float32)
+    likely = np.empty(len(scores), dtype=np.int8)
+    margin = 0.01
+    kernels.sketch_scan(sketches, *pieces, levels, slots, margin, scores, likely)
     rows = np.r_[3000:5000, 100:1337]
-    np.testing.assert_allclose(packed, expected[rows], rtol=1e-5, atol=1e-2)
-
-    rows = np.arange(0, 5000, 3)
-    scores = np.empty(len(rows), dtype=np.float32)
-    likely = np.empty(len(rows), dtype=np.int8)
-    margin = 20.0
-    kernels.score_rows(
-        head, tail, rows, head_weights, tail_weights, offsets, bias, margin, scores, likely
-    )
-    whole = head[rows] @ head_weights.T.astype(np.float64) + tail[rows] @ tail_weights.T + offsets
-    np.testing.assert_allclose(scores, bias[rows] + whole.min(axis=1), rtol=1e-5, atol=1e-2)
-    order = np.argsort(whole, axis=1)
-    ranked = np.sort(whole, axis=1)
+    # In numpy: each slot's point, in each variant, looked up at its own level coordinates.
+    xs = sketches[rows][:, slots].astype(np.float64) / kernels.SKETCH_LEVELS
+    ys = sketches[rows][:, kernels.SKETCH_POINTS + slots].astype(np.float64)
+    ys /= kernels.SKETCH_LEVELS
+    means = np.empty((len(rows), 4))
+    for variant in range(4):
+        matrix, offset = variant_map(variant)
+        x = np.rint((matrix[0, 0] * xs + offset[0]) * kernels.SKETCH_LEVELS).astype(int)
+        y = np.rint((matrix[1, 1] * ys + offset[1]) * kernels.SKETCH_LEVELS).astype(int)
+        means[:, variant] = levels[x, y].mean(axis=1)
+    np.testing.assert_allclose(scores, means.min(axis=1), rtol=1e-5)
+    order = np.argsort(means, axis=1)
+    ranked = np.sort(means, axis=1)
     gap = ranked[:, 1] - ranked[:, 0]
     # Rows whose order float32 sums cannot flip.
-    clear = (gap > 0.01) & (np.abs(gap - margin) > 0.01) & (ranked[:, 2] - ranked[:, 1] > 0.01)
+    clear = (gap > 1e-5) & (np.abs(gap - margin) > 1e-5) & (ranked[:, 2] - ranked[:, 1] > 1e-5)
     first, second = likely // 4, likely % 4
     assert clear.sum() > 1000
     assert (first[clear] == order[clear, 0]).all()
@@ -420,6 +425,10 @@ def test_scan_scores_and_selection_match_numpy() -> None:
     assert (second[clear & near] == order[clear & near, 1]).all()
     assert (second[clear & ~near] == first[clear & ~near]).all()
     assert 0 < (clear & near).sum() < clear.sum()  # both cases occur
+    # Every eighth point in time: the even ones, stored first.
+    np.testing.assert_array_equal(slots, np.arange(0, 64, 4))
+    with pytest.raises(ValueError, match="scan points must divide 64"):
+        kernels.scan_slots(3)
 
 
 def test_selection_keeps_about_the_least_values() -> None:

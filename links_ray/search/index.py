@@ -4,16 +4,13 @@ trace them where the curve was drawn (the paper's case study, as an index).
 The distance is the bidirectional chamfer distance between normalized paths, least over the
 query's four variants (as drawn, turned 180 degrees, mirrored, both). Search has three stages:
 
-1. Scan. Chamfer's two halves are, on a grid, dot products: the query's point mass against a
-   path's distance field, and the path's point mass against the query's distance field. With
-   the fields reduced by PCA to `DIMENSIONS` per half (and int8 codes), every path gets a
-   linear estimate of its chamfer distance to each variant. Rows are grouped in coarse lists
-   by their field codes (k-means); a query scans the lists nearest its own field codes until
-   they hold `PROBED_ROWS` rows (all of them, up to that size). One pass over the leading
-   `HEAD_COMPONENTS` of the scanned codes keeps `HEAD_KEEP` times as many rows as there are
-   candidates; their whole codes keep the candidates (`CANDIDATE_SHARE` of the rows scanned, at
-   least `MIN_CANDIDATES`), each with its likeliest variant (and the second, if within
-   `VARIANT_MARGIN`).
+1. Scan. Rows are grouped in coarse lists by k-means on their paths' distance fields (on a
+   grid, reduced by PCA to `DIMENSIONS` components); a query scans the lists nearest its own
+   variants' fields until they hold `PROBED_ROWS` rows (all of them, up to that size). Each
+   scanned path's `SCAN_POINTS` sketch points are looked up in the query's table of distances
+   (`search_kernels.sketch_scan`): their mean is the path-to-query half of the chamfer
+   distance, sampled, in each variant. The least pass on as candidates (`stage_sizes`), each
+   with its likeliest variant (and the second, if within `VARIANT_MARGIN`).
 2. Estimate. Each candidate pair gets nearest-point distances from a sample of query points,
    plus the path's distance to the query from the query's table of nearest points. Roughly
    for all, from the first half of the paths' 256-byte sketches, then from the whole sketch
@@ -23,8 +20,8 @@ query's four variants (as drawn, turned 180 degrees, mirrored, both). Search has
    their likeliest variant, and in each other one whose lower bound could beat both that and
    the k-th best.
 
-In memory an index holds, per path, its code, sketch and bias and the row of its mechanism
-(about 400 bytes), and the packed mechanisms (about 90 bytes a path): no path's points.
+In memory an index holds, per path, its sketch and the row of its mechanism (about 270
+bytes), and the packed mechanisms (about 90 bytes a path): no path's points.
 `brute_force` is exact over every path, streaming the curated points from Parquet: a lower
 bound prunes the paths that cannot beat the k-th best, and the rest get the exact distance.
 
@@ -64,18 +61,17 @@ from links_ray.engine.solver import simulate
 from links_ray.search import kernels
 from links_ray.search.mechanisms import MechanismBank
 
-#: PCA components of the distance fields; a path's code holds two sets (2 * DIMENSIONS int8).
+#: PCA components of the distance fields that place paths and queries in coarse lists.
 DIMENSIONS = 64
 #: Paths passed from the scan to the estimate: this share of the index's paths, and at least
 #: MIN_CANDIDATES (every path, in every variant, when there are no more than that); past
 #: GROWTH_ROWS paths, see `stage_sizes`.
 CANDIDATE_SHARE, MIN_CANDIDATES = 0.025, 3_000
-#: Components per half in the head of a code; the head scan keeps HEAD_KEEP times as many rows
-#: as there are candidates, for the whole codes to rank.
-HEAD_COMPONENTS, HEAD_KEEP = 24, 4
-HEAD_COLUMNS = np.r_[0:HEAD_COMPONENTS, DIMENSIONS : DIMENSIONS + HEAD_COMPONENTS]
-TAIL_COLUMNS = np.r_[HEAD_COMPONENTS:DIMENSIONS, DIMENSIONS + HEAD_COMPONENTS : 2 * DIMENSIONS]
-#: A candidate's second likeliest variant is estimated too when its linear estimate is within
+#: Sketch points the scan reads of each path (evenly spaced in time, all in the sketch's
+#: leading half: one cache line per coordinate).
+SCAN_POINTS = 16
+SCAN_SLOTS = kernels.scan_slots(SCAN_POINTS)
+#: A candidate's second likeliest variant is estimated too when its scan score is within
 #: this of the likeliest.
 VARIANT_MARGIN = 0.002
 #: Candidate pairs estimated from their whole sketches, and the query points that estimate
@@ -92,21 +88,19 @@ FINALISTS = 128
 GROWTH_ROWS, GROWTH_POWER = 1_000_000, 0.5
 #: Every second point of a stored path makes its distance field.
 FIELD_STRIDE = 2
-#: Distance fields used to fit the PCA basis, and rows read and featurized per block.
-PCA_SAMPLE, BUILD_BLOCK = 50_000, 50_000
-#: The int8 scale of the codes leaves this much room above the largest value of the sample
-#: the basis is fitted on (values beyond it are clipped).
-SCALE_ROOM = 1.25
+#: Paths whose distance fields fit the PCA basis and the coarse lists' centroids, and rows
+#: read and featurized per block.
+SAMPLE, BUILD_BLOCK = 100_000, 50_000
 INDEX_FOLDER = f"{META}/index"
 #: How far a lower bound may exceed the exact distance it bounds by rounding (they are
 #: computed differently).
 ROUNDING = 1e-9
-INDEX_FORMAT = 6  # 6: each path's least transmission angle
+INDEX_FORMAT = 7  # 7: no codes; the scan reads sketches
 #: The coarse partition (an inverted file): about this many rows per list (at most
-#: MAX_LISTS lists), fitted by KMEANS_ROUNDS rounds of k-means on KMEANS_SAMPLE rows' field
-#: codes. A query scans the lists nearest it until they hold PROBED_ROWS rows (every list of
-#: an index no larger), so a scan costs the same at 10 million paths as at 1 million.
-ROWS_PER_LIST, MAX_LISTS, KMEANS_ROUNDS, KMEANS_SAMPLE = 10_000, 4_096, 8, 100_000
+#: MAX_LISTS lists), fitted by KMEANS_ROUNDS rounds of k-means on the field codes of the
+#: SAMPLE paths. A query scans the lists nearest it until they hold PROBED_ROWS rows (every
+#: list of an index no larger), so a scan costs the same at 10 million paths as at 1 million.
+ROWS_PER_LIST, MAX_LISTS, KMEANS_ROUNDS = 10_000, 4_096, 8
 PROBED_ROWS = 250_000
 #: Exact brute force: queries bounded together in one pass over the points, the nodes a
 #: side of their distance tables (a finer grid than the search's: tighter bounds), and how
@@ -131,14 +125,12 @@ def variant_map(variant: int) -> tuple[np.ndarray, np.ndarray]:
     return matrix, np.array([1.0 if flip_x else 0.0, 1.0 if flip_y else 0.0])
 
 
-def path_features(paths: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Distance fields and point masses (P, GRID * GRID) float32 of normalized paths (P, T, 2)."""
-    cells = kernels.GRID * kernels.GRID
-    fields = np.empty((len(paths), cells), dtype=np.float32)
-    mass = np.empty((len(paths), cells), dtype=np.float32)
-    compute = kernels.path_features if len(paths) > 4 else kernels.path_features_serial
-    compute(np.ascontiguousarray(paths), stride, fields, mass)
-    return fields, mass
+def distance_fields(paths: np.ndarray, stride: int = 1) -> np.ndarray:
+    """Distance fields (P, GRID * GRID) float32 of normalized paths (P, T, 2)."""
+    fields = np.empty((len(paths), kernels.GRID * kernels.GRID), dtype=np.float32)
+    compute = kernels.distance_fields if len(paths) > 4 else kernels.distance_fields_serial
+    compute(np.ascontiguousarray(paths), stride, fields)
+    return fields
 
 
 def distance_table(normalized: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -157,48 +149,25 @@ def query_variants(normalized: np.ndarray) -> np.ndarray:
 
 @dataclass
 class Basis:
-    """The PCA basis of distance fields, and the int8 scale of the codes."""
+    """The PCA basis of distance fields: what places paths and queries in coarse lists."""
 
     mean: np.ndarray  # (GRID * GRID,) float32
     components: np.ndarray  # (GRID * GRID, DIMENSIONS) float32
-    scale: np.ndarray  # (2 * DIMENSIONS,) float32
 
     @classmethod
     def fit(cls, fields: np.ndarray) -> Basis:
         mean = fields.mean(axis=0)
         _, _, vt = np.linalg.svd(fields - mean, full_matrices=False)
         components = np.ascontiguousarray(vt[:DIMENSIONS].T, dtype=np.float32)
-        return cls(mean.astype(np.float32), components, np.ones(2 * DIMENSIONS, np.float32))
+        return cls(mean.astype(np.float32), components)
 
-    def project(self, fields: np.ndarray, mass: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Unquantized codes (P, 2 * DIMENSIONS) and biases (P,) of paths.
+    def field_codes(self, fields: np.ndarray) -> np.ndarray:
+        """(P, DIMENSIONS) float32: distance fields in the basis."""
+        return ((fields - self.mean) @ self.components).astype(np.float32)
 
-        The bias subtracts what the estimate gives a path against itself (its mass against
-        its own field, which the grid makes positive), so that near matches are not ranked by
-        how well their own curve happens to sit on the grid.
-        """
-        codes = np.concatenate(
-            [(fields - self.mean) @ self.components, mass @ self.components], axis=1
-        )
-        return codes, mass @ self.mean - (fields * mass).sum(axis=1)
-
-    def query(self, variants: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Scan weights (4, 2 * DIMENSIONS) against int8 codes, and offsets (4,), of the
-        query's variants: code . weight + offset + bias estimates the chamfer distance; and
-        the variants' own field codes (4, DIMENSIONS), unquantized, to find the lists near."""
-        fields, mass = path_features(variants)
-        field_codes = (fields - self.mean) @ self.components
-        weights = np.concatenate([mass @ self.components, field_codes], axis=1)
-        return (
-            (weights * self.scale).astype(np.float32),
-            (mass @ self.mean).astype(np.float32),
-            field_codes.astype(np.float32),
-        )
-
-    def field_codes(self, head: np.ndarray, tail: np.ndarray) -> np.ndarray:
-        """The field half of int8 codes split as `head` and `tail`, unquantized (R, DIMENSIONS)."""
-        halves = (head[:, :HEAD_COMPONENTS], tail[:, : DIMENSIONS - HEAD_COMPONENTS])
-        return np.concatenate(halves, axis=1).astype(np.float32) * self.scale[:DIMENSIONS]
+    def query(self, variants: np.ndarray) -> np.ndarray:
+        """(4, DIMENSIONS): the field codes of a query's four variants."""
+        return self.field_codes(distance_fields(variants))
 
 
 def stage_sizes(paths: int) -> tuple[int, int, int]:
@@ -241,11 +210,6 @@ class RetrievalIndex:
     steps: int  # points per path
     mechanism_row: np.ndarray  # (N,) int32: each path's mechanism, a row of `bank`
     joint: np.ndarray  # (N,) int8
-    # Each path's int8 code, split in two: the leading HEAD_COMPONENTS of each half, scanned
-    # for every query, and the rest, read only for the rows the head ranks best.
-    head: np.ndarray  # (N, 2 * HEAD_COMPONENTS) int8
-    tail: np.ndarray  # (N, 2 * (DIMENSIONS - HEAD_COMPONENTS)) int8
-    bias: np.ndarray  # (N,) float32
     sketches: np.ndarray  # (N, 2 * SKETCH_POINTS) uint8, see `search_kernels`
     transmission: np.ndarray  # (N,) float32: min_transmission_deg (NaN where not stored)
     # Rows are grouped by coarse list: list l is rows list_start[l]:list_start[l + 1], its
@@ -260,6 +224,7 @@ class RetrievalIndex:
     build_s: float = 0.0
     fingerprint: str = ""  # of the curated shards indexed (changes when any is redone)
     _scores: np.ndarray | None = field(default=None, repr=False)  # the scan's, reused
+    _likely: np.ndarray | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.joint)
@@ -272,8 +237,9 @@ class RetrievalIndex:
             self.list_start,
             self.centroids,
         )
-        basis = self.basis.mean.nbytes + self.basis.components.nbytes + self.basis.scale.nbytes
-        return sum(a.nbytes for a in arrays) + basis + self.bank.nbytes + 4 * len(self)
+        basis = self.basis.mean.nbytes + self.basis.components.nbytes
+        # The scan's scores (float32) and likely variants (int8), kept between queries.
+        return sum(a.nbytes for a in arrays) + basis + self.bank.nbytes + 5 * len(self)
 
     @property
     def mechanism_id(self) -> np.ndarray:
@@ -370,17 +336,16 @@ class RetrievalIndex:
 
     def candidates(
         self,
-        weights: np.ndarray,
-        offsets: np.ndarray,
+        levels: np.ndarray,
         count: int,
         pieces: tuple[np.ndarray, ...],
         min_transmission: float = 0.0,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """About `count` rows of the scanned `pieces` (`probe`) whose estimate, at their best
-        variant, is least (every row when `count` reaches the total), for the query weights
-        and offsets of `Basis.query`; and for each, 4 * its likeliest variant + the second
-        likeliest if nearly as likely (`score_rows`), or -1 when every row is returned. Only
-        rows whose path keeps `min_transmission` degrees (when above 0) are passed on."""
+        """About `count` rows of the scanned `pieces` (`probe`) whose scan score (at their best
+        variant) against the query's `levels` table is least (every row when `count` reaches
+        the total); and for each, 4 * its likeliest variant + the second likeliest if nearly as
+        likely (`search_kernels.sketch_scan`), or -1 when every row is returned. Only rows
+        whose path keeps `min_transmission` degrees (when above 0) are passed on."""
         if count >= len(self):
             rows = np.arange(len(self))
             if min_transmission > 0:
@@ -390,34 +355,20 @@ class RetrievalIndex:
         scanned = int(at[-1] + ends[-1] - starts[-1])
         if self._scores is None:
             self._scores = np.empty(len(self), dtype=np.float32)
-        head_weights = np.ascontiguousarray(weights[:, HEAD_COLUMNS])
-        scores = self._scores[:scanned]
-        kernels.scan(self.head, starts, ends, at, head_weights, offsets, self.bias, scores)
+            self._likely = np.empty(len(self), dtype=np.int8)
+        scores, likely = self._scores[:scanned], self._likely[:scanned]
+        kernels.sketch_scan(
+            self.sketches, starts, ends, at, levels, SCAN_SLOTS, VARIANT_MARGIN, scores, likely
+        )
         if min_transmission > 0:
             angles = np.concatenate(
                 [self.transmission[s:e] for s, e in zip(starts, ends, strict=True)]
             )
             scores[~(angles >= min_transmission)] = np.inf
-        positions = _about_least(scores, HEAD_KEEP * count)
+        positions = _about_least(scores, count)
         positions = positions[np.isfinite(scores[positions])]
         piece = np.searchsorted(at, positions, side="right") - 1
-        wide = starts[piece] + positions - at[piece]
-        scores = np.empty(len(wide), dtype=np.float32)
-        likely = np.empty(len(wide), dtype=np.int8)
-        kernels.score_rows(
-            self.head,
-            self.tail,
-            wide,
-            head_weights,
-            np.ascontiguousarray(weights[:, TAIL_COLUMNS]),
-            offsets,
-            self.bias,
-            VARIANT_MARGIN,
-            scores,
-            likely,
-        )
-        best = _about_least(scores, count)
-        return wide[best], likely[best]
+        return starts[piece] + positions - at[piece], likely[positions]
 
     def ranked(
         self,
@@ -433,9 +384,11 @@ class RetrievalIndex:
         default_candidates, refined, finalists = stage_sizes(len(self))
         count = candidates or default_candidates
         variants = query_variants(normalized)
-        weights, offsets, field_codes = self.basis.query(variants)
-        pieces = self.probe(field_codes, probed)
-        rows, likely = self.candidates(weights, offsets, count, pieces, min_transmission)
+        pieces = self.probe(self.basis.query(variants), probed)
+        table, owners = distance_table(normalized)
+        levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
+        kernels.level_table(normalized, owners, levels)
+        rows, likely = self.candidates(levels, count, pieces, min_transmission)
         if len(rows) == 0:
             return []
         # Each candidate with its likely variants (every variant on the exhaustive path).
@@ -446,9 +399,6 @@ class RetrievalIndex:
             both = second != first
             pair_rows = np.concatenate([rows, rows[both]])
             pair_variants = np.concatenate([first, second[both]]).astype(np.int64)
-        table, owners = distance_table(normalized)
-        levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
-        kernels.level_table(normalized, owners, levels)
         if len(pair_rows) > refined:  # a rough estimate of every pair first
             rough = self._estimate(
                 normalized, levels, pair_rows, pair_variants, kernels.ROUGH_SAMPLE, rough=True
@@ -692,17 +642,15 @@ def _batch_points(batch: pa.RecordBatch) -> np.ndarray:
 
 
 def _build(store: Store, files: list[str], rows: int) -> dict:
-    """Codes, biases, sketches and mechanisms of the paths in `files` (`rows` of them),
+    """Sketches, coarse lists and mechanisms of the paths in `files` (`rows` of them),
     streamed block by block."""
-    sample = _pca_sample(store, files, rows)
+    sample = _sample_paths(store, files, rows)
     steps = sample.shape[1]
-    fields, mass = path_features(sample, FIELD_STRIDE)
+    fields = distance_fields(sample, FIELD_STRIDE)
     basis = Basis.fit(fields)
-    raw, _ = basis.project(fields, mass)
-    basis.scale = np.maximum(np.abs(raw).max(axis=0) * SCALE_ROOM, 1e-12).astype(np.float32) / 127
-    head = np.empty((rows, len(HEAD_COLUMNS)), dtype=np.int8)
-    tail = np.empty((rows, len(TAIL_COLUMNS)), dtype=np.int8)
-    bias = np.empty(rows, dtype=np.float32)
+    centroids = _centroids(basis.field_codes(fields), min(MAX_LISTS, max(1, rows // ROWS_PER_LIST)))
+    del sample, fields
+    lists = np.zeros(rows, dtype=np.int32)
     sketches = np.empty((rows, 2 * kernels.SKETCH_POINTS), dtype=np.uint8)
     mechanism_id = np.empty(rows, dtype=np.int64)
     joint = np.empty(rows, dtype=np.int8)
@@ -718,10 +666,9 @@ def _build(store: Store, files: list[str], rows: int) -> dict:
         points = _batch_points(batch)
         if points.shape[1] != steps:
             raise ValueError(f"{store.uri}: curated paths of {points.shape[1]} and {steps} points")
-        codes, bias[start:end] = basis.project(*path_features(points, FIELD_STRIDE))
-        codes = np.clip(np.rint(codes / basis.scale), -127, 127).astype(np.int8)
-        head[start:end] = codes[:, HEAD_COLUMNS]
-        tail[start:end] = codes[:, TAIL_COLUMNS]
+        if len(centroids) > 1:
+            codes = basis.field_codes(distance_fields(points, FIELD_STRIDE))
+            lists[start:end] = _nearest_centroid(codes, centroids)
         kernels.sketch_paths(points, sketches[start:end])
         mechanism_id[start:end] = batch.column("mechanism_id").to_numpy()
         joint[start:end] = batch.column("joint").to_numpy()
@@ -734,13 +681,9 @@ def _build(store: Store, files: list[str], rows: int) -> dict:
     by_row = {
         "mechanism_row": bank.rows_of(mechanism_id),
         "joint": joint,
-        "head": head,
-        "tail": tail,
-        "bias": bias,
         "sketches": sketches,
         "transmission": transmission,
     }
-    lists, centroids = _coarse_lists(basis, head, tail)
     file_row = np.argsort(lists, kind="stable").astype(np.int32 if rows < 2**31 else np.int64)
     list_start = np.searchsorted(lists[file_row], np.arange(len(centroids) + 1)).astype(np.int64)
     if len(centroids) > 1:  # rows grouped by list: a list is scanned in one sweep
@@ -756,28 +699,20 @@ def _build(store: Store, files: list[str], rows: int) -> dict:
     }
 
 
-def _coarse_lists(basis: Basis, head: np.ndarray, tail: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Each row's coarse list (N,) and the lists' centroids (L, DIMENSIONS): k-means on the
-    field codes of a sample, every row then in the list of its nearest centroid."""
-    rows = len(head)
-    count = min(MAX_LISTS, max(1, rows // ROWS_PER_LIST))
+def _centroids(codes: np.ndarray, count: int) -> np.ndarray:
+    """`count` centroids (count, DIMENSIONS) of the field codes of a sample of paths, by
+    KMEANS_ROUNDS rounds of k-means (one centroid at zero when count is 1)."""
     if count == 1:
-        return np.zeros(rows, dtype=np.int32), np.zeros((1, DIMENSIONS), dtype=np.float32)
+        return np.zeros((1, DIMENSIONS), dtype=np.float32)
     rng = np.random.default_rng(0)
-    sample = np.sort(rng.permutation(rows)[: max(KMEANS_SAMPLE, 20 * count)])
-    points = basis.field_codes(head[sample], tail[sample])
-    centroids = points[rng.permutation(len(points))[:count]]
+    centroids = codes[rng.permutation(len(codes))[:count]]
     for _ in range(KMEANS_ROUNDS):
-        nearest = _nearest_centroid(points, centroids)
+        nearest = _nearest_centroid(codes, centroids)
         sizes = np.bincount(nearest, minlength=count)
         for d in range(centroids.shape[1]):
-            sums = np.bincount(nearest, weights=points[:, d], minlength=count)
+            sums = np.bincount(nearest, weights=codes[:, d], minlength=count)
             centroids[:, d] = np.where(sizes > 0, sums / np.maximum(sizes, 1), centroids[:, d])
-    lists = np.empty(rows, dtype=np.int32)
-    for start in range(0, rows, 10 * BUILD_BLOCK):
-        block = slice(start, start + 10 * BUILD_BLOCK)
-        lists[block] = _nearest_centroid(basis.field_codes(head[block], tail[block]), centroids)
-    return lists, centroids
+    return centroids
 
 
 def _nearest_centroid(points: np.ndarray, centroids: np.ndarray) -> np.ndarray:
@@ -786,15 +721,15 @@ def _nearest_centroid(points: np.ndarray, centroids: np.ndarray) -> np.ndarray:
     return gaps.argmin(axis=1).astype(np.int32)
 
 
-def _pca_sample(store: Store, files: list[str], rows: int) -> np.ndarray:
-    """Up to PCA_SAMPLE paths drawn from files spread evenly over `files` (twice as many
-    paths as it needs, when the files hold them), as (P, steps, 2) float32."""
-    share = min(1.0, 2 * PCA_SAMPLE / max(rows, 1))
+def _sample_paths(store: Store, files: list[str], rows: int) -> np.ndarray:
+    """Up to SAMPLE paths drawn from files spread evenly over `files` (twice as many paths as
+    it needs, when the files hold them), as (P, steps, 2) float32."""
+    share = min(1.0, 2 * SAMPLE / max(rows, 1))
     chosen = files[:: max(1, round(1 / share))] if share < 1 else files
     points = np.concatenate(
         [_batch_points(b) for b in _curated_batches(store, chosen, ["points"], BUILD_BLOCK)]
     )
-    picked = np.random.default_rng(0).permutation(len(points))[:PCA_SAMPLE]
+    picked = np.random.default_rng(0).permutation(len(points))[:SAMPLE]
     return points[np.sort(picked)]
 
 
@@ -802,20 +737,17 @@ def _pca_sample(store: Store, files: list[str], rows: int) -> np.ndarray:
 ROW_ARRAYS = (
     "mechanism_row",
     "joint",
-    "head",
-    "tail",
-    "bias",
     "sketches",
     "transmission",
     "file_row",
 )
 SAVED_ARRAYS = (*ROW_ARRAYS, "list_start", "centroids")
-BASIS_ARRAYS = ("mean", "components", "scale")
+BASIS_ARRAYS = ("mean", "components")
 #: What a saved index was built with: one built otherwise is rebuilt.
 BUILD_SETTINGS = {
     "dimensions": DIMENSIONS,
-    "head_components": HEAD_COMPONENTS,
     "sketch_points": kernels.SKETCH_POINTS,
+    "sample": SAMPLE,
     "rows_per_list": ROWS_PER_LIST,
     "max_lists": MAX_LISTS,
 }

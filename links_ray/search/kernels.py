@@ -90,9 +90,8 @@ def _flip(x: float, y: float, variant: int) -> tuple[float, float]:
     return x, y
 
 
-def _path_features(paths: np.ndarray, stride: int, fields: np.ndarray, mass: np.ndarray) -> None:
-    """Per path: its distance field at the GRID x GRID nodes (using every `stride`-th point),
-    and its point mass spread bilinearly over the same nodes (summing to one)."""
+def _distance_fields(paths: np.ndarray, stride: int, fields: np.ndarray) -> None:
+    """Per path: its distance field at the GRID x GRID nodes (using every `stride`-th point)."""
     step = 1.0 / (GRID - 1)
     count = paths.shape[1]
     for p in prange(paths.shape[0]):
@@ -104,24 +103,11 @@ def _path_features(paths: np.ndarray, stride: int, fields: np.ndarray, mass: np.
                     dy = paths[p, t, 1] - b * step
                     best = min(best, dx * dx + dy * dy)
                 fields[p, a * GRID + b] = math.sqrt(best)
-        mass[p, :] = 0.0
-        for t in range(count):
-            # Clamped into the grid: a normalized path lies in [0, 1]^2 up to rounding.
-            x = min(max(paths[p, t, 0] / step, 0.0), GRID - 1.000001)
-            y = min(max(paths[p, t, 1] / step, 0.0), GRID - 1.000001)
-            i = int(x)
-            j = int(y)
-            fx = x - i
-            fy = y - j
-            mass[p, i * GRID + j] += (1 - fx) * (1 - fy) / count
-            mass[p, (i + 1) * GRID + j] += fx * (1 - fy) / count
-            mass[p, i * GRID + j + 1] += (1 - fx) * fy / count
-            mass[p, (i + 1) * GRID + j + 1] += fx * fy / count
 
 
 #: For many paths; the serial twin serves a single query without waking threads.
-path_features = njit(cache=True, nogil=True, parallel=True)(_path_features)
-path_features_serial = njit(cache=True, nogil=True)(_path_features)
+distance_fields = njit(cache=True, nogil=True, parallel=True)(_distance_fields)
+distance_fields_serial = njit(cache=True, nogil=True)(_distance_fields)
 
 
 @njit(cache=True, inline="always")
@@ -138,52 +124,54 @@ def _least_two(
     return (c, sc, d, sd) if sd < sa else (c, sc, a, sa)
 
 
-@njit(cache=True, inline="always")
-def _scores(
-    codes: np.ndarray, i: int, weights: np.ndarray
-) -> tuple[np.float32, np.float32, np.float32, np.float32]:
-    """codes[i] . weights[v] for the four variants v."""
-    s0 = np.float32(0.0)
-    s1 = np.float32(0.0)
-    s2 = np.float32(0.0)
-    s3 = np.float32(0.0)
-    for k in range(codes.shape[1]):
-        code = np.float32(codes[i, k])
-        s0 += code * weights[0, k]
-        s1 += code * weights[1, k]
-        s2 += code * weights[2, k]
-        s3 += code * weights[3, k]
-    return s0, s1, s2, s3
-
-
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
-def scan(
-    codes: np.ndarray,
+def sketch_scan(
+    sketches: np.ndarray,
     starts: np.ndarray,
     ends: np.ndarray,
     at: np.ndarray,
-    weights: np.ndarray,
-    offsets: np.ndarray,
-    bias: np.ndarray,
+    levels: np.ndarray,
+    slots: np.ndarray,
+    margin: float,
     out: np.ndarray,
+    likely: np.ndarray,
 ) -> None:
     """For the rows i of each range starts[j]:ends[j] (pieces of a few thousand rows, so the
-    threads share them evenly): out[at[j] + i - starts[j]] = bias[i] + the least over the
-    four variants v of (codes[i] . weights[v] + offsets[v])."""
+    threads share them evenly), at o = at[j] + i - starts[j]: out[o] = the least over the four
+    variants of the mean distance to the query (`levels`, its `level_table`) of the sketch
+    points stored at `slots`; likely[o] = 4 * that variant + the second least variant if its
+    mean is within `margin`, else the least again.
+
+    It is the path-to-query half of the chamfer distance, sampled: a path near the query has
+    every point near it, and each point's distance is read from the table almost exactly.
+    """
+    n = slots.shape[0]
+    flip = np.uint8(SKETCH_LEVELS)
     for j in prange(starts.shape[0]):
         base = at[j] - starts[j]
         for i in range(starts[j], ends[j]):
-            s0, s1, s2, s3 = _scores(codes, i, weights)
-            out[base + i] = bias[i] + min(
-                min(s0 + offsets[0], s1 + offsets[1]), min(s2 + offsets[2], s3 + offsets[3])
-            )
+            s0 = np.float32(0.0)
+            s1 = np.float32(0.0)
+            s2 = np.float32(0.0)
+            s3 = np.float32(0.0)
+            for k in range(n):
+                x = sketches[i, slots[k]]
+                y = sketches[i, SKETCH_POINTS + slots[k]]
+                # Variant 1 flips x and y, 2 flips y, 3 flips x (see the module's docstring).
+                s0 += levels[x, y]
+                s1 += levels[x ^ flip, y ^ flip]
+                s2 += levels[x, y ^ flip]
+                s3 += levels[x ^ flip, y]
+            first, low, second, high = _least_two(0, s0, 1, s1, 2, s2, 3, s3)
+            out[base + i] = low / n
+            likely[base + i] = 4 * first + (second if (high - low) / n < margin else first)
 
 
 def scan_pieces(
     starts: np.ndarray, ends: np.ndarray, piece: int = _CHUNK
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Row ranges cut into pieces of at most `piece` rows for `scan`: (starts, ends, at),
-    `at` where each piece's scores begin in the output."""
+    """Row ranges cut into pieces of at most `piece` rows for `sketch_scan`: (starts, ends,
+    at), `at` where each piece's scores begin in the output."""
     lengths = ends - starts
     counts = (lengths + piece - 1) // piece
     first = np.repeat(starts, counts)
@@ -194,50 +182,13 @@ def scan_pieces(
     return piece_starts.astype(np.int64), piece_ends.astype(np.int64), at.astype(np.int64)
 
 
-@njit(cache=True, nogil=True, parallel=True, fastmath=True)
-def score_rows(
-    head: np.ndarray,
-    tail: np.ndarray,
-    rows: np.ndarray,
-    head_weights: np.ndarray,
-    tail_weights: np.ndarray,
-    offsets: np.ndarray,
-    bias: np.ndarray,
-    margin: float,
-    out: np.ndarray,
-    likely: np.ndarray,
-) -> None:
-    """The whole code's score of `rows` (the least over variants, as `scan`) into out, and
-    likely[r] = 4 * (the least variant) + (the second least if within `margin` of it, else
-    the least again)."""
-    count = rows.shape[0]
-    head_end = head.shape[1] - 1
-    tail_end = tail.shape[1] - 1
-    for chunk in prange((count + 1023) // 1024):
-        end = min(count, (chunk + 1) * 1024)
-        for r in range(chunk * 1024, end):
-            if r + _AHEAD < end:
-                # Both ends of each part: a code may straddle cache lines.
-                ahead = rows[r + _AHEAD]
-                prefetch(head, ahead, 0)
-                prefetch(head, ahead, head_end)
-                prefetch(tail, ahead, 0)
-                prefetch(tail, ahead, tail_end)
-            i = rows[r]
-            h0, h1, h2, h3 = _scores(head, i, head_weights)
-            t0, t1, t2, t3 = _scores(tail, i, tail_weights)
-            first, low, second, high = _least_two(
-                0,
-                h0 + t0 + offsets[0],
-                1,
-                h1 + t1 + offsets[1],
-                2,
-                h2 + t2 + offsets[2],
-                3,
-                h3 + t3 + offsets[3],
-            )
-            out[r] = bias[i] + low
-            likely[r] = 4 * first + (second if high - low < margin else first)
+def scan_slots(points: int) -> np.ndarray:
+    """Where `points` sketch points evenly spaced in time are stored (int64): every
+    (SKETCH_POINTS / points)-th, all even ones, so in the leading ROUGH_POINTS slots."""
+    stride = SKETCH_POINTS // points
+    if stride < 2 or stride * points != SKETCH_POINTS:
+        raise ValueError(f"scan points must divide {SKETCH_POINTS // 2}, got {points}")
+    return np.array([_slot(s) for s in range(0, SKETCH_POINTS, stride)], dtype=np.int64)
 
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
