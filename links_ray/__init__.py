@@ -6,6 +6,7 @@ is the one name that needs Ray: it is loaded when first asked for.
 """
 
 from links_ray.data.dataset import load
+from links_ray.data.splits import SPLITS, split_of
 from links_ray.engine.mechanism import (
     InvalidMechanismError,
     LockingError,
@@ -18,6 +19,7 @@ from links_ray.engine.synthesis import synthesize
 from links_ray.engine.topology import random_topology
 
 __all__ = [
+    "SPLITS",
     "InvalidMechanismError",
     "LockingError",
     "PositionSampler",
@@ -33,6 +35,7 @@ __all__ = [
     "sample_positions",
     "simulate",
     "simulate_batch",
+    "split_of",
     "synthesize",
 ]
 __version__ = "0.1.0"

@@ -18,7 +18,7 @@ nbformat = pytest.importorskip("nbformat")
 nbclient = pytest.importorskip("nbclient")
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
-NAMES = ("01_quickstart", "02_paper_figures", "03_cluster_and_s3")
+NAMES = ("01_quickstart", "02_paper_figures", "03_cluster_and_s3", "04_training_data")
 #: Seconds one cell may take (the whole notebook should take one or two minutes).
 CELL_TIMEOUT_S = 600
 #: Settings that would point a notebook at a Ray or an S3 store other than its own.
@@ -58,7 +58,7 @@ def outputs_text(notebook) -> str:
     )
 
 
-@pytest.mark.parametrize("name", ["01_quickstart", "02_paper_figures"])
+@pytest.mark.parametrize("name", ["01_quickstart", "02_paper_figures", "04_training_data"])
 def test_notebook_runs(name: str, tmp_path: Path) -> None:
     notebook, seconds = run_notebook(name, tmp_path, notebook_env())
     print(f"{name}: {seconds:.1f} s")

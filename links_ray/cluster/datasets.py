@@ -7,7 +7,7 @@ than memory streams through `iter_batches` or `iter_torch_batches` without panda
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 import pyarrow as pa
@@ -17,6 +17,7 @@ from ray.data.datasource import Partitioning
 
 from links_ray.cluster.connect import connect
 from links_ray.data.dataset import check_columns, joint_count_filter, open_table
+from links_ray.data.splits import check_fractions, check_split, split_mask, with_split_key
 from links_ray.data.store import Store
 
 
@@ -26,14 +27,18 @@ def ray_dataset(
     n_joints: int | Iterable[int] | None = None,
     columns: list[str] | None = None,
     filter: pads.Expression | None = None,
+    split: str | None = None,
+    split_fractions: Sequence[float] | None = None,
 ) -> ray.data.Dataset:
     """The committed rows of `table` at `root` (a folder, s3://bucket/prefix or a Store) as a
     `ray.data.Dataset`, with the partition column `n_joints`.
 
     `n_joints` keeps one joint count or several (only their files are read); `columns` keeps
     those columns; `filter` is a pyarrow expression on any column read, applied block by block
-    as the files are read (`pyarrow.dataset.field("min_transmission_deg") >= 10`). Joins the
-    Ray cluster of `RAY_ADDRESS`, or starts a local Ray, unless one is running.
+    as the files are read (`pyarrow.dataset.field("min_transmission_deg") >= 10`); `split`
+    ("train", "validation" or "test") keeps the rows of that split's topologies
+    (`links_ray.split_of`, `split_fractions` as there), block by block too. Joins the Ray
+    cluster of `RAY_ADDRESS`, or starts a local Ray, unless one is running.
     """
     store = root if isinstance(root, Store) else Store.open(root, writable=False)
     dataset = open_table(store, table)
@@ -49,20 +54,37 @@ def ray_dataset(
     check_columns(dataset, table, columns)
     if filter is not None and not isinstance(filter, pads.Expression):
         raise ValueError(f"filter must be a pyarrow.dataset expression, got {filter!r}")
+    read = columns
+    if split is not None:
+        check_split(split)
+        check_fractions(split_fractions)
+        read = with_split_key(columns, dataset.schema.names)
     connect()
     rows = ray.data.read_parquet(
         files,
         filesystem=store.fs,
-        columns=columns,
+        columns=read,
         partitioning=Partitioning(
             "hive", base_dir=store.path(table), field_types={"n_joints": int}
         ),
     )
-    if filter is None:
+    if filter is None and split is None:
         return rows
     # Ray's read_parquet takes no pyarrow filter: each block is filtered as it is read.
-    return rows.map_batches(_keep, fn_kwargs={"where": filter}, batch_format="pyarrow")
+    added = [] if read == columns else [read[-1]]  # the split's key, read for the split only
+    keep = {"where": filter, "split": split, "fractions": split_fractions, "drop": added}
+    return rows.map_batches(_keep, fn_kwargs=keep, batch_format="pyarrow")
 
 
-def _keep(block: pa.Table, where: pads.Expression) -> pa.Table:
-    return block.filter(where)
+def _keep(
+    block: pa.Table,
+    where: pads.Expression | None,
+    split: str | None,
+    fractions: Sequence[float] | None,
+    drop: list[str],
+) -> pa.Table:
+    if where is not None:
+        block = block.filter(where)
+    if split is not None:
+        block = block.filter(pa.array(split_mask(block, split, fractions)))
+    return block.drop_columns(drop) if drop else block

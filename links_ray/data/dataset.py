@@ -6,7 +6,7 @@ a shard interrupted anywhere in its commit shows no row, in no table.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Literal
 
 import numpy as np
@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike
 
 from links_ray.data.commit import committed_files
 from links_ray.data.schemas import TABLE_NAMES
+from links_ray.data.splits import check_fractions, check_split, split_mask, with_split_key
 from links_ray.data.store import Store
 
 #: The partition column, typed (Hive folders carry no types).
@@ -86,19 +87,31 @@ def load(
     columns: list[str] | None = None,
     format: Literal["pandas", "arrow"] = "pandas",
     reshape: bool = False,
+    split: str | None = None,
+    split_fractions: Sequence[float] | None = None,
 ) -> pd.DataFrame | pa.Table:
     """Rows of `table`, filtered by `n_joints`, as a pandas DataFrame or a pyarrow Table.
 
     With `reshape` (pandas only) the flattened lists become arrays: `adjacency` (n, n),
-    `positions` (n, 2), `trajectories` (n, steps, 2), `points` (steps, 2).
+    `positions` (n, 2), `trajectories` (n, steps, 2), `points` (steps, 2). With `split`
+    ("train", "validation" or "test") only the rows of that split's topologies
+    (`links_ray.split_of`, `split_fractions` as there).
     """
     if format not in ("pandas", "arrow"):
         raise ValueError(f"format must be 'pandas' or 'arrow', got {format!r}")
     if reshape and format != "pandas":
         raise ValueError("reshape applies to format='pandas'")
+    if split is not None:
+        check_split(split)
+        check_fractions(split_fractions)
     dataset = open_table(root, table)
     check_columns(dataset, table, columns)
-    rows = dataset.to_table(columns=columns, filter=joint_count_filter(n_joints))
+    read = columns if split is None else with_split_key(columns, dataset.schema.names)
+    rows = dataset.to_table(columns=read, filter=joint_count_filter(n_joints))
+    if split is not None:
+        rows = rows.filter(pa.array(split_mask(rows, split, split_fractions)))
+        if columns is not None:
+            rows = rows.select(columns)
     if format == "arrow":
         return rows
     frame = rows.to_pandas()

@@ -54,14 +54,14 @@ def keep_draw(ids: np.ndarray, seed: int) -> np.ndarray:
     return (z >> np.uint64(11)).astype(np.float64) / float(1 << 53)
 
 
-def _list_values(column: pa.ChunkedArray | pa.Array, width: int) -> np.ndarray:
+def list_values(column: pa.ChunkedArray | pa.Array, width: int) -> np.ndarray:
     """A list column whose rows all hold `width` values, as a (rows, width) array."""
     if isinstance(column, pa.ChunkedArray):
         column = column.combine_chunks()
     return column.flatten().to_numpy(zero_copy_only=False).reshape(-1, width)
 
 
-def _by_id(table: pa.Table) -> pa.Table:
+def by_mechanism_id(table: pa.Table) -> pa.Table:
     """The table in mechanism_id order (generation already writes it so: skip the copy)."""
     ids = table.column("mechanism_id").to_numpy()
     return table if np.all(ids[1:] > ids[:-1]) else table.sort_by("mechanism_id")
@@ -76,9 +76,9 @@ def simulated_trajectories(mechanisms: pa.Table, n_joints: int, steps: int) -> n
     that locks raises ValueError: the table holds valid mechanisms only.
     """
     n = n_joints
-    adjacency = _list_values(mechanisms.column("adjacency"), n * n)
-    node_types = _list_values(mechanisms.column("node_types"), n)
-    positions = _list_values(mechanisms.column("positions"), 2 * n).reshape(-1, n, 2)
+    adjacency = list_values(mechanisms.column("adjacency"), n * n)
+    node_types = list_values(mechanisms.column("node_types"), n)
+    positions = list_values(mechanisms.column("positions"), 2 * n).reshape(-1, n, 2)
     positions = np.ascontiguousarray(positions, dtype=np.float64)
     out = np.empty((len(positions), n, steps, 2), dtype=TRAJECTORY_DTYPE)
     changes = np.any(adjacency[1:] != adjacency[:-1], axis=1)
@@ -108,8 +108,8 @@ def trajectory_paths(mechanisms: pa.Table, trajectories: np.ndarray, n_joints: i
     n = n_joints
     ids = mechanisms.column("mechanism_id").to_numpy()
     steps = trajectories.shape[2]
-    node_types = _list_values(mechanisms.column("node_types"), n)
-    adjacency = _list_values(mechanisms.column("adjacency"), n * n).reshape(-1, n, n)
+    node_types = list_values(mechanisms.column("node_types"), n)
+    adjacency = list_values(mechanisms.column("adjacency"), n * n).reshape(-1, n, n)
     is_arc = arc_flags(adjacency, node_types)
     rows, joints = np.nonzero(node_types != FIXED)
     points = normalize_paths(trajectories[rows, joints]).astype(np.float32)
@@ -160,10 +160,10 @@ def path_batches(
     """One shard's path rows in mechanism_id order, MECHANISMS_PER_BATCH mechanisms at a time
     (any row order in). Trajectories come from `simulations` (of the same mechanisms), or,
     when it is None, are simulated over `steps` steps: the rows are the same either way."""
-    mechanisms = _by_id(mechanisms)
+    mechanisms = by_mechanism_id(mechanisms)
     ids = mechanisms.column("mechanism_id").to_numpy()
     if simulations is not None:
-        simulations = _by_id(simulations)
+        simulations = by_mechanism_id(simulations)
         if not np.array_equal(ids, simulations.column("mechanism_id").to_numpy()):
             raise ValueError("the shard's mechanisms and simulations hold different mechanism ids")
         if len(simulations):
@@ -174,7 +174,7 @@ def path_batches(
             trajectories = simulated_trajectories(part, n_joints, steps)
         else:
             stored = simulations.column("trajectories").slice(start, MECHANISMS_PER_BATCH)
-            trajectories = _list_values(stored, n_joints * steps * 2)
+            trajectories = list_values(stored, n_joints * steps * 2)
             trajectories = trajectories.reshape(-1, n_joints, steps, 2)
         yield trajectory_paths(part, trajectories, n_joints)
 

@@ -170,6 +170,13 @@ class _Rows:
         return pa.RecordBatch.from_arrays(arrays, schema=schema)
 
 
+def mechanism_topology(mechanism_ids: np.ndarray) -> np.ndarray:
+    """The topology id of each mechanism id, valid or negative (the inverse of the ids'
+    arithmetic: ``5 i + variant``, ``NEGATIVE_ID_BASE + 5 i + k``)."""
+    ids = np.asarray(mechanism_ids, dtype=np.int64)
+    return np.where(ids >= NEGATIVE_ID_BASE, ids - NEGATIVE_ID_BASE, ids) // VARIANTS
+
+
 def topology_rng(seed: int, topology_id: int) -> np.random.Generator:
     """The generator topology `topology_id` of a run draws everything from."""
     return np.random.default_rng([seed, topology_id])

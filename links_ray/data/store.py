@@ -32,6 +32,7 @@ from urllib.parse import urlparse
 
 import pyarrow as pa
 import pyarrow.fs as pafs
+import pyarrow.parquet as pq
 
 #: The folder of the protocol's own files (markers, run records, leases, the index cache).
 META = "_links"
@@ -164,6 +165,11 @@ class Store:
                 return stream.read()
         except FileNotFoundError:
             return None
+
+    def read_parquet(self, relative: str, columns: list[str] | None = None) -> pa.Table:
+        """One Parquet file's rows (no partition columns: those are in its folders' names)."""
+        with self.fs.open_input_file(self.path(relative)) as source:
+            return pq.read_table(source, columns=columns)
 
     def write_json(self, relative: str, value: dict) -> None:
         self.write_bytes(relative, (json.dumps(value, indent=1) + "\n").encode())
