@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
 from links_ray import __version__
-from links_ray.cli import bench
+from links_ray.cli import bench, export
 from links_ray.cli.bench_synthesis import BENCH_SECONDS
 from links_ray.cli.demo import run_demo
 from links_ray.engine.inputs import (
@@ -442,6 +442,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--json", action="store_true", help="print the results as JSON (mechanisms included)"
     )
     synthesize.set_defaults(run=_synthesize)
+
+    export.add_command(commands)  # links export: cli/export.py
 
     bench_parser = commands.add_parser("bench", help="benchmarks")
     benches = bench_parser.add_subparsers(dest="bench", required=True)

@@ -277,14 +277,15 @@ def check_refine_size(n_joints: int, steps: int) -> None:
 # -- fabrication drawings ---------------------------------------------------------------------
 
 
-def as_crank_mm(value: object) -> float:
-    """A crank length in millimetres: more than 0 and at most MAX_CRANK_MM, or ValueError."""
+def as_crank_mm(value: object, name: str = "crank_mm") -> float:
+    """A crank length in millimetres: more than 0 and at most MAX_CRANK_MM, or ValueError
+    naming the option `name`."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ValueError(f"crank_mm must be a number of millimetres, got {shown(value)}")
+        raise ValueError(f"{name} must be a number of millimetres, got {shown(value)}")
     length = float(value)
     if not 0.0 < length <= MAX_CRANK_MM:
         raise ValueError(
-            f"crank_mm must be more than 0 and at most {MAX_CRANK_MM:g} mm, got {length:g}"
+            f"{name} must be more than 0 and at most {MAX_CRANK_MM:g} mm, got {length:g}"
         )
     return length
 

@@ -29,6 +29,7 @@ from links_ray.engine.inputs import (
     FIXED,
     SIMPLE,
     InvalidMechanismError,
+    as_int,
     as_positions,
     as_steps,
     check_positions,
@@ -207,11 +208,28 @@ def pylinkage_script(
     positions: ArrayLike,
     steps: int = DEFAULT_STEPS,
     title: str = "a links-ray mechanism",
+    decimals: int | None = None,
 ) -> str:
     """A Python script that builds the mechanism with pylinkage, as `to_pylinkage` does, and
-    prints each joint's position at every step when run. Coordinates are written exactly."""
+    prints each joint's position at every step when run. Numbers are written exactly, or
+    rounded to `decimals` places."""
     steps = as_steps(steps)
     parts = _parts(adjacency, node_types, positions)
+    if decimals is not None:
+        places = as_int("decimals", decimals, 0, 17)
+        # Lengths and coordinates, not the crank's angle: its error grows with the radius.
+        parts = [
+            _Part(
+                p.joint,
+                p.kind,
+                p.anchors,
+                tuple(
+                    v if (p.kind, k) == ("crank", 1) else round(v, places) + 0.0
+                    for k, v in enumerate(p.values)
+                ),
+            )
+            for p in parts
+        ]
     n = len(parts)
     lines = [
         f'"""{title} as a pylinkage linkage: {n} joints, J0 to J{n - 1}.',
