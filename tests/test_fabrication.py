@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from drawings import dxf_header, dxf_sections, field
 from serving import FOUR_BAR, LOCKING_FOUR_BAR
 
 import links_ray
@@ -128,38 +129,6 @@ def test_svg_path_is_the_simulated_path(which: int) -> None:
 # -- DXF ----------------------------------------------------------------------------------------
 
 
-def dxf_pairs(text: str) -> list[tuple[int, str]]:
-    lines = text.splitlines()
-    assert len(lines) % 2 == 0
-    return [(int(lines[k]), lines[k + 1]) for k in range(0, len(lines), 2)]
-
-
-def dxf_sections(text: str) -> dict[str, list[list[tuple[int, str]]]]:
-    """Each section's records: the pairs from one group code 0 to the next."""
-    pairs = dxf_pairs(text)
-    assert pairs[-1] == (0, "EOF")
-    sections: dict[str, list[list[tuple[int, str]]]] = {}
-    k = 0
-    while pairs[k] != (0, "EOF"):
-        assert pairs[k] == (0, "SECTION") and pairs[k + 1][0] == 2
-        name, k = pairs[k + 1][1], k + 2
-        records: list[list[tuple[int, str]]] = []
-        while pairs[k] != (0, "ENDSEC"):
-            if pairs[k][0] == 0 or not records:
-                records.append([])
-            records[-1].append(pairs[k])
-            k += 1
-        sections[name] = records
-        k += 1
-    return sections
-
-
-def field(record: list[tuple[int, str]], code: int) -> str:
-    values = [value for c, value in record if c == code]
-    assert len(values) == 1, (code, record)
-    return values[0]
-
-
 @pytest.mark.parametrize("crank_mm", [20.0, 3.0])
 @pytest.mark.parametrize("which", range(len(MECHANISMS)))
 def test_dxf_lines_are_the_links_in_millimetres(which: int, crank_mm: float) -> None:
@@ -169,9 +138,7 @@ def test_dxf_lines_are_the_links_in_millimetres(which: int, crank_mm: float) -> 
     sections = dxf_sections(fabrication(**mech, crank_mm=crank_mm, path_joint=joint).dxf())
     assert list(sections) == ["HEADER", "TABLES", "ENTITIES"]
 
-    pairs = [pair for record in sections["HEADER"] for pair in record]
-    # A variable (code 9) and its first value.
-    header = {pairs[k][1]: pairs[k + 1][1] for k in range(len(pairs) - 1) if pairs[k][0] == 9}
+    header = dxf_header(sections)
     assert header["$INSUNITS"] == "4"  # millimetres
     assert header["$ACADVER"] == "AC1009"
 
