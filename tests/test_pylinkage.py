@@ -137,6 +137,17 @@ def test_what_links_ray_cannot_hold_is_refused() -> None:
     outside = pl.RRRDyad(crank.output, o2, distance1=3.0, distance2=2.0, name="hangs")
     with pytest.raises(ValueError, match="'hangs' hangs on 'O2', not in the linkage"):
         from_pylinkage(pl.Linkage([o1, crank, outside]))
+    rocker = pl.RRRDyad(crank.output, o2, distance1=3.0, distance2=2.0, name="rocker")
+    on_rocker = pl.Crank(rocker, radius=0.5, name="second")
+    with pytest.raises(ValueError, match="exactly one Crank, this has 2"):
+        from_pylinkage(pl.Linkage([o1, crank, o2, rocker, on_rocker]))
+    alone = pl.Crank(rocker, radius=0.5, name="alone")
+    with pytest.raises(ValueError, match="turns about 'rocker', which is not a Ground"):
+        from_pylinkage(pl.Linkage([rocker, alone, o2]))
+    # What links-ray itself refuses, in its own words.
+    still = pl.Crank(o1, radius=0.0, name="still")
+    with pytest.raises(ValueError, match="the crank has zero length"):
+        from_pylinkage(pl.Linkage([o1, still, o2]))
     with pytest.raises(ValueError, match="no crank"):
         to_pylinkage(**{**FOUR_BAR, "adjacency": np.zeros((4, 4), dtype=int)})
 

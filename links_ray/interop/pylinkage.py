@@ -136,6 +136,8 @@ def from_pylinkage(linkage: pylinkage.Linkage) -> tuple[np.ndarray, np.ndarray, 
     crank = cranks[0]
     if not any(crank.anchor is c for c in components):
         raise ValueError(f"the crank's anchor {crank.anchor.name!r} is not in the linkage")
+    if not isinstance(crank.anchor, pl.Ground):
+        raise ValueError(f"the crank turns about {crank.anchor.name!r}, which is not a Ground")
     ordered = [
         crank.anchor,
         crank,
@@ -163,6 +165,8 @@ def from_pylinkage(linkage: pylinkage.Linkage) -> tuple[np.ndarray, np.ndarray, 
     angle = math.atan2(crank.y - crank.anchor.y, crank.x - crank.anchor.x)
     positions[1] = positions[0] + crank.radius * np.array([math.cos(angle), math.sin(angle)])
     _assemble(pl, ordered, index, positions)
+    topology = analyze_topology(adjacency, node_types)  # links-ray's own rules, by name
+    check_positions(topology.adjacency, as_positions(positions, n))
     return adjacency, node_types, positions
 
 
@@ -189,7 +193,10 @@ def _assemble(pl: Any, ordered: list, index: dict[int, int], positions: np.ndarr
             (ax, ay), (bx, by) = (positions[index[id(a)]] for a in dyad.anchors)
             found = pl.circle_intersect(ax, ay, dyad.distance1, bx, by, dyad.distance2)
             if found[0] not in (1, 2):
-                raise ValueError(f"dyad {dyad.name!r} cannot be assembled: its circles do not meet")
+                raise ValueError(
+                    f"dyad {dyad.name!r} cannot be assembled: its circles do not meet in one "
+                    "or two points"
+                )
             hint = (
                 ((ax + bx) / 2, (ay + by) / 2)
                 if dyad.x is None or dyad.y is None
