@@ -1,11 +1,12 @@
 """The package's layers hold: a module imports only its own layer or lower ones.
 
-engine (numpy/numba) < data (pyarrow) < search, cluster (peers: neither imports the other)
-< serve < cli. `links_ray/__init__.py` may import engine and data only, but for
+engine (numpy/numba) < data (pyarrow), interop (other linkage libraries) < search, cluster
+< serve < cli, where data and interop are peers, and so are search and cluster (neither of a
+pair imports the other). `links_ray/__init__.py` may import engine and data only, but for
 `links_ray.ray_dataset`, which it loads from the cluster layer when first asked for (so that
-`import links_ray` still loads no Ray: `test_import_links_ray_loads_no_ray`). The engine imports no
-Ray, pyarrow or pandas; data and search import no Ray. Read from the source with `ast`, imports
-inside functions included: a lazy import is still a dependency.
+`import links_ray` still loads no Ray: `test_import_links_ray_loads_no_ray`). The engine and
+interop import no Ray, pyarrow or pandas; data and search import no Ray. Read from the source
+with `ast`, imports inside functions included: a lazy import is still a dependency.
 """
 
 from __future__ import annotations
@@ -21,7 +22,15 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = "links_ray"
 #: Rank of each layer: a module may import its own layer and layers of lower rank.
-LAYERS = {"engine": 0, "data": 1, "search": 2, "cluster": 2, "serve": 3, "cli": 4}
+LAYERS = {
+    "engine": 0,
+    "data": 1,
+    "interop": 1,
+    "search": 2,
+    "cluster": 2,
+    "serve": 3,
+    "cli": 4,
+}
 #: What the package's own `__init__.py` (`import links_ray`) may load.
 ROOT_MAY_IMPORT = ("engine", "data")
 #: Modules the package's own `__init__.py` may load lazily, on first use of a name.
@@ -31,6 +40,7 @@ FORBIDDEN = {
     "root": ("ray",),
     "engine": ("ray", "pyarrow", "pandas"),
     "data": ("ray",),
+    "interop": ("ray", "pyarrow", "pandas"),
     "search": ("ray",),
 }
 

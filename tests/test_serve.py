@@ -15,6 +15,7 @@ import subprocess
 import sys
 import threading
 import time
+import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,7 @@ from fourbars import stretched_four_bar, window_slack
 from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
 
 import links_ray
+from links_ray.engine.fabrication import fabrication
 from links_ray.engine.inputs import validate_query
 from links_ray.serve.app import bindable_port
 
@@ -63,6 +65,7 @@ def test_openapi_describes_the_routes(client: Client) -> None:
         ("/api/retrieve", "post"),
         ("/api/synthesize", "post"),
         ("/api/analyze", "post"),
+        ("/api/export", "post"),
     } <= routes
 
 
@@ -93,6 +96,77 @@ def test_simulate_locking_between_steps_is_422(client: Client) -> None:
     status, data = client.post("/api/simulate", body)
     assert status == 422
     assert data == {"error": "locking", "step": 38, "node": 3}
+
+
+# -- /api/export: fabrication files ------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("chosen", "media", "suffix"),
+    [
+        ("svg", "image/svg+xml", "svg"),
+        ("dxf", "image/vnd.dxf", "dxf"),
+        ("table", "text/plain", "txt"),
+    ],
+)
+def test_export_answers_the_file_as_an_attachment(
+    client: Client, chosen: str, media: str, suffix: str
+) -> None:
+    body = {**FOUR_BAR, "format": chosen, "crank_mm": 12.5, "path_joint": 3}
+    status, headers, text = client.request("POST", "/api/export", body)
+    assert status == 200, text
+    assert headers["content-type"].startswith(media)
+    assert headers["content-disposition"] == (
+        f'attachment; filename="mechanism-4-joints-12.5mm.{suffix}"'
+    )
+    drawing = fabrication(**FOUR_BAR, crank_mm=12.5, path_joint=3)
+    assert text == {"svg": drawing.svg, "dxf": drawing.dxf, "table": drawing.table_text}[chosen]()
+    if chosen == "svg":  # at scale: the crank's line is 12.5 mm long in 1 mm user units
+        crank = ET.fromstring(text).find(".//{http://www.w3.org/2000/svg}line[@data-joints='0 1']")
+        x1, y1, x2, y2 = (float(crank.get(k)) for k in ("x1", "y1", "x2", "y2"))
+        assert np.hypot(x2 - x1, y2 - y1) == pytest.approx(12.5, abs=1e-8)
+
+
+def test_export_defaults_and_refusals(client: Client) -> None:
+    status, headers, text = client.request("POST", "/api/export", FOUR_BAR)
+    assert status == 200 and headers["content-type"].startswith("image/svg+xml")
+    assert text == fabrication(**FOUR_BAR, crank_mm=20).svg()  # SVG, crank 20 mm, no path
+    # A locking mechanism draws, but its path does not: 422 with where it locks.
+    assert client.request("POST", "/api/export", LOCKING_FOUR_BAR)[0] == 200
+    status, data = client.post("/api/export", {**LOCKING_FOUR_BAR, "path_joint": 3})
+    with pytest.raises(links_ray.LockingError) as locked:
+        links_ray.simulate(**LOCKING_FOUR_BAR)
+    assert status == 422
+    assert data == {
+        "error": f"{locked.value}: it has no full path to draw",
+        "step": locked.value.step,
+        "node": locked.value.node,
+    }
+    refused = [
+        ({"format": "pdf"}, 400, "format must be one of svg, dxf, table, got a string"),
+        ({"format": 1}, 400, "format must be one of svg, dxf, table, got a number"),
+        ({"crank_mm": 0}, 400, "crank_mm must be more than 0 and at most 100000 mm, got 0"),
+        ({"crank_mm": -3}, 400, "crank_mm must be more than 0"),
+        ({"crank_mm": "20"}, 400, "crank_mm must be a number of millimetres, got '20'"),
+        ({"crank_mm": True}, 400, "crank_mm must be a number of millimetres, got True"),
+        ({"path_joint": 2}, 400, "path_joint 2 is fixed: it traces no path"),
+        ({"path_joint": 9}, 400, "path_joint must be from 0 to 3, got 9"),
+        ({"path_joint": "3"}, 400, "path_joint must be an integer from 0 to 3, got '3'"),
+        ({"node_types": [0, 1, 0, 1]}, 400, "joint 1 must be the actuated joint"),
+        ({"positions": [[0, 0], [0, 0], [1, 0], [1, 1]]}, 400, "the crank has zero length"),
+    ]
+    for change, expected, words in refused:
+        status, headers, data = client.request("POST", "/api/export", {**FOUR_BAR, **change})
+        _check_error(status, headers, data, expected, words)
+    big = {
+        "adjacency": np.eye(101, k=1, dtype=int).tolist(),
+        "node_types": [0] * 101,
+        "positions": [[0, 0]] * 101,
+    }
+    status, headers, data = client.request("POST", "/api/export", big)
+    _check_error(status, headers, data, 413, "at most 100 joints per request, got 101")
+    status, headers, data = client.request("POST", "/api/export", {"format": "svg"})
+    _check_error(status, headers, data, 400, "missing field 'adjacency'")
 
 
 def _check_result(result: dict[str, Any]) -> None:

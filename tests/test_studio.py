@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from drawings import dxf_header, dxf_sections, field
 from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
 
 import links_ray
@@ -517,6 +518,64 @@ def test_export_import_svg_and_share_link(studio: Studio, tmp_path: Path, browse
         assert other.unexpected_errors() == []
     finally:
         other.page.close()
+
+
+def test_export_for_fabrication_in_millimetres(studio: Studio, tmp_path: Path) -> None:
+    """SVG and DXF downloads at the crank length typed, the selected joint's path in them."""
+    studio.import_mechanism(tmp_path, FOUR_BAR, "four-bar.json")
+    studio.click("tool-move")
+    studio.click_world(FOUR_BAR["positions"][3])  # selects joint 3
+    studio.wait("() => window.studio.editor.selected === 3")
+    studio.page.get_by_test_id("crank-mm").fill("30")
+    scale = 30 / 0.05
+    truth = (simulate(FOUR_BAR)[3] - FOUR_BAR["positions"][0]) * scale
+    joints = (np.array(FOUR_BAR["positions"]) - FOUR_BAR["positions"][0]) * scale
+
+    with studio.page.expect_download() as download:
+        studio.click("export-fab-svg")
+    assert download.value.suggested_filename == "mechanism-4-joints-30mm.svg"
+    svg = ET.parse(download.value.path()).getroot()
+    ns = {"svg": "http://www.w3.org/2000/svg"}
+    _, _, width, _ = map(float, svg.get("viewBox").split())
+    assert svg.get("width") == f"{width!r}mm"  # one user unit is one millimetre
+    for line in svg.findall(".//svg:line", ns):
+        i, j = map(int, line.get("data-joints").split())
+        x1, y1, x2, y2 = (float(line.get(k)) for k in ("x1", "y1", "x2", "y2"))
+        assert math.hypot(x2 - x1, y2 - y1) == pytest.approx(
+            math.dist(joints[i], joints[j]), abs=1e-8
+        )
+    crank = svg.find(".//svg:line[@data-joints='0 1']", ns)
+    assert float(crank.get("data-length-mm")) == pytest.approx(30)
+    pivots = svg.findall(".//svg:g[@id='GROUND']/svg:circle", ns)
+    centres = [[float(c.get("cx")), float(c.get("cy"))] for c in pivots]
+    np.testing.assert_allclose(centres, joints[[0, 2]], atol=1e-8)
+    polygon = svg.find(".//svg:polygon[@data-joint='3']", ns)
+    points = np.array([p.split(",") for p in polygon.get("points").split()], dtype=float)
+    np.testing.assert_allclose(points, truth, atol=1e-8)
+
+    with studio.page.expect_download() as download:
+        studio.click("export-dxf")
+    assert download.value.suggested_filename == "mechanism-4-joints-30mm.dxf"
+    sections = dxf_sections(Path(download.value.path()).read_text())
+    assert dxf_header(sections)["$INSUNITS"] == "4"
+    lines = [r for r in sections["ENTITIES"] if r[0] == (0, "LINE")]
+    lengths = sorted(
+        math.hypot(
+            float(field(r, 11)) - float(field(r, 10)), float(field(r, 21)) - float(field(r, 20))
+        )
+        for r in lines
+    )
+    expected = sorted(math.dist(joints[i], joints[j]) for i, j in [(0, 1), (1, 3), (2, 3)])
+    assert lengths == pytest.approx(expected, abs=1e-8)
+    vertices = [r for r in sections["ENTITIES"] if r[0] == (0, "VERTEX")]
+    assert len(vertices) == STEPS
+
+    # A crank length the server refuses is said in words, and nothing is downloaded.
+    studio.allow("400")
+    studio.page.get_by_test_id("crank-mm").fill("-2")
+    studio.click("export-dxf")
+    studio.wait("() => !document.querySelector('[data-testid=error]').hidden")
+    assert "Export failed: crank_mm must be more than 0" in studio.text("error")
 
 
 # -- draw to retrieve ---------------------------------------------------------------------------

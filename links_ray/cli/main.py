@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
 from links_ray import __version__
-from links_ray.cli import bench, export_dataset
+from links_ray.cli import bench, export, export_dataset
 from links_ray.cli.bench_synthesis import BENCH_SECONDS
 from links_ray.cli.demo import run_demo
 from links_ray.engine.inputs import (
@@ -443,7 +443,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     synthesize.set_defaults(run=_synthesize)
 
-    export_dataset.add_command(commands, _positive_int)
+    export.add_command(commands)  # links export: cli/export.py
+    export_dataset.add_command(commands, _positive_int)  # links export-dataset
 
     bench_parser = commands.add_parser("bench", help="benchmarks")
     benches = bench_parser.add_subparsers(dest="bench", required=True)

@@ -57,6 +57,14 @@ MAX_TRANSMISSION_DEG = 45.0
 #: a synthesis holds a core for its whole budget, so a request may not hold one for long.
 DEFAULT_SYNTHESIS_SECONDS, MAX_SYNTHESIS_SECONDS = 3.0, 30.0
 
+# -- fabrication drawings (engine.fabrication) -------------------------------------------------
+
+#: The crank length of an exported drawing, in millimetres, by default and at most (100 m).
+DEFAULT_CRANK_MM, MAX_CRANK_MM = 20.0, 1e5
+#: The most an exported drawing may span, in millimetres (1 km): a crank much shorter than the
+#: other links would otherwise blow a drawing up past what any CAD program lays out.
+MAX_DRAWING_MM = 1e6
+
 # -- one HTTP request -------------------------------------------------------------------------
 
 #: Largest mechanism one request may carry, in joints. Smaller than MAX_JOINTS: a request holds
@@ -264,6 +272,22 @@ def check_refine_size(n_joints: int, steps: int) -> None:
         )
     if steps > MAX_REFINE_STEPS:
         raise ValueError(f"refinement takes at most {MAX_REFINE_STEPS} steps, got {steps}")
+
+
+# -- fabrication drawings ---------------------------------------------------------------------
+
+
+def as_crank_mm(value: object, name: str = "crank_mm") -> float:
+    """A crank length in millimetres: more than 0 and at most MAX_CRANK_MM, or ValueError
+    naming the option `name`."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"{name} must be a number of millimetres, got {shown(value)}")
+    length = float(value)
+    if not 0.0 < length <= MAX_CRANK_MM:
+        raise ValueError(
+            f"{name} must be more than 0 and at most {MAX_CRANK_MM:g} mm, got {length:g}"
+        )
+    return length
 
 
 # -- synthesis --------------------------------------------------------------------------------

@@ -7,6 +7,7 @@
 | `POST /api/retrieve` | 200 `{"results", "took_ms"}`, best first; 503 when busy |
 | `POST /api/synthesize` | 200 `{"results", "took_ms"}`, retrieved and refined; 503 when busy |
 | `POST /api/analyze` | 200 the studio's analysis: mobility, dyadic solvability, where it locks |
+| `POST /api/export` | 200 the mechanism as an SVG, DXF or table file in mm (an attachment) |
 | `GET /` | the web studio (`links_ray/serve/studio/index.html`) |
 | `GET /studio/<file>` | the studio's scripts and style sheet, from the package |
 
@@ -90,12 +91,15 @@ from links_ray import __version__
 from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
 from links_ray.data.store import Store
+from links_ray.engine.fabrication import fabrication
 from links_ray.engine.inputs import (
+    DEFAULT_CRANK_MM,
     DEFAULT_K,
     DEFAULT_STEPS,
     MAX_BODY_BYTES,
     MAX_REQUEST_JOINT_STEPS,
     MAX_REQUEST_JOINTS,
+    as_crank_mm,
     as_steps,
     as_transmission_deg,
     validate_query,
@@ -497,6 +501,53 @@ def _simulate_lists(adjacency: list, node_types: list, positions: list, steps: i
     return simulate(adjacency, node_types, positions, steps).tolist()
 
 
+#: /api/export's formats: (media type, file suffix) of each.
+EXPORT_FORMATS = {
+    "svg": ("image/svg+xml", "svg"),
+    "dxf": ("image/vnd.dxf", "dxf"),
+    "table": ("text/plain; charset=utf-8", "txt"),
+}
+
+
+def export_args(body: dict[str, Any]) -> tuple[list, list, list, str, float, Any]:
+    """(adjacency, node_types, positions, format, crank_mm, path_joint) of a /api/export body,
+    or ApiError naming the problem; the engine checks the mechanism itself."""
+    adjacency, node_types = topology_args(body)
+    positions = _pairs("positions", _required(body, "positions"), count=len(adjacency))
+    chosen = body.get("format", "svg")
+    if not isinstance(chosen, str) or chosen not in EXPORT_FORMATS:
+        raise ApiError(
+            400, f"format must be one of {', '.join(EXPORT_FORMATS)}, got {_kind(chosen)}"
+        )
+    crank = body.get("crank_mm")
+    crank_mm = DEFAULT_CRANK_MM if crank is None else _checked(as_crank_mm, crank)
+    # The engine checks path_joint: an integer naming a moving joint.
+    return adjacency, node_types, positions, chosen, crank_mm, body.get("path_joint")
+
+
+def export_file(
+    adjacency: list,
+    node_types: list,
+    positions: list,
+    chosen: str,
+    crank_mm: float,
+    path_joint: Any,
+) -> Response:
+    """The mechanism as a file to download (engine.fabrication), or ValueError naming why not."""
+    drawing = fabrication(adjacency, node_types, positions, crank_mm, path_joint)
+    text = {"svg": drawing.svg, "dxf": drawing.dxf, "table": drawing.table_text}[chosen]()
+    media_type, suffix = EXPORT_FORMATS[chosen]
+    name = f"mechanism-{len(node_types)}-joints-{crank_mm:g}mm.{suffix}"
+    return Response(
+        text,
+        media_type=media_type,
+        headers={
+            "Content-Disposition": f'attachment; filename="{name}"',
+            "X-Content-Type-Options": "nosniff",
+        },
+    )
+
+
 # -- the deployments ----------------------------------------------------------------------------
 
 
@@ -718,6 +769,19 @@ class LinksApi:
         except ValueError as exc:  # degenerate positions: named as /api/simulate names them
             raise ApiError(400, str(exc)) from None
         return JsonResponse(found)
+
+    @api.post("/api/export")
+    async def api_export(self, request: Request) -> Response:
+        """The mechanism as an SVG, DXF or table file in millimetres, its crank `crank_mm`
+        long (default 20), with the path of `path_joint` if given; 422 if that path locks,
+        other 4xx JSON if it cannot."""
+        args = export_args(await read_json_object(request))
+        try:
+            return await run_in_threadpool(export_file, *args)
+        except LockingError as exc:  # only with a path: a locking mechanism has none
+            return _error(422, f"{exc}: it has no full path to draw", step=exc.step, node=exc.node)
+        except ValueError as exc:  # the engine's message: the mechanism, the scale, path_joint
+            raise ApiError(400, str(exc)) from None
 
     @api.post("/api/retrieve")
     async def api_retrieve(self, request: Request) -> JsonResponse:

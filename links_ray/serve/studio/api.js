@@ -13,6 +13,28 @@ export async function postJson(path, body) {
   return { status: response.status, data, ms: performance.now() - started };
 }
 
+/**
+ * POST a JSON body for a file to download; resolves to {status, text, name, type} on 200 (the
+ * file's text, the name its Content-Disposition gives, its type), else {status, data} with the
+ * server's JSON as postJson has it.
+ */
+export async function postForFile(path, body, fallbackName) {
+  const response = await send(path, {
+    method: "POST",
+    headers: { "Content-Type": "application/json" },
+    body: JSON.stringify(body),
+  });
+  if (response.status !== 200) return { status: response.status, data: await readJson(response) };
+  const disposition = response.headers.get("Content-Disposition") || "";
+  const named = /filename="([^"]+)"/.exec(disposition);
+  return {
+    status: 200,
+    text: await response.text(),
+    name: named ? named[1] : fallbackName,
+    type: response.headers.get("Content-Type") || "application/octet-stream",
+  };
+}
+
 /** GET a JSON document; as postJson. */
 export async function getJson(path) {
   const started = performance.now();

@@ -1,9 +1,10 @@
 // The studio page: wires the editor, the draw-to-retrieve panel and the save/share buttons,
 // and shows every failure in words in the error banner or next to what failed.
 
-import { explain, getJson } from "./api.js";
+import { explain, getJson, postForFile } from "./api.js";
 import { Editor } from "./editor.js";
 import { download, mechanismJson, mechanismSvg, readMechanismFile, sharedMechanism, shareUrl } from "./files.js";
+import { FIXED } from "./mechanism.js";
 import { Retriever } from "./retrieve.js";
 
 const $ = (id) => document.getElementById(id);
@@ -91,6 +92,34 @@ $("export-svg").addEventListener("click", () => {
   if (!trajectories) notify("The SVG has no paths: the mechanism is not simulated yet.", "export");
   else notify("", "export");
 });
+// Fabrication files come from the server (/api/export), drawn by the engine in millimetres.
+// The selected joint's path goes in too, when the mechanism turns fully.
+let exporting = 0;
+async function exportForFabrication(format) {
+  const mech = editor.current();
+  const body = { ...mech, format, crank_mm: Number($("crank-mm").value) };
+  const joint = editor.selected;
+  if (joint >= 0 && mech.node_types[joint] !== FIXED && editor.sim.state === "ok") {
+    body.path_joint = joint;
+  }
+  exporting += 1;
+  try {
+    const answer = await postForFile("/api/export", body, `mechanism.${format}`);
+    if (answer.status === 200) {
+      download(answer.name, answer.text, answer.type);
+      notify("", "fabrication");
+    } else {
+      notify(`Export failed: ${explain(answer)}`, "fabrication");
+    }
+  } catch (err) {
+    notify(`Export failed: ${err.message}`, "fabrication");
+  } finally {
+    exporting -= 1;
+  }
+}
+$("export-fab-svg").addEventListener("click", () => exportForFabrication("svg"));
+$("export-dxf").addEventListener("click", () => exportForFabrication("dxf"));
+$("export-table").addEventListener("click", () => exportForFabrication("table"));
 $("import-json").addEventListener("click", () => $("import-file").click());
 // Files being read: the page is not idle until an import has reached the editor.
 let importing = 0;
@@ -158,5 +187,5 @@ window.studio = {
   toScreen: (p) => editor.view.toScreen(p),
   drawToScreen: (p) => retriever.view.toScreen(p),
   latencies: () => editor.latencies.slice(),
-  idle: () => importing === 0 && editor.idle,
+  idle: () => importing === 0 && exporting === 0 && editor.idle,
 };

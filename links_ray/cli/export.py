@@ -1,0 +1,202 @@
+"""`links export`: one mechanism as a drawing to build it from, or as a pylinkage script.
+
+The mechanism comes from a JSON file (the API's `{"adjacency", "node_types", "positions"}`,
+or what `links retrieve` and `links synthesize --json` print, picking result N), from stdin
+(`-`), or from a dataset (`ROOT --mechanism-id ID`). It goes out in millimetres, its crank
+`--crank-mm` long (`engine.fabrication`): as SVG, DXF, a table of link lengths and ground
+pivots (`--json` for the table as JSON), or a Python script that builds it with pylinkage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from links_ray.engine.fabrication import Fabrication, fabrication
+from links_ray.engine.inputs import DEFAULT_CRANK_MM, as_crank_mm, as_int
+
+FORMATS = ("svg", "dxf", "table", "pylinkage")
+#: The format an output file's suffix implies when --format is not given.
+SUFFIXES = {".svg": "svg", ".dxf": "dxf", ".py": "pylinkage", ".txt": "table", ".json": "table"}
+
+
+def add_command(commands: argparse._SubParsersAction) -> None:
+    """Register `links export` on the `links` command's subparsers."""
+    command = commands.add_parser(
+        "export",
+        help="a mechanism as SVG, DXF or a table in millimetres, or as a pylinkage script",
+        description="Export one mechanism for fabrication: SVG and DXF at 1:1 in millimetres "
+        "(joint 0, the crank's pivot, at the origin, y up), a table of its link lengths and "
+        "ground pivots, or a Python script that builds it with pylinkage.",
+    )
+    command.add_argument(
+        "source",
+        help="a JSON file (a mechanism, or the output of links retrieve / links synthesize "
+        "--json), - for stdin, or with --mechanism-id a dataset root (a folder or s3://...)",
+    )
+    command.add_argument(
+        "--mechanism-id",
+        type=int,
+        default=None,
+        metavar="ID",
+        help="the mechanism of dataset SOURCE to export",
+    )
+    command.add_argument(
+        "--result",
+        type=int,
+        default=1,
+        metavar="N",
+        help="which result of a retrieve or synthesize output to export, from 1",
+    )
+    command.add_argument(
+        "--format",
+        choices=FORMATS,
+        default=None,
+        help="what to write (default: from the --out suffix, .svg .dxf .py .txt .json; else table)",
+    )
+    command.add_argument(
+        "--crank-mm",
+        type=float,
+        default=DEFAULT_CRANK_MM,
+        metavar="MM",
+        help="the crank's length (joint 0 to joint 1) in millimetres; sets the scale",
+    )
+    command.add_argument(
+        "--path-joint",
+        default="auto",
+        metavar="J",
+        help="draw the path joint J traces over a crank turn; none for no path (default "
+        "auto: a result's own joint, else none)",
+    )
+    command.add_argument(
+        "--out", default=None, metavar="FILE", help="output file (default: stdout)"
+    )
+    command.add_argument(
+        "--json", action="store_true", help="with --format table: the table as JSON"
+    )
+    command.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> None:
+    """`links export`: write the mechanism in the format asked for; ValueError if it cannot."""
+    chosen = args.format
+    if chosen is None:
+        suffix = Path(args.out).suffix.lower() if args.out else ""
+        chosen = SUFFIXES.get(suffix, "table")
+    if args.json and chosen != "table":
+        raise ValueError(f"--json applies to --format table, not {chosen}")
+    as_crank_mm(args.crank_mm, "--crank-mm")  # named as the user typed it, before any reading
+    mechanism, own_joint = read_mechanism(args.source, args.mechanism_id, args.result)
+    drawing = fabrication(
+        mechanism["adjacency"],
+        mechanism["node_types"],
+        mechanism["positions"],
+        crank_mm=args.crank_mm,
+        path_joint=_path_joint(args.path_joint, own_joint),
+    )
+    text = render(drawing, mechanism, chosen, args.json)
+    if args.out is None:
+        sys.stdout.write(text)
+        return
+    Path(args.out).write_text(text)
+    print(
+        f"wrote {args.out}: {chosen}, {len(drawing.node_types)} joints, "
+        f"{len(drawing.links)} links, crank {drawing.crank_mm:g} mm"
+    )
+
+
+def render(drawing: Fabrication, mechanism: dict[str, Any], chosen: str, as_json: bool) -> str:
+    """The file's text in format `chosen`."""
+    if chosen == "svg":
+        return drawing.svg()
+    if chosen == "dxf":
+        return drawing.dxf()
+    if chosen == "pylinkage":
+        from links_ray.interop.pylinkage import pylinkage_script  # text only: no pylinkage
+
+        return pylinkage_script(
+            mechanism["adjacency"],
+            mechanism["node_types"],
+            drawing.joints_mm,
+            decimals=9,  # to the nanometre, as the drawings
+            title=f"a links-ray mechanism (millimetres, crank {drawing.crank_mm:g} mm)",
+        )
+    return json.dumps(drawing.table(), indent=1) + "\n" if as_json else drawing.table_text()
+
+
+def _path_joint(option: str, own_joint: int | None) -> int | None:
+    if option == "auto":
+        return own_joint
+    if option == "none":
+        return None
+    try:
+        return int(option)
+    except ValueError:
+        raise ValueError(
+            f"--path-joint must be a joint number, auto or none, got {option}"
+        ) from None
+
+
+def read_mechanism(
+    source: str, mechanism_id: int | None, result: int
+) -> tuple[dict[str, Any], int | None]:
+    """The mechanism to export and its own path joint (a result's `mechanism_joint`, else
+    None), from a JSON file, stdin (`-`) or a dataset root with `mechanism_id`."""
+    if mechanism_id is not None:
+        return dataset_mechanism(source, mechanism_id), None
+    where = "stdin" if source == "-" else source
+    try:
+        text = sys.stdin.read() if source == "-" else Path(source).read_text()
+        data = json.loads(text)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"cannot read a mechanism from {where}: {exc}") from None
+    return mechanism_in(data, result, where)
+
+
+def mechanism_in(data: object, result: int, where: str) -> tuple[dict[str, Any], int | None]:
+    """The mechanism in parsed JSON: a mechanism itself, a result holding one, or result
+    `result` (from 1) of `{"results": [...]}` or a list of results."""
+    fields = ("adjacency", "node_types", "positions")
+    if isinstance(data, dict) and all(name in data for name in fields):
+        return {name: data[name] for name in fields}, None
+    if isinstance(data, dict) and "results" in data:
+        data = data["results"]
+    if isinstance(data, list) and all(isinstance(r, dict) for r in data):
+        if not data:
+            raise ValueError(f"{where} holds no results")
+        as_int("--result", result, 1, len(data))
+        data = data[result - 1]
+    if isinstance(data, dict) and isinstance(data.get("mechanism"), dict):
+        mechanism = data["mechanism"]
+        if all(name in mechanism for name in fields):
+            joint = data.get("mechanism_joint")
+            return {name: mechanism[name] for name in fields}, joint
+    raise ValueError(
+        f"{where} holds no mechanism: expected adjacency, node_types and positions, or the "
+        "results of links retrieve or links synthesize --json"
+    )
+
+
+def dataset_mechanism(root: str, mechanism_id: int) -> dict[str, Any]:
+    """The mechanism `mechanism_id` of the dataset at `root`, from its committed rows."""
+    import numpy as np
+    import pyarrow.dataset as pads
+
+    from links_ray.data.dataset import open_table
+
+    table = open_table(root, "mechanisms").to_table(
+        columns=["adjacency", "node_types", "positions"],
+        filter=pads.field("mechanism_id") == mechanism_id,
+    )
+    if table.num_rows == 0:
+        raise ValueError(f"no mechanism {mechanism_id} in {root}")
+    row = table.slice(0, 1).to_pylist()[0]
+    n = len(row["node_types"])
+    return {
+        "adjacency": np.asarray(row["adjacency"]).reshape(n, n),
+        "node_types": np.asarray(row["node_types"]),
+        "positions": np.asarray(row["positions"], dtype=np.float64).reshape(n, 2),
+    }
