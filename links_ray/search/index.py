@@ -66,7 +66,7 @@ DIMENSIONS = 64
 #: Paths passed from the scan to the estimate: this share of the index's paths, and at least
 #: MIN_CANDIDATES (every path, in every variant, when there are no more than that); past
 #: GROWTH_ROWS paths, see `stage_sizes`.
-CANDIDATE_SHARE, MIN_CANDIDATES = 0.025, 3_000
+CANDIDATE_SHARE, MIN_CANDIDATES = 0.01, 3_000
 #: Sketch points the scan reads of each path (evenly spaced in time, all in the sketch's
 #: leading half: one cache line per coordinate).
 SCAN_POINTS = 16
@@ -76,7 +76,7 @@ SCAN_SLOTS = kernels.scan_slots(SCAN_POINTS)
 VARIANT_MARGIN = 0.002
 #: Candidate pairs estimated from their whole sketches, and the query points that estimate
 #: measures from (the rough one measures from `search_kernels.ROUGH_SAMPLE`).
-REFINED, QUERY_SAMPLE = 2_500, 48
+REFINED, QUERY_SAMPLE = 1_500, 64
 #: Paths traced again and given the exact chamfer distance (in their likeliest variant, and
 #: in the others where a lower bound leaves them able to matter).
 FINALISTS = 128

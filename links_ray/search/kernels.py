@@ -1,5 +1,6 @@
-"""Compiled kernels of retrieval: path descriptors, the descriptor scan, and the chamfer
-estimate and lower bound against one query. Pure numpy/numba; `retrieval` orchestrates them.
+"""Compiled kernels of retrieval: distance fields (for the coarse lists), sketches, the sketch
+scan, and the chamfer estimates and lower bounds against a query. Pure numpy/numba;
+`search.index` orchestrates them.
 
 Every kernel compares candidates with the query *as drawn*: a query variant (turned 180
 degrees, mirrored, both) is an isometry that is its own inverse, so the distance from a
@@ -48,7 +49,7 @@ _CHUNK = 4096
 #: `sketch_chamfer`), and the points of its coarser leading part.
 SKETCH_POINTS, SKETCH_LEVELS, ROUGH_POINTS = 128, 255, 64
 #: Query points the rough estimate measures from (evenly along the query).
-ROUGH_SAMPLE = 16
+ROUGH_SAMPLE = 32
 #: How many rows ahead the gathering kernels prefetch.
 _AHEAD = 8
 # Pointers became opaque in LLVM 15, and the intrinsic's name says the pointer type.
