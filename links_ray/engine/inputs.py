@@ -188,20 +188,37 @@ def as_positions(positions: ArrayLike, n_joints: int, *, batch: bool = False) ->
     return array
 
 
-def check_positions(adjacency: np.ndarray, positions: np.ndarray) -> None:
-    """Refuse degenerate geometry (batch-aware): coordinates beyond MAX_COORDINATE, and linked
-    joints closer than MIN_LINK_LENGTH, the crank included."""
-    if np.any(np.abs(positions) > MAX_COORDINATE):
-        raise InvalidMechanismError(f"positions must lie within +-{MAX_COORDINATE:g}")
+def link_pairs(adjacency: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(i, j) of every link of `adjacency`, i < j, in row order."""
     i, j = np.nonzero(np.triu(adjacency, 1))
-    lengths = np.linalg.norm(positions[..., i, :] - positions[..., j, :], axis=-1)
-    short = lengths < MIN_LINK_LENGTH
-    if np.any(short):
-        k = int(np.flatnonzero(short.reshape(-1, len(i)).any(axis=0))[0])
-        what = "the crank has zero length" if (i[k], j[k]) == (0, 1) else "a link has zero length"
-        raise InvalidMechanismError(
-            f"{what}: joints {i[k]} and {j[k]} are closer than {MIN_LINK_LENGTH:g}"
-        )
+    return i, j
+
+
+def check_positions(
+    adjacency: np.ndarray,
+    positions: np.ndarray,
+    links: tuple[np.ndarray, np.ndarray] | None = None,
+) -> None:
+    """Refuse degenerate geometry (batch-aware): coordinates beyond MAX_COORDINATE, and linked
+    joints closer than MIN_LINK_LENGTH, the crank included. `links` is `link_pairs(adjacency)`
+    if the caller keeps it."""
+    if positions.size and np.abs(positions).max() > MAX_COORDINATE:
+        raise InvalidMechanismError(f"positions must lie within +-{MAX_COORDINATE:g}")
+    i, j = link_pairs(adjacency) if links is None else links
+    gaps = positions[..., i, :] - positions[..., j, :]
+    # Squared lengths first, a wide margin below which the lengths themselves are measured:
+    # most calls then take no square root.
+    squares = np.einsum("...k,...k->...", gaps, gaps)
+    if squares.size and squares.min() < (2 * MIN_LINK_LENGTH) ** 2:
+        short = np.linalg.norm(gaps, axis=-1) < MIN_LINK_LENGTH
+        if np.any(short):
+            k = int(np.flatnonzero(short.reshape(-1, len(i)).any(axis=0))[0])
+            what = (
+                "the crank has zero length" if (i[k], j[k]) == (0, 1) else "a link has zero length"
+            )
+            raise InvalidMechanismError(
+                f"{what}: joints {i[k]} and {j[k]} are closer than {MIN_LINK_LENGTH:g}"
+            )
 
 
 # -- retrieval queries ------------------------------------------------------------------------
