@@ -129,6 +129,34 @@ def test_bench_simulate_reports_table1() -> None:
     assert f"{result['valid_candidates']} valid)" in text
 
 
+def test_bench_simulate_one_cli_prints_json() -> None:
+    """Every entry point's row counts the mechanisms it turned (five per topology, the last
+    topology cut short for `simulate`'s rows); the rates follow from the timings; the
+    mechanisms are valid ones (each turns in the plain-Python solver)."""
+    result = links("bench", "simulate-one", "--json", "--mechanisms", "7")
+    assert result.returncode == 0, result.stderr
+    data = json.loads(result.stdout)
+    assert data["benchmark"] == "simulate-one" and data["topologies"] == 2
+    rows = data["entry_points"]
+    assert set(rows) == {
+        "simulate",
+        "simulate_new_topology",
+        "prebuilt_one",
+        "prebuilt_topology",
+        "simulate_batch",
+    }
+    for name, row in rows.items():
+        assert row["mechanisms"] == (10 if name in ("prebuilt_topology", "simulate_batch") else 7)
+        assert row["turns_per_second"] == pytest.approx(row["mechanisms"] / row["best_s"])
+        assert row["turns_per_second_low"] <= row["turns_per_second_median"]
+        assert row["turns_per_second_median"] <= row["turns_per_second"]
+    for adjacency, node_types, positions in bench.valid_mechanisms(2, 5, seed=0):
+        for candidate in positions:
+            simulate_reference(adjacency, node_types, candidate, 200)  # raises if it locks
+    text = bench.format_simulate_one(data)
+    assert "links_ray.simulate, one mechanism a call" in text
+
+
 def test_bench_sample_cli_prints_json() -> None:
     """Both samplers see the same topologies (the seed's), so each sampler's candidates per
     valid set are those of measuring it directly; the throughput follows from the entries."""

@@ -9,6 +9,7 @@ are tested in test_studio.py.
 import http.client
 import importlib
 import json
+import math
 import os
 import signal
 import subprocess
@@ -26,6 +27,7 @@ from fourbars import stretched_four_bar, window_slack
 from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
 
 import links_ray
+from links_ray.engine import inputs
 from links_ray.engine.fabrication import fabrication
 from links_ray.engine.inputs import validate_query
 from links_ray.serve.app import bindable_port
@@ -61,12 +63,107 @@ def test_openapi_describes_the_routes(client: Client) -> None:
     routes = {(path, method) for path, item in spec["paths"].items() for method in item}
     assert {
         ("/api/health", "get"),
+        ("/api/limits", "get"),
         ("/api/simulate", "post"),
         ("/api/retrieve", "post"),
         ("/api/synthesize", "post"),
         ("/api/analyze", "post"),
         ("/api/export", "post"),
     } <= routes
+
+
+def schema_of(spec: dict[str, Any], ref: dict[str, Any]) -> dict[str, Any]:
+    """The component a `$ref` names."""
+    return spec["components"]["schemas"][ref["$ref"].rpartition("/")[2]]
+
+
+def test_openapi_bodies_carry_the_engines_limits(client: Client) -> None:
+    """Every API route has its request and response schemas; their bounds are the limits of
+    engine/inputs.py; every refusal is documented as {"error"} (a locking simulation as
+    {"error", "step", "node"}), never FastAPI's {"detail"}."""
+    _, spec = client.get("/openapi.json")
+    paths = spec["paths"]
+    requests = {}
+    for path in ("/api/simulate", "/api/retrieve", "/api/synthesize", "/api/analyze"):
+        operation = paths[path]["post"]
+        body = operation["requestBody"]["content"]["application/json"]["schema"]
+        requests[path] = schema_of(spec, body)["properties"]
+        responses = operation["responses"]
+        assert schema_of(spec, responses["200"]["content"]["application/json"]["schema"])
+        for status in ("400", "413", "415"):
+            error = schema_of(spec, responses[status]["content"]["application/json"]["schema"])
+            assert set(error["properties"]) == {"error"}, (path, status)
+    for path in ("/api/health", "/api/limits"):
+        ok = paths[path]["get"]["responses"]["200"]["content"]["application/json"]["schema"]
+        assert schema_of(spec, ok)["properties"]
+    locking = paths["/api/simulate"]["post"]["responses"]["422"]["content"]["application/json"]
+    assert set(schema_of(spec, locking["schema"])["properties"]) == {"error", "step", "node"}
+    assert "HTTPValidationError" not in json.dumps(spec)
+
+    for path in ("/api/retrieve", "/api/synthesize"):
+        fields = requests[path]
+        points = fields["points"]
+        assert (points["minItems"], points["maxItems"]) == (inputs.MIN_POINTS, inputs.MAX_POINTS)
+        assert points["items"]["minItems"] == points["items"]["maxItems"] == 2
+        assert points["items"]["items"]["maximum"] == inputs.MAX_COORDINATE
+        k = fields["k"]
+        assert (k["minimum"], k["maximum"], k["default"]) == (
+            inputs.MIN_K,
+            inputs.MAX_K,
+            inputs.DEFAULT_K,
+        )
+        assert fields["min_transmission"]["maximum"] == inputs.MAX_TRANSMISSION_DEG
+    seconds = requests["/api/synthesize"]["seconds"]
+    assert seconds["exclusiveMinimum"] == 0
+    assert seconds["maximum"] == inputs.MAX_SYNTHESIS_SECONDS
+    assert seconds["default"] == inputs.DEFAULT_SYNTHESIS_SECONDS
+    for path in ("/api/simulate", "/api/analyze"):
+        fields = requests[path]
+        steps = fields["steps"]
+        assert (steps["minimum"], steps["maximum"], steps["default"]) == (
+            inputs.MIN_STEPS,
+            inputs.MAX_STEPS,
+            inputs.DEFAULT_STEPS,
+        )
+        adjacency = fields["adjacency"]
+        assert adjacency["minItems"] == inputs.MIN_JOINTS
+        assert adjacency["maxItems"] == inputs.MAX_REQUEST_JOINTS
+        node_types = fields["node_types"]
+        assert node_types["maxItems"] == inputs.MAX_REQUEST_JOINTS
+        assert node_types["items"]["enum"] == [0, 1, 2]
+    positions = requests["/api/simulate"]["positions"]
+    assert positions["maxItems"] == inputs.MAX_REQUEST_JOINTS
+    export = paths["/api/export"]["post"]
+    body = export["requestBody"]["content"]["application/json"]["schema"]
+    fields = schema_of(spec, body)["properties"]
+    assert fields["crank_mm"]["maximum"] == inputs.MAX_CRANK_MM
+    assert fields["crank_mm"]["default"] == inputs.DEFAULT_CRANK_MM
+    assert fields["format"]["enum"] == ["svg", "dxf", "table"]
+    assert {"image/svg+xml", "image/vnd.dxf"} <= set(export["responses"]["200"]["content"])
+
+
+def test_limits_are_the_engines_and_enforced(client: Client) -> None:
+    """GET /api/limits is engine/inputs.py's limits, and each is where requests start to be
+    refused."""
+    status, limits = client.get("/api/limits")
+    assert status == 200 and limits == inputs.request_limits()
+    assert (limits["max_points"], limits["max_k"], limits["max_joints"]) == (
+        inputs.MAX_POINTS,
+        inputs.MAX_K,
+        inputs.MAX_REQUEST_JOINTS,
+    )
+    assert limits["max_joint_steps"] == inputs.MAX_REQUEST_JOINT_STEPS
+    assert limits["max_seconds"] == inputs.MAX_SYNTHESIS_SECONDS
+    curve = [[math.cos(t), math.sin(2 * t)] for t in np.linspace(0, 6, limits["max_points"])]
+    assert client.post("/api/retrieve", {"points": curve, "k": limits["max_k"]})[0] == 200
+    too_many = [*curve, [0.5, 0.5]]
+    assert client.post("/api/retrieve", {"points": too_many})[0] == 400
+    assert client.post("/api/retrieve", {"points": curve, "k": limits["max_k"] + 1})[0] == 400
+    assert client.post("/api/retrieve", {"points": curve[:3], "k": limits["min_k"]})[0] == 200
+    assert client.post("/api/retrieve", {"points": curve[:2]})[0] == 400
+    steps = limits["max_joint_steps"] // 4
+    assert client.post("/api/simulate", {**FOUR_BAR, "steps": steps})[0] == 200
+    assert client.post("/api/simulate", {**FOUR_BAR, "steps": steps + 1})[0] == 413
 
 
 @pytest.mark.parametrize("steps", [None, 50, 1])

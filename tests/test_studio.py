@@ -23,6 +23,7 @@ from drawings import dxf_header, dxf_sections, field
 from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
 
 import links_ray
+from links_ray.engine.inputs import MAX_K, MAX_TRANSMISSION_DEG, request_limits
 from links_ray.engine.mechanism import analyze_topology
 
 CHROMIUM = os.environ.get("LINKS_CHROMIUM", "/usr/bin/chromium")
@@ -279,6 +280,47 @@ def test_page_loads_without_console_errors(studio: Studio, client: Client) -> No
     assert not studio.page.get_by_test_id("error").is_visible()
     time.sleep(0.5)  # anything logged late still fails the fixture's check
     assert studio.errors == []
+
+
+def test_the_studio_takes_its_limits_from_the_api(
+    studio: Studio, browser: Any, client: Client, tmp_path: Path
+) -> None:
+    """The page asks GET /api/limits and bounds its inputs and imports by the answer: the
+    engine's limits here, and other limits when the API gives others (no number of its own)."""
+    assert "/api/limits" in studio.requests
+    assert studio.js("() => window.studio.limits") == request_limits()
+    assert studio.page.get_by_test_id("k").get_attribute("max") == str(MAX_K)
+    angle = studio.page.get_by_test_id("min-transmission").get_attribute("max")
+    assert float(angle) == MAX_TRANSMISSION_DEG
+
+    context = browser.new_context(viewport=VIEWPORT)
+    try:
+        page = context.new_page()
+        other = {**request_limits(), "max_k": 7, "max_joints": 5, "max_transmission_deg": 20}
+        page.route("**/api/limits", lambda route: route.fulfill(json=other))
+        narrow = Studio(page, studio.base)
+        narrow.open()
+        assert narrow.page.get_by_test_id("k").get_attribute("max") == "7"
+        assert narrow.page.get_by_test_id("min-transmission").get_attribute("max") == "20"
+        six_joints = {
+            "adjacency": [
+                [0, 1, 0, 0, 0, 0],
+                [1, 0, 0, 1, 1, 0],
+                [0, 0, 0, 1, 0, 0],
+                [0, 1, 1, 0, 0, 1],
+                [0, 1, 0, 0, 0, 1],
+                [0, 0, 0, 1, 1, 0],
+            ],
+            "node_types": [0, 2, 0, 1, 1, 1],
+            "positions": [[0.5, 0.5], [0.55, 0.5], [0.8, 0.5], [0.6, 0.7], [0.5, 0.7], [0.6, 0.8]],
+        }
+        narrow.import_mechanism(tmp_path, six_joints, "six.json")
+        narrow.wait("() => !document.querySelector('[data-testid=error]').hidden")
+        assert "at most 5 joints, got 6" in narrow.text("error")
+        assert len(narrow.mechanism()["node_types"]) == 3
+        assert narrow.unexpected_errors() == []
+    finally:
+        context.close()
 
 
 def test_four_bar_built_by_clicks_simulates_as_links_ray(studio: Studio) -> None:

@@ -1,4 +1,5 @@
-"""Benchmarks behind `links bench`: the paper's Table 1 and the position samplers.
+"""Benchmarks behind `links bench`: the paper's Table 1, one mechanism per call, and the
+position samplers.
 
 Each function returns a plain dict (the `--json` output); `format_*` renders it as a table with
 the paper's figures beside ours. Timings are wall-clock on this machine, after compilation.
@@ -20,7 +21,12 @@ from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.mechanism import CRANK_CENTER, CRANK_TIP, MAX_DATASET_JOINTS
 from links_ray.engine.reference import simulate_reference
 from links_ray.engine.sampling import SAMPLERS, PositionSampler, measure_candidates_per_valid
-from links_ray.engine.solver import TopologySimulator
+from links_ray.engine.solver import (
+    TopologySimulator,
+    simulate,
+    simulate_batch,
+    topology_cache,
+)
 from links_ray.engine.topology import random_topology
 
 #: Table 1 of the paper: seconds to simulate 10,000 random mechanisms (mean of 10 runs).
@@ -163,6 +169,109 @@ def bench_simulate(
     }
 
 
+def valid_mechanisms(topologies: int, variants: int, seed: int) -> Workload:
+    """`topologies` random topologies (8-20 joints) with `variants` valid position sets each,
+    as the dataset holds them."""
+    rng = np.random.default_rng(seed)
+    found = []
+    for _ in range(topologies):
+        adjacency, node_types = random_topology(rng)
+        sampler = PositionSampler(TopologySimulator(adjacency, node_types))
+        found.append((adjacency, node_types, sampler.search(variants, rng, "sequential").positions))
+    return found
+
+
+def bench_simulate_one(
+    mechanisms: int = 200, repeats: int = 7, variants: int = 5, seed: int = 0
+) -> dict:
+    """Full turns a second of valid mechanisms (8-20 joints, 200 steps) by entry point, one
+    thread: `simulate` one mechanism a call (its topology seen before, and new), a prebuilt
+    `TopologySimulator` one mechanism a call and one topology a call, and `simulate_batch`
+    one topology a call."""
+    steps = DEFAULT_STEPS
+    topologies = -(-mechanisms // variants)
+    workload = valid_mechanisms(topologies, variants, seed)
+    singles = [
+        (adjacency, node_types, pos)
+        for adjacency, node_types, positions in workload
+        for pos in positions
+    ][:mechanisms]
+    prebuilt = [(TopologySimulator(a, t), pos[None]) for a, t, pos in singles]
+    by_topology = [(TopologySimulator(a, t), positions) for a, t, positions in workload]
+    batch_count = sum(len(positions) for _, _, positions in workload)
+
+    def one_new_topology() -> None:
+        for adjacency, node_types, pos in singles:
+            topology_cache.clear()  # as if every call brought a topology never seen
+            simulate(adjacency, node_types, pos, steps)
+
+    runs: dict[str, tuple[Callable[[], object], int, str]] = {
+        "simulate": (
+            lambda: [simulate(a, t, pos, steps) for a, t, pos in singles],
+            len(singles),
+            "links_ray.simulate, one mechanism a call, its topology seen before",
+        ),
+        "simulate_new_topology": (
+            one_new_topology,
+            len(singles),
+            "links_ray.simulate, one mechanism a call, a topology never seen",
+        ),
+        "prebuilt_one": (
+            lambda: [simulator.simulate(pos, steps) for simulator, pos in prebuilt],
+            len(singles),
+            "TopologySimulator(...).simulate, built beforehand, one mechanism a call",
+        ),
+        "prebuilt_topology": (
+            lambda: [simulator.simulate(positions, steps) for simulator, positions in by_topology],
+            batch_count,
+            f"TopologySimulator(...).simulate, built beforehand, {variants} sets a call",
+        ),
+        "simulate_batch": (
+            lambda: [simulate_batch(a, t, positions, steps) for a, t, positions in workload],
+            batch_count,
+            f"links_ray.simulate_batch, one topology ({variants} sets) a call",
+        ),
+    }
+    times: dict[str, list[float]] = {name: [] for name in runs}
+    cpu: dict[str, list[float]] = {name: [] for name in runs}
+    # The row that empties the topology cache at every call is timed after the others.
+    cold = "simulate_new_topology"
+    runs[cold][0]()  # compiles outside the timing
+    for names in ([name for name in runs if name != cold], [cold]):
+        for name in names:
+            runs[name][0]()  # fills the topology cache outside the timing
+        # Round robin, so that the load of a shared machine, and its drift, fall on every row.
+        for _ in range(repeats):
+            for name in names:
+                start, start_cpu = time.perf_counter(), time.thread_time()
+                runs[name][0]()
+                cpu[name].append(time.thread_time() - start_cpu)
+                times[name].append(time.perf_counter() - start)
+    rows = {}
+    for name, (_, count, what) in runs.items():
+        rates = sorted(count / t for t in times[name])
+        rows[name] = {
+            "what": what,
+            "mechanisms": count,
+            **_summary(times[name]),
+            "turns_per_second": count / min(times[name]),
+            "turns_per_second_median": statistics.median(rates),
+            "turns_per_second_low": rates[0],
+            # CPU time of this thread: on a shared machine, what the calls themselves cost.
+            "turns_per_cpu_second": count / min(cpu[name]),
+            "turns_per_cpu_second_median": count / statistics.median(cpu[name]),
+        }
+    topology_cache.clear()
+    return {
+        "benchmark": "simulate-one",
+        "machine": machine_info(),
+        "steps": steps,
+        "topologies": topologies,
+        "repeats": repeats,
+        "entry_points": rows,
+    }
+
+
 def bench_sample(per_joint_count: int = 10, count: int = 5, seed: int = 0) -> dict:
     """Valid mechanisms per core-second for each sampler, and candidates per valid by size."""
     rng = np.random.default_rng(seed)
@@ -224,6 +333,23 @@ def format_simulate(result: dict) -> str:
         f"({full['mechanisms']:,} in {full['best_s']:.3f} s best); target 60,000",
         f"Target: compiled 1 thread <= 0.15 s; measured {one['best_s']:.3f} s best",
     ]
+    return "\n".join(lines)
+
+
+def format_simulate_one(result: dict) -> str:
+    """Turns a second by entry point: wall clock (best and slowest run) and CPU time."""
+    rows = result["entry_points"]
+    lines = [
+        f"Full turns of valid mechanisms ({result['steps']} steps, 8-20 joints, "
+        f"{result['topologies']} topologies), 1 thread, {result['repeats']} runs",
+        f"{'entry point':<76}{'wall best':>11}{'slowest':>9}{'CPU best':>10}{'median':>9}",
+    ]
+    for row in rows.values():
+        lines.append(
+            f"{row['what']:<76}{row['turns_per_second']:>11,.0f}"
+            f"{row['turns_per_second_low']:>9,.0f}{row['turns_per_cpu_second']:>10,.0f}"
+            f"{row['turns_per_cpu_second_median']:>9,.0f}"
+        )
     return "\n".join(lines)
 
 

@@ -39,6 +39,11 @@ def _bench_simulate(args: argparse.Namespace) -> None:
     _report(args, bench.bench_simulate(repeats=args.repeats), bench.format_simulate)
 
 
+def _bench_simulate_one(args: argparse.Namespace) -> None:
+    result = bench.bench_simulate_one(mechanisms=args.mechanisms)
+    _report(args, result, bench.format_simulate_one)
+
+
 def _bench_sample(args: argparse.Namespace) -> None:
     _report(args, bench.bench_sample(per_joint_count=args.topologies), bench.format_sample)
 
@@ -454,6 +459,13 @@ def build_parser() -> argparse.ArgumentParser:
         "the paper's Table 1: 10,000 random mechanisms, 200 steps",
         _bench_simulate,
         ("--repeats", 5, "timed runs of each method"),
+    )
+    _add_bench(
+        benches,
+        "simulate-one",
+        "one mechanism a call: full turns a second of simulate, TopologySimulator, simulate_batch",
+        _bench_simulate_one,
+        ("--mechanisms", 200, "valid mechanisms (8-20 joints, five per topology)"),
     )
     _add_bench(
         benches,

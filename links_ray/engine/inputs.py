@@ -20,8 +20,10 @@ FIXED, SIMPLE, ACTUATED = 0, 1, 2
 #: Largest mechanism the engine takes, in joints: finding the solution path is quadratic in the
 #: joints, and no hand-drawn linkage comes near this.
 MAX_JOINTS = 1000
+#: The crank: joint 0 and joint 1.
+MIN_JOINTS = 2
 DEFAULT_STEPS = 200
-MAX_STEPS = 100_000
+MIN_STEPS, MAX_STEPS = 1, 100_000
 #: Coordinates and link lengths the solver handles without its squares overflowing and without
 #: its circles collapsing to points.
 MAX_COORDINATE = 1e12
@@ -32,7 +34,7 @@ MIN_LINK_LENGTH = 1e-9
 MIN_POINTS, MAX_POINTS = 3, 10_000
 #: A query spanning less than this has no curve to match (and its frame would not invert).
 MIN_EXTENT = 1e-9
-DEFAULT_K, MAX_K = 3, 100
+DEFAULT_K, MIN_K, MAX_K = 3, 1, 100
 
 # -- refinement (engine.refine) ----------------------------------------------------------------
 
@@ -77,6 +79,29 @@ MAX_REQUEST_JOINT_STEPS = 100_000
 MAX_BODY_BYTES = 2 * 1024 * 1024
 
 
+def request_limits() -> dict[str, float | int]:
+    """The limits an HTTP request meets, by name, as `GET /api/limits` gives them to clients
+    (the studio reads its own from there)."""
+    return {
+        "min_points": MIN_POINTS,
+        "max_points": MAX_POINTS,
+        "min_k": MIN_K,
+        "max_k": MAX_K,
+        "default_k": DEFAULT_K,
+        "min_joints": MIN_JOINTS,
+        "max_joints": MAX_REQUEST_JOINTS,
+        "min_steps": MIN_STEPS,
+        "max_steps": MAX_STEPS,
+        "default_steps": DEFAULT_STEPS,
+        "max_joint_steps": MAX_REQUEST_JOINT_STEPS,
+        "max_seconds": MAX_SYNTHESIS_SECONDS,
+        "default_seconds": DEFAULT_SYNTHESIS_SECONDS,
+        "max_transmission_deg": MAX_TRANSMISSION_DEG,
+        "max_coordinate": MAX_COORDINATE,
+        "max_body_bytes": MAX_BODY_BYTES,
+    }
+
+
 class InvalidMechanismError(ValueError):
     """The input is not a simulable one-degree-of-freedom dyadic mechanism."""
 
@@ -105,7 +130,7 @@ def as_int(
 
 def as_steps(steps: object) -> int:
     """A step count from 1 to MAX_STEPS, or InvalidMechanismError."""
-    return as_int("steps", steps, 1, MAX_STEPS, InvalidMechanismError)
+    return as_int("steps", steps, MIN_STEPS, MAX_STEPS, InvalidMechanismError)
 
 
 # -- mechanism arrays -------------------------------------------------------------------------
@@ -142,8 +167,10 @@ def as_graph(adjacency: ArrayLike, node_types: ArrayLike) -> tuple[np.ndarray, n
     n = adj.shape[0]
     if adj.shape != (n, n):
         raise InvalidMechanismError(f"adjacency must be square, got shape {adj.shape}")
-    if n < 2:
-        raise InvalidMechanismError(f"a mechanism needs at least 2 joints (the crank), got {n}")
+    if n < MIN_JOINTS:
+        raise InvalidMechanismError(
+            f"a mechanism needs at least {MIN_JOINTS} joints (the crank), got {n}"
+        )
     if n > MAX_JOINTS:
         raise InvalidMechanismError(f"at most {MAX_JOINTS} joints are supported, got {n}")
     if types.shape != (n,):
@@ -196,20 +223,37 @@ def as_positions(positions: ArrayLike, n_joints: int, *, batch: bool = False) ->
     return array
 
 
-def check_positions(adjacency: np.ndarray, positions: np.ndarray) -> None:
-    """Refuse degenerate geometry (batch-aware): coordinates beyond MAX_COORDINATE, and linked
-    joints closer than MIN_LINK_LENGTH, the crank included."""
-    if np.any(np.abs(positions) > MAX_COORDINATE):
-        raise InvalidMechanismError(f"positions must lie within +-{MAX_COORDINATE:g}")
+def link_pairs(adjacency: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(i, j) of every link of `adjacency`, i < j, in row order."""
     i, j = np.nonzero(np.triu(adjacency, 1))
-    lengths = np.linalg.norm(positions[..., i, :] - positions[..., j, :], axis=-1)
-    short = lengths < MIN_LINK_LENGTH
-    if np.any(short):
-        k = int(np.flatnonzero(short.reshape(-1, len(i)).any(axis=0))[0])
-        what = "the crank has zero length" if (i[k], j[k]) == (0, 1) else "a link has zero length"
-        raise InvalidMechanismError(
-            f"{what}: joints {i[k]} and {j[k]} are closer than {MIN_LINK_LENGTH:g}"
-        )
+    return i, j
+
+
+def check_positions(
+    adjacency: np.ndarray,
+    positions: np.ndarray,
+    links: tuple[np.ndarray, np.ndarray] | None = None,
+) -> None:
+    """Refuse degenerate geometry (batch-aware): coordinates beyond MAX_COORDINATE, and linked
+    joints closer than MIN_LINK_LENGTH, the crank included. `links` is `link_pairs(adjacency)`
+    if the caller keeps it."""
+    if positions.size and np.abs(positions).max() > MAX_COORDINATE:
+        raise InvalidMechanismError(f"positions must lie within +-{MAX_COORDINATE:g}")
+    i, j = link_pairs(adjacency) if links is None else links
+    gaps = positions[..., i, :] - positions[..., j, :]
+    # Squared lengths first, a wide margin below which the lengths themselves are measured:
+    # most calls then take no square root.
+    squares = np.einsum("...k,...k->...", gaps, gaps)
+    if squares.size and squares.min() < (2 * MIN_LINK_LENGTH) ** 2:
+        short = np.linalg.norm(gaps, axis=-1) < MIN_LINK_LENGTH
+        if np.any(short):
+            k = int(np.flatnonzero(short.reshape(-1, len(i)).any(axis=0))[0])
+            what = (
+                "the crank has zero length" if (i[k], j[k]) == (0, 1) else "a link has zero length"
+            )
+            raise InvalidMechanismError(
+                f"{what}: joints {i[k]} and {j[k]} are closer than {MIN_LINK_LENGTH:g}"
+            )
 
 
 # -- retrieval queries ------------------------------------------------------------------------
@@ -243,7 +287,7 @@ def as_drawn_points(points: object, name: str = "points") -> np.ndarray:
 
 def validate_query(points: object, k: object = DEFAULT_K) -> tuple[np.ndarray, int]:
     """A retrieval query as a float64 (T, 2) array and k, or ValueError naming the problem."""
-    k = as_int("k", k, 1, MAX_K)
+    k = as_int("k", k, MIN_K, MAX_K)
     return as_drawn_points(points), k
 
 

@@ -25,6 +25,7 @@ from links_ray.engine.inputs import (
     InvalidMechanismError,
     as_graph,
     as_positions,
+    link_pairs,
 )
 
 CRANK_CENTER = (0.5, 0.5)
@@ -61,6 +62,11 @@ class Topology:
     @cached_property
     def fixed_joints(self) -> np.ndarray:
         return np.flatnonzero(self.node_types == FIXED).astype(np.int64)
+
+    @cached_property
+    def links(self) -> tuple[np.ndarray, np.ndarray]:
+        """(i, j) of every link, i < j, in row order (`inputs.link_pairs`)."""
+        return link_pairs(self.adjacency)
 
     @property
     def last_joint(self) -> int:

@@ -61,7 +61,7 @@ from links_ray.engine.inputs import (
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.paths import chamfer, longest_chord
 from links_ray.engine.refine_kernels import best_interval, nearest_pairs, solve_tangents
-from links_ray.engine.solver import crank_table
+from links_ray.engine.solver import crank_turn
 from links_ray.engine.turning import rigid_dyads, turn_lock
 
 __all__ = ["Refinement", "check_mechanism", "refine", "refine_many"]
@@ -124,16 +124,6 @@ class Check:
     rigid: np.ndarray
 
 
-_CRANKS: dict[int, np.ndarray] = {}
-
-
-def _crank(steps: int) -> np.ndarray:
-    table = _CRANKS.get(steps)
-    if table is None:
-        table = _CRANKS[steps] = crank_table(steps)
-    return table
-
-
 def _solve(
     topology: Topology, positions: np.ndarray, steps: int, tangents: bool
 ) -> tuple[tuple[int, int], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -149,7 +139,7 @@ def _solve(
         topology.order,
         topology.fixed_joints,
         positions,
-        _crank(steps),
+        crank_turn(steps),
         traj,
         dtraj,
         trans,

@@ -10,11 +10,22 @@ Pure numpy/numba: no Ray.
 
 from __future__ import annotations
 
+import functools
+import threading
+from collections import OrderedDict
+
 import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
-from links_ray.engine.inputs import DEFAULT_STEPS, as_positions, as_steps, check_positions
+from links_ray.engine.inputs import (
+    DEFAULT_STEPS,
+    MAX_COORDINATE,
+    MIN_LINK_LENGTH,
+    as_positions,
+    as_steps,
+    check_positions,
+)
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.turning import turn_lock
 
@@ -22,6 +33,12 @@ from links_ray.engine.turning import turn_lock
 BLOCK = 16
 #: Steps per block of a lock check: small, so a rejected candidate costs little past its lock.
 CHECK_BLOCK = 4
+#: Topologies `simulate`, `simulate_batch` and `simulate_until_lock` keep analysed (validated,
+#: solution path found), the least recently used dropped first.
+TOPOLOGY_CACHE_SIZE = 256
+#: Larger topologies are analysed at every call: their keys would be large (n x n entries),
+#: and the analysis is small beside their simulation.
+CACHE_MAX_JOINTS = 100
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -172,6 +189,28 @@ def simulate_one(
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def positions_suspect(
+    pos: np.ndarray, link_i: np.ndarray, link_j: np.ndarray, max_coordinate: float, min_link: float
+) -> bool:
+    """Whether `inputs.as_positions` or `inputs.check_positions` might refuse position sets
+    (B, n, 2) of links (link_i, link_j): a coordinate that is not finite or beyond
+    `max_coordinate`, or a link shorter than twice `min_link`. Never False where they would
+    refuse, so a caller that runs them only when this is True refuses exactly what they do."""
+    bound = (2.0 * min_link) * (2.0 * min_link)
+    for b in range(pos.shape[0]):
+        for i in range(pos.shape[1]):
+            # Written so that NaN fails too.
+            if not (abs(pos[b, i, 0]) <= max_coordinate and abs(pos[b, i, 1]) <= max_coordinate):
+                return True
+        for k in range(link_i.shape[0]):
+            dx = pos[b, link_i[k], 0] - pos[b, link_j[k], 0]
+            dy = pos[b, link_i[k], 1] - pos[b, link_j[k], 1]
+            if dx * dx + dy * dy < bound:
+                return True
+    return False
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def simulate_turn(
     order: np.ndarray,
     fixed: np.ndarray,
@@ -262,19 +301,23 @@ def trace_joints(
             out[i] = traj[joints[i]]
 
 
+@functools.lru_cache(maxsize=16)
+def crank_turn(steps: int) -> np.ndarray:
+    """`crank_table(steps)`, made once per step count: callers share it, and never write to it."""
+    return crank_table(steps)
+
+
 class TopologySimulator:
     """Simulates many position sets of one topology; its solution path is found once."""
 
     def __init__(self, adjacency: ArrayLike, node_types: ArrayLike) -> None:
         self.topology: Topology = analyze_topology(adjacency, node_types)
-        self._crank: dict[int, np.ndarray] = {}
 
     @classmethod
     def from_topology(cls, topology: Topology) -> TopologySimulator:
         """Wrap an already validated topology."""
         simulator = cls.__new__(cls)
         simulator.topology = topology
-        simulator._crank = {}
         return simulator
 
     @property
@@ -282,16 +325,11 @@ class TopologySimulator:
         return self.topology.n_joints
 
     def crank(self, steps: int) -> np.ndarray:
-        table = self._crank.get(steps)
-        if table is None:
-            table = self._crank[steps] = crank_table(steps)
-        return table
+        """The crank's turn at `steps` steps (`crank_turn`)."""
+        return crank_turn(steps)
 
     def _prepare(self, positions: ArrayLike, steps: int) -> tuple[np.ndarray, int]:
-        steps = as_steps(steps)
-        positions = as_positions(positions, self.n_joints, batch=True)
-        check_positions(self.topology.adjacency, positions)
-        return positions, steps
+        return checked_input(self.topology, positions, steps, batch=True)
 
     def simulate(
         self, positions: ArrayLike, steps: int = DEFAULT_STEPS
@@ -358,6 +396,73 @@ class TopologySimulator:
         return lock_step, lock_node
 
 
+class _TopologyCache:
+    """Analysed topologies by the bytes of the arrays they were given: a bounded LRU, shared
+    by threads. Only topologies that pass the analysis are kept, so a bad one raises the same
+    error at every call."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self._simulators: OrderedDict[tuple, TopologySimulator] = OrderedDict()
+        self._lock = threading.Lock()
+
+    @staticmethod
+    def key(adjacency: np.ndarray, node_types: np.ndarray) -> tuple | None:
+        """What the analysis of these arrays depends on (copied: a caller may change its
+        arrays later), or None for arrays not to cache: non-numeric ones, which the analysis
+        refuses with a message, and large ones."""
+        if (
+            adjacency.dtype.kind not in "biuf"
+            or node_types.dtype.kind not in "biuf"
+            or adjacency.size > CACHE_MAX_JOINTS * CACHE_MAX_JOINTS
+            or node_types.size > CACHE_MAX_JOINTS
+        ):
+            return None
+        return (
+            adjacency.dtype.str,
+            adjacency.shape,
+            adjacency.tobytes(),
+            node_types.dtype.str,
+            node_types.shape,
+            node_types.tobytes(),
+        )
+
+    def simulator(self, adjacency: ArrayLike, node_types: ArrayLike) -> TopologySimulator:
+        """The simulator of this topology, analysed at its first call only."""
+        try:
+            adjacency, node_types = np.asarray(adjacency), np.asarray(node_types)
+        except (TypeError, ValueError):  # ragged lists: the analysis names the problem
+            return TopologySimulator(adjacency, node_types)
+        key = self.key(adjacency, node_types)
+        if key is None:
+            return TopologySimulator(adjacency, node_types)
+        with self._lock:
+            simulator = self._simulators.get(key)
+            if simulator is not None:
+                self._simulators.move_to_end(key)
+                return simulator
+        # Raises for a bad topology. Its arrays are copies of the caller's, so a caller that
+        # changes its own arrays later changes neither this simulator nor its key. They stay
+        # writable: read-only arrays would be another type for each compiled kernel.
+        simulator = TopologySimulator(adjacency, node_types)
+        with self._lock:
+            self._simulators[key] = simulator
+            while len(self._simulators) > self.size:
+                self._simulators.popitem(last=False)
+        return simulator
+
+    def clear(self) -> None:
+        with self._lock:
+            self._simulators.clear()
+
+    def __len__(self) -> int:
+        return len(self._simulators)
+
+
+#: The topologies the one-call functions below have analysed.
+topology_cache = _TopologyCache(TOPOLOGY_CACHE_SIZE)
+
+
 def simulate_batch(
     adjacency: ArrayLike,
     node_types: ArrayLike,
@@ -365,7 +470,41 @@ def simulate_batch(
     steps: int = DEFAULT_STEPS,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One topology, positions (B, n, 2) -> (trajectories (B, n, steps, 2), valid (B,))."""
-    return TopologySimulator(adjacency, node_types).simulate(positions, steps)
+    return topology_cache.simulator(adjacency, node_types).simulate(positions, steps)
+
+
+def checked_input(
+    topology: Topology, positions: ArrayLike, steps: object, *, batch: bool = False
+) -> tuple[np.ndarray, int]:
+    """(positions, steps) of `topology` as `inputs.as_positions` and `as_steps` return them,
+    refused as they and `inputs.check_positions` refuse them, in the API's order: for a
+    batch (B, n, 2) the steps first, else the positions' form, the steps, their geometry.
+
+    The positions' checks run in full only for an array that is not plain float64 or where
+    `positions_suspect` finds something they might refuse: a call in a loop costs about a
+    microsecond, not tens."""
+    if batch:
+        steps = as_steps(steps)
+    n = topology.n_joints
+    plain = (
+        type(positions) is np.ndarray
+        and positions.dtype == np.float64
+        and positions.flags.c_contiguous
+        and positions.shape[-2:] == (n, 2)
+        and positions.ndim == (3 if batch else 2)
+    )
+    if not plain:
+        positions = as_positions(positions, n, batch=batch)
+    link_i, link_j = topology.links
+    sets = positions.reshape(-1, n, 2)
+    suspect = positions_suspect(sets, link_i, link_j, MAX_COORDINATE, MIN_LINK_LENGTH)
+    if suspect:
+        as_positions(positions, n, batch=batch)  # names NaN or infinite entries
+    if not batch:
+        steps = as_steps(steps)
+    if suspect:
+        check_positions(topology.adjacency, positions, topology.links)
+    return positions, int(steps)
 
 
 def simulate(
@@ -374,14 +513,22 @@ def simulate(
     positions: ArrayLike,
     steps: int = DEFAULT_STEPS,
 ) -> np.ndarray:
-    """Trajectories (n, steps, 2) of one mechanism; raises `LockingError` if it locks."""
-    simulator = TopologySimulator(adjacency, node_types)
-    positions = as_positions(positions, simulator.n_joints)[None]
-    positions, steps = simulator._prepare(positions, steps)
-    trajectories, lock_step, lock_node = simulator.run(positions, steps)
-    if lock_step[0] >= 0:
-        raise LockingError(int(lock_step[0]), int(lock_node[0]))
-    return trajectories[0]
+    """Trajectories (n, steps, 2) of one mechanism; raises `LockingError` if it locks.
+
+    The topology's analysis is kept (`topology_cache`), so calls in a loop pay only for the
+    positions' checks and the simulation.
+    """
+    simulator = topology_cache.simulator(adjacency, node_types)
+    topology = simulator.topology
+    positions, steps = checked_input(topology, positions, steps)
+    out = np.empty((simulator.n_joints, steps, 2))
+    geometry = np.empty((topology.order.shape[0], 3))
+    step, node = simulate_turn(
+        topology.order, topology.fixed_joints, positions, crank_turn(steps), out, geometry
+    )
+    if step >= 0:
+        raise LockingError(step, node)
+    return out
 
 
 def simulate_until_lock(
@@ -395,18 +542,21 @@ def simulate_until_lock(
     Without a lock, s = steps and the lock is (-1, -1). Malformed input raises
     `InvalidMechanismError` as `simulate` does.
     """
-    simulator = TopologySimulator(adjacency, node_types)
-    positions = as_positions(positions, simulator.n_joints)[None]
-    positions, steps = simulator._prepare(positions, steps)
-    trajectories, lock_step, lock_node = simulator.run(positions, steps)
-    step, node = int(lock_step[0]), int(lock_node[0])
+    simulator = topology_cache.simulator(adjacency, node_types)
+    topology = simulator.topology
+    positions, steps = checked_input(topology, positions, steps)
+    out = np.empty((simulator.n_joints, steps, 2))
+    geometry = np.empty((topology.order.shape[0], 3))
+    crank = crank_turn(steps)
+    step, node = simulate_turn(
+        topology.order, topology.fixed_joints, positions, crank, out, geometry
+    )
     if step < 0:
-        return trajectories[0], -1, -1
+        return out, -1, -1
     # Every step before the first lock assembles: solve just those, on the same crank angles,
     # without the check between steps (the part of a turn before a lock does not close).
     before = np.empty((simulator.n_joints, step, 2))
-    topology = simulator.topology
-    geometry = np.empty((topology.order.shape[0], 3))
-    crank = simulator.crank(steps)[:step]
-    simulate_one(topology.order, topology.fixed_joints, positions[0], crank, True, before, geometry)
+    simulate_one(
+        topology.order, topology.fixed_joints, positions, crank[:step], True, before, geometry
+    )
     return before, step, node

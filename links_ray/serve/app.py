@@ -8,6 +8,8 @@
 | `POST /api/synthesize` | 200 `{"results", "took_ms"}`, retrieved and refined; 503 when busy |
 | `POST /api/analyze` | 200 the studio's analysis: mobility, dyadic solvability, where it locks |
 | `POST /api/export` | 200 the mechanism as an SVG, DXF or table file in mm (an attachment) |
+| `GET /api/limits` | the limits a request meets (`engine.inputs.request_limits`) |
+| `GET /openapi.json` | the API described, bodies and bounds included (`serve.models`) |
 | `GET /` | the web studio (`links_ray/serve/studio/index.html`) |
 | `GET /studio/<file>` | the studio's scripts and style sheet, from the package |
 
@@ -65,6 +67,7 @@ from typing import Any
 import numpy as np
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.utils import get_openapi
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 from ray import serve
 from ray.exceptions import (
@@ -102,6 +105,7 @@ from links_ray.engine.inputs import (
     as_crank_mm,
     as_steps,
     as_transmission_deg,
+    request_limits,
     validate_query,
     validate_synthesis,
 )
@@ -115,6 +119,7 @@ from links_ray.engine.mechanism import (
 from links_ray.engine.solver import simulate, simulate_until_lock
 from links_ray.engine.synthesis import CANDIDATES, refine_retrieved
 from links_ray.search.index import RetrievalIndex
+from links_ray.serve import models
 
 logger = logging.getLogger("ray.serve")
 
@@ -249,6 +254,54 @@ api = FastAPI(
 api.add_middleware(InternalErrorGuard)
 
 
+def request_body(path: str) -> dict[str, Any]:
+    """The OpenAPI `requestBody` of a POST route: its model in `models.REQUEST_MODELS`.
+
+    The routes read their bodies themselves (`read_json_object`: size, media type, the
+    engine's checks), so FastAPI does not see the model; `api_openapi` adds it."""
+    name = models.REQUEST_MODELS[path].__name__
+    schema = {"$ref": f"#/components/schemas/{name}"}
+    return {"requestBody": {"required": True, "content": {"application/json": {"schema": schema}}}}
+
+
+ERROR_400 = {
+    "description": "Bad Request",
+    "content": {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorResponse"}}},
+}
+
+
+def api_openapi() -> dict[str, Any]:
+    """FastAPI's document of the routes, plus the request bodies' schemas; made once."""
+    if api.openapi_schema is None:
+        document = get_openapi(
+            title=api.title,
+            version=api.version,
+            description="The HTTP API of docs/CONTRACT.md. Every bound is a limit of "
+            'GET /api/limits; a refused request gets a 4xx and {"error": "<what is wrong>"}.',
+            routes=api.routes,
+        )
+        schemas = document.setdefault("components", {}).setdefault("schemas", {})
+        # FastAPI documents a 422 {"detail"} for routes with parameters; this API answers
+        # those 400 {"error"} (`_validation_error`), as ErrorResponse says.
+        for item in document["paths"].values():
+            for operation in item.values():
+                answers = operation.get("responses", {})
+                if "HTTPValidationError" in json.dumps(answers.get("422", {})):
+                    answers.pop("422")
+                    answers.setdefault("400", ERROR_400)
+        for name in ("HTTPValidationError", "ValidationError"):
+            schemas.pop(name, None)
+        for model in models.REQUEST_MODELS.values():
+            schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
+            schemas.update(schema.pop("$defs", {}))
+            schemas[model.__name__] = schema
+        api.openapi_schema = document
+    return api.openapi_schema
+
+
+api.openapi = api_openapi  # type: ignore[method-assign]
+
+
 @api.exception_handler(ApiError)
 async def _api_error(request: Request, exc: ApiError) -> JsonResponse:
     response = _error(exc.status, exc.message, **exc.extra)
@@ -379,6 +432,25 @@ def _numbers(name: str, value: object, count: int, entries: str) -> list:
     return value
 
 
+#: Coordinates `_plain_pairs` passes: finite, and integers that NumPy reads as int64.
+PLAIN_COORDINATE = float(2**62)
+
+
+def _plain_pairs(pairs: list) -> bool:
+    """Whether `pairs` holds only [x, y] lists of JSON numbers within +-PLAIN_COORDINATE: a
+    drawn curve's 10,000 points pass in under a millisecond, where `_pairs`' loop that names
+    the first bad entry takes several."""
+    return all(
+        type(pair) is list
+        and len(pair) == 2
+        and type(pair[0]) in (float, int)
+        and type(pair[1]) in (float, int)
+        and -PLAIN_COORDINATE < pair[0] < PLAIN_COORDINATE
+        and -PLAIN_COORDINATE < pair[1] < PLAIN_COORDINATE
+        for pair in pairs
+    )
+
+
 def _pairs(name: str, value: object, count: int | None = None) -> list[list[float]]:
     """`value` as a list of finite [x, y] number pairs (`count` of them if given)."""
     if not isinstance(value, list):
@@ -387,6 +459,8 @@ def _pairs(name: str, value: object, count: int | None = None) -> list[list[floa
         raise ApiError(
             400, f"{name} must hold {count} [x, y] pairs (one per joint), got {len(value)}"
         )
+    if _plain_pairs(value):
+        return value
     for i, pair in enumerate(value):
         if not isinstance(pair, list) or len(pair) != 2:
             what = f"{len(pair)} entries" if isinstance(pair, list) else _kind(pair)
@@ -734,7 +808,7 @@ class LinksApi:
         """One of the studio's scripts or its style sheet; 404 for any other name."""
         return studio_response(name)
 
-    @api.get("/api/health")
+    @api.get("/api/health", response_model=models.HealthResponse)
     async def api_health(self) -> JsonResponse:
         """`{"status": "ok", "paths": <indexed paths>}`, and with shards their parts' paths."""
         if self._retrieving is not None:
@@ -743,7 +817,20 @@ class LinksApi:
         shards = [{"part": part, "paths": paths} for part, paths in enumerate(counts)]
         return JsonResponse({"status": "ok", "paths": sum(counts), "shards": shards})
 
-    @api.post("/api/simulate")
+    @api.get("/api/limits", response_model=models.LimitsResponse)
+    async def api_limits(self) -> JsonResponse:
+        """The limits every request meets (the studio reads its own from here)."""
+        return JsonResponse(request_limits())
+
+    @api.post(
+        "/api/simulate",
+        response_model=models.SimulateResponse,
+        responses={
+            422: {"model": models.LockingResponse, "description": "it locks"},
+            **models.error_responses(400, 413, 415),
+        },
+        openapi_extra=request_body("/api/simulate"),
+    )
     async def api_simulate(self, request: Request) -> Response:
         """Trajectories [n][steps][2] of a mechanism, 422 if it locks, 4xx if malformed."""
         args = simulate_args(await read_json_object(request))
@@ -755,7 +842,12 @@ class LinksApi:
             raise ApiError(400, str(exc)) from None
         return JsonResponse({"trajectories": trajectories})
 
-    @api.post("/api/analyze")
+    @api.post(
+        "/api/analyze",
+        response_model=models.AnalyzeResponse,
+        responses=models.error_responses(400, 413, 415),
+        openapi_extra=request_body("/api/analyze"),
+    )
     async def api_analyze(self, request: Request) -> JsonResponse:
         """Degree of freedom, dyadic solvability and, given positions, where it locks."""
         body = await read_json_object(request)
@@ -770,7 +862,19 @@ class LinksApi:
             raise ApiError(400, str(exc)) from None
         return JsonResponse(found)
 
-    @api.post("/api/export")
+    @api.post(
+        "/api/export",
+        response_class=Response,
+        responses={
+            200: {
+                "description": "the file, as an attachment",
+                "content": {media: {} for media, _ in EXPORT_FORMATS.values()},
+            },
+            **models.error_responses(400, 413, 415),
+            422: {"model": models.LockingResponse},
+        },
+        openapi_extra=request_body("/api/export"),
+    )
     async def api_export(self, request: Request) -> Response:
         """The mechanism as an SVG, DXF or table file in millimetres, its crank `crank_mm`
         long (default 20), with the path of `path_joint` if given; 422 if that path locks,
@@ -783,7 +887,12 @@ class LinksApi:
         except ValueError as exc:  # the engine's message: the mechanism, the scale, path_joint
             raise ApiError(400, str(exc)) from None
 
-    @api.post("/api/retrieve")
+    @api.post(
+        "/api/retrieve",
+        response_model=models.RetrieveResponse,
+        responses=models.error_responses(400, 413, 415, 503),
+        openapi_extra=request_body("/api/retrieve"),
+    )
     async def api_retrieve(self, request: Request) -> JsonResponse:
         """The k curated paths nearest to a drawn curve, best first, with their mechanisms;
         503 with `Retry-After` when MAX_RETRIEVALS are already under way here."""
@@ -809,7 +918,12 @@ class LinksApi:
             self._retrievals -= 1
         return JsonResponse({"results": results, "took_ms": round(took_ms, 3)})
 
-    @api.post("/api/synthesize")
+    @api.post(
+        "/api/synthesize",
+        response_model=models.SynthesizeResponse,
+        responses=models.error_responses(400, 413, 415, 503),
+        openapi_extra=request_body("/api/synthesize"),
+    )
     async def api_synthesize(self, request: Request) -> JsonResponse:
         """Mechanisms retrieved for a drawn curve and refined onto it, best first, within the
         request's `seconds`; 503 with `Retry-After` when MAX_SYNTHESES are under way here."""

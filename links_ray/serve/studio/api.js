@@ -60,6 +60,23 @@ async function readJson(response) {
   }
 }
 
+/**
+ * The limits every request meets, as the API gives them (GET /api/limits: max_points, max_k,
+ * max_joints, max_transmission_deg, ...). Empty until `loadLimits` has read them; checks that
+ * find a limit missing leave the refusal to the server.
+ */
+export const limits = {};
+
+/** Read the API's limits into `limits`; rejects with the reason if the API does not answer. */
+export async function loadLimits() {
+  const answer = await getJson("/api/limits");
+  if (answer.status !== 200 || !answer.data || typeof answer.data !== "object") {
+    throw new Error(explain(answer));
+  }
+  Object.assign(limits, answer.data);
+  return limits;
+}
+
 /** The words for an answer that is not a success. */
 export function explain(answer) {
   const message = answer.data && typeof answer.data.error === "string" ? answer.data.error : "";

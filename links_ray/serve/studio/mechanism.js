@@ -5,8 +5,7 @@
 export const FIXED = 0;
 export const SIMPLE = 1;
 export const ACTUATED = 2;
-/** The most joints one request to the HTTP API may carry (links_ray/engine/inputs.py). */
-export const MAX_REQUEST_JOINTS = 100;
+import { limits } from "./api.js";
 
 /** The crank (joint 0 fixed at the dataset's pivot, joint 1 its tip) and one ground joint. */
 export function starter() {
@@ -53,8 +52,9 @@ export function topologyKey(mech) {
 }
 
 function checkRoom(mech) {
-  if (jointCount(mech) >= MAX_REQUEST_JOINTS) {
-    throw new Error(`a mechanism can have at most ${MAX_REQUEST_JOINTS} joints`);
+  // The most joints one request may carry: the API's limit (undefined until read: no check).
+  if (jointCount(mech) >= limits.max_joints) {
+    throw new Error(`a mechanism can have at most ${limits.max_joints} joints`);
   }
 }
 
@@ -140,7 +140,7 @@ export function parseMechanism(value) {
   const { adjacency, node_types: types, positions } = value;
   const n = types.length;
   if (n < 2) throw new Error(`a mechanism needs at least the 2 crank joints, got ${n}`);
-  if (n > MAX_REQUEST_JOINTS) throw new Error(`at most ${MAX_REQUEST_JOINTS} joints, got ${n}`);
+  if (n > limits.max_joints) throw new Error(`at most ${limits.max_joints} joints, got ${n}`);
   if (adjacency.length !== n || positions.length !== n) {
     throw new Error(
       `adjacency has ${adjacency.length} rows and positions ${positions.length} pairs, ` +

@@ -3,7 +3,7 @@
 // a chosen result's mechanism (already in the drawing's frame, placed by the server) is
 // simulated and animated over the curve.
 
-import { explain, postJson } from "./api.js";
+import { explain, limits, postJson } from "./api.js";
 import { parseMechanism } from "./mechanism.js";
 import {
   COLORS,
@@ -19,7 +19,7 @@ import {
 const STEPS = 200;
 const STEPS_PER_SECOND = 50;
 const MIN_SPACING_PX = 2; // finer than this only adds points, not shape
-const MAX_DRAWN_POINTS = 5000; // the API takes up to 10,000
+const MAX_DRAWN_POINTS = 5000; // a hand-drawn curve needs no more, unless the API takes fewer
 const UNIT = { minX: 0, minY: 0, maxX: 1, maxY: 1 };
 
 export class Retriever {
@@ -97,7 +97,7 @@ export class Retriever {
       const [sx, sy] = this.local(event);
       const [lx, ly] = this.lastScreen;
       if (Math.hypot(sx - lx, sy - ly) < MIN_SPACING_PX) continue;
-      if (this.points.length >= MAX_DRAWN_POINTS) break;
+      if (this.points.length >= Math.min(MAX_DRAWN_POINTS, limits.max_points ?? Infinity)) break;
       this.points.push(this.view.toWorld(sx, sy));
       this.lastScreen = [sx, sy];
     }

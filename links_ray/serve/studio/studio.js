@@ -1,7 +1,7 @@
 // The studio page: wires the editor, the draw-to-retrieve panel and the save/share buttons,
 // and shows every failure in words in the error banner or next to what failed.
 
-import { explain, getJson, postForFile } from "./api.js";
+import { explain, getJson, limits, loadLimits, postForFile } from "./api.js";
 import { Editor } from "./editor.js";
 import { download, mechanismJson, mechanismSvg, readMechanismFile, sharedMechanism, shareUrl } from "./files.js";
 import { FIXED } from "./mechanism.js";
@@ -166,6 +166,17 @@ try {
   notify(`The shared link could not be opened: ${err.message}`, "share");
 }
 
+// The inputs' bounds are the API's own limits, not numbers of the page's.
+let limitsSettled = false;
+loadLimits()
+  .then(() => {
+    $("k").min = String(limits.min_k);
+    $("k").max = String(limits.max_k);
+    $("min-transmission").max = String(limits.max_transmission_deg);
+  })
+  .catch((err) => notify(`The API's limits could not be read: ${err.message}`, "limits"))
+  .finally(() => (limitsSettled = true));
+
 getJson("/api/health")
   .then((answer) => {
     const health = $("health");
@@ -182,10 +193,11 @@ getJson("/api/health")
 window.studio = {
   editor,
   retriever,
+  limits,
   mechanism: () => editor.current(),
   trajectories: () => editor.trajectories(),
   toScreen: (p) => editor.view.toScreen(p),
   drawToScreen: (p) => retriever.view.toScreen(p),
   latencies: () => editor.latencies.slice(),
-  idle: () => importing === 0 && exporting === 0 && editor.idle,
+import { explain, getJson, limits, loadLimits, postForFile } from "./api.js";
 };

@@ -1,0 +1,234 @@
+"""The HTTP API's request and response bodies as pydantic models: what `/openapi.json` shows.
+
+Every bound comes from `links_ray.engine.inputs`, where the limits are defined once. The
+routes read and check a body with the engine's own validators (`serve.app`), so a refused
+request names its problem in the engine's words, and 10,000 drawn points are checked by NumPy,
+not field by field; the models are the schema those checks enforce, and the shapes the routes
+answer with.
+"""
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from links_ray.engine.inputs import (
+    DEFAULT_CRANK_MM,
+    DEFAULT_K,
+    DEFAULT_STEPS,
+    DEFAULT_SYNTHESIS_SECONDS,
+    MAX_COORDINATE,
+    MAX_CRANK_MM,
+    MAX_K,
+    MAX_POINTS,
+    MAX_REQUEST_JOINTS,
+    MAX_STEPS,
+    MAX_SYNTHESIS_SECONDS,
+    MAX_TRANSMISSION_DEG,
+    MIN_JOINTS,
+    MIN_K,
+    MIN_POINTS,
+    MIN_STEPS,
+)
+
+Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
+#: [x, y]
+Point = Annotated[list[Coordinate], Field(min_length=2, max_length=2)]
+Joints = Field(min_length=MIN_JOINTS, max_length=MAX_REQUEST_JOINTS)
+
+
+class Request(BaseModel):
+    """A request body: a JSON object; fields it does not name are ignored."""
+
+    model_config = ConfigDict(extra="ignore")
+
+
+class Mechanism(BaseModel):
+    """docs/CONTRACT.md, Mechanisms: joint 0 fixed, joint 1 the crank's tip."""
+
+    adjacency: Annotated[list[list[Literal[0, 1]]], Joints] = Field(
+        description="n x n, symmetric, zero diagonal: 1 where two joints are linked"
+    )
+    node_types: Annotated[list[Literal[0, 1, 2]], Joints] = Field(
+        description="per joint: 0 fixed, 1 simple, 2 actuated (joint 1 only)"
+    )
+    positions: Annotated[list[Point], Joints] = Field(description="initial [x, y] per joint")
+
+
+class SimulateRequest(Request, Mechanism):
+    """POST /api/simulate. Joints x steps is at most `max_joint_steps` (GET /api/limits)."""
+
+    steps: int = Field(DEFAULT_STEPS, ge=MIN_STEPS, le=MAX_STEPS, description="crank steps")
+
+
+class AnalyzeRequest(Request):
+    """POST /api/analyze: a topology, and optionally positions to simulate."""
+
+    adjacency: Annotated[list[list[Literal[0, 1]]], Joints]
+    node_types: Annotated[list[Literal[0, 1, 2]], Joints]
+    positions: Annotated[list[Point], Joints] | None = None
+    steps: int = Field(DEFAULT_STEPS, ge=MIN_STEPS, le=MAX_STEPS)
+
+
+class RetrieveRequest(Request):
+    """POST /api/retrieve: a drawn curve, not all one point."""
+
+    points: Annotated[list[Point], Field(min_length=MIN_POINTS, max_length=MAX_POINTS)]
+    k: int = Field(DEFAULT_K, ge=MIN_K, le=MAX_K, description="results wanted")
+    min_transmission: float = Field(
+        0.0,
+        ge=0.0,
+        le=MAX_TRANSMISSION_DEG,
+        description="only mechanisms whose least transmission angle is at least this, degrees",
+    )
+
+
+class SynthesizeRequest(RetrieveRequest):
+    """POST /api/synthesize: retrieval, then refinement within `seconds`."""
+
+    seconds: float = Field(
+        DEFAULT_SYNTHESIS_SECONDS, gt=0.0, le=MAX_SYNTHESIS_SECONDS, description="time budget"
+    )
+    partial: bool = Field(False, description="the drawing is part of a curve: match a run")
+
+
+class ErrorResponse(BaseModel):
+    """Every refusal: 4xx (or 503 with Retry-After when busy) and what is wrong."""
+
+    error: str
+
+
+class LockingResponse(BaseModel):
+    """422 from /api/simulate: the mechanism cannot be assembled at `step`, joint `node`."""
+
+    error: Literal["locking"]
+    step: int
+    node: int
+
+
+class ShardInfo(BaseModel):
+    part: int
+    paths: int
+
+
+class HealthResponse(BaseModel):
+    """GET /api/health; `shards` when the index is split."""
+
+    status: Literal["ok"]
+    paths: int = Field(description="curated paths indexed")
+    shards: list[ShardInfo] | None = None
+
+
+class LimitsResponse(BaseModel):
+    """GET /api/limits: `engine.inputs.request_limits()`."""
+
+    min_points: int
+    max_points: int
+    min_k: int
+    max_k: int
+    default_k: int
+    min_joints: int
+    max_joints: int
+    min_steps: int
+    max_steps: int
+    default_steps: int
+    max_joint_steps: int
+    max_seconds: float
+    default_seconds: float
+    max_transmission_deg: float
+    max_coordinate: float
+    max_body_bytes: int
+
+
+class SimulateResponse(BaseModel):
+    trajectories: list[list[Point]] = Field(description="[joint][step] = [x, y]")
+
+
+class RetrieveResult(BaseModel):
+    """A curated path near the query, and its mechanism placed in the query's frame."""
+
+    path_id: int
+    mechanism_id: int
+    joint: int = Field(description="the path's joint in the stored mechanism")
+    chamfer: float = Field(description="between the normalized query and path")
+    min_transmission_deg: float | None = None
+    points: list[Point] = Field(description="the path, normalized")
+    mechanism: Mechanism = Field(description="reduced to the joints the path needs")
+    mechanism_joint: int = Field(description="the path's joint in `mechanism`")
+
+
+class RetrieveResponse(BaseModel):
+    results: list[RetrieveResult] = Field(description="best first")
+    took_ms: float
+
+
+class Interval(BaseModel):
+    """The run of crank steps a partial curve matches."""
+
+    start_step: int
+    steps: int
+    start_deg: float
+    sweep_deg: float
+
+
+class SynthesisResult(BaseModel):
+    """A retrieved mechanism refined onto the drawing."""
+
+    path_id: int
+    mechanism_id: int
+    chamfer: float = Field(description="in the drawing's frame, over its longest chord")
+    retrieved_chamfer: float
+    mechanism: Mechanism
+    mechanism_joint: int
+    path: list[Point] = Field(description="the joint's path, in the drawing's frame")
+    interval: Interval | None = None
+
+
+class SynthesizeResponse(BaseModel):
+    results: list[SynthesisResult] = Field(description="best first")
+    took_ms: float
+
+
+class Lock(BaseModel):
+    step: int
+    node: int
+    angle: float = Field(description="the crank's turn at the lock, degrees")
+
+
+class AnalyzeResponse(BaseModel):
+    """The studio's analysis: mobility, solvability, dataset rules, where it locks."""
+
+    joints: int
+    moving: int
+    links: int
+    dof: int
+    solvable: bool
+    problem: str | None
+    order: list[list[int]] = Field(description="solution path rows [joint, parent_a, parent_b]")
+    lock: Lock | None
+    dataset_rules: list[str] | None = None
+    trajectories: list[list[Point]] | None = Field(None, description="the steps before a lock")
+
+
+class ExportRequest(Request, Mechanism):
+    """POST /api/export: the mechanism drawn in millimetres, answered as a file."""
+
+    format: Literal["svg", "dxf", "table"] = Field("svg", description="the file's format")
+    crank_mm: float = Field(
+        DEFAULT_CRANK_MM, gt=0, le=MAX_CRANK_MM, description="the crank's length in mm"
+    )
+    path_joint: int | None = Field(None, description="a moving joint whose path is drawn too")
+
+
+def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI `responses` entries: ErrorResponse for each status."""
+    return {status: {"model": ErrorResponse} for status in statuses}
+
+
+#: The request body model of each POST route.
+REQUEST_MODELS: dict[str, type[BaseModel]] = {
+    "/api/simulate": SimulateRequest,
+    "/api/analyze": AnalyzeRequest,
+    "/api/retrieve": RetrieveRequest,
+    "/api/synthesize": SynthesizeRequest,
+    "/api/export": ExportRequest,
+}
