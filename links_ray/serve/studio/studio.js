@@ -199,5 +199,5 @@ window.studio = {
   toScreen: (p) => editor.view.toScreen(p),
   drawToScreen: (p) => retriever.view.toScreen(p),
   latencies: () => editor.latencies.slice(),
-import { explain, getJson, limits, loadLimits, postForFile } from "./api.js";
+  idle: () => limitsSettled && importing === 0 && exporting === 0 && editor.idle,
 };
