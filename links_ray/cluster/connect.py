@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import logging
 import os
 
 import ray
+
+#: Where Ray 2.60 announces that a new local cluster uses token authentication.
+_TOKEN_NOTICE_LOGGER = "ray._private.authentication.authentication_token_setup"
 
 
 def connect(address: str | None = None) -> None:
@@ -14,5 +18,14 @@ def connect(address: str | None = None) -> None:
         return
     if address or os.environ.get("RAY_ADDRESS"):
         ray.init(address=address, logging_level="WARNING")
-    else:
+        return
+    # A new local cluster gets token authentication, and Ray says so on every run unless
+    # RAY_AUTH_MODE is set: a notice with nothing to act on. Only that logger is quieted, and
+    # only while this cluster starts; authentication stays on.
+    notice = logging.getLogger(_TOKEN_NOTICE_LOGGER)
+    level = notice.level
+    notice.setLevel(logging.ERROR)
+    try:
         ray.init(include_dashboard=False, logging_level="WARNING")
+    finally:
+        notice.setLevel(level)

@@ -210,6 +210,10 @@ def _curate_holding(
         data_log = logging.getLogger("ray.data")
         level = data_log.level
         data_log.setLevel(logging.WARNING)  # Ray Data logs every stage; the meter says enough
+        # ...and warns that its bars are off, which is this pass's choice, not the user's.
+        bars_log = logging.getLogger("ray.data._internal.progress")
+        bars_level = bars_log.level
+        bars_log.setLevel(logging.ERROR)
         failed = ""
         try:
             for row in results.iter_rows():
@@ -219,6 +223,7 @@ def _curate_holding(
                 meter.advance(int(row["mechanisms"]))
         finally:
             data_log.setLevel(level)
+            bars_log.setLevel(bars_level)
             meter.close()
         if failed:
             raise StoreError(
