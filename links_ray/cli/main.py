@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import math
 import sys
 import time
@@ -15,7 +14,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
 from links_ray import __version__
-from links_ray.cli import bench
+from links_ray.cli import bench, report
 from links_ray.cli.bench_synthesis import BENCH_SECONDS
 from links_ray.cli.demo import run_demo
 from links_ray.engine.inputs import (
@@ -31,8 +30,8 @@ from links_ray.engine.topology import TOPOLOGY_RULES
 
 
 def _report(args: argparse.Namespace, result: dict, formatted: Callable[[dict], str]) -> None:
-    """A benchmark's result: one JSON object with --json, else the human-readable table."""
-    print(json.dumps(result) if args.json else formatted(result))
+    """A command's result: one JSON object with --json, else the human-readable table."""
+    report.emit(result, formatted, args.json)
 
 
 def _bench_simulate(args: argparse.Namespace) -> None:
@@ -69,7 +68,7 @@ def _generate(args: argparse.Namespace) -> None:
             "mechanisms of this plan",
             file=sys.stderr,
         )
-    print(json.dumps(summary, indent=2))
+    _report(args, summary, report.format_generate)
 
 
 def _bench_service(args: argparse.Namespace, name: str, **options: int | bool) -> None:
@@ -91,7 +90,7 @@ def _curate(args: argparse.Namespace) -> None:
     summary = curate(
         args.root, seed=args.seed, workers=args.workers, address=args.address, **_tables(args)
     )
-    print(json.dumps(summary, indent=2))
+    _report(args, summary, report.format_curate)
 
 
 def _stats(args: argparse.Namespace) -> None:
@@ -102,7 +101,7 @@ def _stats(args: argparse.Namespace) -> None:
         from links_ray.cli.figures import write_figures
 
         stats["plots"] = write_figures(args.root, args.plots, stats)
-    print(json.dumps(stats, indent=2))
+    _report(args, stats, report.format_stats)
 
 
 def _serve(args: argparse.Namespace) -> None:
@@ -128,7 +127,7 @@ def _retrieve(args: argparse.Namespace) -> None:
         read_points(args.points), k=args.k, min_transmission=args.min_transmission
     )
     took_ms = (time.perf_counter() - start) * 1e3
-    print(json.dumps({"results": results, "took_ms": took_ms}))
+    _report(args, {"results": results, "took_ms": took_ms}, report.format_retrieve)
 
 
 def _synthesize(args: argparse.Namespace) -> None:
@@ -150,23 +149,7 @@ def _synthesize(args: argparse.Namespace) -> None:
         min_transmission=args.min_transmission,
     )
     took_ms = (time.perf_counter() - start) * 1e3
-    if args.json:
-        print(json.dumps({"results": results, "took_ms": took_ms}))
-        return
-    print(f"{len(results)} mechanisms in {took_ms / 1e3:.1f} s (chamfer / the drawing's chord)")
-    for rank, result in enumerate(results, 1):
-        interval = result["interval"]
-        where = (
-            f", crank {interval['start_deg']:.1f} to "
-            f"{interval['start_deg'] + interval['sweep_deg']:.1f} deg"
-            if interval
-            else ""
-        )
-        print(
-            f"{rank}. chamfer {result['chamfer']:.4f} (retrieved {result['retrieved_chamfer']:.4f}"
-            f"), {len(result['mechanism']['node_types'])} joints, joint "
-            f"{result['mechanism_joint']}, from path {result['path_id']}{where}"
-        )
+    _report(args, {"results": results, "took_ms": took_ms}, report.format_synthesize)
 
 
 def _bench_synthesize(args: argparse.Namespace) -> None:
@@ -195,7 +178,12 @@ def _bench_serve(args: argparse.Namespace) -> None:
 
 def _demo(args: argparse.Namespace) -> None:
     summary = run_demo(args.out, mechanisms=args.mechanisms, seed=args.seed, sampler=args.sampler)
-    print(json.dumps(summary, indent=2))
+    _report(args, summary, report.format_demo)
+
+
+def _json_option(command: argparse.ArgumentParser, what: str = "the whole result") -> None:
+    """`--json`: print `what` as one JSON object instead of the short human summary."""
+    command.add_argument("--json", action="store_true", help=f"print {what} as one JSON object")
 
 
 def _query_arguments(command: argparse.ArgumentParser) -> None:
@@ -288,7 +276,7 @@ def _add_bench(
 ) -> argparse.ArgumentParser:
     """`links bench NAME [--json] [SIZE N]`: every benchmark has one size option."""
     bench_parser = benches.add_parser(name, help=summary)
-    bench_parser.add_argument("--json", action="store_true", help="print one JSON object")
+    _json_option(bench_parser)
     option, default, meaning = size
     bench_parser.add_argument(
         option, type=_positive_int, default=default, help=f"{meaning} (default {default:,})"
@@ -309,6 +297,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--mechanisms", type=_positive_int, default=100)
     demo.add_argument("--seed", type=_non_negative_int, default=0)
     demo.add_argument("--sampler", choices=["sequential", "rejection"], default="sequential")
+    _json_option(demo, "the summary")
     demo.set_defaults(run=_demo)
 
     generate = commands.add_parser(
@@ -356,6 +345,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="keep only mechanisms whose least transmission angle is at least DEG degrees, "
         f"0 to {MAX_TRANSMISSION_DEG:g} (default 0: the paper's distribution)",
     )
+    _json_option(generate, "the run's summary")
     generate.set_defaults(run=_generate)
 
     curate = commands.add_parser(
@@ -371,9 +361,10 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="TABLES",
         help="tables to write, comma-separated: paths, curated or both (default both)",
     )
+    _json_option(curate, "the pass's summary")
     curate.set_defaults(run=_curate)
 
-    stats = commands.add_parser("stats", help="dataset statistics as JSON, figures as PNG")
+    stats = commands.add_parser("stats", help="dataset statistics, figures as PNG")
     stats.add_argument("root", help="dataset root: a folder or s3://...")
     stats.add_argument("--plots", default=None, help="folder for the PNG figures")
     stats.add_argument(
@@ -382,6 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=3,
         help="topologies per joint count when candidates per valid must be measured here",
     )
+    _json_option(stats, "every statistic")
     stats.set_defaults(run=_stats)
 
     serve = commands.add_parser("serve", help="Ray Serve app: the HTTP API and the studio at /")
@@ -419,6 +411,7 @@ def build_parser() -> argparse.ArgumentParser:
         "retrieve", help="find mechanisms whose path matches the points in FILE (offline)"
     )
     _query_arguments(retrieve)
+    _json_option(retrieve, "the results (points and placed mechanisms included)")
     retrieve.set_defaults(run=_retrieve)
 
     synthesize = commands.add_parser(
@@ -438,9 +431,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="the points are an open stroke: match them to part of a crank turn",
     )
-    synthesize.add_argument(
-        "--json", action="store_true", help="print the results as JSON (mechanisms included)"
-    )
+    _json_option(synthesize, "the results (mechanisms included)")
     synthesize.set_defaults(run=_synthesize)
 
     bench_parser = commands.add_parser("bench", help="benchmarks")
@@ -495,7 +486,7 @@ def build_parser() -> argparse.ArgumentParser:
         "serve",
         help="serving under load: retrievals per second, latencies, 503s, by shard count",
     )
-    serve_bench.add_argument("--json", action="store_true", help="print one JSON object")
+    _json_option(serve_bench)
     serve_bench.add_argument(
         "--shards",
         type=_non_negative_int,
