@@ -17,6 +17,7 @@ from links_ray import __version__
 from links_ray.cli import bench, report
 from links_ray.cli.bench_synthesis import BENCH_SECONDS
 from links_ray.cli.demo import run_demo
+from links_ray.cli.warm import format_warm, note_compiling, warm
 from links_ray.engine.inputs import (
     DEFAULT_K,
     DEFAULT_SYNTHESIS_SECONDS,
@@ -60,6 +61,7 @@ def _generate(args: argparse.Namespace) -> None:
         topologies_per_shard=args.shard_topologies,
         topology_rules=args.topology_rules,
         min_transmission_deg=args.min_transmission,
+        starting=lambda: note_compiling("generate"),
         **_tables(args),
     )
     if summary.get("nothing_to_do"):
@@ -88,7 +90,12 @@ def _curate(args: argparse.Namespace) -> None:
     from links_ray.cluster.curation import curate  # imports Ray: only when asked for
 
     summary = curate(
-        args.root, seed=args.seed, workers=args.workers, address=args.address, **_tables(args)
+        args.root,
+        seed=args.seed,
+        workers=args.workers,
+        address=args.address,
+        starting=lambda: note_compiling("curate"),
+        **_tables(args),
     )
     _report(args, summary, report.format_curate)
 
@@ -107,6 +114,7 @@ def _stats(args: argparse.Namespace) -> None:
 def _serve(args: argparse.Namespace) -> None:
     from links_ray.serve.app import run_server  # imports Ray Serve: only when asked for
 
+    note_compiling("serve")
     run_server(
         args.root,
         host=args.host,
@@ -121,11 +129,11 @@ def _serve(args: argparse.Namespace) -> None:
 def _retrieve(args: argparse.Namespace) -> None:
     from links_ray.search.index import RetrievalIndex, read_points
 
+    points = read_points(args.points)
+    note_compiling("retrieve")
     index = RetrievalIndex.open(args.root)
     start = time.perf_counter()
-    results = index.retrieve(
-        read_points(args.points), k=args.k, min_transmission=args.min_transmission
-    )
+    results = index.retrieve(points, k=args.k, min_transmission=args.min_transmission)
     took_ms = (time.perf_counter() - start) * 1e3
     _report(args, {"results": results, "took_ms": took_ms}, report.format_retrieve)
 
@@ -138,6 +146,7 @@ def _synthesize(args: argparse.Namespace) -> None:
     # Before the index loads:
     validate_synthesis(points, args.k, args.seconds, args.partial)
     as_transmission_deg(args.min_transmission, "min_transmission")
+    note_compiling("synthesize")
     index = RetrievalIndex.open(args.root)
     start = time.perf_counter()
     results = synthesize(
@@ -177,6 +186,7 @@ def _bench_serve(args: argparse.Namespace) -> None:
 
 
 def _demo(args: argparse.Namespace) -> None:
+    note_compiling("demo")
     summary = run_demo(args.out, mechanisms=args.mechanisms, seed=args.seed, sampler=args.sampler)
     _report(args, summary, report.format_demo)
 
@@ -184,6 +194,10 @@ def _demo(args: argparse.Namespace) -> None:
 def _json_option(command: argparse.ArgumentParser, what: str = "the whole result") -> None:
     """`--json`: print `what` as one JSON object instead of the short human summary."""
     command.add_argument("--json", action="store_true", help=f"print {what} as one JSON object")
+
+
+def _warm(args: argparse.Namespace) -> None:
+    _report(args, warm(args.folder), format_warm)
 
 
 def _query_arguments(command: argparse.ArgumentParser) -> None:
@@ -299,6 +313,16 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--sampler", choices=["sequential", "rejection"], default="sequential")
     _json_option(demo, "the summary")
     demo.set_defaults(run=_demo)
+
+    warm_command = commands.add_parser(
+        "warm",
+        help="compile every kernel into numba's cache now (the container image does this)",
+    )
+    warm_command.add_argument(
+        "--folder", default=None, help="work folder (default: a temporary one, removed after)"
+    )
+    _json_option(warm_command, "each stage's seconds")
+    warm_command.set_defaults(run=_warm)
 
     generate = commands.add_parser(
         "generate", help="generate valid mechanisms on Ray into a folder or s3://bucket/prefix"
