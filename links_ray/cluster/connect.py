@@ -13,10 +13,11 @@ _TOKEN_NOTICE_LOGGER = "ray._private.authentication.authentication_token_setup"
 
 def connect(address: str | None = None) -> None:
     """Join the Ray cluster at `address` (or RAY_ADDRESS, as under `ray job submit`), or start
-    a local one on this machine's CPUs."""
+    a local one on this machine's CPUs; `address="local"` starts a new local one whatever
+    RAY_ADDRESS says."""
     if ray.is_initialized():
         return
-    if address or os.environ.get("RAY_ADDRESS"):
+    if address != "local" and (address or os.environ.get("RAY_ADDRESS")):
         ray.init(address=address, logging_level="WARNING")
         return
     # A new local cluster gets token authentication, and Ray says so on every run unless
@@ -26,6 +27,6 @@ def connect(address: str | None = None) -> None:
     level = notice.level
     notice.setLevel(logging.ERROR)
     try:
-        ray.init(include_dashboard=False, logging_level="WARNING")
+        ray.init(address=address, include_dashboard=False, logging_level="WARNING")
     finally:
         notice.setLevel(level)
