@@ -40,7 +40,9 @@ def test_version(module: str) -> None:
 def test_demo_writes_valid_mechanisms(tmp_path: Path) -> None:
     """12 mechanisms at five variants per topology: topologies 0, 1 and 2 (two variants of the
     last), every row valid by the dataset rules and its stored path re-simulated."""
-    result = links("demo", "--out", str(tmp_path / "demo"), "--mechanisms", "12", "--seed", "3")
+    result = links(
+        "demo", "--out", str(tmp_path / "demo"), "--mechanisms", "12", "--seed", "3", "--json"
+    )
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
     assert summary["mechanisms"] == 12 and summary["topologies"] == 3
@@ -63,6 +65,76 @@ def test_demo_writes_valid_mechanisms(tmp_path: Path) -> None:
     # A whole number of candidates for the 15 valid sets of three topologies, at least 15.
     candidates = 15 * summary["candidates_per_valid"]
     assert candidates == pytest.approx(round(candidates)) and round(candidates) >= 15
+
+
+def local_links(*args: str) -> subprocess.CompletedProcess[str]:
+    """`links` as a user runs it on a laptop: a Ray of its own, Ray's settings left alone."""
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "RAY_AUTH_MODE")}
+    return subprocess.run(
+        [sys.executable, "-m", "links_ray.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+    )
+
+
+def table_rows(text: str, first: str) -> list[list[str]]:
+    """The rows under the table header that starts with `first`, up to a line that is not
+    one."""
+    lines = text.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.split()[:1] == [first])
+    width = len(lines[start].split())
+    rows = []
+    for line in lines[start + 1 :]:
+        if len(line.split()) != width:
+            break
+        rows.append(line.split())
+    return rows
+
+
+#: What a local run used to print on stderr that its user can do nothing about.
+RAY_NOISE = ("Token authentication", "Progress bars disabled", "deprecated", "Traceback")
+
+
+def test_generate_and_curate_print_short_summaries(tmp_path: Path) -> None:
+    """On a local Ray: a few lines and one row per joint count (topology i has 8 + i % 13
+    joints: 30 mechanisms are six topologies of 8 to 13), counts as the tables hold them, the
+    whole summary with --json, and none of Ray's notices."""
+    out = tmp_path / "data"
+    plan = ["--out", str(out), "--mechanisms", "30", "--shard-topologies", "2"]
+    made = local_links("generate", *plan)
+    assert made.returncode == 0, made.stderr
+    assert [line for line in made.stderr.splitlines() if any(n in line for n in RAY_NOISE)] == []
+    assert len(made.stdout.splitlines()) <= 20
+    assert made.stdout.startswith(f"{out}: 30 mechanisms (complete); mechanisms 30, ")
+    rows = table_rows(made.stdout, "joints")
+    assert [(int(row[0]), int(row[2])) for row in rows] == [(n, 5) for n in range(8, 14)]
+    mechanisms = links_ray.load(str(out), "mechanisms", columns=["n_joints"])
+    assert sorted(Counter(mechanisms["n_joints"]).items()) == [(n, 5) for n in range(8, 14)]
+
+    again = links("generate", *plan, "--json")  # finished: no Ray, the saved summary
+    assert again.returncode == 0, again.stderr
+    assert "nothing to do" in again.stderr
+    saved = json.loads((out / "_links" / "summary.json").read_text())
+    assert json.loads(again.stdout) == {**saved, "nothing_to_do": True}
+
+    curated = local_links("curate", str(out))
+    assert curated.returncode == 0, curated.stderr
+    noise = [line for line in curated.stderr.splitlines() if any(n in line for n in RAY_NOISE)]
+    assert noise == []
+    paths = len(links_ray.load(str(out), "paths", columns=["path_id"]))
+    kept = len(links_ray.load(str(out), "curated", columns=["path_id"]))
+    assert curated.stdout.startswith(
+        f"{out}: 30 mechanisms made {paths:,} paths, {kept:,} curated "
+        f"({100 * kept / paths:.1f}%); wrote paths, curated\n"
+    )
+    flags = links_ray.load(str(out), "paths", columns=["is_arc", "is_circle"])
+    named = {line.split()[0]: line.split() for line in curated.stdout.splitlines() if line}
+    circles = int(flags["is_circle"].sum())
+    assert named["circles"][1:] == [f"{circles:,}", f"{100 * circles / paths:.1f}%"]
+    assert named["arcs"][1] == f"{int(flags['is_arc'].sum()):,}"
+    assert len(curated.stdout.splitlines()) <= 12
 
 
 def test_bad_arguments_fail_with_one_line(tmp_path: Path) -> None:
@@ -201,3 +273,60 @@ def test_every_option_says_its_default() -> None:
                 silent.append(f"{parser.prog} {action.option_strings[0]}")
     assert silent == []
     assert "(default 8000)" in " ".join(links("serve", "--help").stdout.split())
+
+
+def cache_files(folder: Path) -> dict[str, int]:
+    """numba's cache files under `folder`, with their modification times."""
+    return {str(p.relative_to(folder)): p.stat().st_mtime_ns for p in folder.rglob("*.nb*")}
+
+
+def test_first_run_says_it_compiles_and_links_warm_compiles_everything(tmp_path: Path) -> None:
+    """With an empty numba cache, `links demo` says it compiles the solver (on stderr, stdout
+    untouched); run again, it says nothing. `links warm` then fills the cache for every
+    command: none has anything to say, and warming again writes no cache file (numba writes
+    one only when it compiles)."""
+    cache = tmp_path / "numba-cache"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        command = [sys.executable, "-m", "links_ray.cli", *args]
+        return subprocess.run(command, capture_output=True, text=True, timeout=900, env=env)
+
+    demo = ["demo", "--out", str(tmp_path / "demo"), "--mechanisms", "5", "--json"]
+    first = run(*demo)
+    assert first.returncode == 0, first.stderr
+    assert first.stderr == (
+        "links demo: compiling the solver's kernels (first run only, about 15 s)...\n"
+    )
+    assert json.loads(first.stdout)["mechanisms"] == 5
+    again = run(*demo)
+    assert again.returncode == 0 and again.stderr == ""
+
+    warmed = run("warm", "--json")
+    assert warmed.returncode == 0, warmed.stderr
+    assert set(json.loads(warmed.stdout)) == {
+        "rejection sampler",
+        "generation",
+        "curation",
+        "search and synthesis",
+    }
+    notices = run_python(
+        env,
+        "from links_ray.cli.warm import COMMAND_KERNELS, compile_notice\n"
+        "print([n for n in map(compile_notice, COMMAND_KERNELS) if n])",
+    )
+    assert notices == "[]"
+    before = cache_files(cache)
+    assert len(before) > 50
+    human = run("warm")
+    assert human.returncode == 0, human.stderr
+    assert human.stdout.splitlines()[-1] == "kernels compiled and cached"
+    assert cache_files(cache) == before
+
+
+def run_python(env: dict[str, str], code: str) -> str:
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env
+    )
+    assert done.returncode == 0, done.stderr
+    return done.stdout.strip()

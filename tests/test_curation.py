@@ -365,11 +365,15 @@ def test_stats_cli_reports_and_draws(curated_run: dict, tmp_path: Path) -> None:
     mechanism as measured directly with the same seed (the run used the sequential sampler, so
     `links stats` measures the rejection sampler itself)."""
     plots = tmp_path / "plots"
-    result = links("stats", curated_run["out"], "--plots", str(plots), "--sample-topologies", "1")
+    result = links(
+        "stats", curated_run["out"], "--plots", str(plots), "--sample-topologies", "1", "--json"
+    )
     assert result.returncode == 0, result.stderr
     stats = json.loads(result.stdout)
     by_size = {str(n): 5 * count for n, count in sorted(TOPOLOGIES_BY_SIZE.items())}
     assert stats["counts"]["mechanisms"] == {"rows": MECHANISMS, "by_joint_count": by_size}
+    # JSON keys are strings; they come in the numbers' order all the same.
+    assert list(stats["counts"]["paths"]["by_joint_count"]) == [str(n) for n in range(8, 21)]
     assert stats["counts"]["simulations"] == {"rows": MECHANISMS, "by_joint_count": by_size}
     tables = {
         "negatives": read_table(Store.open(curated_run["out"]), "negatives"),
@@ -412,3 +416,29 @@ def test_stats_cli_reports_and_draws(curated_run: dict, tmp_path: Path) -> None:
     for name in names:
         png = plots / f"{name}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
+
+
+def test_stats_cli_prints_a_short_table(curated_run: dict) -> None:
+    """Without --json: one row per joint count, 8 to 20 in that order, holding the rows each
+    table has of that size; the shares beside the paper's; a screenful in all."""
+    result = links("stats", curated_run["out"], "--sample-topologies", "1")
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert len(lines) <= 40 and max(map(len, lines)) <= 200
+    header = lines.index(next(line for line in lines if line.startswith("joints")))
+    names = lines[header].split()
+    assert names[:6] == ["joints", "mechanisms", "simulations", "negatives", "paths", "curated"]
+    rows = [line.split() for line in lines[header + 1 : header + 14]]
+    assert [int(row[0]) for row in rows] == list(range(8, 21))
+    for table in ("mechanisms", "paths", "curated"):
+        column = names.index(table)
+        rows_of = read_table(Store.open(curated_run["out"]), table).column("n_joints")
+        sizes = Counter(rows_of.to_pylist())
+        assert [int(row[column].replace(",", "")) for row in rows] == [
+            sizes[n] for n in range(8, 21)
+        ], table
+    assert lines[header + 14].split()[:2] == ["all", str(MECHANISMS)]
+    circles = next(line for line in lines if line.startswith("circles")).split()
+    paths = curated_run["paths"]
+    share = np.mean(paths.column("is_circle").to_numpy())
+    assert circles[1] == f"{100 * share:.1f}%" and circles[2] == "34.0%"

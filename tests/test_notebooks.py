@@ -1,52 +1,31 @@
-"""The notebooks run top to bottom on small sizes, and are stored without outputs.
+"""The notebooks run top to bottom on small sizes, and are stored with the outputs of such a
+run of their current cells (so the repository page shows their figures).
 
-Each runs in its own kernel (a separate process with its own private Ray) in a temporary
-working directory, so the data it makes stays out of the repository. The environment is this
-one without Ray addresses or S3 settings: the notebooks start their own Ray and store.
+Each runs, its stored outputs cleared first, in its own kernel (a separate process with its
+own private Ray) in a temporary working directory, so the data it makes stays out of the
+repository. The environment is this one without Ray addresses or S3 settings: the notebooks
+start their own Ray and store. `notebooks/store_outputs.py` runs them the same way and stores
+them.
 """
 
 from __future__ import annotations
 
 import os
 import re
-import time
+import sys
 from pathlib import Path
 
 import pytest
 
 nbformat = pytest.importorskip("nbformat")
-nbclient = pytest.importorskip("nbclient")
+pytest.importorskip("nbclient")
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
-NAMES = ("01_quickstart", "02_paper_figures", "03_cluster_and_s3", "04_training_data")
-#: Seconds one cell may take (the whole notebook should take one or two minutes).
-CELL_TIMEOUT_S = 600
-#: Settings that would point a notebook at a Ray or an S3 store other than its own.
-FOREIGN = ("RAY_ADDRESS", "LINKS_NB_RAY_ADDRESS", "LINKS_NB_S3_URI")
+sys.path.insert(0, str(NOTEBOOKS))
+from store_outputs import NAMES, notebook_env, run_notebook, source_digest  # noqa: E402
 
-
-def notebook_env(**extra: str) -> dict[str, str]:
-    env = {
-        name: value
-        for name, value in os.environ.items()
-        if name not in FOREIGN and not name.startswith("AWS_")
-    }
-    env.update(extra)
-    return env
-
-
-def run_notebook(name: str, workdir: Path, env: dict[str, str]) -> tuple[object, float]:
-    """Execute a notebook in `workdir`; returns it with its outputs, and the seconds taken."""
-    notebook = nbformat.read(NOTEBOOKS / f"{name}.ipynb", as_version=4)
-    client = nbclient.NotebookClient(
-        notebook,
-        kernel_name="python3",
-        timeout=CELL_TIMEOUT_S,
-        resources={"metadata": {"path": str(workdir)}},
-    )
-    start = time.perf_counter()
-    client.execute(env=env)
-    return notebook, time.perf_counter() - start
+#: What the four stored notebooks may weigh together: PNG figures, no data.
+MAX_STORED_BYTES = 2_000_000
 
 
 def outputs_text(notebook) -> str:
@@ -111,13 +90,36 @@ def test_s3_notebook_uses_a_store_from_the_environment(s3_server, tmp_path: Path
 
 
 @pytest.mark.parametrize("name", NAMES)
-def test_notebook_is_stored_without_outputs(name: str) -> None:
+def test_notebook_is_stored_with_the_outputs_of_a_clean_run(name: str) -> None:
+    """Every code cell ran once, in order, from a fresh kernel (execution counts 1, 2, ...),
+    as its source stands now (the digest stamped when it ran), and none failed."""
     notebook = nbformat.read(NOTEBOOKS / f"{name}.ipynb", as_version=4)
     nbformat.validate(notebook)
     code = [cell for cell in notebook.cells if cell.cell_type == "code"]
     assert code, "a notebook without code"
+    assert [cell.execution_count for cell in code] == list(range(1, len(code) + 1))
     for cell in code:
-        assert cell.outputs == [], f"cell {cell.get('id')} has outputs"
-        assert cell.execution_count is None, f"cell {cell.get('id')} has an execution count"
+        stamp = cell.metadata.get("links", {}).get("source_sha256")
+        assert stamp == source_digest(cell.source), (
+            f"cell {cell.get('id')} changed since it ran: python notebooks/store_outputs.py"
+        )
+        kinds = {output.output_type for output in cell.outputs}
+        assert "error" not in kinds, f"cell {cell.get('id')} failed"
+        streams = [output for output in cell.outputs if output.output_type == "stream"]
+        assert not any("Traceback" in output.text for output in streams)
     # The first code cell holds the sizes, read from the environment for real runs.
     assert "LINKS_NB_MECHANISMS" in code[0].source
+
+
+def test_stored_notebooks_show_figures_and_stay_small() -> None:
+    def figures(name: str) -> int:
+        notebook = nbformat.read(NOTEBOOKS / f"{name}.ipynb", as_version=4)
+        return sum(
+            "image/png" in output.get("data", {})
+            for cell in notebook.cells
+            if cell.cell_type == "code"
+            for output in cell.outputs
+        )
+
+    assert figures("01_quickstart") >= 1 and figures("02_paper_figures") >= 1
+    assert sum((NOTEBOOKS / f"{name}.ipynb").stat().st_size for name in NAMES) < MAX_STORED_BYTES

@@ -371,10 +371,23 @@ def test_warm_up_is_bounded_and_leaves_answers_unchanged(index: RetrievalIndex) 
 def test_offline_cli(index: RetrievalIndex, tmp_path: Path) -> None:
     query = tmp_path / "query.json"
     query.write_text(json.dumps({"points": hand_drawn(np.random.default_rng(1)).tolist()}))
-    result = links("retrieve", index.store.uri, "--points", str(query), "-k", "2")
+    result = links("retrieve", index.store.uri, "--points", str(query), "-k", "2", "--json")
     assert result.returncode == 0, result.stderr
     answer = json.loads(result.stdout)
     assert len(answer["results"]) == 2 and answer["took_ms"] > 0
+    # For a person: a title, a header, one row a result (its path id and chamfer), a footnote.
+    result = links("retrieve", index.store.uri, "--points", str(query), "-k", "2")
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert len(lines) == 5 and len(result.stdout) < 600
+    assert lines[0].startswith("2 paths in ")
+    header = lines[1].split()
+    for rank, (line, expected) in enumerate(zip(lines[2:4], answer["results"], strict=True), 1):
+        row = dict(zip(header, line.split(), strict=True))
+        assert row["rank"] == str(rank)
+        assert row["path"] == str(expected["path_id"])
+        assert row["mechanism"] == str(expected["mechanism_id"])
+        assert row["chamfer"] == f"{expected['chamfer']:.4f}"
     bad = tmp_path / "bad.json"
     bad.write_text("[[0, 0], [1, 1]]")
     result = links("retrieve", index.store.uri, "--points", str(bad))

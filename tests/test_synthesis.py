@@ -164,6 +164,8 @@ def test_links_synthesize(dataset: str, tmp_path: Path) -> None:
     done = links("synthesize", dataset, "--points", str(points), "-k", "2", "--seconds", "1")
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("2 mechanisms in ")
+    lines = done.stdout.splitlines()  # a title, a header, two ranked rows, a footnote
+    assert len(lines) == 5 and [line.split()[0] for line in lines[2:4]] == ["1", "2"]
     done = links(
         "synthesize", dataset, "--points", str(points), "-k", "2", "--seconds", "1", "--json"
     )

@@ -17,6 +17,7 @@ from importlib import metadata
 
 import numpy as np
 
+from links_ray.cli import report
 from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.mechanism import CRANK_CENTER, CRANK_TIP, MAX_DATASET_JOINTS
 from links_ray.engine.reference import simulate_reference
@@ -355,24 +356,25 @@ def format_simulate_one(result: dict) -> str:
 
 def format_sample(result: dict) -> str:
     """Sampler throughput and candidates per valid mechanism by joint count."""
-    lines = []
-    for kind, data in result["samplers"].items():
-        lines.append(
-            f"{kind}: {data['valid_per_core_second']:,.0f} valid mechanisms per core-second "
-            f"({result['count']} variants per topology)"
-        )
-    lines.append("")
-    lines.append(f"{'joints':>6}" + "".join(f"{k + ' cand/valid':>24}" for k in result["samplers"]))
-    for n in result["samplers"]["rejection"]["by_joint_count"]:
-        row = "".join(
-            f"{result['samplers'][k]['by_joint_count'][n]['candidates_per_valid']:>24.1f}"
-            for k in result["samplers"]
-        )
-        lines.append(f"{n:>6}{row}")
-    lines.append(
+    samplers = result["samplers"]
+    lines = [
+        f"{kind}: {data['valid_per_core_second']:,.0f} valid mechanisms per core-second "
+        f"({result['count']} variants per topology)"
+        for kind, data in samplers.items()
+    ]
+    per_size = {
+        kind: dict(report.by_joints(data["by_joint_count"])) for kind, data in samplers.items()
+    }
+    rows = [
+        [n, *(report.number(per_size[kind][n]["candidates_per_valid"]) for kind in samplers)]
+        for n in sorted(per_size["rejection"])
+    ]
+    lines += [
+        "",
+        report.table(["joints", *(f"{kind} cand/valid" for kind in samplers)], rows, names=0),
         f"Paper: more than {result['paper_candidates_per_valid']} candidates per valid on average "
-        "(rejection sampler); target: sequential >= 2,000 valid per core-second"
-    )
+        "(rejection sampler); target: sequential >= 2,000 valid per core-second",
+    ]
     return "\n".join(lines)
 
 

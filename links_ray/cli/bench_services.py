@@ -19,6 +19,7 @@ import urllib.request
 
 import numpy as np
 
+from links_ray.cli import report
 from links_ray.cli.bench import machine_info
 from links_ray.engine.mechanism import analyze_topology, arc_joints
 from links_ray.engine.paths import is_circle, normalize_path
@@ -387,22 +388,28 @@ def _folder_bytes(folder: str) -> int:
 
 def format_generate(result: dict) -> str:
     """Generation throughput by sampler and worker count."""
-    lines = [
-        f"{'sampler':<12}{'workers':>8}{'mechanisms':>12}{'seconds':>10}"
-        f"{'per second':>12}{'per core-s':>12}{'in actor':>10}{'bytes/mech':>12}"
+    header = ["sampler", "workers", "mechanisms", "seconds", "per second", "per core-s"]
+    header += ["in actor", "bytes/mech"]
+    rows = [
+        [
+            run["sampler"],
+            run["workers"],
+            report.count(run["mechanisms"]),
+            f"{run['seconds']:.2f}",
+            f"{run['mechanisms_per_second']:,.0f}",
+            f"{run['valid_per_core_second']:,.0f}",
+            f"{run['in_actor_valid_per_core_second']:,.0f}",
+            f"{run['bytes_per_mechanism']:,.0f}",
+        ]
+        for run in result["runs"]
     ]
-    for run in result["runs"]:
-        lines.append(
-            f"{run['sampler']:<12}{run['workers']:>8}{run['mechanisms']:>12,}"
-            f"{run['seconds']:>10.2f}{run['mechanisms_per_second']:>12,.0f}"
-            f"{run['valid_per_core_second']:>12,.0f}"
-            f"{run['in_actor_valid_per_core_second']:>10,.0f}{run['bytes_per_mechanism']:>12,.0f}"
-        )
-    lines.append(
-        f"End to end with all workers: {result['valid_per_core_second']:,.0f} valid mechanisms "
-        f"per core-second (target {result['target_valid_per_core_second']:,})"
+    return "\n".join(
+        [
+            report.table(header, rows),
+            f"End to end with all workers: {result['valid_per_core_second']:,.0f} valid "
+            f"mechanisms per core-second (target {result['target_valid_per_core_second']:,})",
+        ]
     )
-    return "\n".join(lines)
 
 
 # -- serving under load: `links bench serve` --------------------------------------------------
@@ -695,15 +702,7 @@ def wait_for_port(port: int, timeout: float = 60.0) -> None:
 
 def format_serve(result: dict) -> str:
     """Throughput and latencies under load, by shard count."""
-    lines = [
-        f"{result['clients']} clients retrieving, one checking health and simulating "
-        f"({result['runs'][0]['paths']:,} curated paths)"
-        if result["runs"]
-        else "no runs",
-        f"{'shards':<8}{'retrievals/s':>13}{'retrieve p50/p99 ms':>22}"
-        f"{'health p50/p99 ms':>20}{'simulate p50/p99 ms':>22}{'503s':>8}{'other':>7}"
-        f"{'load avg':>10}",
-    ]
+    rows = []
     for run in result["runs"]:
         other = sum(
             n for status, n in run["retrieve_statuses"].items() if status not in ("200", "503")
@@ -714,9 +713,26 @@ def format_serve(result: dict) -> str:
             p50, p99 = run[f"{name}_p50_ms"], run[f"{name}_p99_ms"]
             return "-" if p50 is None else f"{p50:.1f} / {p99:.1f}"
 
-        lines.append(
-            f"{run['shards'] or 'none':<8}{run['retrievals_per_s']:>13.1f}"
-            f"{pair('retrieve'):>22}{pair('health'):>20}{pair('simulate'):>22}"
-            f"{run['busy_503']:>8}{other:>7}{run['load_average_1min']:>10.1f}"
+        rows.append(
+            [
+                run["shards"] or "none",
+                f"{run['retrievals_per_s']:.1f}",
+                pair("retrieve"),
+                pair("health"),
+                pair("simulate"),
+                run["busy_503"],
+                other,
+                f"{run['load_average_1min']:.1f}",
+            ]
         )
-    return "\n".join(lines)
+    header = ["shards", "retrievals/s", "retrieve p50/p99 ms", "health p50/p99 ms"]
+    header += ["simulate p50/p99 ms", "503s", "other", "load avg"]
+    return "\n".join(
+        [
+            f"{result['clients']} clients retrieving, one checking health and simulating "
+            f"({result['runs'][0]['paths']:,} curated paths)"
+            if result["runs"]
+            else "no runs",
+            report.table(header, rows),
+        ]
+    )

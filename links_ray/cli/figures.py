@@ -1,4 +1,4 @@
-"""The dataset's figures as PNG (`links stats --plots DIR`); needs matplotlib (extra `all`)."""
+"""The dataset's figures as PNG (`links stats --plots DIR`); need matplotlib (extra `plots`)."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ def _pyplot():
     try:
         import matplotlib
     except ImportError:
-        raise ValueError("figures need matplotlib: pip install 'links-ray[all]'") from None
+        raise ValueError("figures need matplotlib: pip install 'links-ray[plots]'") from None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

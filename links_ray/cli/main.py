@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import math
 import sys
 import time
@@ -15,9 +14,10 @@ from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
 from links_ray import __version__
-from links_ray.cli import bench, export, export_dataset
+from links_ray.cli import bench, export, export_dataset, report
 from links_ray.cli.bench_synthesis import BENCH_SECONDS
 from links_ray.cli.demo import run_demo
+from links_ray.cli.warm import format_warm, note_compiling, warm
 from links_ray.engine.inputs import (
     DEFAULT_K,
     DEFAULT_SYNTHESIS_SECONDS,
@@ -31,8 +31,8 @@ from links_ray.engine.topology import TOPOLOGY_RULES
 
 
 def _report(args: argparse.Namespace, result: dict, formatted: Callable[[dict], str]) -> None:
-    """A benchmark's result: one JSON object with --json, else the human-readable table."""
-    print(json.dumps(result) if args.json else formatted(result))
+    """A command's result: one JSON object with --json, else the human-readable table."""
+    report.emit(result, formatted, args.json)
 
 
 def _bench_simulate(args: argparse.Namespace) -> None:
@@ -66,6 +66,7 @@ def _generate(args: argparse.Namespace) -> None:
         topologies_per_shard=args.shard_topologies,
         topology_rules=args.topology_rules,
         min_transmission_deg=args.min_transmission,
+        starting=lambda: note_compiling("generate"),
         **_tables(args),
     )
     if summary.get("nothing_to_do"):
@@ -74,7 +75,7 @@ def _generate(args: argparse.Namespace) -> None:
             "mechanisms of this plan",
             file=sys.stderr,
         )
-    print(json.dumps(summary, indent=2))
+    _report(args, summary, report.format_generate)
 
 
 def _bench_service(args: argparse.Namespace, name: str, **options: int | bool) -> None:
@@ -94,9 +95,14 @@ def _curate(args: argparse.Namespace) -> None:
     from links_ray.cluster.curation import curate  # imports Ray: only when asked for
 
     summary = curate(
-        args.root, seed=args.seed, workers=args.workers, address=args.address, **_tables(args)
+        args.root,
+        seed=args.seed,
+        workers=args.workers,
+        address=args.address,
+        starting=lambda: note_compiling("curate"),
+        **_tables(args),
     )
-    print(json.dumps(summary, indent=2))
+    _report(args, summary, report.format_curate)
 
 
 def _stats(args: argparse.Namespace) -> None:
@@ -107,12 +113,13 @@ def _stats(args: argparse.Namespace) -> None:
         from links_ray.cli.figures import write_figures
 
         stats["plots"] = write_figures(args.root, args.plots, stats)
-    print(json.dumps(stats, indent=2))
+    _report(args, stats, report.format_stats)
 
 
 def _serve(args: argparse.Namespace) -> None:
     from links_ray.serve.app import run_server  # imports Ray Serve: only when asked for
 
+    note_compiling("serve")
     run_server(
         args.root,
         host=args.host,
@@ -127,13 +134,13 @@ def _serve(args: argparse.Namespace) -> None:
 def _retrieve(args: argparse.Namespace) -> None:
     from links_ray.search.index import RetrievalIndex, read_points
 
+    points = read_points(args.points)
+    note_compiling("retrieve")
     index = RetrievalIndex.open(args.root)
     start = time.perf_counter()
-    results = index.retrieve(
-        read_points(args.points), k=args.k, min_transmission=args.min_transmission
-    )
+    results = index.retrieve(points, k=args.k, min_transmission=args.min_transmission)
     took_ms = (time.perf_counter() - start) * 1e3
-    print(json.dumps({"results": results, "took_ms": took_ms}))
+    _report(args, {"results": results, "took_ms": took_ms}, report.format_retrieve)
 
 
 def _synthesize(args: argparse.Namespace) -> None:
@@ -144,6 +151,7 @@ def _synthesize(args: argparse.Namespace) -> None:
     # Before the index loads:
     validate_synthesis(points, args.k, args.seconds, args.partial)
     as_transmission_deg(args.min_transmission, "min_transmission")
+    note_compiling("synthesize")
     index = RetrievalIndex.open(args.root)
     start = time.perf_counter()
     results = synthesize(
@@ -155,23 +163,7 @@ def _synthesize(args: argparse.Namespace) -> None:
         min_transmission=args.min_transmission,
     )
     took_ms = (time.perf_counter() - start) * 1e3
-    if args.json:
-        print(json.dumps({"results": results, "took_ms": took_ms}))
-        return
-    print(f"{len(results)} mechanisms in {took_ms / 1e3:.1f} s (chamfer / the drawing's chord)")
-    for rank, result in enumerate(results, 1):
-        interval = result["interval"]
-        where = (
-            f", crank {interval['start_deg']:.1f} to "
-            f"{interval['start_deg'] + interval['sweep_deg']:.1f} deg"
-            if interval
-            else ""
-        )
-        print(
-            f"{rank}. chamfer {result['chamfer']:.4f} (retrieved {result['retrieved_chamfer']:.4f}"
-            f"), {len(result['mechanism']['node_types'])} joints, joint "
-            f"{result['mechanism_joint']}, from path {result['path_id']}{where}"
-        )
+    _report(args, {"results": results, "took_ms": took_ms}, report.format_synthesize)
 
 
 def _bench_synthesize(args: argparse.Namespace) -> None:
@@ -199,8 +191,18 @@ def _bench_serve(args: argparse.Namespace) -> None:
 
 
 def _demo(args: argparse.Namespace) -> None:
+    note_compiling("demo")
     summary = run_demo(args.out, mechanisms=args.mechanisms, seed=args.seed, sampler=args.sampler)
-    print(json.dumps(summary, indent=2))
+    _report(args, summary, report.format_demo)
+
+
+def _json_option(command: argparse.ArgumentParser, what: str = "the whole result") -> None:
+    """`--json`: print `what` as one JSON object instead of the short human summary."""
+    command.add_argument("--json", action="store_true", help=f"print {what} as one JSON object")
+
+
+def _warm(args: argparse.Namespace) -> None:
+    _report(args, warm(args.folder), format_warm)
 
 
 def _query_arguments(command: argparse.ArgumentParser) -> None:
@@ -293,7 +295,7 @@ def _add_bench(
 ) -> argparse.ArgumentParser:
     """`links bench NAME [--json] [SIZE N]`: every benchmark has one size option."""
     bench_parser = benches.add_parser(name, help=summary)
-    bench_parser.add_argument("--json", action="store_true", help="print one JSON object")
+    _json_option(bench_parser)
     option, default, meaning = size
     bench_parser.add_argument(
         option, type=_positive_int, default=default, help=f"{meaning} (default {default:,})"
@@ -314,7 +316,18 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--mechanisms", type=_positive_int, default=100)
     demo.add_argument("--seed", type=_non_negative_int, default=0)
     demo.add_argument("--sampler", choices=["sequential", "rejection"], default="sequential")
+    _json_option(demo, "the summary")
     demo.set_defaults(run=_demo)
+
+    warm_command = commands.add_parser(
+        "warm",
+        help="compile every kernel into numba's cache now (the container image does this)",
+    )
+    warm_command.add_argument(
+        "--folder", default=None, help="work folder (default: a temporary one, removed after)"
+    )
+    _json_option(warm_command, "each stage's seconds")
+    warm_command.set_defaults(run=_warm)
 
     generate = commands.add_parser(
         "generate", help="generate valid mechanisms on Ray into a folder or s3://bucket/prefix"
@@ -361,6 +374,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="keep only mechanisms whose least transmission angle is at least DEG degrees, "
         f"0 to {MAX_TRANSMISSION_DEG:g} (default 0: the paper's distribution)",
     )
+    _json_option(generate, "the run's summary")
     generate.set_defaults(run=_generate)
 
     curate = commands.add_parser(
@@ -376,9 +390,10 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="TABLES",
         help="tables to write, comma-separated: paths, curated or both (default both)",
     )
+    _json_option(curate, "the pass's summary")
     curate.set_defaults(run=_curate)
 
-    stats = commands.add_parser("stats", help="dataset statistics as JSON, figures as PNG")
+    stats = commands.add_parser("stats", help="dataset statistics, figures as PNG")
     stats.add_argument("root", help="dataset root: a folder or s3://...")
     stats.add_argument("--plots", default=None, help="folder for the PNG figures")
     stats.add_argument(
@@ -387,6 +402,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=3,
         help="topologies per joint count when candidates per valid must be measured here",
     )
+    _json_option(stats, "every statistic")
     stats.set_defaults(run=_stats)
 
     serve = commands.add_parser("serve", help="Ray Serve app: the HTTP API and the studio at /")
@@ -424,6 +440,7 @@ def build_parser() -> argparse.ArgumentParser:
         "retrieve", help="find mechanisms whose path matches the points in FILE (offline)"
     )
     _query_arguments(retrieve)
+    _json_option(retrieve, "the results (points and placed mechanisms included)")
     retrieve.set_defaults(run=_retrieve)
 
     synthesize = commands.add_parser(
@@ -443,9 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="the points are an open stroke: match them to part of a crank turn",
     )
-    synthesize.add_argument(
-        "--json", action="store_true", help="print the results as JSON (mechanisms included)"
-    )
+    _json_option(synthesize, "the results (mechanisms included)")
     synthesize.set_defaults(run=_synthesize)
 
     export.add_command(commands)  # links export: cli/export.py
@@ -510,7 +525,7 @@ def build_parser() -> argparse.ArgumentParser:
         "serve",
         help="serving under load: retrievals per second, latencies, 503s, by shard count",
     )
-    serve_bench.add_argument("--json", action="store_true", help="print one JSON object")
+    _json_option(serve_bench)
     serve_bench.add_argument(
         "--shards",
         type=_non_negative_int,

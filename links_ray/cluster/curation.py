@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 import numpy as np
 import pyarrow as pa
@@ -128,11 +128,12 @@ def curate(
     address: str | None = None,
     progress: bool = True,
     tables: str | Iterable[str] = CURATION_TABLES,
+    starting: Callable[[], None] | None = None,
 ) -> dict:
     """Curate every committed generation shard at `root` not curated yet; returns the summary.
 
     `tables` are the tables written: `paths`, `curated` or both (names, or one comma-separated
-    string).
+    string). `starting` is called just before Ray starts, only when there is work.
     """
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
@@ -141,7 +142,7 @@ def curate(
     tables = choose_tables(tables, CURATION_TABLES)
     store = Store.open(root)
     with Lease.acquire(store, "writer", "links curate") as lease:
-        summary = _curate_holding(store, lease, seed, tables, workers, address, progress)
+        summary = _curate_holding(store, lease, seed, tables, workers, address, progress, starting)
     return summary
 
 
@@ -153,6 +154,7 @@ def _curate_holding(
     workers: int | None,
     address: str | None,
     progress: bool,
+    starting: Callable[[], None] | None = None,
 ) -> dict:
     """`curate`'s work, done while holding the root's writer lease."""
     generated = committed_shards(store, "shards")
@@ -174,6 +176,8 @@ def _curate_holding(
 
     start = time.perf_counter()
     if todo:
+        if starting is not None:
+            starting()
         connect(address)
         ctx = ray.data.DataContext.get_current()
         ctx.enable_progress_bars = False  # ours counts mechanisms, not blocks
@@ -210,6 +214,10 @@ def _curate_holding(
         data_log = logging.getLogger("ray.data")
         level = data_log.level
         data_log.setLevel(logging.WARNING)  # Ray Data logs every stage; the meter says enough
+        # ...and warns that its bars are off, which is this pass's choice, not the user's.
+        bars_log = logging.getLogger("ray.data._internal.progress")
+        bars_level = bars_log.level
+        bars_log.setLevel(logging.ERROR)
         failed = ""
         try:
             for row in results.iter_rows():
@@ -219,6 +227,7 @@ def _curate_holding(
                 meter.advance(int(row["mechanisms"]))
         finally:
             data_log.setLevel(level)
+            bars_log.setLevel(bars_level)
             meter.close()
         if failed:
             raise StoreError(

@@ -63,11 +63,13 @@ def ray_dataset(
     rows = ray.data.read_parquet(
         files,
         filesystem=store.fs,
-        columns=read,
         partitioning=Partitioning(
             "hive", base_dir=store.path(table), field_types={"n_joints": int}
         ),
     )
+    if read is not None:
+        # Ray 2.60 deprecates read_parquet's `columns=`; the selection is pushed into the scan.
+        rows = rows.select_columns(read)
     if filter is None and split is None:
         return rows
     # Ray's read_parquet takes no pyarrow filter: each block is filtered as it is read.

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict
 
 import ray
@@ -69,6 +69,7 @@ def generate(
     tables: str | Iterable[str] = GENERATION_TABLES,
     topology_rules: str = TOPOLOGY_RULES[0],
     min_transmission_deg: float = 0.0,
+    starting: Callable[[], None] | None = None,
 ) -> dict:
     """Generate `mechanisms` valid mechanisms into `out` on Ray; returns the run summary.
 
@@ -79,7 +80,8 @@ def generate(
     `tables` are the tables written: `mechanisms` and any of `simulations` and `negatives`
     (names, or one comma-separated string). Resumable: shards committed by an earlier run of
     the same plan are kept, the rest are made; when none is left the saved summary is
-    returned, with `nothing_to_do`, and Ray is not started.
+    returned, with `nothing_to_do`, and Ray is not started. `starting` is called just before
+    Ray starts, only when there is work.
     """
     if workers is not None and (isinstance(workers, bool) or workers < 1):
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
@@ -111,6 +113,8 @@ def generate(
             # A finished run asked again: its summary, without starting Ray for nothing.
             return {**saved, "nothing_to_do": True}
 
+        if starting is not None:
+            starting()
         connect(address)
         start = time.perf_counter()
         meter = Progress(

@@ -50,7 +50,10 @@ def _counts(rows: pa.Table | None) -> dict | None:
     by_size = pc.value_counts(rows.column("n_joints")).to_pylist()
     return {
         "rows": len(rows),
-        "by_joint_count": {str(c["values"]): c["counts"] for c in sorted(by_size, key=str)},
+        # Keys are strings in JSON; ordered as numbers (8 before 10).
+        "by_joint_count": {
+            str(c["values"]): c["counts"] for c in sorted(by_size, key=lambda c: c["values"])
+        },
     }
 
 
