@@ -419,9 +419,13 @@ def test_stats_cli_reports_and_draws(curated_run: dict, tmp_path: Path) -> None:
 
 
 def test_stats_cli_prints_a_short_table(curated_run: dict) -> None:
-    """Without --json: one row per joint count, 8 to 20 in that order, holding the rows each
-    table has of that size; the shares beside the paper's; a screenful in all."""
-    result = links("stats", curated_run["out"], "--sample-topologies", "1")
+    """For a person (a terminal, or --table): one row per joint count, 8 to 20 in that order,
+    holding the rows each table has of that size; the shares beside the paper's; a screenful
+    in all. Read by a script (not a terminal), JSON, as the contract says."""
+    piped = links("stats", curated_run["out"], "--sample-topologies", "1")
+    assert piped.returncode == 0, piped.stderr
+    assert json.loads(piped.stdout)["counts"]
+    result = links("stats", curated_run["out"], "--sample-topologies", "1", "--table")
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()
     assert len(lines) <= 40 and max(map(len, lines)) <= 200

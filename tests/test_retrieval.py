@@ -375,8 +375,13 @@ def test_offline_cli(index: RetrievalIndex, tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr
     answer = json.loads(result.stdout)
     assert len(answer["results"]) == 2 and answer["took_ms"] > 0
+    # Read by a script (not a terminal): JSON without asking, as the contract says.
+    piped = links("retrieve", index.store.uri, "--points", str(query), "-k", "2")
+    assert [r["path_id"] for r in json.loads(piped.stdout)["results"]] == [
+        r["path_id"] for r in answer["results"]
+    ]
     # For a person: a title, a header, one row a result (its path id and chamfer), a footnote.
-    result = links("retrieve", index.store.uri, "--points", str(query), "-k", "2")
+    result = links("retrieve", index.store.uri, "--points", str(query), "-k", "2", "--table")
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()
     assert len(lines) == 5 and len(result.stdout) < 600

@@ -31,8 +31,12 @@ from links_ray.engine.topology import TOPOLOGY_RULES
 
 
 def _report(args: argparse.Namespace, result: dict, formatted: Callable[[dict], str]) -> None:
-    """A command's result: one JSON object with --json, else the human-readable table."""
-    report.emit(result, formatted, args.json)
+    """A command's result: one JSON object with --json, else the human-readable table; for
+    the commands the contract has print JSON (`stats`, `retrieve`), JSON also when the output
+    is not a terminal (a script reading it), unless --table."""
+    table = getattr(args, "table", None)
+    piped = table is not None and not table and not sys.stdout.isatty()
+    report.emit(result, formatted, args.json or piped)
 
 
 def _bench_simulate(args: argparse.Namespace) -> None:
@@ -196,9 +200,20 @@ def _demo(args: argparse.Namespace) -> None:
     _report(args, summary, report.format_demo)
 
 
-def _json_option(command: argparse.ArgumentParser, what: str = "the whole result") -> None:
-    """`--json`: print `what` as one JSON object instead of the short human summary."""
+def _json_option(
+    command: argparse.ArgumentParser, what: str = "the whole result", piped: bool = False
+) -> None:
+    """`--json`: print `what` as one JSON object instead of the short human summary. With
+    `piped`, JSON is also the default when the output is not a terminal, and `--table`
+    asks for the summary anyway."""
     command.add_argument("--json", action="store_true", help=f"print {what} as one JSON object")
+    if piped:
+        command.add_argument(
+            "--table",
+            action="store_true",
+            help="print the short summary even when the output is not a terminal "
+            "(default: JSON then, as scripts read it)",
+        )
 
 
 def _warm(args: argparse.Namespace) -> None:
@@ -402,7 +417,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=3,
         help="topologies per joint count when candidates per valid must be measured here",
     )
-    _json_option(stats, "every statistic")
+    _json_option(stats, "every statistic", piped=True)
     stats.set_defaults(run=_stats)
 
     serve = commands.add_parser("serve", help="Ray Serve app: the HTTP API and the studio at /")
@@ -440,7 +455,7 @@ def build_parser() -> argparse.ArgumentParser:
         "retrieve", help="find mechanisms whose path matches the points in FILE (offline)"
     )
     _query_arguments(retrieve)
-    _json_option(retrieve, "the results (points and placed mechanisms included)")
+    _json_option(retrieve, "the results (points and placed mechanisms included)", piped=True)
     retrieve.set_defaults(run=_retrieve)
 
     synthesize = commands.add_parser(
