@@ -45,7 +45,7 @@ def test_a_damaged_cache_is_rebuilt(root: Path) -> None:
     built = RetrievalIndex.open(str(root))
     assert built.build_s > 0
     folder = root / cache_folder(0, 1)
-    for damaged in ("current.json", "sketches.npy", "bank_positions.npy", "head.npy"):
+    for damaged in ("current.json", "sketches.npy", "bank_positions.npy", "centroids.npy"):
         current = json.loads((folder / "current.json").read_text())
         target = folder / (
             damaged if damaged.endswith(".json") else f"{current['build']}/{damaged}"
