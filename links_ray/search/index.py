@@ -83,8 +83,8 @@ FINALISTS = 128
 #: Past GROWTH_ROWS paths, the candidates, the pairs estimated from whole sketches and the
 #: finalists grow as (paths / GROWTH_ROWS) ** GROWTH_POWER: ten times the paths put about
 #: ten times as many near copies around a query, too close for the estimates to tell apart.
-#: At 10 million paths the 1-million sizes found 0.76 of the true best three; grown by 3.2,
-#: 0.93 (README, retrieval at the paper's scale, has the trade measured).
+#: At 10 million paths the 1-million sizes found 0.94 of the true best three; grown by 3.2,
+#: 0.967 (README, retrieval at the paper's scale, has the trade measured).
 GROWTH_ROWS, GROWTH_POWER = 1_000_000, 0.5
 #: Every second point of a stored path makes its distance field.
 FIELD_STRIDE = 2
