@@ -252,3 +252,50 @@ def test_health_is_answered_during_syntheses(client: Client) -> None:
         thread.join()
     assert answers == [200, 200]
     assert max(waits) < 0.5, waits
+
+
+#: A refined mechanism the synthesis bench once answered with, which `simulate` then refused:
+#: one of its dyads ends 0.016 degrees from its dead centre (retrieved at about twice that,
+#: so its margin was half its own). It turns, checked at 1,000 steps and more, but between
+#: 200 steps the check cannot prove it does.
+HAIR_EDGES = [(0, 1), (1, 3), (1, 4), (1, 7), (2, 3), (2, 5), (2, 9), (3, 4), (3, 5), (3, 6)]
+HAIR_EDGES += [(3, 7), (4, 6), (5, 11), (6, 8), (6, 9), (7, 8), (8, 10), (9, 10), (10, 11)]
+HAIR_POSITIONS = [
+    [-35.603034290353754, -7.052549970023862],
+    [-38.366472614147156, -5.473627347042383],
+    [-16.328271862677738, 5.335569973367106],
+    [-28.4971503147137, 27.7582880146957],
+    [-36.79249147765405, -31.262020218311424],
+    [-22.23388843814021, -39.88672420825982],
+    [-14.36274742427628, -14.238581594873715],
+    [-31.549856370887774, 17.479231913824787],
+    [-20.576711103535292, -2.776252436391257],
+    [-44.227437894545176, -1.902373368040407],
+    [-61.04100999536202, -21.780127808254008],
+    [-40.041102893462586, -13.882951763971386],
+]
+
+
+def test_a_refinement_simulate_cannot_trace_at_200_steps_is_not_kept() -> None:
+    """Every result is simulated at 200 steps: a refinement whose turn is proven only at
+    refinement's own 2,000 steps is refused, and the candidate keeps what it had."""
+    from links_ray.engine import synthesis
+    from links_ray.engine.mechanism import LockingError, analyze_topology
+    from links_ray.engine.refine import Refinement, check_mechanism
+
+    adjacency = np.zeros((12, 12), dtype=int)
+    for i, j in HAIR_EDGES:
+        adjacency[i, j] = adjacency[j, i] = 1
+    node_types = np.array([0, 2, 0] + [1] * 9)
+    positions = np.array(HAIR_POSITIONS)
+    topology = analyze_topology(adjacency, node_types)
+    assert check_mechanism(topology, positions).lock == (-1, -1)  # refinement's own check
+    links_ray.simulate(adjacency, node_types, positions, 2000)
+    with pytest.raises(LockingError):
+        links_ray.simulate(adjacency, node_types, positions, 200)
+
+    before = positions + 0.5  # any mechanism: only the refinement is judged here
+    candidate = synthesis._Candidate({}, topology, 11, before, before, 0.05, 0.05, None)
+    refined = Refinement(positions, 0.05, 0.01, None, 10, 10, 0.016)
+    assert not synthesis._keep(candidate, refined, 100)
+    assert candidate.positions is before and candidate.chamfer == 0.05

@@ -131,9 +131,12 @@ def _candidate(result: dict, target: _Target) -> _Candidate | None:
         check_refine_size(topology.n_joints, DEFAULT_STEPS)
         if check_mechanism(topology, positions).lock[0] >= 0:
             return None
-        path = simulate(topology.adjacency, topology.node_types, positions, DEFAULT_STEPS)[joint]
-    except (ValueError, LockingError):
+        path = _traced(topology, positions)
+    except ValueError:
         return None
+    if path is None:
+        return None
+    path = path[joint]
     value, interval = _measure(target, path)
     chamfer = value / target.chord
     return _Candidate(result, topology, joint, positions, positions, chamfer, chamfer, interval)
@@ -163,9 +166,23 @@ def _refined(
         return None
 
 
+def _traced(topology: Topology, positions: np.ndarray) -> np.ndarray | None:
+    """Every joint's path at DEFAULT_STEPS as `simulate` (and so a result) traces it, or None
+    if it finds a lock there or cannot rule one out between those steps."""
+    try:
+        return simulate(topology.adjacency, topology.node_types, positions, DEFAULT_STEPS)
+    except LockingError:
+        return None
+
+
 def _keep(candidate: _Candidate, refinement: Refinement | None, iterations: int) -> bool:
-    """Take `refinement` if it is better; True if it did."""
+    """Take `refinement` if it is better and `simulate` traces it at DEFAULT_STEPS; True if
+    it did. Refinement checks its steps at REFINE_CHECK_STEPS: a dyad it leaves within a
+    hair of its dead centre (one retrieved so, whose margin is half its own) can turn there
+    and still be beyond what the check between 200 steps can prove."""
     if refinement is None or not refinement.chamfer_after < candidate.chamfer:
+        return False
+    if _traced(candidate.topology, refinement.positions) is None:
         return False
     candidate.positions = refinement.positions
     candidate.chamfer = refinement.chamfer_after
