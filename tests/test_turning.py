@@ -123,3 +123,54 @@ def test_the_check_rejects_exactly_what_locks_between_steps() -> None:
                 confirmed += sampled_lock(simulator, positions, 200_000) >= 0
     assert locks_between >= 5, "the sample met too few locks between steps to test anything"
     assert confirmed >= rejected - 1
+
+
+def test_a_grazing_turn_is_refused_within_the_split_budget() -> None:
+    """A dyad that grazes its dead centre along a stretch of the turn (a synthesis refinement
+    made this one) keeps nearly every part of every interval there unsure: proving it turned
+    took up to 79 s at 2,000 steps. The budget refuses it, as locking, at once; ordinary valid
+    sets are decided as an unbounded check decides them."""
+    from test_synthesis import HAIR_EDGES, HAIR_POSITIONS
+
+    adjacency = np.zeros((12, 12), dtype=int)
+    for i, j in HAIR_EDGES:
+        adjacency[i, j] = adjacency[j, i] = 1
+    simulator = TopologySimulator(adjacency, np.array([0, 2, 0] + [1] * 9))
+    topology = simulator.topology
+    positions = np.array(HAIR_POSITIONS)
+    crank = crank_table(2000)
+    geometry = np.empty((len(topology.order), 3))
+    trajectory = np.empty((topology.n_joints, 2000, 2))
+    lock = simulate_one(
+        topology.order, topology.fixed_joints, positions, crank, True, trajectory, geometry
+    )
+    assert lock[0] == -1, "it assembles at every one of 2,000 steps"
+    assert turn_lock(topology.order, positions, geometry, trajectory)[0] >= 0
+    with pytest.raises(links_ray.LockingError):
+        links_ray.simulate(adjacency, simulator.topology.node_types, positions, 2000)
+
+    rng = np.random.default_rng(11)
+    decided = 0
+    for _ in range(60):
+        simulator = TopologySimulator(*random_topology(rng))
+        topology = simulator.topology
+        for positions in PositionSampler(simulator).search(5, rng, "sequential").positions:
+            trajectory = np.empty((topology.n_joints, 2000, 2))
+            if (
+                simulate_one(
+                    topology.order,
+                    topology.fixed_joints,
+                    positions,
+                    crank,
+                    True,
+                    trajectory,
+                    geometry,
+                )[0]
+                >= 0
+            ):
+                continue
+            budgeted = turn_lock(topology.order, positions, geometry, trajectory)
+            unbounded = turn_lock(topology.order, positions, geometry, trajectory, 10**9)
+            assert budgeted == unbounded
+            decided += 1
+    assert decided >= 250

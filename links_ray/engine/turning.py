@@ -19,6 +19,11 @@ small and its interval is split anyway. The check asks `ARC_FACTOR` times the ch
 interval that fails into `SPLIT` parts (solved at the crank angles in between, on the same
 frozen branches) and checks those in turn. An interval still unsure after `MAX_DEPTH` splits
 (SPLIT ** MAX_DEPTH times finer than the sampled steps) counts as a lock: a dead centre touched.
+So does a turn that needs more than `MAX_SPLITS` splits in all to prove: a dyad that grazes
+its dead centre along a stretch of the turn, its slack never quite zero, leaves nearly every
+part of every interval there unsure down to the last depth, and proving it turned took up to
+79 s for one 12-joint mechanism at 2,000 steps (a synthesis refinement had made it). The
+budget keeps every check to milliseconds; what it refuses turns, if at all, by a hair.
 
 Most intervals of most mechanisms pass at once. The first pass goes dyad by dyad over the
 sampled turn (`unsure_intervals`), each parents' distance measured once per step; only the
@@ -37,6 +42,8 @@ from numba import njit
 ARC_FACTOR = 2.0
 #: Parts an unsure interval is split into, and how many times it may be split.
 SPLIT, MAX_DEPTH = 8, 6
+#: The splits one check may make over the whole turn before it counts the turn as locking.
+MAX_SPLITS = 4096
 #: A dyad whose parents' distance varies less than this (relative) over the turn is rigid.
 RIGID_TOLERANCE = 1e-9
 
@@ -181,11 +188,14 @@ def _interval_lock(
     start: np.ndarray,
     end: np.ndarray,
     ends: np.ndarray,
+    splits_left: np.ndarray,
 ) -> int:
     """The dyad that locks (or may) somewhere in crank angles (lo, hi), whose poses are
     `start` and `end`; -1 when it certainly turns through. Splits depth first, in angle order,
     so the lock reported is the earliest. `ends` is scratch (MAX_DEPTH * SPLIT + 1, 2, n, 2):
-    each waiting interval keeps the poses at its ends, solved when it was split off."""
+    each waiting interval keeps the poses at its ends, solved when it was split off.
+    `splits_left` (1,) is the turn's budget of splits, spent here: an unsure interval with
+    none left counts as a lock."""
     n = pos.shape[0]
     stack_size = MAX_DEPTH * SPLIT + 1
     lows = np.empty(stack_size)
@@ -203,8 +213,9 @@ def _interval_lock(
     while top > 0:
         top -= 1
         lo, hi, depth = lows[top], highs[top], depths[top]
-        if depth == MAX_DEPTH:
+        if depth == MAX_DEPTH or splits_left[0] <= 0:
             return dyads[top]
+        splits_left[0] -= 1
         poses[0] = ends[top, 0]
         poses[SPLIT] = ends[top, 1]
         for s in range(1, SPLIT):
@@ -227,11 +238,16 @@ def _interval_lock(
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def turn_lock(
-    order: np.ndarray, pos: np.ndarray, geometry: np.ndarray, traj: np.ndarray
+    order: np.ndarray,
+    pos: np.ndarray,
+    geometry: np.ndarray,
+    traj: np.ndarray,
+    max_splits: int = MAX_SPLITS,
 ) -> tuple[int, int]:
     """(step, joint) of the first lock between the sampled steps of `traj` (n, steps, 2), a
     turn that assembles at every one of them, else (-1, -1). A lock between steps t - 1 and t
     is reported at step t (the first the crank cannot reach); after the last step, at `steps`.
+    A turn not proven within `max_splits` splits counts as locking where the budget ran out.
     """
     n, steps = traj.shape[0], traj.shape[1]
     rigid = np.empty(order.shape[0], dtype=np.bool_)
@@ -239,6 +255,7 @@ def turn_lock(
     start = np.empty((n, 2))
     end = np.empty((n, 2))
     ends = np.empty((0, 2, n, 2))  # scratch of `_interval_lock`, made when first needed
+    splits_left = np.array([max_splits], dtype=np.int64)
     step_angle = 2.0 * np.pi / steps
     for t in range(steps):
         if not unsure[t]:
@@ -248,7 +265,7 @@ def turn_lock(
         start[:] = traj[:, t]
         end[:] = traj[:, t + 1] if t + 1 < steps else traj[:, 0]
         lo, hi = t * step_angle, (t + 1) * step_angle
-        k = _interval_lock(order, pos, geometry, rigid, lo, hi, start, end, ends)
+        k = _interval_lock(order, pos, geometry, rigid, lo, hi, start, end, ends, splits_left)
         if k >= 0:
             return t + 1, order[k, 0]
     return -1, -1
