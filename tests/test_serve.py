@@ -956,7 +956,7 @@ def test_rayservice_manifest() -> None:
 
     assert set(args) <= set(APP_ARGS)
     given = {name: _arg(args, name) for name in args if name != "root"}
-    assert given == {"replicas": 1, "shards": 32, "shard_cpus": 7.0, "shard_memory_gb": 11.0}
+    assert given == {"replicas": 1, "shards": 32, "shard_cpus": 7.0, "shard_memory_gb": 8.0}
     cluster = spec["rayClusterConfig"]
     pods = [cluster["headGroupSpec"]] + cluster["workerGroupSpecs"]
     for pod in pods:
