@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from serving import Client
+from serving import Client, low_port
 
 S3_REGION = "us-east-1"
 STARTUP_TIMEOUT_S = 30.0
@@ -453,9 +453,9 @@ def client(dataset: str, serve_port: int) -> Iterator[Client]:
     down after."""
     from ray import serve
 
-    from links_ray.serve.app import bindable_port, build_app
+    from links_ray.serve.app import build_app
 
-    proxy_port = bindable_port("127.0.0.1", 0)
+    proxy_port = low_port()
     no_access_log = {"enable_access_log": False}
     start = time.perf_counter()
     serve.start(

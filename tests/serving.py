@@ -69,6 +69,23 @@ class Client:
         return status, data
 
 
+def low_port() -> int:
+    """A free loopback port in [23000, 29999], below Linux's ephemeral range (32768 and up),
+    where outgoing connections take theirs: a free port found there (port 0) was once taken
+    by one before Serve's proxy could bind it, failing a test for nothing it tested."""
+    import random
+
+    from links_ray.serve.app import bindable_port
+
+    rng = random.Random()
+    for _ in range(200):
+        try:
+            return bindable_port("127.0.0.1", rng.randint(23_000, 29_999))
+        except ValueError:
+            continue
+    raise RuntimeError("no free port for Serve's proxy")
+
+
 @contextlib.contextmanager
 def serving(app: Any, port: int) -> Iterator[Client]:
     """Run the Serve application `app`, its HTTP replica answering on `port` (Serve's direct
@@ -77,12 +94,11 @@ def serving(app: Any, port: int) -> Iterator[Client]:
     from ray import serve
 
     from links_ray.cli.bench_services import wait_for_port
-    from links_ray.serve.app import bindable_port
 
     wait_for_port(port)  # the last app's replica may still be letting go of it
     no_access_log = {"enable_access_log": False}
     serve.start(
-        http_options={"host": "127.0.0.1", "port": bindable_port("127.0.0.1", 0)},
+        http_options={"host": "127.0.0.1", "port": low_port()},
         logging_config=no_access_log,
     )
     try:
