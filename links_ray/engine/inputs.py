@@ -321,17 +321,23 @@ def check_refine_size(n_joints: int, steps: int) -> None:
 # -- fabrication drawings ---------------------------------------------------------------------
 
 
+def _positive_at_most(value: object, name: str, maximum: float, kind: str, unit: str) -> float:
+    """`value` as a float in (0, maximum], or ValueError naming `name`: "must be `kind`" when
+    it is no number, its range in `unit` when out of it."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"{name} must be {kind}, got {shown(value)}")
+    number = float(value)
+    if not 0.0 < number <= maximum:
+        raise ValueError(
+            f"{name} must be more than 0 and at most {maximum:g}{unit}, got {number:g}"
+        )
+    return number
+
+
 def as_crank_mm(value: object, name: str = "crank_mm") -> float:
     """A crank length in millimetres: more than 0 and at most MAX_CRANK_MM, or ValueError
     naming the option `name`."""
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ValueError(f"{name} must be a number of millimetres, got {shown(value)}")
-    length = float(value)
-    if not 0.0 < length <= MAX_CRANK_MM:
-        raise ValueError(
-            f"{name} must be more than 0 and at most {MAX_CRANK_MM:g} mm, got {length:g}"
-        )
-    return length
+    return _positive_at_most(value, name, MAX_CRANK_MM, "a number of millimetres", " mm")
 
 
 # -- synthesis --------------------------------------------------------------------------------
@@ -342,14 +348,7 @@ def as_seconds(value: object) -> float:
     None gives DEFAULT_SYNTHESIS_SECONDS."""
     if value is None:
         return DEFAULT_SYNTHESIS_SECONDS
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ValueError(f"seconds must be a number, got {shown(value)}")
-    seconds = float(value)
-    if not 0.0 < seconds <= MAX_SYNTHESIS_SECONDS:
-        raise ValueError(
-            f"seconds must be more than 0 and at most {MAX_SYNTHESIS_SECONDS:g}, got {seconds:g}"
-        )
-    return seconds
+    return _positive_at_most(value, "seconds", MAX_SYNTHESIS_SECONDS, "a number", "")
 
 
 def validate_synthesis(
