@@ -106,7 +106,8 @@ class Refinement:
     the matched run for a partial stroke, else None. `min_transmission_deg` is the least
     transmission angle over the non-rigid dyads and the check steps (90 without such dyads).
     `error` is set, and the rest is the input's, when a candidate of `refine_many` could not be
-    refined (it locks).
+    refined (it locks). `damping` is where Levenberg-Marquardt's damping ended: a refinement
+    continued from `positions` starts there.
     """
 
     positions: np.ndarray
@@ -117,6 +118,7 @@ class Refinement:
     evaluations: int
     min_transmission_deg: float
     error: str | None = None
+    damping: float = DAMPING_START
 
 
 @dataclass(frozen=True)
@@ -356,6 +358,7 @@ def _refine_one(
     margin_deg: float,
     deadline: float | None = None,
     origin: np.ndarray | None = None,
+    damping: float = DAMPING_START,
 ) -> Refinement:
     """Refine a validated mechanism; raises LockingError if it locks as given.
 
@@ -363,6 +366,8 @@ def _refine_one(
     `origin` (positions `start` was refined from), the transmission floors and the assembly
     branches are the origin's, so refining in several calls keeps what one call would; a
     `start` on other branches than `origin`, or below its floors, raises ValueError.
+    `damping`: the damping to start at (a continued refinement's, which a fresh start at
+    DAMPING_START would spend its first iterations shrinking again).
     """
     lock, traj, _, _, _, _ = _solve(topology, start, steps, False)
     if lock[0] >= 0:
@@ -405,7 +410,7 @@ def _refine_one(
     value, interval = _measure(target, traj[joint])
     before = value
     pos = start.copy()
-    damping = DAMPING_START
+    damping = min(max(damping, DAMPING_MIN), DAMPING_START)
     done = evaluations = stalled = 0
     while done < iterations and value > CONVERGED * target.chord and stalled < STALL:
         if deadline is not None and done and time.perf_counter() > deadline:
@@ -462,6 +467,7 @@ def _refine_one(
         iterations=done,
         evaluations=evaluations,
         min_transmission_deg=_least_deg(check.min_transmission[~rigid]),
+        damping=damping,
     )
 
 

@@ -52,6 +52,7 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.refine import (
+    DAMPING_START,
     Refinement,
     _as_target,
     _measure,
@@ -70,9 +71,8 @@ CANDIDATES = 32
 FIRST_ITERATIONS, FIRST_ROUND, FIRST_SHARE = 40, 10, 0.4
 #: Candidates the long pass refines on (at least k).
 FINALISTS = 4
-#: Iterations a long-pass refinement may take (it stops earlier when it converges), in
-#: rounds of LONG_ROUND over the finalists.
-LONG_ITERATIONS, LONG_ROUND = 2_000, 50
+#: Long-pass refinements run in rounds of LONG_ROUND iterations over the finalists.
+LONG_ROUND = 50
 #: Restarts move every joint by up to a share of the drawing's chord drawn log-uniformly
 #: between these (the basin to leave may be narrow or wide), and refine for at most
 #: HOP_ITERATIONS.
@@ -101,6 +101,7 @@ class _Candidate:
     retrieved: float  # of `origin`, divided by the chord
     interval: tuple[int, int] | None
     converged: bool = False
+    damping: float = DAMPING_START  # where the last kept refinement of `positions` ended
 
 
 def fit(
@@ -161,6 +162,7 @@ def _refined(
             margin_deg,
             deadline=deadline,
             origin=candidate.origin,
+            damping=candidate.damping if start is candidate.positions else DAMPING_START,
         )
     except (LockingError, ValueError):  # a shaken start that locks or is degenerate
         return None
@@ -187,6 +189,7 @@ def _keep(candidate: _Candidate, refinement: Refinement | None, iterations: int)
     candidate.positions = refinement.positions
     candidate.chamfer = refinement.chamfer_after
     candidate.interval = refinement.interval
+    candidate.damping = refinement.damping
     candidate.converged = refinement.iterations < iterations
     return True
 
@@ -231,10 +234,11 @@ def refine_retrieved(
                 break
             list(pool.map(short, moving))
         candidates.sort(key=lambda c: c.chamfer)
-        finalists = candidates[: max(FINALISTS, k)]
-
-        for c in finalists:  # a round cut short by the deadline is no sign of convergence
-            c.converged = False
+        # The long pass refines FINALISTS at a time; one that converges makes room for the
+        # next best after the short pass (whose ranking is rough: 40 iterations in, the one
+        # that ends best is often sixth or ninth).
+        waiting = list(candidates)
+        finalists: list[_Candidate] = []
 
         def long(c: _Candidate) -> None:
             refinement = _refined(c, target, c.positions, LONG_ROUND, deadline, margin)
@@ -242,9 +246,14 @@ def refine_retrieved(
                 c.converged = True
 
         # In rounds too: one finalist refined to the end would leave the others none.
-        for _ in range(0, LONG_ITERATIONS, LONG_ROUND):
+        while time.perf_counter() < deadline:
             moving = [c for c in finalists if not c.converged]
-            if not moving or time.perf_counter() >= deadline:
+            while len(moving) < max(FINALISTS, k) and waiting:
+                c = waiting.pop(0)
+                c.converged = False  # a short round cut by its end is no sign of it
+                finalists.append(c)
+                moving.append(c)
+            if not moving:
                 break
             list(pool.map(long, moving))
         rng = np.random.default_rng(seed)
