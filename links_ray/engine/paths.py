@@ -270,9 +270,15 @@ def _circle_variances(paths: np.ndarray, out: np.ndarray) -> None:
 
 @numba.njit(cache=True, nogil=True)
 def _nearest_sq(
-    ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray, bmin: np.ndarray
+    ax: np.ndarray,
+    ay: np.ndarray,
+    bx: np.ndarray,
+    by: np.ndarray,
+    bmin: np.ndarray,
+    barg: np.ndarray,
 ) -> None:
-    """bmin[j] = least squared distance from b[j] to any a point; a is sorted by x.
+    """bmin[j] = least squared distance from b[j] to any a point, barg[j] = that point's place
+    in a; a is sorted by x.
 
     From b[j]'s place in a's x order outwards on both sides, stopping where the x gap alone
     reaches the best so far: no point past it is nearer. The least value is the one a
@@ -290,19 +296,25 @@ def _nearest_sq(
             else:
                 hi = middle
         best = np.inf
+        arg = 0
         for i in range(lo, n):
             dx = ax[i] - x
             if dx * dx >= best:
                 break
             dy = ay[i] - y
-            best = min(best, dx * dx + dy * dy)
+            d = dx * dx + dy * dy
+            if d < best:
+                best, arg = d, i
         for i in range(lo - 1, -1, -1):
             dx = x - ax[i]
             if dx * dx >= best:
                 break
             dy = ay[i] - y
-            best = min(best, dx * dx + dy * dy)
+            d = dx * dx + dy * dy
+            if d < best:
+                best, arg = d, i
         bmin[j] = best
+        barg[j] = arg
 
 
 @numba.njit(cache=True, nogil=True)
@@ -338,9 +350,11 @@ def _chamfer_to_many(query: np.ndarray, cands: np.ndarray, out: np.ndarray) -> i
     qy = np.empty(tq)
     _sorted_by_x(query, qx, qy)
     qmin = np.empty(tq)
+    qarg = np.empty(tq, dtype=np.int64)
     cx = np.empty(t)
     cy = np.empty(t)
     cmin = np.empty(t)
+    carg = np.empty(t, dtype=np.int64)
     # Each mean sums in the points' own order, as a plain loop over pairs would.
     query_x = np.empty(tq)
     query_y = np.empty(tq)
@@ -355,8 +369,8 @@ def _chamfer_to_many(query: np.ndarray, cands: np.ndarray, out: np.ndarray) -> i
         for k in range(t):
             path_x[k] = cands[p, k, 0]
             path_y[k] = cands[p, k, 1]
-        _nearest_sq(cx, cy, query_x, query_y, qmin)
-        _nearest_sq(qx, qy, path_x, path_y, cmin)
+        _nearest_sq(cx, cy, query_x, query_y, qmin, qarg)
+        _nearest_sq(qx, qy, path_x, path_y, cmin, carg)
         out[p] = _mean_sqrt(qmin) + _mean_sqrt(cmin)
     return -1
 

@@ -42,6 +42,7 @@ Pure numpy/numba: no Ray, no files.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -97,6 +98,11 @@ DAMPING_START, DAMPING_UP, DAMPING_DOWN = 1.0, 4.0, 3.0
 DAMPING_MIN, DAMPING_REJECTED, DAMPING_MAX = 1e-3, 1e-3, 1e8
 
 
+#: Each thread's scratch arrays of `_solve`, by shape; at most SCRATCH_SHAPES shapes are kept.
+_SCRATCH = threading.local()
+SCRATCH_SHAPES = 12
+
+
 @dataclass(frozen=True)
 class Refinement:
     """The outcome of refining one mechanism.
@@ -136,14 +142,26 @@ class Check:
 def _solve(
     topology: Topology, positions: np.ndarray, steps: int, tangents: bool
 ) -> tuple[tuple[int, int], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(lock, traj, dtraj, trans, dtrans, geometry) of `solve_tangents` at `steps` steps."""
+    """(lock, traj, dtraj, trans, dtrans, geometry) of `solve_tangents` at `steps` steps.
+
+    The arrays are the calling thread's scratch for this shape: valid until its next `_solve`
+    of the same shape (an iteration makes one of each of three shapes, and allocating and
+    paging in megabytes of derivatives anew each time cost a tenth of an iteration)."""
     n, m = topology.n_joints, len(topology.order)
     cols = 2 * n if tangents else 0
-    traj = np.empty((n, steps, 2))
-    dtraj = np.empty((n, steps, 2, cols))
-    trans = np.empty((m, steps))
-    dtrans = np.empty((m, steps, cols))
-    geometry = np.empty((m, 3))
+    key = (n, m, steps, cols)
+    scratch = _SCRATCH.__dict__.setdefault("arrays", {})
+    if key not in scratch:
+        if len(scratch) >= SCRATCH_SHAPES:
+            scratch.clear()
+        scratch[key] = (
+            np.empty((n, steps, 2)),
+            np.empty((n, steps, 2, cols)),
+            np.empty((m, steps)),
+            np.empty((m, steps, cols)),
+            np.empty((m, 3)),
+        )
+    traj, dtraj, trans, dtrans, geometry = scratch[key]
     lock = solve_tangents(
         topology.order,
         topology.fixed_joints,
@@ -158,14 +176,17 @@ def _solve(
     return (int(lock[0]), int(lock[1])), traj, dtraj, trans, dtrans, geometry
 
 
-def check_mechanism(topology: Topology, positions: np.ndarray) -> Check:
+def check_mechanism(
+    topology: Topology, positions: np.ndarray, rigid: np.ndarray | None = None
+) -> Check:
     """Simulate at REFINE_CHECK_STEPS steps: lock, branch signs, least transmission per dyad,
-    rigid dyads."""
+    rigid dyads (found from the trajectories unless given: refinement decides them once)."""
     lock, traj, _, trans, _, geometry = _solve(topology, positions, REFINE_CHECK_STEPS, False)
     if lock[0] < 0:  # and between the steps: valid means it turns
         lock = turn_lock(topology.order, positions, geometry, traj)
-    # A rigid dyad (a triangle of links) keeps its angle: no dead centre, no margin to keep.
-    rigid = rigid_dyads(topology.order, traj)
+    if rigid is None:
+        # A rigid dyad (a triangle of links) keeps its angle: no dead centre, no margin.
+        rigid = rigid_dyads(topology.order, traj)
     return Check(lock, geometry[:, 2].copy(), trans.min(axis=1), rigid)
 
 
@@ -244,19 +265,10 @@ def _guards(
     local minimum of its sine over the steps: that minimum must stay `clearance` above the
     floor (the check steps lie between these steps and dip lower).
     """
-    rows, bounds = [], []
-    for k in range(len(floors)):
-        sine = trans[k]
-        near = sine < floors[k] + 2.0 * clearance
-        if not near.any():
-            continue
-        low = near & (sine <= np.roll(sine, 1)) & (sine <= np.roll(sine, -1))
-        for s in np.flatnonzero(low):
-            rows.append(dtrans[k, s])
-            bounds.append(floors[k] + clearance - sine[s])
-    if not rows:
-        return np.empty((0, dtrans.shape[2])), np.empty(0)
-    return np.array(rows), np.array(bounds)
+    near = trans < (floors + 2.0 * clearance)[:, None]
+    low = near & (trans <= np.roll(trans, 1, axis=1)) & (trans <= np.roll(trans, -1, axis=1))
+    dyads, steps = np.nonzero(low)
+    return dtrans[dyads, steps], floors[dyads] + clearance - trans[dyads, steps]
 
 
 def _constrained(
@@ -315,14 +327,18 @@ def _step(
 
 
 def _valid_trial(
-    topology: Topology, trial: np.ndarray, sides: np.ndarray, floors: np.ndarray
+    topology: Topology,
+    trial: np.ndarray,
+    sides: np.ndarray,
+    floors: np.ndarray,
+    rigid: np.ndarray,
 ) -> Check | None:
     """The trial's check if it is a valid step (links, lock, branches, margins), else None."""
     try:
         check_positions(topology.adjacency, trial)
     except InvalidMechanismError:
         return None
-    check = check_mechanism(topology, trial)
+    check = check_mechanism(topology, trial, rigid)
     if check.lock[0] >= 0 or not np.array_equal(check.sides, sides):
         return None
     if np.any(check.min_transmission < floors):
@@ -372,6 +388,7 @@ def _refine_one(
     lock, traj, _, _, _, _ = _solve(topology, start, steps, False)
     if lock[0] >= 0:
         raise LockingError(*lock)
+    value, interval = _measure(target, traj[joint])  # before `traj` is scratch again
     check = check_mechanism(topology, start)
     if check.lock[0] >= 0:
         error = LockingError(*check.lock)
@@ -407,7 +424,6 @@ def _refine_one(
     # of links flattened to a line turns over onto the other branch (which the check
     # refuses), and its derivatives are unbounded there.
     flat = np.minimum(margin, BELOW_MARGIN * first.min_transmission)
-    value, interval = _measure(target, traj[joint])
     before = value
     pos = start.copy()
     damping = min(max(damping, DAMPING_MIN), DAMPING_START)
@@ -438,7 +454,7 @@ def _refine_one(
                     trial_value, trial_interval = _measure(target, trial_traj[joint])
                     # Cheap tests first: most rejected trials fail on the chamfer.
                     trial_check = (
-                        _valid_trial(topology, trial, sides, floors)
+                        _valid_trial(topology, trial, sides, floors, rigid)
                         if trial_value < value
                         else None
                     )

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from links_ray.engine.paths import _nearest_sq
 from links_ray.engine.solver import dyad_fails, dyad_geometry, place_crank, place_fixed
 
 
@@ -39,6 +40,10 @@ def solve_tangents(
     dtrans (m, steps, 2n) likewise; pass zero-width arrays (last axis 0) for values only.
     Returns (-1, -1) when every step assembles, else (first locking step, joint) as
     `simulate_one` reports them; values at and after a lock are meaningless.
+
+    A joint's path depends only on the coordinates of itself and its ancestors: each dyad's
+    derivatives are carried in those columns alone (the rest stay 0), which halves the work
+    for a typical mechanism.
     """
     steps = crank.shape[0]
     cols = dtraj.shape[3]
@@ -63,6 +68,15 @@ def solve_tangents(
             dtraj[1, s, 1, 1] = 1.0 - c
             dtraj[1, s, 1, 2] = si
             dtraj[1, s, 1, 3] = c
+    # depends[i, p]: joint i's path depends on coordinate p (so d traj[i] / d p may be nonzero).
+    depends = np.zeros((pos.shape[0], cols), dtype=np.bool_)
+    live = np.empty(cols, dtype=np.int64)  # the columns a dyad's loops visit
+    if cols:
+        dtrans[:] = 0.0
+        for i in range(fixed.shape[0]):
+            depends[fixed[i], 2 * fixed[i]] = True
+            depends[fixed[i], 2 * fixed[i] + 1] = True
+        depends[1, 0:4] = True
     # Derivatives of the frozen dyad constants: r1^2, r2^2 (so the lever) and r1, r2.
     dr1_sq = np.zeros(cols)
     dr2_sq = np.zeros(cols)
@@ -82,6 +96,15 @@ def solve_tangents(
                 dr1_sq[2 * a + c] -= u
                 dr2_sq[2 * j + c] += v
                 dr2_sq[2 * b + c] -= v
+            depends[j, 2 * j] = True
+            depends[j, 2 * j + 1] = True
+        count = 0
+        for p in range(cols):
+            if depends[a, p] or depends[b, p]:
+                depends[j, p] = True
+            if depends[j, p]:
+                live[count] = p
+                count += 1
         inv_r12 = 1.0 / (r1 * r2)
         for s in range(steps):
             ax = traj[a, s, 0]
@@ -106,7 +129,8 @@ def solve_tangents(
                 continue
             # d root is unbounded at a dead centre (root = 0); the margin keeps steps away.
             half_inv_root = 0.5 / root if root > 0.0 else 0.0
-            for p in range(cols):
+            for q in range(count):
+                p = live[q]
                 ddx = dtraj[b, s, 0, p] - dtraj[a, s, 0, p]
                 ddy = dtraj[b, s, 1, p] - dtraj[a, s, 1, p]
                 dd_sq = 2.0 * (dx * ddx + dy * ddy)
@@ -137,28 +161,22 @@ def nearest_pairs(
     target_nn: np.ndarray,
     target_d: np.ndarray,
 ) -> None:
-    """For each path point its nearest target point (index, distance), and the other way."""
-    target_d[:] = np.inf
+    """For each path point its nearest target point (index, distance), and the other way.
+
+    Each side is searched sorted by x (`paths._nearest_sq`), as the chamfer itself is."""
+    path_x = np.ascontiguousarray(path[:, 0])
+    path_y = np.ascontiguousarray(path[:, 1])
+    target_x = np.ascontiguousarray(target[:, 0])
+    target_y = np.ascontiguousarray(target[:, 1])
+    by_x = np.argsort(target_x)
+    _nearest_sq(target_x[by_x], target_y[by_x], path_x, path_y, path_d, path_nn)
     for s in range(path.shape[0]):
-        best = np.inf
-        arg = 0
-        x = path[s, 0]
-        y = path[s, 1]
-        for i in range(target.shape[0]):
-            dx = target[i, 0] - x
-            dy = target[i, 1] - y
-            d = dx * dx + dy * dy
-            if d < best:
-                best = d
-                arg = i
-            if d < target_d[i]:
-                target_d[i] = d
-                target_nn[i] = s
-        path_nn[s] = arg
-        path_d[s] = best
-    for s in range(path.shape[0]):
+        path_nn[s] = by_x[path_nn[s]]
         path_d[s] = np.sqrt(path_d[s])
+    by_x = np.argsort(path_x)
+    _nearest_sq(path_x[by_x], path_y[by_x], target_x, target_y, target_d, target_nn)
     for i in range(target.shape[0]):
+        target_nn[i] = by_x[target_nn[i]]
         target_d[i] = np.sqrt(target_d[i])
 
 
