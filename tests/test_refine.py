@@ -29,7 +29,9 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.paths import longest_chord
-from links_ray.engine.refine import _as_target, _refine_one, refine, refine_many
+import itertools
+
+from links_ray.engine.refine import _as_target, _constrained, _refine_one, refine, refine_many
 from links_ray.engine.refine_kernels import best_interval, solve_tangents
 from links_ray.engine.solver import crank_table, dyad_geometry
 
@@ -447,3 +449,45 @@ def test_bad_mechanisms_raise_value_error() -> None:
         )
     with pytest.raises(ValueError, match="candidate 0 must be"):
         refine_many([(adjacency, node_types, positions)], target)
+
+
+def _qp_by_enumeration(
+    system: np.ndarray, gradient: np.ndarray, rows: np.ndarray, bounds: np.ndarray
+) -> np.ndarray:
+    """The minimizer of 1/2 d.system.d + gradient.d subject to rows.d >= bounds, found by
+    trying every set of active constraints: the one whose equality solution is feasible with
+    non-negative multipliers is the optimum (the problem is strictly convex)."""
+    for size in range(len(rows) + 1):
+        for active in itertools.combinations(range(len(rows)), size):
+            on = list(active)
+            n = len(gradient)
+            kkt = np.zeros((n + size, n + size))
+            kkt[:n, :n] = system
+            kkt[:n, n:] = -rows[on].T
+            kkt[n:, :n] = rows[on]
+            solution = np.linalg.solve(kkt, np.concatenate([-gradient, bounds[on]]))
+            delta, multipliers = solution[:n], solution[n:]
+            if np.all(rows @ delta >= bounds - 1e-9) and np.all(multipliers >= -1e-9):
+                return delta
+    raise AssertionError("no active set is optimal")
+
+
+def test_guarded_step_is_the_constrained_optimum() -> None:
+    """The guarded step (the margin as linearized constraints) equals the optimum of the same
+    quadratic program found by enumerating every active set, and keeps every constraint."""
+    rng = np.random.default_rng(7)
+    bound = 0
+    for _ in range(200):
+        n = int(rng.integers(2, 7))
+        m = int(rng.integers(1, n + 1))  # guards are fewer than the coordinates they move
+        half = rng.normal(size=(n, n))
+        system = half @ half.T + 0.1 * np.eye(n)
+        gradient = rng.normal(size=n)
+        rows = rng.normal(size=(m, n))
+        bounds = rng.normal(size=m) - 0.5
+        expected = _qp_by_enumeration(system, gradient, rows, bounds)
+        delta = _constrained(system, gradient, rows, bounds)
+        np.testing.assert_allclose(delta, expected, atol=1e-7)
+        assert np.all(rows @ delta >= bounds - 1e-7)
+        bound += not np.allclose(delta, np.linalg.solve(system, -gradient))
+    assert bound > 50  # most draws have a binding constraint: the test exercises the guard

@@ -174,7 +174,9 @@ def _bench_synthesize(args: argparse.Namespace) -> None:
     from links_ray.cli import bench_synthesis
 
     with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
-        result = bench_synthesis.bench_synthesize(seconds=args.seconds, paths=args.paths)
+        result = bench_synthesis.bench_synthesize(
+            seconds=args.seconds, paths=args.paths, seed=args.seed
+        )
     _report(args, result, bench_synthesis.format_synthesize)
 
 
@@ -535,6 +537,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=_positive_float,
         default=BENCH_SECONDS,
         help=f"budget per curve (default {BENCH_SECONDS:g})",
+    )
+    synthesize_bench.add_argument(
+        "--seed",
+        type=_non_negative_int,
+        default=0,
+        help="seed of the curves' random frames (default 0, the README's table)",
     )
     serve_bench = benches.add_parser(
         "serve",

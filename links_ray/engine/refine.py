@@ -275,34 +275,48 @@ def _constrained(
     system: np.ndarray, gradient: np.ndarray, rows: np.ndarray, bounds: np.ndarray
 ) -> np.ndarray:
     """argmin of 1/2 d.system.d + gradient.d subject to rows.d >= bounds (`system` positive
-    definite), by an active set: add the most violated constraint, drop one whose multiplier
-    turns negative, until neither happens (or GUARD_ROUNDS rounds, leaving the last
-    iterate; the trial is checked in full anyway). Raises LinAlgError if `system` is
-    singular."""
+    definite). Raises LinAlgError if `system` is singular.
+
+    Solved in the dual: the step is free + system^-1 rows^T mu for the multipliers mu >= 0
+    that minimize 1/2 mu.Q.mu - c.mu, Q = rows system^-1 rows^T and c = bounds - rows.free,
+    by Lawson and Hanson's active set for non-negativity (exact in finitely many rounds; at
+    most GUARD_ROUNDS, leaving the last iterate: the trial is checked in full anyway)."""
     free = np.linalg.solve(system, -gradient)
     if not len(rows):
         return free
     towards = np.linalg.solve(system, rows.T)  # system^-1 rows^T
-    active = np.zeros(len(rows), dtype=bool)
-    delta = free
+    q = rows @ towards
+    # Dependent constraints (more than the coordinates, or two steps of one dead centre)
+    # make Q singular, and the active set then cycles; a ridge this small keeps it exact to
+    # the tests' tolerance.
+    q += 1e-10 * max(float(np.trace(q)), 1e-300) * np.eye(len(rows))
+    c = bounds - rows @ free
+    tolerance = 1e-12 * (1.0 + float(np.abs(c).max()))
+    mu = np.zeros(len(rows))
+    on = np.zeros(len(rows), dtype=bool)  # multipliers free to be positive
     for _ in range(GUARD_ROUNDS):
-        slack = rows @ delta - bounds
-        slack[active] = np.inf
-        worst = int(np.argmin(slack))
-        if slack[worst] >= -1e-12:
+        descent = c - q @ mu
+        descent[on] = -np.inf
+        entering = int(np.argmax(descent))
+        if descent[entering] <= tolerance:
             break
-        active[worst] = True
-        while active.any():
-            on = np.flatnonzero(active)
-            schur = rows[on] @ towards[:, on]
-            multipliers = np.linalg.lstsq(schur, bounds[on] - rows[on] @ free, rcond=None)[0]
-            if multipliers.min() >= 0.0:
-                delta = free + towards[:, on] @ multipliers
+        on[entering] = True
+        while True:
+            trial = np.zeros(len(rows))
+            index = np.flatnonzero(on)
+            trial[index] = np.linalg.solve(q[np.ix_(index, index)], c[index])
+            if np.all(trial[index] > 0.0):
+                mu = trial
                 break
-            active[on[int(np.argmin(multipliers))]] = False
-        else:
-            delta = free
-    return delta
+            # Move toward the trial as far as every multiplier stays >= 0; free the one at 0.
+            falling = index[trial[index] <= 0.0]
+            share = float(np.min(mu[falling] / (mu[falling] - trial[falling])))
+            mu = mu + share * (trial - mu)
+            on &= mu > tolerance
+            mu[~on] = 0.0
+            if not on.any():
+                break
+    return free + towards @ mu
 
 
 def _step(

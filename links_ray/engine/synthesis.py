@@ -8,12 +8,15 @@ the drawing itself (`engine.refine`) within a time budget:
    rounds of `FIRST_ROUND` over them all, within `FIRST_SHARE` of the time left. Retrieval
    ranks by normalized shape alone; a few iterations show which candidates can really move
    onto the curve.
-2. A long pass: the best `FINALISTS` after the first pass are refined on until they converge
-   or the budget is spent, each continuing where the first pass left it.
-3. Restarts: while time remains, the best results are shaken (every joint moved by a random
-   share of the drawing's chord, log-uniform in `SHAKE`) and refined again for at most
-   `HOP_ITERATIONS`, keeping the shaken result only if it is better (a basin hop: the
-   point-sampled chamfer has many local minima).
+2. A long pass: the best `FINALISTS` after the first pass are refined on, in rounds of
+   `LONG_ROUND` iterations, each continuing where the first pass left it (at the damping it
+   ended with). One that converges gives its place to the next best of the first pass, until
+   the budget is spent: the first pass ranks roughly, and the one that ends best is often
+   sixth or tenth after it.
+3. Restarts: if every candidate has converged and time remains, the best are shaken (every
+   joint moved by a random share of the drawing's chord, log-uniform in `SHAKE`) and refined
+   again for at most `HOP_ITERATIONS`, keeping the shaken result only if it is better (a
+   basin hop: the point-sampled chamfer has many local minima).
 
 Refinements run on every core, in threads (the refinement kernels release the GIL).
 
@@ -65,10 +68,10 @@ from links_ray.engine.solver import simulate
 __all__ = ["Retriever", "fit", "refine_retrieved", "synthesize"]
 
 #: Retrieved candidates the short pass refines.
-CANDIDATES = 32
+CANDIDATES = 96
 #: Iterations of the short pass, in rounds of FIRST_ROUND for every candidate, and the most
 #: share of the budget it may take.
-FIRST_ITERATIONS, FIRST_ROUND, FIRST_SHARE = 40, 10, 0.4
+FIRST_ITERATIONS, FIRST_ROUND, FIRST_SHARE = 30, 10, 0.4
 #: Candidates the long pass refines on (at least k).
 FINALISTS = 4
 #: Long-pass refinements run in rounds of LONG_ROUND iterations over the finalists.
