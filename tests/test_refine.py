@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -29,8 +30,6 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.paths import longest_chord
-import itertools
-
 from links_ray.engine.refine import _as_target, _constrained, _refine_one, refine, refine_many
 from links_ray.engine.refine_kernels import best_interval, solve_tangents
 from links_ray.engine.solver import crank_table, dyad_geometry
