@@ -748,22 +748,41 @@ def test_retrieval_errors_are_shown_in_words(studio: Studio) -> None:
 
 
 def test_draw_and_synthesize(studio: Studio, client: Client) -> None:
-    """The Synthesize button: the API's refined mechanisms, best first, each no worse than it
-    was retrieved, animated over the curve."""
+    """The Synthesize button: the refinement shown live (the best so far animating, its
+    chamfer falling), then the API's refined mechanisms, best first, each no worse than it was
+    retrieved, and the best animating over the curve."""
     t = np.linspace(0, 2 * np.pi, 90)
     curve = np.stack([0.5 + 0.3 * np.cos(t), 0.5 + 0.2 * np.sin(t) + 0.06 * np.sin(2 * t)], 1)
     draw(studio, curve.tolist())
     studio.page.get_by_test_id("k").fill("3")
     studio.click("synthesize-button")
+    # While it refines: the best so far moves over the curve and the status says how near.
+    studio.wait(
+        "() => Number(document.querySelector('[data-testid=draw-canvas]').dataset.progress) >= 2"
+    )
+    assert "Refining: chamfer" in studio.text("retrieve-status")
+    live = studio.js("() => window.studio.retriever.chosen")
+    assert live["index"] == -1 and len(live["trajectories"]) == len(
+        live["result"]["mechanism"]["node_types"]
+    )
     results = studio.page.get_by_test_id("result")
     results.nth(2).wait_for()
     assert results.count() == 3
-    assert "synthesis" in studio.text("retrieve-status")
     chamfers = [float(results.nth(i).get_attribute("data-chamfer")) for i in range(3)]
     assert chamfers == sorted(chamfers)
     for i in range(3):
         retrieved = float(results.nth(i).inner_text().split("refined from ", 1)[1].split(",")[0])
         assert chamfers[i] <= retrieved * (1 + 1e-3)
+    falling = studio.js("() => window.studio.retriever.live")
+    assert len(falling) >= 2 and falling == sorted(falling, reverse=True)
+    assert chamfers[0] <= falling[-1]
+    # It ends on the best, animating, without a click.
+    studio.wait(
+        "() => window.studio.retriever.chosen && window.studio.retriever.chosen.index === 0 && "
+        "document.querySelector('[data-testid=draw-canvas]').dataset.animating === 'true'"
+    )
+    status = studio.text("retrieve-status")
+    assert "synthesis" in status and "Result #1" in status
     results.nth(0).click()
     studio.wait(
         "() => document.querySelector('[data-testid=draw-canvas]').dataset.animating === 'true'"

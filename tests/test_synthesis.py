@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import http.client
 import json
 import threading
 import time
@@ -205,6 +206,44 @@ def test_http_synthesize(client: Client) -> None:
     assert len(data["results"]) == 3 and data["results"][0]["interval"]["steps"] >= MIN_POINTS
 
 
+def test_http_synthesize_streams_its_progress(client: Client) -> None:
+    """With "stream": the best so far as it falls, each a real mechanism tracing what it says
+    (re-simulated), then the answer; the best reported is never better than the answer."""
+    curve = hand_drawn()[2].tolist()
+    conn = http.client.HTTPConnection("127.0.0.1", client.port, timeout=60)
+    body = json.dumps({"points": curve, "k": 2, "seconds": 1.5, "stream": True})
+    conn.request("POST", "/api/synthesize", body, {"Content-Type": "application/json"})
+    response = conn.getresponse()
+    assert response.status == 200
+    assert response.getheader("Content-Type").startswith("application/x-ndjson")
+    lines = [json.loads(line) for line in response.read().splitlines()]
+    conn.close()
+    *reports, answer = lines
+    assert len(reports) >= 2 and all(set(line) == {"progress"} for line in reports)
+    progress = [line["progress"] for line in reports]
+    chamfers = [best["chamfer"] for best in progress]
+    assert chamfers == sorted(chamfers, reverse=True) and len(set(chamfers)) == len(chamfers)
+    assert progress[0]["chamfer"] == progress[0]["retrieved_chamfer"]  # the retrieved start
+    elapsed = [best["elapsed_ms"] for best in progress]
+    assert elapsed == sorted(elapsed) and elapsed[-1] < 1500
+    for best in (progress[0], progress[-1]):
+        trajectories = np.array(best["trajectories"])
+        mechanism = best["mechanism"]
+        np.testing.assert_array_equal(trajectories, links_ray.simulate(**mechanism, steps=200))
+        np.testing.assert_array_equal(trajectories[best["mechanism_joint"]], best["path"])
+        assert best["chamfer"] == pytest.approx(
+            chamfer(curve, best["path"]) / chord(np.array(curve))
+        )
+    assert len(answer["results"]) == 2 and answer["took_ms"] < 2500
+    assert answer["results"][0]["chamfer"] <= chamfers[-1]
+    assert "trajectories" not in answer["results"][0]
+
+
+def test_http_synthesize_stream_flag_is_checked(client: Client) -> None:
+    got, data = client.post("/api/synthesize", {"points": hand_drawn()[0].tolist(), "stream": 1})
+    assert got == 400 and data["error"] == "stream must be true or false, got 1"
+
+
 @pytest.mark.parametrize(
     ("body", "status", "words"),
     [
@@ -298,3 +337,32 @@ def test_a_refinement_simulate_cannot_trace_at_200_steps_is_not_kept() -> None:
     refined = Refinement(positions, 0.05, 0.01, None, 10, 10, 0.016)
     assert not synthesis._keep(candidate, refined, 100)
     assert candidate.positions is before and candidate.chamfer == 0.05
+
+
+def test_synthesis_figure_draws_each_curve(reference: RetrievalIndex, tmp_path: Path) -> None:
+    """`links bench synthesize --figure`'s picture: a panel per curve, written as a PNG."""
+    import matplotlib.pyplot as pyplot
+
+    from links_ray.cli.figures import write_synthesis_figure
+
+    entries = []
+    for name, points in (("ellipse", hand_drawn()[0]), ("kidney", hand_drawn()[4])):
+        best = synthesize(reference, points, k=1, seconds=0.3)[0]
+        first = reference.retrieve(points, 1)[0]
+        entries.append(
+            {
+                "curve": name,
+                "points": points,
+                "retrieved_path": traced(first),
+                "retrieved": first["chamfer"],
+                "refined": best["chamfer"],
+                "result": best,
+            }
+        )
+    written = write_synthesis_figure(tmp_path / "synthesis.png", entries)
+    image = pyplot.imread(written)
+    assert image.shape[0] > 200 and image.shape[1] > 4 * 200  # one row of four panels
+    # The two drawn panels hold ink; the two empty ones are blank.
+    quarter = image.shape[1] // 4
+    ink = [float((image[:, i * quarter : (i + 1) * quarter, :3] < 0.9).mean()) for i in range(4)]
+    assert ink[0] > 0.01 and ink[1] > 0.01 and ink[2] == ink[3] == 0.0

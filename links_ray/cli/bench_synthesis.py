@@ -19,6 +19,7 @@ from links_ray.cli.bench import machine_info
 from links_ray.cli.targets import TARGET_POINTS, placed, target_curves
 from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.paths import chamfer, longest_chord
+from links_ray.engine.solver import simulate
 
 #: Seconds each curve is given: the most that keeps the median under MEDIAN_SECONDS_GOAL
 #: (retrieval and the answer included).
@@ -39,9 +40,16 @@ def even_reference(points: np.ndarray, steps: int = DEFAULT_STEPS) -> float:
     return chamfer(points, even) / float(np.hypot(*(points[j] - points[i])))
 
 
-def bench_synthesize(seconds: float = BENCH_SECONDS, paths: int = 1_000_000, seed: int = 0) -> dict:
+def bench_synthesize(
+    seconds: float = BENCH_SECONDS,
+    paths: int = 1_000_000,
+    seed: int = 0,
+    figure: str | None = None,
+) -> dict:
     """Synthesize every target curve, placed in a random frame (`seed`), over the cached data
-    set of `paths` curated paths; per curve and overall (means, median seconds)."""
+    set of `paths` curated paths; per curve and overall (means, median seconds). `figure`: a
+    PNG path for a picture of every curve, its best retrieved path and its refined mechanism
+    (needs the `plots` extra)."""
     from links_ray.cli.bench_services import retrieval_dataset
     from links_ray.engine.synthesis import synthesize
     from links_ray.search.index import RetrievalIndex
@@ -56,12 +64,29 @@ def bench_synthesize(seconds: float = BENCH_SECONDS, paths: int = 1_000_000, see
     synthesize(index, np.column_stack([np.cos(angle), 0.4 * np.sin(angle)]), seconds=0.5)
     rng = np.random.default_rng(seed)
     rows = []
+    drawn = []
     for name, curve in target_curves().items():
         points = placed(curve, rng)
         start = time.perf_counter()
         results = synthesize(index, points, k=3, seconds=seconds)
         took = time.perf_counter() - start
-        retrieved = index.retrieve(points, 1)[0]["chamfer"]
+        best_retrieved = index.retrieve(points, 1)[0]
+        retrieved = best_retrieved["chamfer"]
+        if figure is not None:
+            mechanism = best_retrieved["mechanism"]
+            retrieved_path = simulate(
+                mechanism["adjacency"], mechanism["node_types"], mechanism["positions"]
+            )[best_retrieved["mechanism_joint"]]
+            drawn.append(
+                {
+                    "curve": name,
+                    "points": points,
+                    "retrieved_path": retrieved_path,
+                    "retrieved": retrieved,
+                    "refined": results[0]["chamfer"],
+                    "result": results[0],
+                }
+            )
         rows.append(
             {
                 "curve": name,
@@ -72,6 +97,10 @@ def bench_synthesize(seconds: float = BENCH_SECONDS, paths: int = 1_000_000, see
                 "joints": len(results[0]["mechanism"]["node_types"]),
             }
         )
+    if figure is not None:
+        from links_ray.cli.figures import write_synthesis_figure
+
+        write_synthesis_figure(figure, drawn)
     mean_retrieved = statistics.fmean(row["retrieved"] for row in rows)
     mean_refined = statistics.fmean(row["refined"] for row in rows)
     median_s = statistics.median(row["seconds"] for row in rows)

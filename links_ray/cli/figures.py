@@ -119,3 +119,39 @@ def _save(figure, path: Path, plt) -> str:
     figure.savefig(path, dpi=110)
     plt.close(figure)
     return str(path)
+
+
+def write_synthesis_figure(path: str | Path, curves: list[dict]) -> str:
+    """One panel per synthesized curve (`links bench synthesize --plots`): the drawing, the
+    path of the best retrieved mechanism, and the refined mechanism (links at the crank's
+    start) with the path it traces. Each entry: `curve` (name), `points`, `retrieved_path`,
+    `retrieved`, `refined` (chamfers) and `result` (the best synthesis result)."""
+    plt = _pyplot()
+    columns = 4
+    rows = -(-len(curves) // columns)
+    figure, grid = plt.subplots(rows, columns, figsize=(3.2 * columns, 3.2 * rows), squeeze=False)
+    for axes, entry in zip(grid.flat, curves, strict=False):
+        points = np.asarray(entry["points"])
+        retrieved = np.asarray(entry["retrieved_path"])
+        mechanism = entry["result"]["mechanism"]
+        traced = np.asarray(entry["result"]["path"])
+        positions = np.asarray(mechanism["positions"])
+        adjacency = np.asarray(mechanism["adjacency"])
+        fixed = np.asarray(mechanism["node_types"]) == 0
+        axes.plot(*np.vstack([points, points[:1]]).T, color="0.6", linewidth=4, label="drawn")
+        axes.plot(*retrieved.T, color="tab:orange", linewidth=1, linestyle="--", label="retrieved")
+        loop = np.vstack([traced, traced[:1]])
+        axes.plot(*loop.T, color="tab:blue", linewidth=1.3, label="refined")
+        for i, j in zip(*np.nonzero(np.triu(adjacency)), strict=True):
+            axes.plot(*positions[[i, j]].T, color="black", linewidth=0.8, alpha=0.6)
+        axes.scatter(*positions[fixed].T, marker="^", color="black", s=14, zorder=3)
+        axes.set(aspect="equal", xticks=[], yticks=[])
+        axes.set_title(
+            f"{entry['curve'].replace('_', ' ')}: {entry['retrieved']:.4f} → "
+            f"{entry['refined']:.4f}",
+            fontsize=9,
+        )
+    for axes in list(grid.flat)[len(curves) :]:
+        axes.axis("off")
+    grid.flat[0].legend(fontsize=7, loc="lower left")
+    return _save(figure, Path(path), plt)

@@ -175,7 +175,7 @@ def _bench_synthesize(args: argparse.Namespace) -> None:
 
     with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
         result = bench_synthesis.bench_synthesize(
-            seconds=args.seconds, paths=args.paths, seed=args.seed
+            seconds=args.seconds, paths=args.paths, seed=args.seed, figure=args.figure
         )
     _report(args, result, bench_synthesis.format_synthesize)
 
@@ -543,6 +543,11 @@ def build_parser() -> argparse.ArgumentParser:
         type=_non_negative_int,
         default=0,
         help="seed of the curves' random frames (default 0, the README's table)",
+    )
+    synthesize_bench.add_argument(
+        "--figure",
+        default=None,
+        help="also draw every curve, its retrieved path and refined mechanism into this PNG",
     )
     serve_bench = benches.add_parser(
         "serve",

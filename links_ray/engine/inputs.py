@@ -351,12 +351,17 @@ def as_seconds(value: object) -> float:
     return _positive_at_most(value, "seconds", MAX_SYNTHESIS_SECONDS, "a number", "")
 
 
+def as_flag(value: object, name: str) -> bool:
+    """`value` as a bool, or ValueError naming `name`: only true or false are flags."""
+    if not isinstance(value, bool | np.bool_):
+        raise ValueError(f"{name} must be true or false, got {shown(value)}")
+    return bool(value)
+
+
 def validate_synthesis(
     points: object, k: object = DEFAULT_K, seconds: object = None, partial: object = False
 ) -> tuple[np.ndarray, int, float, bool]:
     """A synthesis request as (points (T, 2) float64, k, seconds, partial), or ValueError
     naming the problem."""
     points, k = validate_query(points, k)
-    if not isinstance(partial, bool | np.bool_):
-        raise ValueError(f"partial must be true or false, got {shown(partial)}")
-    return points, k, as_seconds(seconds), bool(partial)
+    return points, k, as_seconds(seconds), as_flag(partial, "partial")

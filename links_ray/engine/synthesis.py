@@ -36,9 +36,10 @@ Pure numpy/numba and threads: no Ray, no files.
 
 from __future__ import annotations
 
+import math
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -81,6 +82,8 @@ LONG_ROUND = 50
 #: HOP_ITERATIONS.
 SHAKE = (0.003, 0.05)
 HOP_ITERATIONS = 300
+#: Least seconds between two progress reports (the best so far) of one synthesis.
+PROGRESS_INTERVAL_S = 0.2
 
 
 class Retriever(Protocol):
@@ -207,11 +210,17 @@ def refine_retrieved(
     started: float | None = None,
     seed: int = 0,
     margin_deg: float = DEFAULT_MARGIN_DEG,
+    progress: Callable[[dict[str, Any]], None] | None = None,
 ) -> list[dict]:
     """The k best synthesis results (best first) refined from retrieval results of `points`
     (`RetrievalIndex.retrieve`'s, in the drawing's frame), within `seconds` counted from
     `started` (a `time.perf_counter()` value; now if None), keeping a transmission margin of
-    at least DEFAULT_MARGIN_DEG and `margin_deg`. The module docstring says how."""
+    at least DEFAULT_MARGIN_DEG and `margin_deg`. The module docstring says how.
+
+    `progress`, if given, is called with the best so far whenever it has improved, at most
+    every PROGRESS_INTERVAL_S (first with the best retrieved start): a result as the answer
+    has them, with `trajectories` (every joint's path at DEFAULT_STEPS steps, to animate) and
+    `elapsed_ms` besides. It runs in this thread, between rounds of refinement."""
     started = time.perf_counter() if started is None else started
     _, k, seconds, partial = validate_synthesis(points, k, seconds, partial)
     target = _as_target(points, partial)
@@ -221,6 +230,18 @@ def refine_retrieved(
     with ThreadPoolExecutor(workers, thread_name_prefix="links-synthesize") as pool:
         found = pool.map(lambda result: _candidate(result, target), retrieved)
         candidates = [c for c in found if c is not None]
+        reported = [math.inf, -math.inf]  # the chamfer last reported, and when
+
+        def report() -> None:
+            if progress is None or not candidates:
+                return
+            best = min(candidates, key=lambda c: c.chamfer)
+            now = time.perf_counter()
+            if best.chamfer < reported[0] and now - reported[1] >= PROGRESS_INTERVAL_S:
+                reported[:] = [best.chamfer, now]
+                progress(_as_result(best, target, trajectories=True, elapsed=now - started))
+
+        report()
 
         def short(c: _Candidate) -> None:
             refinement = _refined(c, target, c.positions, FIRST_ROUND, first_end, margin)
@@ -236,6 +257,7 @@ def refine_retrieved(
             if not moving or time.perf_counter() >= first_end:
                 break
             list(pool.map(short, moving))
+            report()
         candidates.sort(key=lambda c: c.chamfer)
         # The long pass refines FINALISTS at a time; one that converges makes room for the
         # next best after the short pass (whose ranking is rough: 40 iterations in, the one
@@ -259,6 +281,7 @@ def refine_retrieved(
             if not moving:
                 break
             list(pool.map(long, moving))
+            report()
         rng = np.random.default_rng(seed)
         while time.perf_counter() < deadline and finalists:
             # Each round shakes the current best ones, one per worker.
@@ -274,12 +297,19 @@ def refine_retrieved(
                 _keep(c, _refined(c, target, start, HOP_ITERATIONS, deadline, margin), 0)
 
             list(pool.map(hop, chosen, starts))
+            report()
     candidates.sort(key=lambda c: (c.chamfer, c.result["path_id"]))
     return [_as_result(c, target) for c in candidates[:k]]
 
 
-def _as_result(candidate: _Candidate, target: _Target) -> dict[str, Any]:
-    """A candidate as an answer (docs/CONTRACT.md, HTTP API, describes it)."""
+def _as_result(
+    candidate: _Candidate,
+    target: _Target,
+    trajectories: bool = False,
+    elapsed: float | None = None,
+) -> dict[str, Any]:
+    """A candidate as an answer (docs/CONTRACT.md, HTTP API, describes it); a progress report
+    adds every joint's `trajectories` and the `elapsed_ms` since the synthesis began."""
     topology = candidate.topology
     positions = candidate.positions
     path = simulate(topology.adjacency, topology.node_types, positions, DEFAULT_STEPS)
@@ -307,6 +337,10 @@ def _as_result(candidate: _Candidate, target: _Target) -> dict[str, Any]:
             "start_deg": 360.0 * start / DEFAULT_STEPS,
             "sweep_deg": 360.0 * (count - 1) / DEFAULT_STEPS,
         }
+    if trajectories:
+        answer["trajectories"] = path.tolist()
+    if elapsed is not None:
+        answer["elapsed_ms"] = round(elapsed * 1e3, 3)
     return answer
 
 
@@ -317,17 +351,26 @@ def synthesize(
     seconds: float | None = None,
     partial: bool = False,
     min_transmission: float = 0.0,
+    progress: Callable[[dict[str, Any]], None] | None = None,
 ) -> list[dict]:
     """The k best mechanisms found for a drawn curve, best first, each refined so that its
     `mechanism_joint` traces `points` in the drawing's own frame, within `seconds` (default
     DEFAULT_SYNTHESIS_SECONDS, at most MAX_SYNTHESIS_SECONDS). `partial`: the points are an
     open stroke, matched to part of a turn. `min_transmission` (degrees): only paths keeping
     it are retrieved, and refinement keeps it as its margin (at least DEFAULT_MARGIN_DEG).
+    `progress`: called with the best so far as it improves (`refine_retrieved` says how).
     Raises ValueError naming bad input."""
     started = time.perf_counter()
     drawn, k, seconds, partial = validate_synthesis(points, k, seconds, partial)
     floor = as_transmission_deg(min_transmission, "min_transmission")
     retrieved = index.retrieve(drawn, max(CANDIDATES, k), floor)
     return refine_retrieved(
-        drawn, retrieved, k, seconds, partial, started=started, margin_deg=floor
+        drawn,
+        retrieved,
+        k,
+        seconds,
+        partial,
+        started=started,
+        margin_deg=floor,
+        progress=progress,
     )

@@ -60,7 +60,7 @@ import signal
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -68,7 +68,7 @@ import numpy as np
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.utils import get_openapi
-from fastapi.responses import HTMLResponse, JSONResponse, Response
+from fastapi.responses import HTMLResponse, JSONResponse, Response, StreamingResponse
 from ray import serve
 from ray.exceptions import (
     NodeDiedError,
@@ -103,6 +103,7 @@ from links_ray.engine.inputs import (
     MAX_REQUEST_JOINT_STEPS,
     MAX_REQUEST_JOINTS,
     as_crank_mm,
+    as_flag,
     as_steps,
     as_transmission_deg,
     request_limits,
@@ -193,6 +194,11 @@ class JsonResponse(JSONResponse):
         return json.dumps(
             content, allow_nan=False, separators=(",", ":"), default=_jsonable
         ).encode("utf-8")
+
+
+def _json_line(content: Any) -> bytes:
+    """One NDJSON line, as compact as JsonResponse's bodies."""
+    return JsonResponse(content).body + b"\n"
 
 
 def _error(status: int, message: str, **extra: Any) -> JsonResponse:
@@ -496,6 +502,11 @@ def synthesize_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float, bool,
         body.get("partial", False),
     )
     return (*checked, _min_transmission(body))
+
+
+def stream_arg(body: dict[str, Any]) -> bool:
+    """A body's `stream` flag (false when absent), or ApiError naming it."""
+    return _checked(as_flag, body.get("stream", False), "stream")
 
 
 def _min_transmission(body: dict[str, Any]) -> float:
@@ -924,17 +935,22 @@ class LinksApi:
         responses=models.error_responses(400, 413, 415, 503),
         openapi_extra=request_body("/api/synthesize"),
     )
-    async def api_synthesize(self, request: Request) -> JsonResponse:
+    async def api_synthesize(self, request: Request) -> Response:
         """Mechanisms retrieved for a drawn curve and refined onto it, best first, within the
-        request's `seconds`; 503 with `Retry-After` when MAX_SYNTHESES are under way here."""
+        request's `seconds`; 503 with `Retry-After` when MAX_SYNTHESES are under way here.
+        With `"stream": true` the answer is NDJSON: a `{"progress": ...}` line each time the
+        best so far improves, then the answer's own line (`_synthesis_lines`)."""
         if self._syntheses >= MAX_SYNTHESES:  # refused before reading the body
             raise _busy(
                 f"busy: {self._syntheses} syntheses under way, the most this server holds; "
                 f"retry after {RETRY_AFTER_S} s"
             )
         self._syntheses += 1
+        released = True  # until the refinement, once submitted, releases its place itself
         try:
-            points, k, seconds, partial, floor = synthesize_args(await read_json_object(request))
+            body = await read_json_object(request)
+            points, k, seconds, partial, floor = synthesize_args(body)
+            stream = stream_arg(body)
             start = time.perf_counter()
             count = max(CANDIDATES, k)
             if self._retrieving is not None:
@@ -942,6 +958,8 @@ class LinksApi:
             else:
                 answers = await self._ask_shards("retrieve", points, count, floor)
                 retrieved = merge_results(answers, count)
+            loop = asyncio.get_running_loop()
+            reports: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
             refine = functools.partial(
                 refine_retrieved,
                 points,
@@ -951,12 +969,55 @@ class LinksApi:
                 partial,
                 started=start,
                 margin_deg=floor,
+                progress=(
+                    (lambda best: loop.call_soon_threadsafe(reports.put_nowait, best))
+                    if stream
+                    else None
+                ),
             )
-            results = await asyncio.get_running_loop().run_in_executor(self._refining, refine)
+            refining = loop.run_in_executor(self._refining, refine)
+            # The place is freed when the refinement ends, whether or not anyone still
+            # reads its stream (a client gone mid-stream must not hold it for good).
+            refining.add_done_callback(lambda _: self._synthesis_done())
+            released = False
+            if stream:
+                return StreamingResponse(
+                    self._synthesis_lines(reports, refining, start),
+                    media_type="application/x-ndjson",
+                )
+            results = await refining
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
-            self._syntheses -= 1
+            if released:
+                self._syntheses -= 1
         return JsonResponse({"results": results, "took_ms": round(took_ms, 3)})
+
+    def _synthesis_done(self) -> None:
+        self._syntheses -= 1
+
+    async def _synthesis_lines(
+        self,
+        reports: asyncio.Queue[dict[str, Any]],
+        refining: asyncio.Future[list[dict]],
+        start: float,
+    ) -> AsyncIterator[bytes]:
+        """A streamed synthesis: `{"progress": best so far}` lines while it refines, then
+        `{"results", "took_ms"}` (or `{"error"}` if it failed after the stream began)."""
+        while not refining.done() or not reports.empty():
+            waiting = asyncio.ensure_future(reports.get())
+            await asyncio.wait({waiting, refining}, return_when=asyncio.FIRST_COMPLETED)
+            if waiting.done():
+                yield _json_line({"progress": waiting.result()})
+            else:
+                waiting.cancel()
+        try:
+            results = refining.result()
+        except Exception as exc:  # the status is sent: the failure can only be a line
+            logger.warning("links-ray API: a streamed synthesis failed (%s)", type(exc).__name__)
+            yield _json_line({"error": "synthesis failed"})
+            return
+        took_ms = (time.perf_counter() - start) * 1e3
+        yield _json_line({"results": results, "took_ms": round(took_ms, 3)})
 
     async def _shard_counts(self) -> list[int]:
         """Each shard's paths, asked once (a shard's index does not change while it serves)."""

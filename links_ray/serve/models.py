@@ -89,6 +89,13 @@ class SynthesizeRequest(RetrieveRequest):
         DEFAULT_SYNTHESIS_SECONDS, gt=0.0, le=MAX_SYNTHESIS_SECONDS, description="time budget"
     )
     partial: bool = Field(False, description="the drawing is part of a curve: match a run")
+    stream: bool = Field(
+        False,
+        description=(
+            "answer in NDJSON: a {progress} line (the best so far, with every joint's "
+            "trajectories and elapsed_ms) each time it improves, then {results, took_ms}"
+        ),
+    )
 
 
 class ErrorResponse(BaseModel):

@@ -14,6 +14,40 @@ export async function postJson(path, body) {
 }
 
 /**
+ * POST a JSON body whose 200 answer is NDJSON (a streamed synthesis): calls `onLine` with each
+ * line's JSON as it arrives, and resolves to {status, data, ms} with the last line as `data`
+ * (or, for any other answer, the server's JSON as postJson has it).
+ */
+export async function postJsonLines(path, body, onLine) {
+  const started = performance.now();
+  const response = await send(path, {
+    method: "POST",
+    headers: { "Content-Type": "application/json" },
+    body: JSON.stringify(body),
+  });
+  const type = response.headers.get("Content-Type") || "";
+  if (response.status !== 200 || !type.startsWith("application/x-ndjson") || !response.body) {
+    return { status: response.status, data: await readJson(response), ms: 0 };
+  }
+  const reader = response.body.pipeThrough(new TextDecoderStream()).getReader();
+  let pending = "";
+  let last = null;
+  for (;;) {
+    const { value, done } = await reader.read();
+    if (value) pending += value;
+    const lines = pending.split("\n");
+    pending = done ? "" : lines.pop();
+    for (const line of lines) {
+      if (!line.trim()) continue;
+      last = JSON.parse(line);
+      onLine(last);
+    }
+    if (done) break;
+  }
+  return { status: response.status, data: last, ms: performance.now() - started };
+}
+
+/**
  * POST a JSON body for a file to download; resolves to {status, text, name, type} on 200 (the
  * file's text, the name its Content-Disposition gives, its type), else {status, data} with the
  * server's JSON as postJson has it.

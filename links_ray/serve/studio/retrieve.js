@@ -3,7 +3,7 @@
 // a chosen result's mechanism (already in the drawing's frame, placed by the server) is
 // simulated and animated over the curve.
 
-import { explain, limits, postJson } from "./api.js";
+import { explain, limits, postJson, postJsonLines } from "./api.js";
 import { parseMechanism } from "./mechanism.js";
 import {
   COLORS,
@@ -34,7 +34,9 @@ export class Retriever {
     this.points = []; // the drawn curve, world coordinates (the editor's frame)
     this.drawing = null; // pointer id while a stroke is under way
     this.results = [];
-    this.chosen = null; // {index, result, trajectories}
+    this.chosen = null; // {index, result, trajectories}; index -1 while a synthesis runs
+    this.live = []; // a running synthesis's best chamfers so far, as they fell
+    this.runs = 0; // searches started, and drawings: only the latest search's answers count
     this.frame = 0;
     this.ctx = trackSize(canvas, (width, height) => {
       this.view.width = width;
@@ -78,6 +80,7 @@ export class Retriever {
     if (this.drawing !== null) return; // one finger draws; a second is ignored
     this.canvas.setPointerCapture(e.pointerId);
     this.drawing = e.pointerId;
+    this.runs += 1;
     this.stop();
     this.results = [];
     this.renderResults();
@@ -112,6 +115,7 @@ export class Retriever {
   }
 
   clear() {
+    this.runs += 1;
     this.stop();
     this.points = [];
     this.results = [];
@@ -140,8 +144,19 @@ export class Retriever {
     const buttons = [this.ui.retrieve, this.ui.synthesize].filter(Boolean);
     buttons.forEach((button) => (button.disabled = true));
     this.say(synthesize ? "Searching, then refining (a few seconds)…" : "Searching…");
+    this.live = [];
+    const run = ++this.runs; // a new drawing or search makes this one's progress stale
     try {
-      const answer = await postJson(synthesize ? "/api/synthesize" : "/api/retrieve", body);
+      const answer = synthesize
+        ? await postJsonLines("/api/synthesize", { ...body, stream: true }, (line) => {
+            if (run === this.runs) this.showProgress(line);
+          })
+        : await postJson("/api/retrieve", body);
+      if (run !== this.runs) return;
+      if (answer.data && answer.data.error && answer.status === 200) {
+        this.say(`${what} failed: ${answer.data.error}`, true);
+        return;
+      }
       if (answer.status !== 200 || !answer.data || !Array.isArray(answer.data.results)) {
         this.say(`${what} failed: ${explain(answer)}`, true);
         return;
@@ -151,10 +166,16 @@ export class Retriever {
       this.renderResults();
       const count = this.results.length;
       const took = `${synthesize ? "synthesis" : "search"} ${answer.data.took_ms.toFixed(0)} ms`;
+      const trip = `round trip ${answer.ms.toFixed(0)} ms`;
+      const found = `${count} mechanisms, best first (${took}, ${trip}).`;
+      if (synthesize && count) {
+        // A synthesis ends on its best mechanism, animating over the curve.
+        await this.choose(0, `${found} `);
+        return;
+      }
       this.say(
         count
-          ? `${count} mechanisms, best first (${took}, ` +
-              `round trip ${answer.ms.toFixed(0)} ms). Choose one to watch it trace your curve.`
+          ? `${found} Choose one to watch it trace your curve.`
           : body.min_transmission
             ? `No curated path keeps a transmission angle of ${floor}°: lower it.`
             : "No curated paths to compare with: the dataset is empty.",
@@ -165,6 +186,23 @@ export class Retriever {
     } finally {
       buttons.forEach((button) => (button.disabled = false));
     }
+  }
+
+  /** One line of a streamed synthesis: the best so far moves and traces over the curve. */
+  showProgress(line) {
+    const best = line.progress;
+    if (!best) return;
+    const first = !this.chosen;
+    this.live.push(best.chamfer);
+    this.canvas.dataset.progress = String(this.live.length);
+    this.chosen = { index: -1, result: best, trajectories: best.trajectories };
+    if (first) this.fitView();
+    this.say(
+      `Refining: chamfer ${best.chamfer.toPrecision(4)} ` +
+        `(retrieved ${best.retrieved_chamfer.toPrecision(4)}), ` +
+        `${(best.elapsed_ms / 1000).toFixed(1)} s…`,
+    );
+    this.start(!first);
   }
 
   renderResults() {
@@ -206,8 +244,9 @@ export class Retriever {
     this.ui.open.disabled = true;
   }
 
-  /** Simulate result `i`'s mechanism and animate it over the drawn curve. */
-  async choose(i) {
+  /** Simulate result `i`'s mechanism and animate it over the drawn curve; `lead` opens the
+   * message that says so. */
+  async choose(i, lead = "") {
     const result = this.results[i];
     this.ui.list.querySelectorAll("button").forEach((button, j) => {
       button.setAttribute("aria-pressed", String(i === j));
@@ -228,7 +267,7 @@ export class Retriever {
     this.ui.open.disabled = false;
     this.fitView();
     this.say(
-      `Result #${i + 1}: joint ${result.mechanism_joint} (thick) traces your curve ` +
+      `${lead}Result #${i + 1}: joint ${result.mechanism_joint} (thick) traces your curve ` +
         `(grey) with chamfer ${result.chamfer.toPrecision(4)}.`,
     );
     this.start();
@@ -248,10 +287,12 @@ export class Retriever {
 
   // -- animation ----------------------------------------------------------------------------
 
-  start() {
+  /** Animate the chosen mechanism; `keepFrame`: from where the last one was (a synthesis's
+   * better mechanism takes over mid-turn, so the motion does not jump back). */
+  start(keepFrame = false) {
     const chosen = this.chosen;
     let last = performance.now();
-    this.frame = 0;
+    if (!keepFrame) this.frame = 0;
     this.canvas.dataset.animating = "true";
     const tick = (now) => {
       if (this.chosen !== chosen) return; // stopped, or another result was chosen
