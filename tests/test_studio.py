@@ -747,7 +747,7 @@ def test_retrieval_errors_are_shown_in_words(studio: Studio) -> None:
     assert studio.page.get_by_test_id("result").count() == 0
 
 
-def test_draw_and_synthesize(studio: Studio, client: Client) -> None:
+def test_draw_and_synthesize(studio: Studio, client: Client, shots: Path) -> None:
     """The Synthesize button: the refinement shown live (the best so far animating, its
     chamfer falling), then the API's refined mechanisms, best first, each no worse than it was
     retrieved, and the best animating over the curve."""
@@ -761,6 +761,7 @@ def test_draw_and_synthesize(studio: Studio, client: Client) -> None:
         "() => Number(document.querySelector('[data-testid=draw-canvas]').dataset.progress) >= 2"
     )
     assert "Refining: chamfer" in studio.text("retrieve-status")
+    studio.shot("studio-synthesize.png", shots)
     live = studio.js("() => window.studio.retriever.chosen")
     assert live["index"] == -1 and len(live["trajectories"]) == len(
         live["result"]["mechanism"]["node_types"]

@@ -122,10 +122,11 @@ def _save(figure, path: Path, plt) -> str:
 
 
 def write_synthesis_figure(path: str | Path, curves: list[dict]) -> str:
-    """One panel per synthesized curve (`links bench synthesize --plots`): the drawing, the
-    path of the best retrieved mechanism, and the refined mechanism (links at the crank's
-    start) with the path it traces. Each entry: `curve` (name), `points`, `retrieved_path`,
-    `retrieved`, `refined` (chamfers) and `result` (the best synthesis result)."""
+    """One panel per synthesized curve (`links bench synthesize --figure`): the drawing, the
+    path of the best retrieved mechanism, and the path the refined mechanism traces, framed on
+    the drawing (the mechanism's links, at the crank's start, reach out of the frame). Each
+    entry: `curve` (name), `points`, `retrieved_path`, `retrieved`, `refined` (chamfers) and
+    `result` (the best synthesis result)."""
     plt = _pyplot()
     columns = 4
     rows = -(-len(curves) // columns)
@@ -138,17 +139,22 @@ def write_synthesis_figure(path: str | Path, curves: list[dict]) -> str:
         positions = np.asarray(mechanism["positions"])
         adjacency = np.asarray(mechanism["adjacency"])
         fixed = np.asarray(mechanism["node_types"]) == 0
-        axes.plot(*np.vstack([points, points[:1]]).T, color="0.6", linewidth=4, label="drawn")
-        axes.plot(*retrieved.T, color="tab:orange", linewidth=1, linestyle="--", label="retrieved")
+        axes.plot(*np.vstack([points, points[:1]]).T, color="0.75", linewidth=5, label="drawn")
+        axes.plot(*retrieved.T, color="tab:orange", linewidth=1.2, label="retrieved")
         loop = np.vstack([traced, traced[:1]])
         axes.plot(*loop.T, color="tab:blue", linewidth=1.3, label="refined")
         for i, j in zip(*np.nonzero(np.triu(adjacency)), strict=True):
-            axes.plot(*positions[[i, j]].T, color="black", linewidth=0.8, alpha=0.6)
+            axes.plot(*positions[[i, j]].T, color="black", linewidth=0.6, alpha=0.3)
         axes.scatter(*positions[fixed].T, marker="^", color="black", s=14, zorder=3)
+        low, high = points.min(axis=0), points.max(axis=0)
+        middle, half = (low + high) / 2, 0.65 * float((high - low).max())
         axes.set(aspect="equal", xticks=[], yticks=[])
+        axes.set(
+            xlim=(middle[0] - half, middle[0] + half), ylim=(middle[1] - half, middle[1] + half)
+        )
         axes.set_title(
             f"{entry['curve'].replace('_', ' ')}: {entry['retrieved']:.4f} → "
-            f"{entry['refined']:.4f}",
+            f"{entry['refined']:.4f} ({len(fixed)} joints)",
             fontsize=9,
         )
     for axes in list(grid.flat)[len(curves) :]:

@@ -40,7 +40,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -74,7 +74,7 @@ CANDIDATES = 96
 #: share of the budget it may take.
 FIRST_ITERATIONS, FIRST_ROUND, FIRST_SHARE = 30, 10, 0.4
 #: Candidates the long pass refines on (at least k).
-FINALISTS = 4
+FINALISTS = 3
 #: Long-pass refinements run in rounds of LONG_ROUND iterations over the finalists.
 LONG_ROUND = 50
 #: Restarts move every joint by up to a share of the drawing's chord drawn log-uniformly
@@ -270,7 +270,12 @@ def refine_retrieved(
             if not _keep(c, refinement, LONG_ROUND):
                 c.converged = True
 
-        # In rounds too: one finalist refined to the end would leave the others none.
+        # In rounds too, the finalist with the fewest rounds next (one refined to the end would
+        # leave the others none), and each worker takes the next round as it finishes one:
+        # waiting for a round over all of them idled a core for a tenth of the budget, as a
+        # 16-joint finalist's round takes ten times a 6-joint one's.
+        running: dict[Future[None], _Candidate] = {}
+        rounds: dict[int, int] = {}  # rounds each finalist has had, by id
         while time.perf_counter() < deadline:
             moving = [c for c in finalists if not c.converged]
             while len(moving) < max(FINALISTS, k) and waiting:
@@ -278,10 +283,19 @@ def refine_retrieved(
                 c.converged = False  # a short round cut by its end is no sign of it
                 finalists.append(c)
                 moving.append(c)
-            if not moving:
+            idle = [c for c in moving if c not in running.values()]
+            idle.sort(key=lambda c: rounds.get(id(c), 0))
+            for c in idle[: workers - len(running)]:
+                running[pool.submit(long, c)] = c
+            if not running:
                 break
-            list(pool.map(long, moving))
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in done:
+                c = running.pop(future)
+                future.result()
+                rounds[id(c)] = rounds.get(id(c), 0) + 1
             report()
+        wait(running)  # rounds past the deadline stop after their iteration under way
         rng = np.random.default_rng(seed)
         while time.perf_counter() < deadline and finalists:
             # Each round shakes the current best ones, one per worker.

@@ -196,7 +196,7 @@ export class Retriever {
     this.live.push(best.chamfer);
     this.canvas.dataset.progress = String(this.live.length);
     this.chosen = { index: -1, result: best, trajectories: best.trajectories };
-    if (first) this.fitView();
+    this.fitView(); // each better mechanism may reach elsewhere: keep it and the curve in view
     this.say(
       `Refining: chamfer ${best.chamfer.toPrecision(4)} ` +
         `(retrieved ${best.retrieved_chamfer.toPrecision(4)}), ` +
