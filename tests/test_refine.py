@@ -31,7 +31,7 @@ from links_ray.engine.inputs import (
 from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.paths import longest_chord
 from links_ray.engine.refine import _as_target, _constrained, _refine_one, refine, refine_many
-from links_ray.engine.refine_kernels import best_interval, solve_tangents
+from links_ray.engine.refine_kernels import best_interval, nearest_pairs, solve_tangents
 from links_ray.engine.solver import crank_table, dyad_geometry
 
 #: A Grashof crank-rocker with a coupler point, transmission angle 54 to 100 degrees.
@@ -490,3 +490,19 @@ def test_guarded_step_is_the_constrained_optimum() -> None:
         assert np.all(rows @ delta >= bounds - 1e-7)
         bound += not np.allclose(delta, np.linalg.solve(system, -gradient))
     assert bound > 50  # most draws have a binding constraint: the test exercises the guard
+
+
+def test_nearest_pairs_equal_brute_force() -> None:
+    """Each side's nearest point on the other, by the sorted sweep, equals comparing every pair
+    (ties aside: random points have none)."""
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        path, drawn = rng.normal(size=(200, 2)), rng.normal(size=(int(rng.integers(3, 500)), 2))
+        path_nn, path_d = np.empty(200, np.int64), np.empty(200)
+        drawn_nn, drawn_d = np.empty(len(drawn), np.int64), np.empty(len(drawn))
+        nearest_pairs(path, drawn, path_nn, path_d, drawn_nn, drawn_d)
+        distances = np.linalg.norm(path[:, None] - drawn[None], axis=2)
+        np.testing.assert_array_equal(path_nn, distances.argmin(axis=1))
+        np.testing.assert_array_equal(drawn_nn, distances.argmin(axis=0))
+        np.testing.assert_allclose(path_d, distances.min(axis=1), rtol=1e-15)
+        np.testing.assert_allclose(drawn_d, distances.min(axis=0), rtol=1e-15)

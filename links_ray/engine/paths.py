@@ -269,6 +269,31 @@ def _circle_variances(paths: np.ndarray, out: np.ndarray) -> None:
 
 
 @numba.njit(cache=True, nogil=True)
+def _sweep(
+    ax: np.ndarray,
+    ay: np.ndarray,
+    x: float,
+    y: float,
+    start: int,
+    stop: int,
+    step: int,
+    best: float,
+    arg: int,
+) -> tuple[float, int]:
+    """(least squared distance, its index) from (x, y) to a's points from `start` toward
+    `stop`, starting from `best` at `arg`, until the x gap alone reaches the best."""
+    for i in range(start, stop, step):
+        dx = ax[i] - x
+        if dx * dx >= best:
+            break
+        dy = ay[i] - y
+        d = dx * dx + dy * dy
+        if d < best:
+            best, arg = d, i
+    return best, arg
+
+
+@numba.njit(cache=True, nogil=True)
 def _nearest_sq(
     ax: np.ndarray,
     ay: np.ndarray,
@@ -295,24 +320,8 @@ def _nearest_sq(
                 lo = middle + 1
             else:
                 hi = middle
-        best = np.inf
-        arg = 0
-        for i in range(lo, n):
-            dx = ax[i] - x
-            if dx * dx >= best:
-                break
-            dy = ay[i] - y
-            d = dx * dx + dy * dy
-            if d < best:
-                best, arg = d, i
-        for i in range(lo - 1, -1, -1):
-            dx = x - ax[i]
-            if dx * dx >= best:
-                break
-            dy = ay[i] - y
-            d = dx * dx + dy * dy
-            if d < best:
-                best, arg = d, i
+        best, arg = _sweep(ax, ay, x, y, lo, n, 1, np.inf, 0)
+        best, arg = _sweep(ax, ay, x, y, lo - 1, -1, -1, best, arg)
         bmin[j] = best
         barg[j] = arg
 
