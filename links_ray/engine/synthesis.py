@@ -238,8 +238,11 @@ def refine_retrieved(
             best = min(candidates, key=lambda c: c.chamfer)
             now = time.perf_counter()
             if best.chamfer < reported[0] and now - reported[1] >= PROGRESS_INTERVAL_S:
-                reported[:] = [best.chamfer, now]
-                progress(_as_result(best, target, trajectories=True, elapsed=now - started))
+                # Measured from the positions read now: a worker may have moved them on since
+                # `best.chamfer`, and the reports must fall as the answer's chamfers do.
+                answer = _as_result(best, target, trajectories=True, elapsed=now - started)
+                reported[:] = [answer["chamfer"], now]
+                progress(answer)
 
         report()
 
