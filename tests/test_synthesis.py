@@ -225,7 +225,8 @@ def test_http_synthesize_streams_its_progress(client: Client) -> None:
     assert chamfers == sorted(chamfers, reverse=True) and len(set(chamfers)) == len(chamfers)
     assert progress[0]["chamfer"] == progress[0]["retrieved_chamfer"]  # the retrieved start
     elapsed = [best["elapsed_ms"] for best in progress]
-    assert elapsed == sorted(elapsed) and elapsed[-1] < 1500
+    # Reported as they came, all before the answer (a last round may end past the budget).
+    assert elapsed == sorted(elapsed) and elapsed[-1] <= answer["took_ms"]
     for best in (progress[0], progress[-1]):
         trajectories = np.array(best["trajectories"])
         mechanism = best["mechanism"]
