@@ -94,7 +94,7 @@ class Retriever(Protocol):
     ) -> list[dict]: ...
 
 
-@dataclass
+@dataclass(eq=False)  # candidates are the same only if they are one: `in` compares identities
 class _Candidate:
     """One retrieved mechanism on its way through the passes."""
 
@@ -108,6 +108,7 @@ class _Candidate:
     interval: tuple[int, int] | None
     converged: bool = False
     damping: float = DAMPING_START  # where the last kept refinement of `positions` ended
+    rounds: int = 0  # long-pass rounds it has had
 
 
 def fit(
@@ -278,7 +279,6 @@ def refine_retrieved(
         # waiting for a round over all of them idled a core for a tenth of the budget, as a
         # 16-joint finalist's round takes ten times a 6-joint one's.
         running: dict[Future[None], _Candidate] = {}
-        rounds: dict[int, int] = {}  # rounds each finalist has had, by id
         while time.perf_counter() < deadline:
             moving = [c for c in finalists if not c.converged]
             while len(moving) < max(FINALISTS, k) and waiting:
@@ -287,16 +287,15 @@ def refine_retrieved(
                 finalists.append(c)
                 moving.append(c)
             idle = [c for c in moving if c not in running.values()]
-            idle.sort(key=lambda c: rounds.get(id(c), 0))
+            idle.sort(key=lambda c: c.rounds)
             for c in idle[: workers - len(running)]:
                 running[pool.submit(long, c)] = c
             if not running:
                 break
             done, _ = wait(running, return_when=FIRST_COMPLETED)
             for future in done:
-                c = running.pop(future)
                 future.result()
-                rounds[id(c)] = rounds.get(id(c), 0) + 1
+                running.pop(future).rounds += 1
             report()
         wait(running)  # rounds past the deadline stop after their iteration under way
         rng = np.random.default_rng(seed)
