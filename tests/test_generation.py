@@ -55,7 +55,8 @@ def check_dataset(uri: str, mechanisms: int) -> dict[str, pa.Table]:
     assert [row["mechanism_id"] for row in rows] == list(range(mechanisms))
     simulations = tables["simulations"].to_pylist()
     assert [row["mechanism_id"] for row in simulations] == list(range(mechanisms))
-    variants: dict[int, set[int]] = {}
+    assert mechanisms > 0
+    variants: dict[int, list[bytes]] = {}
     for row, simulation in zip(rows, simulations, strict=True):
         n = row["n_joints"]
         assert 8 <= n <= 20 and row["mechanism_id"] == 5 * row["topology_id"] + row["variant"]
@@ -67,8 +68,10 @@ def check_dataset(uri: str, mechanisms: int) -> dict[str, pa.Table]:
         fresh = links_ray.simulate(adjacency, node_types, positions)  # raises if it locks
         stored = np.array(simulation["trajectories"], dtype=np.float32).reshape(n, 200, 2)
         np.testing.assert_allclose(stored, fresh, atol=2e-6)
-        variants.setdefault(row["topology_id"], set()).add(positions.tobytes())
-    assert all(len(v) == len(set(v)) for v in variants.values())
+        variants.setdefault(row["topology_id"], []).append(positions.tobytes())
+    # A topology's variants are distinct position sets.
+    assert sum(map(len, variants.values())) == mechanisms
+    assert all(len(set(v)) == len(v) for v in variants.values())
     negatives = tables["negatives"].to_pylist()
     assert negatives, "the run met locking candidates"
     for row in negatives[:200]:

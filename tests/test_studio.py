@@ -581,7 +581,9 @@ def test_export_for_fabrication_in_millimetres(studio: Studio, tmp_path: Path) -
     ns = {"svg": "http://www.w3.org/2000/svg"}
     _, _, width, _ = map(float, svg.get("viewBox").split())
     assert svg.get("width") == f"{width!r}mm"  # one user unit is one millimetre
-    for line in svg.findall(".//svg:line", ns):
+    lines = svg.findall(".//svg:line", ns)
+    assert len(lines) == 3  # the four-bar's links
+    for line in lines:
         i, j = map(int, line.get("data-joints").split())
         x1, y1, x2, y2 = (float(line.get(k)) for k in ("x1", "y1", "x2", "y2"))
         assert math.hypot(x2 - x1, y2 - y1) == pytest.approx(
