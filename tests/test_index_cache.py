@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pyarrow.fs as pafs
 import pytest
 
 import links_ray
@@ -149,12 +150,20 @@ HOLDER = textwrap.dedent(
 )
 
 
-def test_opening_waits_a_bounded_time_for_another_builder_and_names_it(root: Path) -> None:
+@pytest.mark.parametrize("where", ["local", "s3"])
+def test_opening_waits_a_bounded_time_for_another_builder_and_names_it(
+    root: Path, where: str, request: pytest.FixtureRequest
+) -> None:
     """A process building the index holds its lease: opening waits for it `wait_s` seconds,
     then fails naming it; a rebuild takes the lease too, so it waits as well."""
+    uri = str(root)
+    if where == "s3":
+        uri = f"{request.getfixturevalue('s3_env')}/data"
+        pafs.copy_files(str(root), uri)
+    current = f"{cache_folder(0, 1)}/current.json"
     env = {**os.environ, "PYTHONPATH": str(Path(links_ray.__file__).parents[1])}
     holder = subprocess.Popen(
-        [sys.executable, "-c", HOLDER, str(root)],
+        [sys.executable, "-c", HOLDER, uri],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
@@ -164,19 +173,20 @@ def test_opening_waits_a_bounded_time_for_another_builder_and_names_it(root: Pat
         assert holder.stdout.readline().strip() == "held"
         for rebuild in (False, True):
             with pytest.raises(LeaseHeld) as refused:
-                RetrievalIndex.open(str(root), rebuild=rebuild, wait_s=3)
+                RetrievalIndex.open(uri, rebuild=rebuild, wait_s=3)
             message = str(refused.value)
             assert "\n" not in message
             assert message.startswith(
-                f"{root}: gave up on the index lease after waiting 3 s (wait_s=3): it is held by "
+                f"{uri}: gave up on the index lease after waiting 3 s (wait_s=3): it is held by "
                 f"a replica building the index (pid {holder.pid} on {socket.gethostname()}, since "
             ), (rebuild, message)
-        assert not (root / INDEX_FOLDER).exists()  # neither built while the other held it
+        assert Store.open(uri).read_json(current) is None  # nothing built beside the holder
     finally:
         holder.communicate("done\n", timeout=60)
     assert holder.returncode == 0
     # Its holder done, a rebuild takes the lease and builds.
-    assert RetrievalIndex.open(str(root), rebuild=True, wait_s=3).build_s > 0
-    assert RetrievalIndex.open(str(root)).build_s == 0
+    assert RetrievalIndex.open(uri, rebuild=True, wait_s=3).build_s > 0
+    assert Store.open(uri).read_json(current) is not None
+    assert RetrievalIndex.open(uri).build_s == 0
     with pytest.raises(ValueError, match="wait_s must be zero or more, got -1"):
-        RetrievalIndex.open(str(root), wait_s=-1)
+        RetrievalIndex.open(uri, wait_s=-1)
