@@ -37,3 +37,15 @@ def need_module(name: str, install: str) -> ModuleType:
     except ImportError as exc:
         why = f"cannot import {name} ({exc}): {install}"
     missing(why)  # outside the handler: the report is one line, without the ImportError
+
+
+def no_skip_under_ci(report: pytest.TestReport) -> None:
+    """Under CI, make a skip that did not come through `missing` (a plain ``pytest.skip``, a
+    skip mark, an empty parametrization) a failure that gives its reason."""
+    if not (under_ci() and report.skipped) or hasattr(report, "wasxfail"):
+        return
+    longrepr = report.longrepr
+    reason = longrepr[2] if isinstance(longrepr, tuple) else str(longrepr)
+    reason = reason.removeprefix("Skipped: ")
+    report.outcome = "failed"
+    report.longrepr = f"skipped under CI=true, where no test may be: {reason}"

@@ -47,3 +47,30 @@ def test_elsewhere_a_missing_weed_is_a_skip_that_says_why() -> None:
     skipped = [line for line in done.stdout.splitlines() if line.startswith("SKIPPED [1] ")]
     assert len(skipped) == 1 and skipped[0].endswith(f": {WHY}"), done.stdout
     assert "1 skipped" in done.stdout.splitlines()[-1]
+
+
+PLAIN_SKIP = """
+import pytest
+
+
+def test_skipped_plainly():
+    pytest.skip("nothing to run it on")
+"""
+
+
+def test_under_ci_no_skip_passes_for_a_test(tmp_path: Path) -> None:
+    """A skip that bypasses `missing` (a plain pytest.skip) fails a CI run all the same."""
+    (tmp_path / "test_plain.py").write_text(PLAIN_SKIP)
+    env = {name: value for name, value in os.environ.items() if name != "CI"}
+    env["PYTHONPATH"] = str(REPO / "tests")  # the suite's conftest, loaded as a plugin
+    command = [sys.executable, "-m", "pytest", "-q", "-ra", "-p", "no:cacheprovider"]
+    command += ["-p", "conftest", "test_plain.py"]
+    run = subprocess.run(
+        command, cwd=tmp_path, env={**env, "CI": "true"}, capture_output=True, text=True
+    )
+    assert run.returncode == 1, run.stdout + run.stderr
+    message = "skipped under CI=true, where no test may be: nothing to run it on"
+    assert f"FAILED test_plain.py::test_skipped_plainly - {message}" in run.stdout.splitlines()
+    elsewhere = subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert elsewhere.returncode == 0, elsewhere.stdout + elsewhere.stderr
+    assert "SKIPPED [1] test_plain.py:6: nothing to run it on" in elsewhere.stdout
