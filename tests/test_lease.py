@@ -127,3 +127,76 @@ def test_bad_lease_arguments_are_named(store: Store) -> None:
         Lease.acquire(store, "reader", "x")
     with pytest.raises(ValueError, match="ttl_s must be positive"):
         Lease.acquire(store, "writer", "x", ttl_s=0)
+
+
+INDEX_HOLDER = textwrap.dedent(
+    """
+    import sys
+    from links_ray.data.lease import Lease
+    from links_ray.data.store import Store
+
+    with Lease.acquire(Store.open(sys.argv[1]), "index", "a replica building the index"):
+        print("held", flush=True)
+        sys.stdin.readline()  # until told to finish
+    print("released", flush=True)
+    """
+)
+
+
+def hold_index_lease(uri: str) -> subprocess.Popen[str]:
+    """Another process holding (and renewing) `uri`'s index lease until a line on its stdin."""
+    holder = subprocess.Popen(
+        [sys.executable, "-c", INDEX_HOLDER, uri],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(Path(links_ray.__file__).parents[1])},
+    )
+    assert holder.stdout.readline().strip() == "held"
+    return holder
+
+
+def finish(holder: subprocess.Popen[str]) -> None:
+    holder.stdin.write("done\n")
+    holder.stdin.flush()
+    assert holder.stdout.readline().strip() == "released"
+    assert holder.wait(timeout=60) == 0
+
+
+def test_a_waiter_gives_up_after_its_bound_naming_the_holder(store: Store) -> None:
+    holder = hold_index_lease(store.uri)
+    try:
+        start = time.monotonic()
+        with pytest.raises(LeaseHeld) as refused:
+            Lease.acquire_waiting(store, "index", "a waiter", 2.0, done=lambda: None, poll_s=0.2)
+        assert time.monotonic() - start >= 2.0
+        message = str(refused.value)
+        assert "\n" not in message
+        assert message.startswith(
+            f"{store.uri}: gave up on the index lease after waiting 2 s (wait_s=2): it is held "
+            f"by a replica building the index (pid {holder.pid} on {socket.gethostname()}, since "
+        ), message
+
+        # What the waiter waits for (the holder's work, done) ends the wait.
+        polls: list[int] = []
+
+        def built() -> str | None:
+            polls.append(1)
+            return "built" if len(polls) == 3 else None
+
+        got = Lease.acquire_waiting(store, "index", "a waiter", 60.0, done=built, poll_s=0.2)
+        assert got == "built" and len(polls) == 3
+        assert isinstance(Lease.try_acquire(store, "index", "a waiter"), dict)  # still held
+    finally:
+        finish(holder)
+    # Given up by its holder, the lease goes to the waiter.
+    got = Lease.acquire_waiting(store, "index", "a waiter", 60.0, done=lambda: None)
+    assert isinstance(got, Lease) and holder_still(store, "index", got.token)
+    got.release()
+
+
+def test_bad_wait_arguments_are_named(store: Store) -> None:
+    with pytest.raises(ValueError, match="wait_s must be zero or more, got -1"):
+        Lease.acquire_waiting(store, "index", "x", -1, done=lambda: None)
+    with pytest.raises(ValueError, match="poll_s must be positive, got 0"):
+        Lease.acquire_waiting(store, "index", "x", 1, done=lambda: None, poll_s=0)

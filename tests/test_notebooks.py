@@ -16,9 +16,15 @@ import sys
 from pathlib import Path
 
 import pytest
+from needs import missing, need_module
 
-nbformat = pytest.importorskip("nbformat")
-pytest.importorskip("nbclient")
+nbformat = need_module("nbformat", "pip install '.[notebooks]'")
+need_module("nbclient", "pip install '.[notebooks]'")
+kernelspec = need_module("jupyter_client.kernelspec", "pip install '.[notebooks]'")
+try:
+    kernelspec.KernelSpecManager().get_kernel_spec("python3")
+except kernelspec.NoSuchKernel:
+    missing("no Jupyter kernel 'python3' to run the notebooks in: pip install ipykernel")
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
 sys.path.insert(0, str(NOTEBOOKS))

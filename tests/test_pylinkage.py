@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 from fourbars import stretched_four_bar
+from needs import need_module
 from serving import FOUR_BAR
 
 import links_ray
@@ -22,7 +23,7 @@ from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.transmission import mechanism_transmission_deg
 from links_ray.interop.pylinkage import from_pylinkage, pylinkage_script, to_pylinkage
 
-pl = pytest.importorskip("pylinkage")
+pl = need_module("pylinkage", "pip install pylinkage (the test extra)")
 
 
 def loci(linkage: Any, steps: int) -> np.ndarray:

@@ -240,7 +240,9 @@ def test_returned_mechanism_traces_the_query_where_it_was_drawn(index: Retrieval
     for query in queries():
         i, j = links_ray.engine.paths.longest_chord(query)
         chord = np.linalg.norm(query[j] - query[i])
-        for result in index.retrieve(query, k=3):
+        results = index.retrieve(query, k=3)
+        assert len(results) == 3
+        for result in results:
             mechanism = result["mechanism"]
             traced = links_ray.simulate(
                 mechanism["adjacency"], mechanism["node_types"], mechanism["positions"]

@@ -307,6 +307,7 @@ def test_retrieve_finds_a_stored_path_and_a_mechanism_that_traces_it(
         client, "/api/retrieve", {"points": query.tolist(), "k": 5, "min_transmission": floor}
     )
     keeping = [r for r in results if r["min_transmission_deg"] >= floor]
+    assert len(kept["results"]) == 5
     assert all(r["min_transmission_deg"] >= floor for r in kept["results"])
     assert [r["path_id"] for r in kept["results"]][: len(keeping)] == [
         r["path_id"] for r in keeping

@@ -65,7 +65,7 @@ def test_health_reports_the_shards(
 ) -> None:
     shards, client = sharded
     rows = part_rows(shard_root, shards)
-    assert all(rows), rows  # every part holds curated paths
+    assert len(rows) == shards and all(rows), rows  # every part holds curated paths
     status, data = client.get("/api/health")
     assert status == 200
     assert data == {
@@ -136,7 +136,7 @@ def test_a_floor_on_the_transmission_angle_is_one_index_answer(
         status, data = client.post("/api/retrieve", body)
         assert status == 200, data
         expected = as_served(reference.retrieve(query, K, min_transmission=floor))
-        assert data["results"] == expected
+        assert len(expected) == K and data["results"] == expected
         assert all(result["min_transmission_deg"] >= floor for result in expected)
 
 

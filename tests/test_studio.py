@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 from drawings import dxf_header, dxf_sections, field
+from needs import missing, need_module
 from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
 
 import links_ray
@@ -38,10 +39,10 @@ STEPS = 200
 @pytest.fixture(scope="module")
 def browser() -> Iterator[Any]:
     """One headless Chromium for the module (never a downloaded browser)."""
-    from playwright.sync_api import sync_playwright
-
+    sync_api = need_module("playwright.sync_api", "pip install playwright (the test extra)")
     if not Path(CHROMIUM).is_file():
-        pytest.fail(f"no Chromium at {CHROMIUM}: apt-get install -y chromium", pytrace=False)
+        missing(f"no Chromium at {CHROMIUM}: apt-get install -y chromium (or set LINKS_CHROMIUM)")
+    sync_playwright = sync_api.sync_playwright
     with sync_playwright() as playwright:
         chromium = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:
@@ -580,7 +581,9 @@ def test_export_for_fabrication_in_millimetres(studio: Studio, tmp_path: Path) -
     ns = {"svg": "http://www.w3.org/2000/svg"}
     _, _, width, _ = map(float, svg.get("viewBox").split())
     assert svg.get("width") == f"{width!r}mm"  # one user unit is one millimetre
-    for line in svg.findall(".//svg:line", ns):
+    lines = svg.findall(".//svg:line", ns)
+    assert len(lines) == 3  # the four-bar's links
+    for line in lines:
         i, j = map(int, line.get("data-joints").split())
         x1, y1, x2, y2 = (float(line.get(k)) for k in ("x1", "y1", "x2", "y2"))
         assert math.hypot(x2 - x1, y2 - y1) == pytest.approx(

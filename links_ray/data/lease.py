@@ -8,7 +8,8 @@ one wins, and a run whose lease was taken over learns it at its next renewal.
 
 - ``writer``: `links generate` and `links curate` hold it for the whole run. A second run on the
   same root is refused with a one-line message naming the holder.
-- ``index``: the one process building the retrieval index cache; others wait for the cache.
+- ``index``: the one process building the retrieval index cache; others wait for the cache, for a
+  bounded time (`Lease.acquire_waiting`), then fail naming the holder.
 
 A holder that dies stops renewing: its lease expires after `LEASE_TTL_S`, and at once if it ran
 on this host and its process is gone. A held lease renews itself from a background thread every
@@ -25,8 +26,10 @@ import socket
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from typing import TypeVar
 
 from links_ray.data.store import META, Store, StoreError
 
@@ -55,12 +58,23 @@ class LeaseLost(StoreError):
     """This run's lease was taken over (it failed to renew in time)."""
 
 
+Done = TypeVar("Done")
+
+
 def lease_file(name: str) -> str:
     return f"{META}/leases/{name}.json"
 
 
 def _clock(seconds: float) -> str:
     return datetime.fromtimestamp(seconds, UTC).strftime("%H:%M:%S UTC")
+
+
+def _holder(record: dict) -> str:
+    """Who holds a lease, from its record: what, which process on which host, since when."""
+    return (
+        f"{record.get('holder', '?')} (pid {record.get('pid', '?')} on {record.get('host', '?')}, "
+        f"since {_clock(record.get('acquired_at', 0))})"
+    )
 
 
 def _process_gone(record: dict) -> bool:
@@ -132,11 +146,43 @@ class Lease:
         if isinstance(got, Lease):
             return got
         raise LeaseHeld(
-            f"{store.uri} is in use by {got.get('holder', '?')} (pid {got.get('pid', '?')} on "
-            f"{got.get('host', '?')}, since {_clock(got.get('acquired_at', 0))}); wait for it to "
-            f"finish, or stop it: its lease lapses {got.get('ttl_s', LEASE_TTL_S):.0f} s after "
-            "it stops renewing"
+            f"{store.uri} is in use by {_holder(got)}; wait for it to finish, or stop it: its "
+            f"lease lapses {got.get('ttl_s', LEASE_TTL_S):.0f} s after it stops renewing"
         )
+
+    @classmethod
+    def acquire_waiting(
+        cls,
+        store: Store,
+        name: str,
+        holder: str,
+        wait_s: float,
+        done: Callable[[], Done | None],
+        ttl_s: float = LEASE_TTL_S,
+        poll_s: float = 1.0,
+    ) -> Lease | Done:
+        """The lease, once its holder gives it up, or what `done` returns (not None) first:
+        the holder's work, finished. `LeaseHeld` after `wait_s` seconds, naming the holder and
+        the wait."""
+        if not wait_s >= 0:
+            raise ValueError(f"wait_s must be zero or more, got {wait_s!r}")
+        if not poll_s > 0:
+            raise ValueError(f"poll_s must be positive, got {poll_s!r}")
+        start = time.monotonic()
+        while True:
+            got = cls.try_acquire(store, name, holder, ttl_s)
+            if isinstance(got, Lease):
+                return got
+            waited = time.monotonic() - start
+            if waited >= wait_s:
+                raise LeaseHeld(
+                    f"{store.uri}: gave up on the {name} lease after waiting {waited:.0f} s "
+                    f"(wait_s={wait_s:g}): it is held by {_holder(got)}"
+                )
+            time.sleep(min(poll_s, wait_s - waited))
+            finished = done()
+            if finished is not None:
+                return finished
 
     def renew(self) -> bool:
         """Extend the lease; False (and `lost`) if another run took it over."""

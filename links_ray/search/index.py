@@ -52,7 +52,7 @@ from numpy.typing import ArrayLike
 
 from links_ray.data.commit import committed_files, committed_shards
 from links_ray.data.dataset import isin, open_table
-from links_ray.data.lease import Lease, index_lease_name
+from links_ray.data.lease import Lease, LeaseHeld, index_lease_name
 from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.inputs import DEFAULT_K, as_transmission_deg, validate_query
 from links_ray.engine.mechanism import reduce_mechanism
@@ -92,6 +92,11 @@ FIELD_STRIDE = 2
 #: read and featurized per block.
 SAMPLE, BUILD_BLOCK = 100_000, 50_000
 INDEX_FOLDER = f"{META}/index"
+#: How often a process waiting for another's index build looks for the saved index.
+CACHE_POLL_S = 1.0
+#: How long `RetrievalIndex.open` waits for another process's build of the same part by
+#: default: twice the longest build measured (10M paths, 773 s on 2 cores).
+BUILD_WAIT_S = 1800.0
 #: How far a lower bound may exceed the exact distance it bounds by rounding (they are
 #: computed differently).
 ROUNDING = 1e-9
@@ -261,16 +266,25 @@ class RetrievalIndex:
 
     @classmethod
     def open(
-        cls, root: str | Store, rebuild: bool = False, part: int = 0, parts: int = 1
+        cls,
+        root: str | Store,
+        rebuild: bool = False,
+        part: int = 0,
+        parts: int = 1,
+        wait_s: float = BUILD_WAIT_S,
     ) -> RetrievalIndex:
         """Load the index of `root`'s curated shards numbered `part` modulo `parts` (all, by
-        default) saved beside the data, or build (and save) it.
+        default) saved beside the data, or build (and save) it; `rebuild`: build it anyway.
 
         Of several processes opening one part at once (Serve replicas), the one holding the
-        part's index lease builds and saves it; the others wait for it and load it. A saved
-        index that cannot be read, or was made from other curated shards, is rebuilt.
+        part's index lease builds and saves it; the others wait for it and load it, or, with
+        `rebuild`, take the lease after it and build again. After `wait_s` seconds of waiting,
+        `LeaseHeld` names the holder. A saved index that cannot be read, or was made from other
+        curated shards, is rebuilt.
         """
         check_part(part, parts)
+        if not wait_s >= 0:
+            raise ValueError(f"wait_s must be zero or more, got {wait_s!r}")
         store = root if isinstance(root, Store) else Store.open(root, writable=False)
         markers = {
             shard: marker
@@ -294,7 +308,7 @@ class RetrievalIndex:
         saved = None if rebuild else _load_cache(store, folder, fingerprint, rows)
         if saved is not None:
             return cls(**common, **saved)
-        lease = None if rebuild else _build_lease(store, part, parts, fingerprint, rows)
+        lease = _build_lease(store, part, parts, fingerprint, rows, rebuild, wait_s)
         if isinstance(lease, dict):  # another process built it meanwhile
             return cls(**common, **lease)
         try:
@@ -811,34 +825,39 @@ def _load_cache(store: Store, folder: str, fingerprint: str, rows: int) -> dict 
     return {**saved, "steps": int(current["steps"]), "basis": basis, "bank": bank}
 
 
-#: How often a process waiting for another's index build looks for the saved index.
-CACHE_POLL_S = 1.0
-
-
 def _build_lease(
-    store: Store, part: int, parts: int, fingerprint: str, rows: int
+    store: Store, part: int, parts: int, fingerprint: str, rows: int, rebuild: bool, wait_s: float
 ) -> Lease | dict | None:
     """The part's index lease (this process builds), the index another process built while
-    this one waited, or None (build without the lease: the root takes no writes)."""
+    this one waited (not with `rebuild`), or None (build without the lease: the root takes no
+    writes). `LeaseHeld` after `wait_s` seconds, naming the holder."""
     folder = cache_folder(part, parts)
-    name = index_lease_name(part, parts)
-    while True:
-        try:
-            got = Lease.try_acquire(store, name, "the retrieval index build", ttl_s=60.0)
-        except (OSError, StoreError):
-            return None
-        if isinstance(got, Lease):
-            got.keep_renewed()  # a large build takes minutes
-            # The index may have been saved between our look and our lease.
-            saved = _load_cache(store, folder, fingerprint, rows)
-            if saved is None:
-                return got
-            got.release()
-            return saved
-        time.sleep(CACHE_POLL_S)
-        saved = _load_cache(store, folder, fingerprint, rows)
-        if saved is not None:
-            return saved
+
+    def saved() -> dict | None:
+        return None if rebuild else _load_cache(store, folder, fingerprint, rows)
+
+    try:
+        got = Lease.acquire_waiting(
+            store,
+            index_lease_name(part, parts),
+            "the retrieval index build",
+            wait_s,
+            done=saved,
+            poll_s=CACHE_POLL_S,
+        )
+    except LeaseHeld:
+        raise
+    except (OSError, StoreError):
+        return None
+    if isinstance(got, dict):
+        return got
+    got.keep_renewed()  # a large build takes minutes
+    # The index may have been saved between our look and our lease.
+    found = saved()
+    if found is None:
+        return got
+    got.release()
+    return found
 
 
 #: One score in this many makes the sample that sets a selection threshold.
