@@ -72,6 +72,16 @@ def hidden_files(store: Store) -> list[str]:
     return [f for t in GENERATION_TABLES for f in store.list_files(t) if "/_" in f]
 
 
+def table_files(store: Store) -> list[str]:
+    """Every file below the generation tables' folders, sorted."""
+    return sorted(f for t in GENERATION_TABLES for f in store.list_files(t))
+
+
+def committed_names(store: Store) -> list[str]:
+    """The files the generation markers name, sorted."""
+    return sorted(f for t in GENERATION_TABLES for f in committed_files(store, t))
+
+
 def assert_same(a: dict[str, pa.Table], b: dict[str, pa.Table]) -> None:
     for table in GENERATION_TABLES:
         assert a[table].equals(b[table]), f"{table} differs"
@@ -162,13 +172,20 @@ def test_a_writer_killed_mid_commit_shows_nothing_until_redone(
     else:
         assert_same(rows(store), first_shard_only(undisturbed))
         assert set(committed_shards(store)) == {first.shard_id}
-    # The next run's cleanup removes what the killed attempt left, then redoes its shard.
-    remove_uncommitted(store, "shards", committed_shards(store))
-    assert hidden_files(store) == []
+    # The next run: its cleanup at the start removes the killed attempt's hidden files. Files
+    # it moved stay while their shard has no marker (a live attempt's would be about to commit).
     done = committed_shards(store)
+    remove_uncommitted(store, "shards", done)
+    assert hidden_files(store) == []
+    assert set(committed_names(store)) <= set(table_files(store))
+    moved = [f for f in table_files(store) if f not in committed_names(store)]
+    assert len(moved) == (STEPS.index(step) if step != "marked" else 0)
     for shard in (second, *rest):
         if shard.shard_id not in done:
             write_shard(store, PLAN, shard)
+    # ... and its cleanup at the end, the shard committed again, the killed attempt's rest.
+    remove_uncommitted(store, "shards", committed_shards(store))
+    assert table_files(store) == committed_names(store)
     assert_same(rows(store), undisturbed)
     assert_same(
         {t: plain_rows(store, t).sort_by("mechanism_id") for t in GENERATION_TABLES},
@@ -252,3 +269,32 @@ def test_a_small_file_is_whole_after_its_writer_is_killed(tmp_path: Path) -> Non
     data = (tmp_path / "data" / "_links" / "index.npz").read_bytes()
     assert len(data) == 64 + len(block) and data[64:] == block
     assert len(set(data[:64])) == 1
+
+
+def named_files_exist(store: Store, marker: dict) -> bool:
+    return all(store.read_bytes(relative) is not None for relative in marker["files"].values())
+
+
+def test_an_attempt_failing_beside_a_committing_one_leaves_its_commit_whole(
+    root: str, undisturbed: dict[str, pa.Table]
+) -> None:
+    """Attempt A fails after moving its first file; attempt B of the same shard commits between
+    A's look for a marker and A's cleanup. B's commit must stay whole."""
+    first = PLAN.shards()[0]
+    store_a, store_b = Store.open(root), Store.open(root)
+    committed_during_abort = []
+    read_json = store_a.read_json
+
+    def read_then_let_b_commit(relative: str) -> dict | None:
+        value = read_json(relative)
+        if relative == marker_file(first.shard_id) and not committed_during_abort:
+            committed_during_abort.append(write_shard(store_b, PLAN, first))
+        return value
+
+    store_a.read_json = read_then_let_b_commit  # type: ignore[method-assign]
+    with pytest.raises(InjectedFault):
+        write_shard(store_a, PLAN, first, failpoint=fail_at("moved mechanisms"))
+    assert committed_during_abort, "B never ran inside A's abort"
+    marker = committed_shards(store_b)[first.shard_id]
+    assert named_files_exist(store_b, marker), marker["files"]
+    assert_same(rows(store_b), first_shard_only(undisturbed))
