@@ -8,12 +8,15 @@ and finishing the work must give exactly the rows of an undisturbed run.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+import queue
 import shutil
 import subprocess
 import sys
 import textwrap
+import threading
 from pathlib import Path
 
 import pyarrow as pa
@@ -32,7 +35,7 @@ from links_ray.data.commit import (
 )
 from links_ray.data.dataset import PARTITIONING, open_table
 from links_ray.data.schemas import GENERATION_TABLES
-from links_ray.data.shards import GenerationPlan, generate_shard, write_shard
+from links_ray.data.shards import GenerationPlan, Shard, generate_shard, write_shard
 from links_ray.data.store import Store
 
 #: Four topologies of four joint counts: four shards of one topology each.
@@ -137,7 +140,7 @@ def test_a_failed_commit_shows_nothing_and_is_redone(
 KILLED_WRITER = textwrap.dedent(
     """
     import os, sys
-    from links_ray.data.shards import GenerationPlan, generate_shard, write_shard
+    from links_ray.data.shards import GenerationPlan, Shard, generate_shard, write_shard
     from links_ray.data.store import Store
 
     root, step = sys.argv[1], sys.argv[2]
@@ -298,3 +301,131 @@ def test_an_attempt_failing_beside_a_committing_one_leaves_its_commit_whole(
     marker = committed_shards(store_b)[first.shard_id]
     assert named_files_exist(store_b, marker), marker["files"]
     assert_same(rows(store_b), first_shard_only(undisturbed))
+
+
+class Attempt:
+    """One attempt at a shard, on a thread of its own, stopping after each of its steps until
+    told to go on (or to fail there)."""
+
+    def __init__(self, store: Store, shard: Shard, batches: list, stats: dict) -> None:
+        self.writer = ShardWriter(store, shard.shard_id, shard.n_joints, failpoint=self._stop)
+        self.steps: list[str] = []
+        self.result: dict | None = None
+        self.error: BaseException | None = None
+        self._stopped: queue.Queue[str | None] = queue.Queue()
+        self._orders: queue.Queue[str] = queue.Queue()
+        self._thread = threading.Thread(target=self._run, args=(batches, stats), daemon=True)
+        self.done = False
+
+    def _stop(self, step: str) -> None:
+        self.steps.append(step)
+        self._stopped.put(step)
+        if self._orders.get() == "fail":
+            raise InjectedFault(f"injected after {step!r}")
+
+    def _run(self, batches: list, stats: dict) -> None:
+        try:
+            for table, batch in batches:
+                self.writer.write(table, batch)
+            try:
+                self.result = self.writer.commit(stats)
+            except BaseException:
+                self.writer.abort()
+                raise
+        except BaseException as exc:
+            self.error = exc
+        finally:
+            self._stopped.put(None)
+
+    def advance(self, order: str = "go") -> None:
+        """Start, or go on from the step it stopped after (failing there if `order` is "fail"),
+        up to its next step or its end."""
+        if self.done:
+            return
+        if self._thread.is_alive():
+            self._orders.put(order)
+        else:
+            self._thread.start()
+        if self._stopped.get(timeout=300) is None:
+            self.done = True
+            self._thread.join()
+
+    def run(self, steps: int) -> None:
+        for _ in range(steps):
+            self.advance()
+
+    def finish(self) -> None:
+        while not self.done:
+            self.advance()
+
+
+def below(store: Store, folder: str) -> Store:
+    """The root `folder` below `store`'s, on the same connections (opening one per case
+    would cost more than the case)."""
+    where = f"/{folder}" if folder else ""
+    return dataclasses.replace(store, uri=store.uri + where, root=store.root + where, _made=set())
+
+
+#: Steps an attempt stops after in a commit: closed, one move per table, marked or lost.
+COMMIT_STOPS = 5
+
+
+def schedules() -> list[tuple[int, int, str]]:
+    """(steps A takes, steps B then takes, which fails): A and B stop there, then the failing
+    one (if any) fails at its stop and goes on to its abort's stop, the other finishes, then
+    the first. B taking COMMIT_STOPS + 1 steps is B finishing."""
+    out = []
+    for a in range(1, COMMIT_STOPS + 1):
+        for b in range(COMMIT_STOPS + 2):
+            out += [(a, b, ""), (a, b, "A")]
+            if 1 <= b <= COMMIT_STOPS:
+                out.append((a, b, "B"))
+    return out
+
+
+@pytest.fixture(scope="module")
+def shard_batches() -> tuple[Shard, list, dict]:
+    """The first shard's record batches, in the order a generator writes them, and its stats."""
+    shard = PLAN.shards()[0]
+    batches: list = []
+    stats = generate_shard(PLAN, shard, lambda table, batch: batches.append((table, batch)))
+    return shard, batches, stats
+
+
+def test_two_live_attempts_of_a_shard_commit_it_once_whatever_their_interleaving(
+    root: str, shard_batches: tuple[Shard, list, dict], undisturbed: dict[str, pa.Table]
+) -> None:
+    shard, batches, stats = shard_batches
+    want = first_shard_only(undisturbed)
+    base = Store.open(root)
+    for a_steps, b_steps, failing in schedules():
+        store = below(base, f"a{a_steps}-b{b_steps}-{failing or 'none'}")
+        # Each attempt its own Store (its own record of folders made), as on two machines.
+        a = Attempt(below(store, ""), shard, batches, stats)
+        b = Attempt(below(store, ""), shard, batches, stats)
+        a.run(a_steps)
+        b.run(b_steps)
+        first, second = (b, a) if failing == "B" else (a, b)
+        if failing:
+            first.advance("fail")
+            second.finish()
+        first.finish()
+        second.finish()
+        case = f"A {a.steps}, B {b.steps}, failing {failing or 'none'}"
+        markers = committed_shards(store)
+        assert list(markers) == [shard.shard_id], case
+        marker = markers[shard.shard_id]
+        winner = a if marker["attempt"] == a.writer.attempt else b
+        assert marker["attempt"] == winner.writer.attempt, case
+        assert [a.writer.won, b.writer.won].count(True) == 1, case
+        for attempt in (a, b):
+            if failing and attempt is first:
+                assert isinstance(attempt.error, InjectedFault), case
+            else:
+                assert attempt.error is None and attempt.result == marker, case
+        # Each attempt cleaned up after itself: what is left is what the marker names.
+        assert table_files(store) == sorted(marker["files"].values()), case
+        assert_same(rows(store), want)
+        assert_same(
+            {t: plain_rows(store, t).sort_by("mechanism_id") for t in GENERATION_TABLES}, want
+        )
