@@ -9,6 +9,7 @@ and finishing the work must give exactly the rows of an undisturbed run.
 from __future__ import annotations
 
 import dataclasses
+import http.server
 import json
 import os
 import queue
@@ -17,6 +18,7 @@ import subprocess
 import sys
 import textwrap
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pyarrow as pa
@@ -36,7 +38,7 @@ from links_ray.data.commit import (
 from links_ray.data.dataset import PARTITIONING, open_table
 from links_ray.data.schemas import GENERATION_TABLES
 from links_ray.data.shards import GenerationPlan, Shard, generate_shard, write_shard
-from links_ray.data.store import Store
+from links_ray.data.store import Store, StoreError
 
 #: Four topologies of four joint counts: four shards of one topology each.
 PLAN = GenerationPlan(seed=3, mechanisms=20, topologies_per_shard=1)
@@ -429,3 +431,142 @@ def test_two_live_attempts_of_a_shard_commit_it_once_whatever_their_interleaving
         assert_same(
             {t: plain_rows(store, t).sort_by("mechanism_id") for t in GENERATION_TABLES}, want
         )
+
+
+def test_of_writers_racing_to_create_a_marker_exactly_one_wins(root: str) -> None:
+    """The store's create-only write, on a folder and on SeaweedFS (If-None-Match)."""
+    stores = [Store.open(root) for _ in range(2)]
+    for round_ in range(3):
+        relative = f"_links/shards/shard-{round_:06d}.json"
+        start = threading.Barrier(8)
+
+        def create(k: int, relative: str = relative, start: threading.Barrier = start) -> bool:
+            start.wait()
+            return stores[k % 2].create_exclusive(relative, b"writer %d" % k) is not None
+
+        with ThreadPoolExecutor(8) as pool:
+            won = list(pool.map(create, range(8)))
+        assert won.count(True) == 1, won
+        assert stores[0].read_bytes(relative) == b"writer %d" % won.index(True)
+        assert stores[1].create_exclusive(relative, b"late") is None
+        assert stores[0].read_bytes(relative) == b"writer %d" % won.index(True)
+
+
+class Answering:
+    """An HTTP server on 127.0.0.1 that answers every request with one fixed response: an S3
+    endpoint that refuses, or ignores, conditional writes."""
+
+    def __init__(self, status: int, body: bytes, headers: dict[str, str]) -> None:
+        answer = (status, body, headers)
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            protocol_version = "HTTP/1.1"
+
+            def do_PUT(self) -> None:
+                self.rfile.read(int(self.headers.get("Content-Length", 0)))
+                status, body, headers = answer
+                self.send_response(status)
+                for name, value in {**headers, "Content-Length": str(len(body))}.items():
+                    self.send_header(name, value)
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, *args: object) -> None:
+                pass
+
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.endpoint = f"http://127.0.0.1:{self.server.server_address[1]}"
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+
+    def __enter__(self) -> str:
+        self.thread.start()
+        return self.endpoint
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
+NOT_IMPLEMENTED = (
+    b'<?xml version="1.0" encoding="UTF-8"?><Error><Code>NotImplemented</Code><Message>A header '
+    b"you provided implies functionality that is not implemented</Message></Error>"
+)
+
+
+@pytest.mark.parametrize(
+    "status, body, headers, message",
+    [
+        (
+            501,
+            NOT_IMPLEMENTED,
+            {"Content-Type": "application/xml"},
+            "refuses conditional writes (If-None-Match: NotImplemented)",
+        ),
+        (200, b"", {"ETag": '"0123456789abcdef"'}, "ignores If-None-Match"),
+    ],
+)
+def test_an_s3_store_without_create_only_writes_is_refused_in_one_line(
+    s3_env: str,
+    monkeypatch: pytest.MonkeyPatch,
+    status: int,
+    body: bytes,
+    headers: dict[str, str],
+    message: str,
+) -> None:
+    store = Store.open(f"{s3_env}/data")  # SeaweedFS: opening checked that it honours the header
+    shard = PLAN.shards()[0]
+    writer = ShardWriter(store, shard.shard_id, shard.n_joints)
+    stats = generate_shard(PLAN, shard, writer.write)
+    with Answering(status, body, headers) as endpoint:
+        # The conditional writes (boto3) now go to the answering server; the files (pyarrow)
+        # still go to SeaweedFS.
+        monkeypatch.setenv("AWS_ENDPOINT_URL", endpoint)
+        store._client = None
+        with pytest.raises(StoreError) as opening:
+            store._probe_writes()
+        if status != 200:  # a store that ignores the header lets a commit through: only
+            with pytest.raises(StoreError) as committing:  # opening can tell
+                try:
+                    writer.commit(stats)
+                except BaseException:
+                    writer.abort()
+                    raise
+            assert str(committing.value) == str(opening.value)
+        else:
+            writer.abort()
+        assert table_files(store) == []
+    assert message in str(opening.value) and "\n" not in str(opening.value)
+    assert str(opening.value).startswith(f"{s3_env}/data: ")
+
+
+def test_a_local_commit_is_synced_before_it_is_marked(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each file is synced before its move, the folders after the moves, and the marker before
+    its link, its folder after: what the marker names is on the disk before the marker is."""
+    store = Store.open(str(tmp_path / "data"))
+    events: list[tuple[str, str]] = []
+    fsync, link = os.fsync, os.link
+
+    def spy_fsync(fd: int) -> None:
+        events.append(("sync", os.readlink(f"/proc/self/fd/{fd}")))
+        fsync(fd)
+
+    def spy_link(source: str, target: str) -> None:
+        link(source, target)
+        events.append(("link", target))
+
+    monkeypatch.setattr(os, "fsync", spy_fsync)
+    monkeypatch.setattr(os, "link", spy_link)
+    shard = PLAN.shards()[1]
+    marker = write_shard(store, PLAN, shard, failpoint=lambda step: events.append(("step", step)))
+    position = {event: k for k, event in enumerate(events)}
+    marked = position[("link", store.path(marker_file(shard.shard_id)))]
+    for table, relative in marker["files"].items():
+        folder, name = store.path(relative).rsplit("/", 1)
+        assert position[("sync", f"{folder}/_{name}")] < position[("step", "closed")], table
+        moved = position[("step", f"moved {table}")]
+        assert moved < max(k for k, e in enumerate(events) if e == ("sync", folder)) < marked
+    synced = [e for e in events[:marked] if e[0] == "sync" and "_tmp-" in e[1]]
+    assert synced and synced[-1][1].endswith(f"-shard-{shard.shard_id:06d}.json")
+    assert ("sync", store.path("_links/shards")) in events[marked:]
