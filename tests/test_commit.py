@@ -570,3 +570,28 @@ def test_a_local_commit_is_synced_before_it_is_marked(
     synced = [e for e in events[:marked] if e[0] == "sync" and "_tmp-" in e[1]]
     assert synced and synced[-1][1].endswith(f"-shard-{shard.shard_id:06d}.json")
     assert ("sync", store.path("_links/shards")) in events[marked:]
+
+
+@pytest.mark.parametrize("stops", range(1, COMMIT_STOPS))
+def test_cleanup_beside_a_live_attempt_never_breaks_its_commit(
+    root: str,
+    stops: int,
+    shard_batches: tuple[Shard, list, dict],
+    undisturbed: dict[str, pa.Table],
+) -> None:
+    """Cleanup run while an attempt is between its steps (an actor a run gave up on, still
+    writing): the attempt either commits whole or fails and leaves nothing."""
+    shard, batches, stats = shard_batches
+    store = Store.open(root)
+    attempt = Attempt(below(store, ""), shard, batches, stats)
+    attempt.run(stops)
+    remove_uncommitted(store, "shards", committed_shards(store))
+    attempt.finish()
+    markers = committed_shards(store)
+    if stops <= len(GENERATION_TABLES):  # hidden files of it were deleted: a move fails
+        assert isinstance(attempt.error, OSError) and markers == {}
+        assert table_files(store) == []
+        return
+    assert attempt.error is None and list(markers) == [shard.shard_id]
+    assert table_files(store) == sorted(markers[shard.shard_id]["files"].values())
+    assert_same(rows(store), first_shard_only(undisturbed))
