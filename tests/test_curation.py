@@ -18,7 +18,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 from test_cli import links
-from test_generation import read_table
+from test_generation import assert_only_committed_files, read_table
 
 import links_ray
 from links_ray.cluster.curation import curate
@@ -126,6 +126,11 @@ def test_curated_keeps_the_rest_and_a_seeded_half_percent(curated_run: dict) -> 
     assert curated.equals(paths.filter(np.isin(ids, list(kept))))
 
 
+def test_a_finished_pass_leaves_only_committed_files(curated_run: dict) -> None:
+    assert_only_committed_files(curated_run["out"], CURATION_TABLES)
+    assert_only_committed_files(curated_run["out"])
+
+
 def test_summary_counts_are_the_rows(curated_run: dict) -> None:
     """Every count and share of the curation summary, against the rows and the plan."""
     paths, curated = curated_run["paths"], curated_run["curated"]
@@ -188,6 +193,7 @@ def test_curation_on_s3_matches_local(ray_cluster: str, s3_env: str, curated_run
     store = Store.open(uri)
     for table in CURATION_TABLES:
         assert read_table(store, table).sort_by("path_id").equals(curated_run[table])
+    assert_only_committed_files(uri, CURATION_TABLES)
     frame = links_ray.load(uri, "curated", n_joints=[9, 10])
     sizes = curated_run["curated"].column("n_joints").to_numpy()
     assert set(frame["n_joints"]) == {9, 10} and len(frame) == np.isin(sizes, [9, 10]).sum()
@@ -250,7 +256,10 @@ def test_mixed_root_and_chosen_tables(
     without = [shard for shard in markers if shard % 2]
     for shard in without:
         (mixed / markers[shard]["files"]["simulations"]).unlink()
-        shutil.copy(bare / marker_file(shard), mixed / marker_file(shard))
+        # The bare run's marker, naming this root's file of the same mechanisms.
+        marker = json.loads((bare / marker_file(shard)).read_text())
+        marker["files"]["mechanisms"] = markers[shard]["files"]["mechanisms"]
+        (mixed / marker_file(shard)).write_text(json.dumps(marker))
     assert committed_files(store, "simulations") == [
         markers[shard]["files"]["simulations"] for shard in markers if shard not in without
     ]

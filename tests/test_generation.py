@@ -30,7 +30,7 @@ import links_ray
 from links_ray.cluster import generation
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
-from links_ray.data.commit import committed_shards, marker_file
+from links_ray.data.commit import committed_files, committed_shards, marker_file
 from links_ray.data.schemas import GENERATION_TABLES as TABLES
 from links_ray.data.shards import NEGATIVE_ID_BASE, GenerationPlan
 from links_ray.data.store import META, Store, StoreError
@@ -41,6 +41,15 @@ def read_table(store: Store, table: str) -> pa.Table:
     """A plain pyarrow dataset read of one table, sorted by id."""
     dataset = pads.dataset(store.path(table), filesystem=store.fs, partitioning="hive")
     return dataset.to_table().sort_by("mechanism_id")
+
+
+def assert_only_committed_files(uri: str, tables: tuple[str, ...] = TABLES) -> None:
+    """Each table's folder holds exactly the files that markers name, hidden ones included:
+    a plain read sees exactly the committed rows, as `load` does."""
+    store = Store.open(uri, writable=False)
+    for table in tables:
+        files = sorted(committed_files(store, table))
+        assert files and store.list_files(table) == files, table
 
 
 def read_all(uri: str) -> dict[str, pa.Table]:
@@ -114,9 +123,8 @@ def test_local_run_is_complete_and_valid(reference_run: dict) -> None:
     assert summary["shards"] == len(committed_shards(Store.open(reference_run["out"])))
     assert set(summary["by_joint_count"]) == {str(n) for n in range(8, 21)}
     assert summary["valid_per_core_second"] > 0
-    # Nothing hidden is left behind once a run completes.
-    store = Store.open(reference_run["out"])
-    assert not [f for t in TABLES for f in store.list_files(t) if "/_" in f]
+    # Nothing is left behind once a run completes: no hidden file, no uncommitted one.
+    assert_only_committed_files(reference_run["out"])
 
 
 def test_same_rows_whatever_the_workers_or_shards(
@@ -336,6 +344,7 @@ def test_killed_actor_shard_is_redone(
     killer.join()
     assert killed and killed[0] < reference_run["summary"]["shards"], "killed mid-run"
     assert_same_rows(read_all(out), reference_run["tables"])
+    assert_only_committed_files(out)
     assert reader.polls > 0 and reader.problems == []
 
 
@@ -386,7 +395,7 @@ def test_killed_driver_run_is_finished_by_the_same_command(
         rerun = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
         assert rerun.returncode == 0, rerun.stderr
     assert_same_rows(read_all(out), reference_run["tables"])
-    assert not [f for t in TABLES for f in store.list_files(t) if "/_" in f]
+    assert_only_committed_files(out)
     assert reader.polls > 0 and reader.problems == []
 
 
@@ -409,8 +418,7 @@ def test_s3_run_matches_the_local_one(ray_cluster: str, s3_env: str, reference_r
     summary = generate(uri, 137, seed=3, workers=2, progress=False, topologies_per_shard=2)
     assert summary["complete"] and summary["out"] == uri
     assert_same_rows(check_dataset(uri, 137), reference_run["tables"])
-    store = Store.open(uri)
-    assert not [f for t in TABLES for f in store.list_files(t) if "/_" in f]
+    assert_only_committed_files(uri)
 
 
 def test_s3_bad_credentials_and_unreachable_store_are_clear(

@@ -5,8 +5,9 @@ handles one shard at a time: it draws the shard's topologies and positions, stre
 batches into hidden files and commits them (`links_ray.data.store`). The driver keeps the pool as
 large as the cluster's CPUs allow (up to `workers`), growing it when nodes join; a shard whose
 actor dies, with its node or by a kill, goes back to the queue and is redone elsewhere. Since
-rows depend only on the plan and a redone shard replaces its files, the result is the same
-whatever happens on the way, and running the same command again finishes an interrupted run.
+rows depend only on the plan and exactly one attempt of a shard commits (`links_ray.data.commit`),
+the result is the same whatever happens on the way, and running the same command again finishes
+an interrupted run.
 """
 
 from __future__ import annotations

@@ -2,26 +2,39 @@
 
 A stage's unit of work is a shard. Generation writes three tables per shard, curation two::
 
-    ROOT/mechanisms/n_joints=12/shard-000042.parquet     the shard's files, final names
-    ROOT/_links/shards/shard-000042.json                 its generation marker
-    ROOT/_links/curation/shard-000042.json               its curation marker
+    ROOT/mechanisms/n_joints=12/shard-000042-<attempt>.parquet   a shard's files, final names
+    ROOT/_links/shards/shard-000042.json                         its generation marker
+    ROOT/_links/curation/shard-000042.json                       its curation marker
 
-A shard streams into hidden files (``_shard-000042.<attempt>.parquet``). To commit, the writer
-closes them, moves each to its final name, and then writes the marker, which names the files
-and their row counts. **The marker is the commit**: readers (`committed_files`, and through it
-`load`, `open_table`, curation, stats and the retrieval index) read only the files that markers
-name. So a failure anywhere before the marker, between two moves or between the last move and
-the marker, shows no row to any of them; only a plain directory read would see the moved files,
-and those are replaced by the redone shard with the same rows, or deleted by the next run's
-cleanup (`remove_uncommitted`).
+Each try at a shard is an attempt with a random name of its own, and every file it writes carries
+that name, so two attempts of one shard alive at once (a shard Ray redoes while the actor it gave
+up on still writes) never touch each other's files. An attempt streams into hidden files
+(``_shard-000042-<attempt>.parquet``). To commit, it closes and syncs them, moves each to its
+final name, syncs their folders, and then creates the marker, which names the files and their
+row counts. **The marker is the commit**, and it is created only if absent
+(`Store.create_exclusive`), so exactly one attempt of a shard commits. Readers
+(`committed_files`, and through it `load`, `open_table`, curation, stats, export and the
+retrieval index) read only the files that markers name.
 
-Final names depend only on the shard, so a redone shard replaces what an interrupted attempt
-left, and the marker, written whole (`Store.write_bytes`), is either there or not. A marker that
-cannot be read is treated as absent: its shard is redone.
+- An attempt that finds the marker there already has lost: it deletes its own files and
+  returns the winner's marker (the shard is committed all the same, with the same rows).
+- An attempt that fails aborts: it deletes its own files, unless the marker names them (it
+  failed after committing).
+- Cleanup (`remove_uncommitted`) deletes hidden files, and files no marker names of shards that
+  a marker commits: those attempts can never commit. A moved file of a shard with no marker may
+  be a live attempt's about to commit, so it stays until the shard is committed; after a
+  finished run every shard is, and a plain read of a table sees exactly the committed rows.
+
+A marker is never half there: an S3 object appears whole, and on a local disk it is a link to
+a whole, synced file. One that cannot be read (damaged) counts as absent, and cleanup deletes
+it so that its shard can be committed again.
 """
 
 from __future__ import annotations
 
+import contextlib
+import json
+import re
 import time
 import uuid
 from collections.abc import Callable
@@ -42,37 +55,47 @@ MARKER_READERS = 16
 #: Age after which a protocol temporary (`_tmp-*`) is litter from a failed write, not one under way.
 STALE_TEMPORARY_S = 3600.0
 
-#: Called with the name of each step a commit has just finished ("closed", "moved <table>",
-#: "marked"): the fault tests' way to stop a commit between any two of its steps.
+#: Called with the name of each step an attempt has just finished: in a commit "closed",
+#: "moved <table>", then "marked" (it committed) or "lost" (another attempt had); in an abort
+#: of an attempt that had moved files, "aborting" (the marker read, its files not yet deleted).
+#: The fault tests' way to stop an attempt, or to interleave two, between any two steps. What
+#: a failpoint raises at "aborting" is ignored: an abort never raises.
 Failpoint = Callable[[str], None]
 
+#: A shard file's name: hidden while written, the shard, the attempt (absent in roots written
+#: before final names carried it), e.g. `shard-000042-9f0c4e1a2b3d5f67.parquet`.
+SHARD_NAME = re.compile(r"(_?)shard-(\d{6,})(?:[-.]([0-9a-f]+))?\.parquet")
 
-def shard_file(table: str, n_joints: int, shard_id: int) -> str:
-    """The final path of a shard's file, relative to the root."""
-    return f"{table}/n_joints={n_joints}/shard-{shard_id:06d}.parquet"
+
+def shard_file(table: str, n_joints: int, shard_id: int, attempt: str) -> str:
+    """The final path of an attempt's file of a shard, relative to the root."""
+    return f"{table}/n_joints={n_joints}/shard-{shard_id:06d}-{attempt}.parquet"
 
 
 def marker_file(shard_id: int, stage: str = "shards") -> str:
     return f"{META}/{stage}/shard-{shard_id:06d}.json"
 
 
-def _shard_id(name: str, prefix: str, suffix: str) -> int | None:
-    """The shard id in a file name like `<prefix>000042<suffix>`, or None."""
-    if not (name.startswith(prefix) and name.endswith(suffix)):
-        return None
-    digits = name[len(prefix) : len(name) - len(suffix)]
-    return int(digits) if digits.isdigit() else None
+def _marker_shard(name: str) -> int | None:
+    """The shard id of a marker's file name (`shard-000042.json`), or None."""
+    match = re.fullmatch(r"shard-(\d{6,})\.json", name)
+    return int(match.group(1)) if match else None
+
+
+def _marker_names(store: Store, stage: str) -> dict[int, str]:
+    names = {}
+    for relative in store.list_files(f"{META}/{stage}"):
+        shard = _marker_shard(relative.rsplit("/", 1)[-1])
+        if shard is not None:
+            names[shard] = relative
+    return names
 
 
 def committed_shards(store: Store, stage: str = "shards") -> dict[int, dict]:
     """The markers of the shards `stage` committed, by shard id; unreadable ones are left out."""
     if stage not in STAGE_TABLES:
         raise ValueError(f"stage must be one of {', '.join(STAGE_TABLES)}, got {stage!r}")
-    names = {}
-    for relative in store.list_files(f"{META}/{stage}"):
-        shard = _shard_id(relative.rsplit("/", 1)[-1], "shard-", ".json")
-        if shard is not None:
-            names[shard] = relative
+    names = _marker_names(store, stage)
     with ThreadPoolExecutor(MARKER_READERS) as pool:
         markers = dict(zip(names, pool.map(store.read_json, names.values()), strict=True))
     return {
@@ -109,20 +132,34 @@ def committed_files(store: Store, table: str, markers: dict[int, dict] | None = 
 
 
 def remove_uncommitted(store: Store, stage: str, markers: dict[int, dict]) -> int:
-    """Delete what attempts of `stage` left without a commit; returns how many files.
+    """Delete what attempts of `stage` left that can never be committed; returns how many files.
 
-    That is: hidden attempt files, final files of shards without a marker (moved before a
-    failure), and the protocol's unfinished small files. Only the holder of the root's writer
-    lease may call this: it would delete a concurrent writer's work in progress.
+    `markers` are the stage's markers as read before the call. Deleted: every hidden attempt
+    file, every shard file that no marker names of a shard a marker commits (a losing or
+    failed attempt's), markers that cannot be read, and the protocol's old temporaries. A
+    moved file of a shard without a marker stays: its attempt may be alive and about to commit
+    (then its marker names it); once another attempt commits the shard, it goes.
+
+    No commit ever loses a file to this, whenever it runs. But an attempt whose hidden file it
+    deletes fails, so a run calls it only while none of its own writers is at work: at its start,
+    before they start, and at its end, after they have stopped.
     """
     removed = 0
+    named = {relative for marker in markers.values() for relative in marker["files"].values()}
     for table in STAGE_TABLES[stage]:
         for relative in store.list_files(table):
-            name = relative.rsplit("/", 1)[-1]
-            shard = _shard_id(name, "shard-", ".parquet")
-            uncommitted = shard is not None and relative not in _named(markers, shard, table)
-            if name.startswith("_shard-") or uncommitted:
+            match = SHARD_NAME.fullmatch(relative.rsplit("/", 1)[-1])
+            if match is None:
+                continue  # not the protocol's: left alone
+            hidden, shard = bool(match.group(1)), int(match.group(2))
+            if hidden or (shard in markers and relative not in named):
                 removed += store.delete(relative)
+    for shard, relative in _marker_names(store, stage).items():
+        # Read again: a marker may have been created since `markers` were read.
+        if shard not in markers and not _well_formed(
+            store.read_json(relative), shard, STAGE_TABLES[stage]
+        ):
+            removed += store.delete(relative)
     # A reader may be writing the index cache right now: only old temporaries are litter.
     stale = time.time() - STALE_TEMPORARY_S
     for relative, modified in store.list_files(META, with_times=True):
@@ -131,13 +168,9 @@ def remove_uncommitted(store: Store, stage: str, markers: dict[int, dict]) -> in
     return removed
 
 
-def _named(markers: dict[int, dict], shard: int, table: str) -> tuple[str, ...]:
-    marker = markers.get(shard)
-    return (marker["files"][table],) if marker and table in marker["files"] else ()
-
-
 class ShardWriter:
-    """Streams one shard's record batches into hidden files, then commits them together."""
+    """One attempt at a shard: streams its record batches into hidden files, then commits them
+    together, or learns that another attempt of the shard committed first."""
 
     def __init__(
         self,
@@ -153,16 +186,25 @@ class ShardWriter:
         self.shard_id = shard_id
         self.n_joints = n_joints
         self.stage = stage
-        self.attempt = uuid.uuid4().hex[:12]
+        self.attempt = uuid.uuid4().hex[:16]
         self.rows: dict[str, int] = {}
+        #: After `commit`: True if this attempt committed the shard, False if another had.
+        self.won: bool | None = None
         self._failpoint = failpoint
         self._writers: dict[str, pq.ParquetWriter] = {}
         self._streams: dict[str, pa.NativeFile] = {}
         self._moved: list[str] = []
 
+    @property
+    def marker(self) -> str:
+        return marker_file(self.shard_id, self.stage)
+
+    def _final(self, table: str) -> str:
+        return shard_file(table, self.n_joints, self.shard_id, self.attempt)
+
     def _temporary(self, table: str) -> str:
-        folder, name = shard_file(table, self.n_joints, self.shard_id).rsplit("/", 1)
-        return f"{folder}/_{name.removesuffix('.parquet')}.{self.attempt}.parquet"
+        folder, name = self._final(table).rsplit("/", 1)
+        return f"{folder}/_{name}"
 
     def _step(self, name: str) -> None:
         if self._failpoint is not None:
@@ -182,19 +224,24 @@ class ShardWriter:
         self.rows[table] = self.rows.get(table, 0) + batch.num_rows
 
     def commit(self, stats: dict) -> dict:
-        """Close the files, move them to their final names, then write the marker (the commit);
-        returns the marker."""
+        """Close and sync the files, move them to their final names, sync their folders, then
+        create the marker (the commit). Returns the shard's marker: this attempt's, or, if
+        another attempt committed the shard first (`won` is False), that one's, after deleting
+        this attempt's files."""
         for table, writer in self._writers.items():
             writer.close()
             self._streams[table].close()
+            self.store.sync_file(self._temporary(table))
         self._step("closed")
         files = {}
         for table in self._writers:
-            final = shard_file(table, self.n_joints, self.shard_id)
+            final = self._final(table)
             self.store.fs.move(self.store.path(self._temporary(table)), self.store.path(final))
             self._moved.append(final)
             files[table] = final
             self._step(f"moved {table}")
+        for folder in sorted({final.rsplit("/", 1)[0] for final in self._moved}):
+            self.store.sync_folder(folder)
         marker = {
             "shard": self.shard_id,
             "n_joints": self.n_joints,
@@ -203,27 +250,53 @@ class ShardWriter:
             "rows": self.rows,
             "stats": stats,
         }
-        self.store.write_json(marker_file(self.shard_id, self.stage), marker)
-        self._step("marked")
-        return marker
+        encoded = (json.dumps(marker, indent=1) + "\n").encode()
+        if self.store.create_exclusive(self.marker, encoded) is not None:
+            self.won = True
+            self._step("marked")
+            return marker
+        committed = self.store.read_json(self.marker)
+        if committed is not None and committed.get("attempt") == self.attempt:
+            # This attempt's own marker: a retried create whose first try had succeeded.
+            self.won = True
+            self._step("marked")
+            return committed
+        self.won = False
+        self._step("lost")
+        self._delete_own()
+        if not _well_formed(committed, self.shard_id, STAGE_TABLES[self.stage]):
+            raise OSError(
+                f"{self.store.uri}: another attempt holds {self.marker}, which cannot be "
+                "read; the next run's cleanup deletes it and the shard is done again"
+            )
+        return committed
 
     def abort(self) -> None:
-        """Leave nothing of this attempt behind, unless the shard's marker is there (then it is
-        committed). Never raises: it runs while another error is on its way up, and what it
-        cannot delete the next run's cleanup will."""
+        """Delete this attempt's files, unless the shard's marker names them (the attempt
+        failed after committing). Never raises: it runs while another error is on its way up,
+        and what it cannot delete the next run's cleanup will."""
         for table, writer in self._writers.items():
             for close in (writer.close, self._streams[table].close):
                 try:
                     close()
                 except Exception:  # the error being handled is the one to report
                     pass
-        try:
-            marker = self.store.read_json(marker_file(self.shard_id, self.stage))
-        except Exception:  # unknown: keep the moved files for the next run
-            return
-        if marker is not None:  # committed, by this attempt or another: its files stay
-            return
         for table in self._writers:
             self.store.delete(self._temporary(table))
+        if not self._moved:
+            return
+        try:
+            marker = self.store.read_json(self.marker)
+        except Exception:  # unknown whether this attempt committed: its files stay
+            return
+        if marker is not None and marker.get("attempt") == self.attempt:
+            return
+        with contextlib.suppress(Exception):
+            self._step("aborting")
+        self._delete_own()
+
+    def _delete_own(self) -> None:
+        """Delete the files this attempt moved to their final names: no marker names them."""
         for final in self._moved:
             self.store.delete(final)
+        self._moved.clear()

@@ -2,7 +2,7 @@
 
 Each table is Hive-partitioned Parquet under the root (docs/CONTRACT.md, Dataset layout)::
 
-    ROOT/<table>/n_joints=12/shard-000042.parquet
+    ROOT/<table>/n_joints=12/shard-000042-<attempt>.parquet
 """
 
 from __future__ import annotations

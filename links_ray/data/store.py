@@ -8,9 +8,16 @@ they build on:
   own (a rename on a local disk; on S3 a copy, which makes the object appear whole);
 - `read_json` treats a file it cannot parse like a missing one, so a damaged marker or cache
   means "redo" or "rebuild", never a crash;
-- conditional writes (create if absent, replace or delete if unchanged) for leases: on S3 the
-  store's own preconditions (If-None-Match, If-Match), on a local disk a lock file held for the
-  few microseconds of a compare and a write.
+- create-only writes (`create_exclusive`), by which exactly one of several writers of a file
+  wins: on S3 the store's own precondition (If-None-Match), on a local disk a hard link of a
+  whole, synced temporary file onto the name (the link fails if the name exists);
+- conditional replaces and deletes for leases: on S3 If-Match, on a local disk a lock file held
+  for the few microseconds of a compare and a write;
+- on a local disk, `sync_file` and `sync_folder`, by which a commit survives a power loss (on S3
+  an acknowledged write is durable, and both do nothing).
+
+A writable S3 root is checked at `open` to refuse a second create-only write: a store that
+ignores or refuses If-None-Match is named in one line, never used without it.
 
 S3 settings and credentials come from the standard AWS variables and chain
 (``AWS_ENDPOINT_URL``, ``AWS_ACCESS_KEY_ID``, ``AWS_REGION``, ``~/.aws``, instance roles, ...).
@@ -22,6 +29,7 @@ pyarrow and boto3: no Ray.
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import os
@@ -109,9 +117,16 @@ class Store:
     def _probe_writes(self) -> None:
         probe = f"{META}/_probe-{uuid.uuid4().hex}"
         self.write_bytes(probe, b"ok")
-        if self.read_bytes(probe) != b"ok":
-            raise StoreError(f"{self.uri}: a probe file read back different bytes")
-        self.fs.delete_file(self.path(probe))
+        try:
+            if self.read_bytes(probe) != b"ok":
+                raise StoreError(f"{self.uri}: a probe file read back different bytes")
+            if self.is_s3 and self.create_exclusive(probe, b"again") is not None:
+                raise StoreError(
+                    f"{self.uri}: the S3 store ignores If-None-Match (it replaced an existing "
+                    "object): commits and leases need create-only writes"
+                )
+        finally:
+            self.delete(probe)
 
     def _probe_reads(self) -> None:
         # Listing the root asks the store (and its credentials) for something real; what is
@@ -121,17 +136,39 @@ class Store:
     def path(self, relative: str) -> str:
         return f"{self.root}/{relative}"
 
+    @property
+    def is_local(self) -> bool:
+        return isinstance(self.fs, pafs.LocalFileSystem)
+
     def _make_parent(self, relative: str) -> None:
         parent = self.path(relative).rsplit("/", 1)[0]
         if parent not in self._made:
             self.fs.create_dir(parent, recursive=True)
+            if self.is_local:  # the new folders' entries, so that a synced file in them lasts
+                folder, top = parent, os.path.dirname(self.root)
+                while len(folder) >= len(top):
+                    _sync_path(folder)
+                    folder = os.path.dirname(folder)
             self._made.add(parent)
+
+    def sync_file(self, relative: str) -> None:
+        """On a local disk, flush the file's bytes to the device (on S3: nothing to do)."""
+        if self.is_local:
+            _sync_path(self.path(relative))
+
+    def sync_folder(self, relative: str) -> None:
+        """On a local disk, flush the folder's entries (names moved or linked into it)."""
+        if self.is_local:
+            _sync_path(self.path(relative) if relative else self.root)
+
+    def _temporary(self, relative: str) -> str:
+        folder, name = relative.rsplit("/", 1) if "/" in relative else ("", relative)
+        return f"{folder}/{TEMPORARY_PREFIX}{uuid.uuid4().hex[:12]}-{name}".lstrip("/")
 
     def write_bytes(self, relative: str, data: bytes) -> None:
         """Write a file whole or not at all: a hidden temporary name first, then the move."""
         self._make_parent(relative)
-        folder, name = relative.rsplit("/", 1) if "/" in relative else ("", relative)
-        temporary = f"{folder}/{TEMPORARY_PREFIX}{uuid.uuid4().hex[:12]}-{name}".lstrip("/")
+        temporary = self._temporary(relative)
         try:
             with self.fs.open_output_stream(self.path(temporary)) as stream:
                 stream.write(data)
@@ -223,7 +260,7 @@ class Store:
                 f"{self.uri} holds another run ({differ}); use a new root or the same options"
             )
 
-    # -- conditional writes, for leases ---------------------------------------------------
+    # -- conditional writes, for commit markers and leases ----------------------------------
     # Each returns the file's new version tag (an S3 ETag, or a digest of a local file's
     # bytes), or None when its precondition did not hold.
 
@@ -245,14 +282,36 @@ class Store:
         return None if data is None else (data, _digest(data))
 
     def create_exclusive(self, relative: str, data: bytes) -> str | None:
-        """Create the file with `data` only if it does not exist."""
+        """Create the file with `data` only if it does not exist; of writers racing to create
+        it exactly one succeeds. The file appears whole, and on a local disk it is synced."""
         if self.is_s3:
             return self._s3_put(relative, data, IfNoneMatch="*")
-        with self._local_guard():
-            if self.read_bytes(relative) is not None:
+        # A link of a whole temporary file: readers never see a part of it, and the link,
+        # unlike a rename, fails when the name exists. The guarded replaces and deletes never
+        # leave the name absent while they change it, so they need not take turns with this.
+        self._make_parent(relative)
+        temporary = self.path(self._temporary(relative))
+        try:
+            with open(temporary, "wb") as stream:
+                stream.write(data)
+                stream.flush()
+                os.fsync(stream.fileno())
+            try:
+                os.link(temporary, self.path(relative))
+            except FileExistsError:
                 return None
-            self.write_bytes(relative, data)
-            return _digest(data)
+            except OSError as exc:
+                if exc.errno in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EXDEV):
+                    raise StoreError(
+                        f"{self.uri}: the filesystem refuses hard links ({exc.strerror}), "
+                        "which create-only writes use"
+                    ) from None
+                raise
+        finally:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(temporary)
+        self.sync_folder(relative.rsplit("/", 1)[0] if "/" in relative else "")
+        return _digest(data)
 
     def replace_if(self, relative: str, version: str, data: bytes) -> str | None:
         """Replace the file with `data` only if it is still at `version`."""
@@ -310,13 +369,31 @@ class Store:
         try:
             return self._s3().put_object(**self._s3_key(relative), Body=data, **condition)["ETag"]
         except Exception as exc:
-            if _s3_code(exc) in _PRECONDITION_CODES:
+            code = _s3_code(exc)
+            if code in _PRECONDITION_CODES:
                 return None
+            if code in _REFUSED_CONDITION_CODES:
+                header = "If-None-Match" if "IfNoneMatch" in condition else "If-Match"
+                raise StoreError(
+                    f"{self.uri}: the S3 store refuses conditional writes ({header}: {code}); "
+                    "commits and leases need them"
+                ) from None
             raise _s3_error(exc) from None
 
 
 #: What S3 answers when a conditional request's precondition fails (409: a concurrent one won).
 _PRECONDITION_CODES = ("PreconditionFailed", "412", "ConditionalRequestConflict", "409")
+#: What a store that does not implement a conditional write answers.
+_REFUSED_CONDITION_CODES = ("NotImplemented", "501")
+
+
+def _sync_path(path: str) -> None:
+    """fsync a local file or folder by its path."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def _digest(data: bytes) -> str:
