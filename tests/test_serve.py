@@ -117,6 +117,9 @@ def test_openapi_bodies_carry_the_engines_limits(client: Client) -> None:
     assert seconds["exclusiveMinimum"] == 0
     assert seconds["maximum"] == inputs.MAX_SYNTHESIS_SECONDS
     assert seconds["default"] == inputs.DEFAULT_SYNTHESIS_SECONDS
+    iterations = requests["/api/synthesize"]["iterations"]["anyOf"][0]
+    assert (iterations["minimum"], iterations["maximum"]) == (1, inputs.MAX_SYNTHESIS_ITERATIONS)
+    assert requests["/api/synthesize"]["seed"]["maximum"] == inputs.MAX_SEED
     for path in ("/api/simulate", "/api/analyze"):
         fields = requests[path]
         steps = fields["steps"]
@@ -154,6 +157,7 @@ def test_limits_are_the_engines_and_enforced(client: Client) -> None:
     )
     assert limits["max_joint_steps"] == inputs.MAX_REQUEST_JOINT_STEPS
     assert limits["max_seconds"] == inputs.MAX_SYNTHESIS_SECONDS
+    assert limits["max_iterations"] == inputs.MAX_SYNTHESIS_ITERATIONS
     curve = [[math.cos(t), math.sin(2 * t)] for t in np.linspace(0, 6, limits["max_points"])]
     assert client.post("/api/retrieve", {"points": curve, "k": limits["max_k"]})[0] == 200
     too_many = [*curve, [0.5, 0.5]]
@@ -164,6 +168,33 @@ def test_limits_are_the_engines_and_enforced(client: Client) -> None:
     steps = limits["max_joint_steps"] // 4
     assert client.post("/api/simulate", {**FOUR_BAR, "steps": steps})[0] == 200
     assert client.post("/api/simulate", {**FOUR_BAR, "steps": steps + 1})[0] == 413
+
+
+def test_a_replica_keeps_to_its_num_cpus(client: Client) -> None:
+    """A replica's threads are its `num_cpus` (whole, at least 1), what Ray gave it, not the
+    machine's cores: as the app's replicas set it up (`use_replica_cpus`)."""
+    from ray import serve
+
+    from links_ray.serve.app import use_replica_cpus
+
+    @serve.deployment(name="CpuProbe")
+    class CpuProbe:
+        def __init__(self) -> None:
+            use_replica_cpus()
+
+        async def __call__(self) -> tuple[float | None, int]:
+            from links_ray.engine.cpus import given_cpus, usable_cpus
+
+            return given_cpus(), usable_cpus()
+
+    assert client.get("/api/health")[0] == 200  # the app holds 1 of the 2 CPUs meanwhile
+    try:
+        for num_cpus, expected in ((0.5, (0.5, 1)), (1, (1.0, 1))):
+            app = CpuProbe.options(ray_actor_options={"num_cpus": num_cpus}).bind()
+            handle = serve.run(app, name="cpu-probe", route_prefix=None)
+            assert handle.remote().result(timeout_s=60) == expected
+    finally:
+        serve.delete("cpu-probe")
 
 
 @pytest.mark.parametrize("steps", [None, 50, 1])
