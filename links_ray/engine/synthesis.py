@@ -18,7 +18,11 @@ the drawing itself (`engine.refine`) within a time budget:
    again for at most `HOP_ITERATIONS`, keeping the shaken result only if it is better (a
    basin hop: the point-sampled chamfer has many local minima).
 
-Refinements run on every core, in threads (the refinement kernels release the GIL).
+Refinements run in threads (the refinement kernels release the GIL), as many as the CPUs the
+process was given (`engine.cpus.usable_cpus`). Every piece of work checks the deadline, so an
+answer comes at most one damping trial past it. With `iterations` instead of a time budget
+the passes count refinement iterations and run in lockstep rounds: a fixed amount of work,
+whose answer is bit-equal for equal inputs whatever the time, the load and the threads.
 
 What is measured. A result's `chamfer` is the bidirectional chamfer distance between the drawn
 points and the path the result's `mechanism_joint` traces over a full crank turn at
