@@ -5,7 +5,7 @@
 | `GET /api/health` | `{"status": "ok", "paths": <indexed paths>}`; sharded also `"shards"` |
 | `POST /api/simulate` | 200 `{"trajectories"}`, 422 `{"error": "locking", "step", "node"}` |
 | `POST /api/retrieve` | 200 `{"results", "took_ms"}`, best first; 503 when busy |
-| `POST /api/synthesize` | 200 `{"results", "took_ms"}`, retrieved and refined; 503 when busy |
+| `POST /api/synthesize` | 200 `{"results", "took_ms", "queued_ms"}`, refined; 503 when busy |
 | `POST /api/analyze` | 200 the studio's analysis: mobility, dyadic solvability, where it locks |
 | `POST /api/export` | 200 the mechanism as an SVG, DXF or table file in mm (an attachment) |
 | `GET /api/limits` | the limits a request meets (`engine.inputs.request_limits`) |
@@ -30,9 +30,13 @@ holds at most `MAX_RETRIEVALS` retrievals, running or waiting; one more is answe
 `Retry-After` at once, and Serve's own `max_ongoing_requests` and `max_queued_requests` bound
 everything else.
 
-Syntheses (`engine.synthesis`) retrieve their candidates as retrievals do, then refine them
-in a thread of their own at `RETRIEVAL_NICENESS`, for at most their `seconds`; a replica holds
-at most `MAX_SYNTHESES`, running or waiting, and answers one more 503 at once.
+Syntheses (`engine.synthesis`) retrieve their candidates as retrievals do (counted against
+the same limit), then refine them in a thread of their own at `RETRIEVAL_NICENESS`, one at a
+time, for at most their `seconds` counted from when their refinement starts (`queued_ms` says
+how long they waited), or for their fixed `iterations`; a replica holds at most
+`MAX_SYNTHESES`, running or waiting, answers one more 503 at once, and one that would wait
+longer than its own budget 503 too. Each replica's threads are its `num_cpus`
+(`use_replica_cpus`).
 
 Sharded (`build_app(root, shards=N)`, `links serve --shards N`): N `IndexShard` deployments
 each open part P of the index (`RetrievalIndex.open(root, part=P, parts=N)`: the curated
