@@ -170,31 +170,31 @@ def test_limits_are_the_engines_and_enforced(client: Client) -> None:
     assert client.post("/api/simulate", {**FOUR_BAR, "steps": steps + 1})[0] == 413
 
 
-def test_a_replica_keeps_to_its_num_cpus(client: Client) -> None:
-    """A replica's threads are its `num_cpus` (whole, at least 1), what Ray gave it, not the
-    machine's cores: as the app's replicas set it up (`use_replica_cpus`)."""
-    from ray import serve
+def test_a_replica_keeps_to_its_num_cpus(ray_cluster: str) -> None:
+    """A replica's threads are the CPUs Ray gave it (whole, at least 1), not the machine's
+    cores: read as the app's replicas read them (`use_replica_cpus`, in their constructors),
+    in Ray actors given what a replica's `ray_actor_options` give (a Serve replica is one;
+    under direct ingress a second app would find no port for its own)."""
+    import ray
 
     from links_ray.serve.app import use_replica_cpus
 
-    @serve.deployment(name="CpuProbe")
-    class CpuProbe:
+    @ray.remote
+    class Replica:
         def __init__(self) -> None:
             use_replica_cpus()
 
-        async def __call__(self) -> tuple[float | None, int]:
+        def cpus(self) -> tuple[float | None, int]:
             from links_ray.engine.cpus import given_cpus, usable_cpus
 
             return given_cpus(), usable_cpus()
 
-    assert client.get("/api/health")[0] == 200  # the app holds 1 of the 2 CPUs meanwhile
-    try:
-        for num_cpus, expected in ((0.5, (0.5, 1)), (1, (1.0, 1))):
-            app = CpuProbe.options(ray_actor_options={"num_cpus": num_cpus}).bind()
-            handle = serve.run(app, name="cpu-probe", route_prefix=None)
-            assert handle.remote().result(timeout_s=60) == expected
-    finally:
-        serve.delete("cpu-probe")
+    for num_cpus, expected in ((0.5, (0.5, 1)), (1, (1.0, 1)), (0, (0.0, 1))):
+        replica = Replica.options(num_cpus=num_cpus).remote()
+        try:
+            assert ray.get(replica.cpus.remote(), timeout=120) == expected
+        finally:
+            ray.kill(replica)
 
 
 @pytest.mark.parametrize("steps", [None, 50, 1])
