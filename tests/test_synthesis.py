@@ -135,14 +135,26 @@ def test_a_partial_stroke_gets_its_crank_interval(reference: RetrievalIndex, cur
 
 
 def test_no_time_left_returns_the_first_retrieved_unrefined(
-    reference: RetrievalIndex, queries: list
+    reference: RetrievalIndex, queries: list, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """With the budget spent before refinement starts, nothing more is prepared or refined:
-    the answer is retrieval's first k (those that can be refined), measured as retrieved."""
+    """With the budget spent before refinement starts, nothing more is prepared (each of
+    the 96 candidates is simulated at 2,000 steps to be) or refined: the answer is
+    retrieval's first k (those that can be refined), measured as retrieved."""
+    from links_ray.engine import synthesis
+
+    prepare = synthesis._candidate
+    prepared: list[int] = []
+
+    def counted(result: dict, target: Any) -> Any:
+        prepared.append(result["path_id"])
+        return prepare(result, target)
+
+    monkeypatch.setattr(synthesis, "_candidate", counted)
     query = queries[1]
     retrieved = reference.retrieve(query, CANDIDATES)
     first = [r["path_id"] for r in retrieved[:3]]
     results = refine_retrieved(query, retrieved, 3, 0.001, started=time.perf_counter() - 1.0)
+    assert sorted(prepared) == sorted(first)
     assert len(results) >= 2
     for result in results:
         assert result["path_id"] in first
