@@ -413,6 +413,22 @@ def _refine_one(
             f"{REFINE_CHECK_STEPS} joint {check.lock[1]} cannot be assembled",
         )
         raise error
+
+    def late() -> bool:
+        return deadline is not None and time.perf_counter() > deadline
+
+    if late():  # the origin's check would be one more 2,000-step turn past the deadline
+        least = _least_deg(check.min_transmission[~check.rigid])
+        return Refinement(
+            start.copy(),
+            value / target.chord,
+            value / target.chord,
+            interval,
+            0,
+            0,
+            least,
+            damping=damping,
+        )
     margin = math.sin(math.radians(margin_deg))
     clearance = math.sin(math.radians(margin_deg + CLEARANCE_DEG)) - margin
     # Dyads keep the margin once they have it. One below it at the start may not fall under
@@ -444,9 +460,6 @@ def _refine_one(
     pos = start.copy()
     damping = min(max(damping, DAMPING_MIN), DAMPING_START)
     done = evaluations = stalled = 0
-
-    def late() -> bool:
-        return deadline is not None and time.perf_counter() > deadline
 
     while done < iterations and value > CONVERGED * target.chord and stalled < STALL:
         if late():

@@ -164,6 +164,8 @@ def _refined(
     deadline: float | None,
     margin_deg: float,
 ) -> Refinement | None:
+    if deadline is not None and time.perf_counter() > deadline:
+        return None  # not even its checks of the start: they are 2,000-step turns
     try:
         return _refine_one(
             candidate.topology,
