@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import time
 
 import numpy as np
 import pytest
@@ -331,6 +332,22 @@ def test_no_iterations_changes_nothing() -> None:
     np.testing.assert_array_equal(result.positions, positions)
     assert result.chamfer_after == result.chamfer_before
     assert result.iterations == 0
+
+
+def test_a_deadline_already_passed_does_no_work() -> None:
+    """Every iteration and every damping trial checks the deadline first: one already
+    passed costs not a single trial, and the start is handed back as it was."""
+    adjacency, node_types, positions = fourbar(GOOD_FOURBAR)
+    topology = analyze_topology(adjacency, node_types)
+    target = _as_target(fourbar_truth(positions, 200)[4] + 0.01, False)
+    late = _refine_one(
+        topology, positions, 4, target, 200, 50, 3.0, deadline=time.perf_counter() - 1.0
+    )
+    assert late.evaluations == 0
+    np.testing.assert_array_equal(late.positions, positions)
+    assert late.chamfer_after == late.chamfer_before
+    free = _refine_one(topology, positions, 4, target, 200, 50, 3.0)
+    assert free.evaluations > 0 and free.chamfer_after < free.chamfer_before
 
 
 # -- partial strokes ----------------------------------------------------------------------------

@@ -117,6 +117,9 @@ def test_openapi_bodies_carry_the_engines_limits(client: Client) -> None:
     assert seconds["exclusiveMinimum"] == 0
     assert seconds["maximum"] == inputs.MAX_SYNTHESIS_SECONDS
     assert seconds["default"] == inputs.DEFAULT_SYNTHESIS_SECONDS
+    iterations = requests["/api/synthesize"]["iterations"]["anyOf"][0]
+    assert (iterations["minimum"], iterations["maximum"]) == (1, inputs.MAX_SYNTHESIS_ITERATIONS)
+    assert requests["/api/synthesize"]["seed"]["maximum"] == inputs.MAX_SEED
     for path in ("/api/simulate", "/api/analyze"):
         fields = requests[path]
         steps = fields["steps"]
@@ -154,6 +157,7 @@ def test_limits_are_the_engines_and_enforced(client: Client) -> None:
     )
     assert limits["max_joint_steps"] == inputs.MAX_REQUEST_JOINT_STEPS
     assert limits["max_seconds"] == inputs.MAX_SYNTHESIS_SECONDS
+    assert limits["max_iterations"] == inputs.MAX_SYNTHESIS_ITERATIONS
     curve = [[math.cos(t), math.sin(2 * t)] for t in np.linspace(0, 6, limits["max_points"])]
     assert client.post("/api/retrieve", {"points": curve, "k": limits["max_k"]})[0] == 200
     too_many = [*curve, [0.5, 0.5]]
@@ -164,6 +168,33 @@ def test_limits_are_the_engines_and_enforced(client: Client) -> None:
     steps = limits["max_joint_steps"] // 4
     assert client.post("/api/simulate", {**FOUR_BAR, "steps": steps})[0] == 200
     assert client.post("/api/simulate", {**FOUR_BAR, "steps": steps + 1})[0] == 413
+
+
+def test_a_replica_keeps_to_its_num_cpus(ray_cluster: str) -> None:
+    """A replica's threads are the CPUs Ray gave it (whole, at least 1), not the machine's
+    cores: read as the app's replicas read them (`use_replica_cpus`, in their constructors),
+    in Ray actors given what a replica's `ray_actor_options` give (a Serve replica is one;
+    under direct ingress a second app would find no port for its own)."""
+    import ray
+
+    from links_ray.serve.app import use_replica_cpus
+
+    @ray.remote
+    class Replica:
+        def __init__(self) -> None:
+            use_replica_cpus()
+
+        def cpus(self) -> tuple[float | None, int]:
+            from links_ray.engine.cpus import given_cpus, usable_cpus
+
+            return given_cpus(), usable_cpus()
+
+    for num_cpus, expected in ((0.5, (0.5, 1)), (1, (1.0, 1)), (0, (0.0, 1))):
+        replica = Replica.options(num_cpus=num_cpus).remote()
+        try:
+            assert ray.get(replica.cpus.remote(), timeout=120) == expected
+        finally:
+            ray.kill(replica)
 
 
 @pytest.mark.parametrize("steps", [None, 50, 1])

@@ -22,10 +22,12 @@ from links_ray.engine.inputs import (
     DEFAULT_K,
     DEFAULT_SYNTHESIS_SECONDS,
     MAX_K,
+    MAX_SYNTHESIS_ITERATIONS,
     MAX_SYNTHESIS_SECONDS,
     MAX_TRANSMISSION_DEG,
     as_transmission_deg,
     validate_synthesis,
+    validate_synthesis_work,
 )
 from links_ray.engine.topology import TOPOLOGY_RULES
 
@@ -153,6 +155,7 @@ def _synthesize(args: argparse.Namespace) -> None:
 
     points = read_points(args.points)
     # Before the index loads:
+    validate_synthesis_work(args.seconds, args.seed, args.iterations)
     validate_synthesis(points, args.k, args.seconds, args.partial)
     as_transmission_deg(args.min_transmission, "min_transmission")
     note_compiling("synthesize")
@@ -165,6 +168,8 @@ def _synthesize(args: argparse.Namespace) -> None:
         seconds=args.seconds,
         partial=args.partial,
         min_transmission=args.min_transmission,
+        seed=args.seed,
+        iterations=args.iterations,
     )
     took_ms = (time.perf_counter() - start) * 1e3
     _report(args, {"results": results, "took_ms": took_ms}, report.format_synthesize)
@@ -175,7 +180,11 @@ def _bench_synthesize(args: argparse.Namespace) -> None:
 
     with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
         result = bench_synthesis.bench_synthesize(
-            seconds=args.seconds, paths=args.paths, seed=args.seed, figure=args.figure
+            seconds=args.seconds,
+            paths=args.paths,
+            seed=args.seed,
+            figure=args.figure,
+            iterations=args.iterations,
         )
     _report(args, result, bench_synthesis.format_synthesize)
 
@@ -468,9 +477,22 @@ def build_parser() -> argparse.ArgumentParser:
     synthesize.add_argument(
         "--seconds",
         type=_positive_float,
-        default=DEFAULT_SYNTHESIS_SECONDS,
+        default=None,
         help=f"time budget, retrieval included (at most {MAX_SYNTHESIS_SECONDS:g}, "
         f"default {DEFAULT_SYNTHESIS_SECONDS:g})",
+    )
+    synthesize.add_argument(
+        "--iterations",
+        type=_positive_int,
+        default=None,
+        help=f"fixed work instead of a time budget: about this many refinement iterations "
+        f"(at most {MAX_SYNTHESIS_ITERATIONS:,}); equal inputs give equal answers",
+    )
+    synthesize.add_argument(
+        "--seed",
+        type=_non_negative_int,
+        default=0,
+        help="seed of the random restarts (default 0)",
     )
     synthesize.add_argument(
         "--partial",
@@ -543,6 +565,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=_non_negative_int,
         default=0,
         help="seed of the curves' random frames (default 0, the README's table)",
+    )
+    synthesize_bench.add_argument(
+        "--iterations",
+        type=_positive_int,
+        default=None,
+        help="fixed work per curve instead of --seconds (the seed seeds the restarts too)",
     )
     synthesize_bench.add_argument(
         "--figure",

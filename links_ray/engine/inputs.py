@@ -58,6 +58,12 @@ MAX_TRANSMISSION_DEG = 45.0
 #: Seconds a synthesis takes by default (retrieval included), and the most it may be given:
 #: a synthesis holds a core for its whole budget, so a request may not hold one for long.
 DEFAULT_SYNTHESIS_SECONDS, MAX_SYNTHESIS_SECONDS = 3.0, 30.0
+#: Most refinement iterations a synthesis of fixed work may be given (`iterations`, summed over
+#: its candidates): about what MAX_SYNTHESIS_SECONDS allow on two cores (1,000 took about 4 s
+#: on the Serve tests' data), so that fixed work holds a replica about as long as a timed one.
+MAX_SYNTHESIS_ITERATIONS = 10_000
+#: Seeds are what numpy's generators take whole: non-negative, here within 64 bits.
+MAX_SEED = 2**64 - 1
 
 # -- fabrication drawings (engine.fabrication) -------------------------------------------------
 
@@ -95,6 +101,7 @@ def request_limits() -> dict[str, float | int]:
         "default_steps": DEFAULT_STEPS,
         "max_joint_steps": MAX_REQUEST_JOINT_STEPS,
         "max_seconds": MAX_SYNTHESIS_SECONDS,
+        "max_iterations": MAX_SYNTHESIS_ITERATIONS,
         "default_seconds": DEFAULT_SYNTHESIS_SECONDS,
         "max_transmission_deg": MAX_TRANSMISSION_DEG,
         "max_coordinate": MAX_COORDINATE,
@@ -356,6 +363,24 @@ def as_flag(value: object, name: str) -> bool:
     if not isinstance(value, bool | np.bool_):
         raise ValueError(f"{name} must be true or false, got {shown(value)}")
     return bool(value)
+
+
+def validate_synthesis_work(
+    seconds: object = None, seed: object = None, iterations: object = None
+) -> tuple[float | None, int, int | None]:
+    """How much work a synthesis does, as (seconds, seed, iterations): a time budget (seconds,
+    None for the default) or a fixed amount of work (iterations, 1 to MAX_SYNTHESIS_ITERATIONS,
+    with seconds None), and the seed of its random restarts (0 to MAX_SEED; None gives 0).
+    Raises ValueError naming the problem."""
+    seed = 0 if seed is None else as_int("seed", seed, 0, MAX_SEED)
+    if iterations is None:
+        return (None if seconds is None else as_seconds(seconds)), seed, None
+    iterations = as_int("iterations", iterations, 1, MAX_SYNTHESIS_ITERATIONS)
+    if seconds is not None:
+        raise ValueError(
+            "give seconds or iterations, not both: iterations fix the work whatever the time"
+        )
+    return None, seed, iterations
 
 
 def validate_synthesis(

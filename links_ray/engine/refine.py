@@ -392,7 +392,9 @@ def _refine_one(
 ) -> Refinement:
     """Refine a validated mechanism; raises LockingError if it locks as given.
 
-    Stops after the iteration during which `time.perf_counter()` passes `deadline`. With
+    Stops once `time.perf_counter()` passes `deadline`: checked before each iteration, each
+    damping trial and each trial's check at REFINE_CHECK_STEPS, so a refinement ends within
+    one such piece of work of it (the last kept step stands; a trial cut short is not). With
     `origin` (positions `start` was refined from), the transmission floors and the assembly
     branches are the origin's, so refining in several calls keeps what one call would; a
     `start` on other branches than `origin`, or below its floors, raises ValueError.
@@ -411,6 +413,22 @@ def _refine_one(
             f"{REFINE_CHECK_STEPS} joint {check.lock[1]} cannot be assembled",
         )
         raise error
+
+    def late() -> bool:
+        return deadline is not None and time.perf_counter() > deadline
+
+    if late():  # the origin's check would be one more 2,000-step turn past the deadline
+        least = _least_deg(check.min_transmission[~check.rigid])
+        return Refinement(
+            start.copy(),
+            value / target.chord,
+            value / target.chord,
+            interval,
+            0,
+            0,
+            least,
+            damping=damping,
+        )
     margin = math.sin(math.radians(margin_deg))
     clearance = math.sin(math.radians(margin_deg + CLEARANCE_DEG)) - margin
     # Dyads keep the margin once they have it. One below it at the start may not fall under
@@ -442,8 +460,9 @@ def _refine_one(
     pos = start.copy()
     damping = min(max(damping, DAMPING_MIN), DAMPING_START)
     done = evaluations = stalled = 0
+
     while done < iterations and value > CONVERGED * target.chord and stalled < STALL:
-        if deadline is not None and done and time.perf_counter() > deadline:
+        if late():
             break
         done += 1
         _, traj, dtraj, trans, dtrans, _ = _solve(topology, pos, steps, True)
@@ -454,6 +473,10 @@ def _refine_one(
         diagonal += 1e-9 * max(float(diagonal.max()), 1e-300)
         accepted = False
         while damping <= DAMPING_MAX:
+            # A trial is a 200-step simulation and, if it gains, a 2,000-step check: on a large
+            # mechanism a dozen rejected trials take longer than a synthesis may overrun.
+            if late():
+                break
             evaluations += 1
             trial = _step(
                 pos,
@@ -469,7 +492,7 @@ def _refine_one(
                     # Cheap tests first: most rejected trials fail on the chamfer.
                     trial_check = (
                         _valid_trial(topology, trial, sides, floors, rigid)
-                        if trial_value < value
+                        if trial_value < value and not late()
                         else None
                     )
                     if trial_check is not None:

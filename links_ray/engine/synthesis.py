@@ -18,7 +18,11 @@ the drawing itself (`engine.refine`) within a time budget:
    again for at most `HOP_ITERATIONS`, keeping the shaken result only if it is better (a
    basin hop: the point-sampled chamfer has many local minima).
 
-Refinements run on every core, in threads (the refinement kernels release the GIL).
+Refinements run in threads (the refinement kernels release the GIL), as many as the CPUs the
+process was given (`engine.cpus.usable_cpus`). Every piece of work checks the deadline, so an
+answer comes at most one damping trial past it. With `iterations` instead of a time budget
+the passes count refinement iterations and run in lockstep rounds: a fixed amount of work,
+whose answer is bit-equal for equal inputs whatever the time, the load and the threads.
 
 What is measured. A result's `chamfer` is the bidirectional chamfer distance between the drawn
 points and the path the result's `mechanism_joint` traces over a full crank turn at
@@ -37,7 +41,7 @@ Pure numpy/numba and threads: no Ray, no files.
 from __future__ import annotations
 
 import math
-import os
+import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
@@ -46,6 +50,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from links_ray.engine.cpus import usable_cpus
 from links_ray.engine.inputs import (
     DEFAULT_K,
     DEFAULT_MARGIN_DEG,
@@ -53,6 +58,7 @@ from links_ray.engine.inputs import (
     as_transmission_deg,
     check_refine_size,
     validate_synthesis,
+    validate_synthesis_work,
 )
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.refine import (
@@ -155,9 +161,11 @@ def _refined(
     target: _Target,
     start: np.ndarray,
     iterations: int,
-    deadline: float,
+    deadline: float | None,
     margin_deg: float,
 ) -> Refinement | None:
+    if deadline is not None and time.perf_counter() > deadline:
+        return None  # not even its checks of the start: they are 2,000-step turns
     try:
         return _refine_one(
             candidate.topology,
@@ -212,24 +220,60 @@ def refine_retrieved(
     seed: int = 0,
     margin_deg: float = DEFAULT_MARGIN_DEG,
     progress: Callable[[dict[str, Any]], None] | None = None,
+    iterations: int | None = None,
 ) -> list[dict]:
     """The k best synthesis results (best first) refined from retrieval results of `points`
-    (`RetrievalIndex.retrieve`'s, in the drawing's frame), within `seconds` counted from
-    `started` (a `time.perf_counter()` value; now if None), keeping a transmission margin of
+    (`RetrievalIndex.retrieve`'s, in the drawing's frame), keeping a transmission margin of
     at least DEFAULT_MARGIN_DEG and `margin_deg`. The module docstring says how.
+
+    The work is bounded by time, or fixed. Timed: within `seconds` counted from `started` (a
+    `time.perf_counter()` value; now if None); every piece of work checks the deadline, so the
+    answer comes at most one damping trial past it (the first k retrieved are prepared
+    whatever the time, so that there is an answer). Fixed (`iterations` given, `seconds`
+    None): the passes stop after about `iterations` refinement iterations over all
+    candidates, checked between rounds that run in lockstep, so the answer is the same bit
+    for bit whatever the time, the machine's load and the threads. `seed` seeds the restarts.
 
     `progress`, if given, is called with the best so far whenever it has improved, at most
     every PROGRESS_INTERVAL_S (first with the best retrieved start): a result as the answer
     has them, with `trajectories` (every joint's path at DEFAULT_STEPS steps, to animate) and
     `elapsed_ms` besides. It runs in this thread, between rounds of refinement."""
     started = time.perf_counter() if started is None else started
+    seconds, seed, iterations = validate_synthesis_work(seconds, seed, iterations)
     _, k, seconds, partial = validate_synthesis(points, k, seconds, partial)
     target = _as_target(points, partial)
-    deadline = started + seconds
     margin = max(DEFAULT_MARGIN_DEG, as_transmission_deg(margin_deg))
-    workers = max(1, min(os.cpu_count() or 1, len(retrieved)))
+    fixed = iterations is not None
+    # Fixed work has no deadline; its passes count iterations instead.
+    deadline = math.inf if fixed else started + seconds
+    spent = [0]  # refinement iterations so far (each attempt counts one at least)
+    counting = threading.Lock()  # workers add to `spent` at once
+
+    def until(end: float) -> float | None:
+        return None if fixed else end
+
+    def charge(refinement: Refinement | None) -> Refinement | None:
+        with counting:
+            spent[0] += max(1, refinement.iterations if refinement is not None else 0)
+        return refinement
+
+    def out_of(share: float, end: float) -> bool:
+        """Whether this pass's work is done: its share of the iterations, or its time."""
+        if fixed:
+            return spent[0] >= share * iterations
+        return time.perf_counter() >= end
+
+    workers = max(1, min(usable_cpus(), len(retrieved)))
     with ThreadPoolExecutor(workers, thread_name_prefix="links-synthesize") as pool:
-        found = pool.map(lambda result: _candidate(result, target), retrieved)
+
+        def prepared(item: tuple[int, dict]) -> _Candidate | None:
+            # Retrieval's first k, whatever the time: an answer needs them.
+            rank, result = item
+            if rank >= k and time.perf_counter() > deadline:
+                return None
+            return _candidate(result, target)
+
+        found = pool.map(prepared, enumerate(retrieved))
         candidates = [c for c in found if c is not None]
         reported = [math.inf, -math.inf]  # the chamfer last reported, and when
 
@@ -248,17 +292,17 @@ def refine_retrieved(
         report()
 
         def short(c: _Candidate) -> None:
-            refinement = _refined(c, target, c.positions, FIRST_ROUND, first_end, margin)
-            if not _keep(c, refinement, FIRST_ROUND):  # no step helped: it will not move
+            refined = _refined(c, target, c.positions, FIRST_ROUND, until(first_end), margin)
+            if not _keep(c, charge(refined), FIRST_ROUND):  # no step helped: it will not move
                 c.converged = True
 
         now = time.perf_counter()
-        first_end = now + FIRST_SHARE * max(0.0, deadline - now)
+        first_end = now + FIRST_SHARE * max(0.0, deadline - now) if not fixed else math.inf
         # In rounds, so that when time runs short every candidate has had as many iterations
         # (large mechanisms take ten times as long per iteration as small ones).
         for _ in range(0, FIRST_ITERATIONS, FIRST_ROUND):
             moving = [c for c in candidates if not c.converged]
-            if not moving or time.perf_counter() >= first_end:
+            if not moving or out_of(FIRST_SHARE, first_end):
                 break
             list(pool.map(short, moving))
             report()
@@ -270,22 +314,37 @@ def refine_retrieved(
         finalists: list[_Candidate] = []
 
         def long(c: _Candidate) -> None:
-            refinement = _refined(c, target, c.positions, LONG_ROUND, deadline, margin)
-            if not _keep(c, refinement, LONG_ROUND):
+            refined = _refined(c, target, c.positions, LONG_ROUND, until(deadline), margin)
+            if not _keep(c, charge(refined), LONG_ROUND):
                 c.converged = True
 
-        # In rounds too, the finalist with the fewest rounds next (one refined to the end would
-        # leave the others none), and each worker takes the next round as it finishes one:
-        # waiting for a round over all of them idled a core for a tenth of the budget, as a
-        # 16-joint finalist's round takes ten times a 6-joint one's.
-        running: dict[Future[None], _Candidate] = {}
-        while time.perf_counter() < deadline:
+        def moving_finalists() -> list[_Candidate]:
             moving = [c for c in finalists if not c.converged]
             while len(moving) < max(FINALISTS, k) and waiting:
                 c = waiting.pop(0)
                 c.converged = False  # a short round cut by its end is no sign of it
                 finalists.append(c)
                 moving.append(c)
+            return moving
+
+        if fixed:
+            # Rounds in lockstep: every moving finalist refines once per round, whatever the
+            # threads, so the same candidates get the same work.
+            while not out_of(1.0, deadline):
+                moving = moving_finalists()
+                if not moving:
+                    break
+                list(pool.map(long, moving))
+                for c in moving:
+                    c.rounds += 1
+                report()
+        # In rounds too, the finalist with the fewest rounds next (one refined to the end would
+        # leave the others none), and each worker takes the next round as it finishes one:
+        # waiting for a round over all of them idled a core for a tenth of the budget, as a
+        # 16-joint finalist's round takes ten times a 6-joint one's.
+        running: dict[Future[None], _Candidate] = {}
+        while not fixed and time.perf_counter() < deadline:
+            moving = moving_finalists()
             idle = [c for c in moving if c not in running.values()]
             idle.sort(key=lambda c: c.rounds)
             for c in idle[: workers - len(running)]:
@@ -297,12 +356,13 @@ def refine_retrieved(
                 future.result()
                 running.pop(future).rounds += 1
             report()
-        wait(running)  # rounds past the deadline stop after their iteration under way
+        wait(running)  # rounds past the deadline stop within their damping trial under way
         rng = np.random.default_rng(seed)
-        while time.perf_counter() < deadline and finalists:
-            # Each round shakes the current best ones, one per worker.
+        while not out_of(1.0, deadline) and finalists:
+            # Each round shakes the current best ones: one per worker, or with fixed work as
+            # many as the long pass refines (so the threads change nothing).
             finalists.sort(key=lambda c: c.chamfer)
-            chosen = finalists[: max(workers, k)]
+            chosen = finalists[: max(FINALISTS if fixed else workers, k)]
             shakes = np.exp(rng.uniform(*np.log(SHAKE), len(chosen))) * target.chord
             starts = [
                 c.positions + rng.uniform(-1.0, 1.0, c.positions.shape) * shake
@@ -310,7 +370,8 @@ def refine_retrieved(
             ]
 
             def hop(c: _Candidate, start: np.ndarray) -> None:
-                _keep(c, _refined(c, target, start, HOP_ITERATIONS, deadline, margin), 0)
+                refined = _refined(c, target, start, HOP_ITERATIONS, until(deadline), margin)
+                _keep(c, charge(refined), 0)
 
             list(pool.map(hop, chosen, starts))
             report()
@@ -368,16 +429,23 @@ def synthesize(
     partial: bool = False,
     min_transmission: float = 0.0,
     progress: Callable[[dict[str, Any]], None] | None = None,
+    *,
+    seed: int | None = None,
+    iterations: int | None = None,
 ) -> list[dict]:
     """The k best mechanisms found for a drawn curve, best first, each refined so that its
     `mechanism_joint` traces `points` in the drawing's own frame, within `seconds` (default
-    DEFAULT_SYNTHESIS_SECONDS, at most MAX_SYNTHESIS_SECONDS). `partial`: the points are an
-    open stroke, matched to part of a turn. `min_transmission` (degrees): only paths keeping
-    it are retrieved, and refinement keeps it as its margin (at least DEFAULT_MARGIN_DEG).
-    `progress`: called with the best so far as it improves (`refine_retrieved` says how).
+    DEFAULT_SYNTHESIS_SECONDS, at most MAX_SYNTHESIS_SECONDS), retrieval included.
+    `partial`: the points are an open stroke, matched to part of a turn. `min_transmission`
+    (degrees): only paths keeping it are retrieved, and refinement keeps it as its margin (at
+    least DEFAULT_MARGIN_DEG). `progress`: called with the best so far as it improves
+    (`refine_retrieved` says how). `iterations` (instead of `seconds`): a fixed amount of
+    work, about that many refinement iterations, whose answer is the same bit for bit for
+    equal inputs whatever the time and the cores; `seed` (default 0) seeds the restarts.
     Raises ValueError naming bad input."""
     started = time.perf_counter()
-    drawn, k, seconds, partial = validate_synthesis(points, k, seconds, partial)
+    seconds, seed, iterations = validate_synthesis_work(seconds, seed, iterations)
+    drawn, k, _, partial = validate_synthesis(points, k, seconds, partial)
     floor = as_transmission_deg(min_transmission, "min_transmission")
     retrieved = index.retrieve(drawn, max(CANDIDATES, k), floor)
     return refine_retrieved(
@@ -387,6 +455,8 @@ def synthesize(
         seconds,
         partial,
         started=started,
+        seed=seed,
         margin_deg=floor,
         progress=progress,
+        iterations=iterations,
     )

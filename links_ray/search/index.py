@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import io
 import json
-import os
 import time
 import uuid
 from collections.abc import Iterator
@@ -54,6 +53,7 @@ from links_ray.data.commit import committed_files, committed_shards
 from links_ray.data.dataset import isin, open_table
 from links_ray.data.lease import Lease, LeaseHeld, index_lease_name
 from links_ray.data.store import META, Store, StoreError
+from links_ray.engine.cpus import usable_cpus
 from links_ray.engine.inputs import DEFAULT_K, as_transmission_deg, validate_query
 from links_ray.engine.mechanism import reduce_mechanism
 from links_ray.engine.paths import chamfer_to_many, normalization
@@ -896,7 +896,7 @@ def _exact_pairs(
     variants: np.ndarray, points: np.ndarray, rows: np.ndarray, which: np.ndarray
 ) -> np.ndarray:
     """Exact chamfer distances between query variant which[i] and path points[rows[i]]; many
-    pairs are measured on every core (the kernel releases the GIL)."""
+    pairs are measured on every CPU the process was given (the kernel releases the GIL)."""
     distances = np.empty(len(rows))
 
     def measure(variant: int, block: np.ndarray) -> None:
@@ -908,7 +908,7 @@ def _exact_pairs(
         parts = max(1, len(chosen) // 2048)
         blocks += [(variant, block) for block in np.array_split(chosen, parts) if len(block)]
     if len(rows) > 4096:  # worth the threads (a query's few finalists are not)
-        with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
+        with ThreadPoolExecutor(usable_cpus()) as pool:
             list(pool.map(lambda job: measure(*job), blocks))
     else:
         for job in blocks:

@@ -5,7 +5,7 @@
 | `GET /api/health` | `{"status": "ok", "paths": <indexed paths>}`; sharded also `"shards"` |
 | `POST /api/simulate` | 200 `{"trajectories"}`, 422 `{"error": "locking", "step", "node"}` |
 | `POST /api/retrieve` | 200 `{"results", "took_ms"}`, best first; 503 when busy |
-| `POST /api/synthesize` | 200 `{"results", "took_ms"}`, retrieved and refined; 503 when busy |
+| `POST /api/synthesize` | 200 `{"results", "took_ms", "queued_ms"}`, refined; 503 when busy |
 | `POST /api/analyze` | 200 the studio's analysis: mobility, dyadic solvability, where it locks |
 | `POST /api/export` | 200 the mechanism as an SVG, DXF or table file in mm (an attachment) |
 | `GET /api/limits` | the limits a request meets (`engine.inputs.request_limits`) |
@@ -30,9 +30,13 @@ holds at most `MAX_RETRIEVALS` retrievals, running or waiting; one more is answe
 `Retry-After` at once, and Serve's own `max_ongoing_requests` and `max_queued_requests` bound
 everything else.
 
-Syntheses (`engine.synthesis`) retrieve their candidates as retrievals do, then refine them
-in a thread of their own at `RETRIEVAL_NICENESS`, for at most their `seconds`; a replica holds
-at most `MAX_SYNTHESES`, running or waiting, and answers one more 503 at once.
+Syntheses (`engine.synthesis`) retrieve their candidates as retrievals do (counted against
+the same limit), then refine them in a thread of their own at `RETRIEVAL_NICENESS`, one at a
+time, for at most their `seconds` counted from when their refinement starts (`queued_ms` says
+how long they waited), or for their fixed `iterations`; a replica holds at most
+`MAX_SYNTHESES`, running or waiting, answers one more 503 at once, and one that would wait
+longer than its own budget 503 too. Each replica's threads are its `num_cpus`
+(`use_replica_cpus`).
 
 Sharded (`build_app(root, shards=N)`, `links serve --shards N`): N `IndexShard` deployments
 each open part P of the index (`RetrievalIndex.open(root, part=P, parts=N)`: the curated
@@ -65,6 +69,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
+import ray
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.utils import get_openapi
@@ -94,6 +99,7 @@ from links_ray import __version__
 from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
 from links_ray.data.store import Store
+from links_ray.engine.cpus import set_given_cpus
 from links_ray.engine.fabrication import fabrication
 from links_ray.engine.inputs import (
     DEFAULT_CRANK_MM,
@@ -102,6 +108,7 @@ from links_ray.engine.inputs import (
     MAX_BODY_BYTES,
     MAX_REQUEST_JOINT_STEPS,
     MAX_REQUEST_JOINTS,
+    MAX_SYNTHESIS_SECONDS,
     as_crank_mm,
     as_flag,
     as_steps,
@@ -109,6 +116,7 @@ from links_ray.engine.inputs import (
     request_limits,
     validate_query,
     validate_synthesis,
+    validate_synthesis_work,
 )
 from links_ray.engine.mechanism import (
     InvalidMechanismError,
@@ -488,20 +496,26 @@ def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float]:
     return points, k, _min_transmission(body)
 
 
-def synthesize_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float, bool, float]:
-    """(points (T, 2), k, seconds, partial, min_transmission) of a /api/synthesize body, or
-    ApiError naming the problem: the points, k and min_transmission as /api/retrieve takes
-    them."""
+def synthesize_args(
+    body: dict[str, Any],
+) -> tuple[np.ndarray, int, float | None, bool, float, int, int | None]:
+    """(points (T, 2), k, seconds, partial, min_transmission, seed, iterations) of a
+    /api/synthesize body, or ApiError naming the problem: the points, k and min_transmission
+    as /api/retrieve takes them; seconds None when the work is fixed (iterations)."""
     points = _pairs("points", _required(body, "points"))
     k = body.get("k")
-    checked = _checked(
+    seconds, seed, iterations = _checked(
+        validate_synthesis_work, body.get("seconds"), body.get("seed"), body.get("iterations")
+    )
+    points, k, budget, partial = _checked(
         validate_synthesis,
         points,
         DEFAULT_K if k is None else k,
-        body.get("seconds"),
+        seconds,
         body.get("partial", False),
     )
-    return (*checked, _min_transmission(body))
+    budget = None if iterations is not None else budget
+    return points, k, budget, partial, _min_transmission(body), seed, iterations
 
 
 def stream_arg(body: dict[str, Any]) -> bool:
@@ -652,6 +666,8 @@ RETRIEVAL_NICENESS = 5
 MAX_RETRIEVALS = 8
 #: Syntheses one front replica holds at once, running or waiting. Each holds the replica's
 #: cores for its whole budget (up to MAX_SYNTHESIS_SECONDS), so few; one more is answered 503.
+#: One that would wait for the refinement thread longer than its own budget is answered 503
+#: too: waiting does not shorten its refinement, whose budget starts when it starts.
 MAX_SYNTHESES = 2
 #: Seconds a refused client is asked to wait (`Retry-After`).
 RETRY_AFTER_S = 1
@@ -685,9 +701,37 @@ WARM_FOUR_BAR = (
 )
 
 
-def _busy(message: str) -> ApiError:
-    """503 with `Retry-After`: come back in a moment."""
-    return ApiError(503, message, headers={"Retry-After": str(RETRY_AFTER_S)})
+def _busy(message: str, retry_after: float = RETRY_AFTER_S) -> ApiError:
+    """503 with `Retry-After` (whole seconds, at least RETRY_AFTER_S): come back then."""
+    seconds = max(RETRY_AFTER_S, math.ceil(retry_after))
+    return ApiError(503, message, headers={"Retry-After": str(seconds)})
+
+
+def replica_cpus() -> float:
+    """The CPUs Ray gave this process (a replica's `num_cpus`, fractions kept; 0 if none)."""
+    return float(ray.get_runtime_context().get_assigned_resources().get("CPU", 0.0))
+
+
+def use_replica_cpus() -> None:
+    """Have the engine's and the index's threads keep to the CPUs Ray gave this replica
+    (`engine.cpus.usable_cpus`), not the machine's."""
+    set_given_cpus(replica_cpus())
+
+
+class _Turn:
+    """A synthesis's place in the line for a replica's refinement thread: its refinement
+    budget (None for fixed work, whose length is unknown), when its refinement began, and the
+    future set when its turn comes."""
+
+    def __init__(self, budget: float | None) -> None:
+        self.budget = budget
+        self.began: float | None = None
+        self.ready: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+
+
+def _synthesis_answer(results: list[dict], took_ms: float, queued_s: float) -> dict[str, Any]:
+    """A synthesis's answer: its results, and the milliseconds it took and waited in them."""
+    return {"results": results, "took_ms": round(took_ms, 3), "queued_ms": round(queued_s * 1e3, 3)}
 
 
 def merge_results(answers: list[list[dict]], k: int) -> list[dict]:
@@ -716,6 +760,20 @@ class _Retrieving:
         return await asyncio.get_running_loop().run_in_executor(
             self.pool, self.index.retrieve, points, k, min_transmission
         )
+
+    async def retrieve_waited(
+        self, points: np.ndarray, k: int, min_transmission: float
+    ) -> tuple[list[dict], float]:
+        """`retrieve`'s answer, and the seconds it waited behind other retrievals."""
+        asked = time.perf_counter()
+        began: list[float] = []
+
+        def run() -> list[dict]:
+            began.append(time.perf_counter())
+            return self.index.retrieve(points, k, min_transmission)
+
+        results = await asyncio.get_running_loop().run_in_executor(self.pool, run)
+        return results, began[0] - asked
 
     def close(self) -> None:
         self.pool.shutdown(wait=False, cancel_futures=True)
@@ -746,6 +804,7 @@ class IndexShard:
     """
 
     def __init__(self, root: str, part: int, parts: int) -> None:
+        use_replica_cpus()
         self.part, self.parts = part, parts
         self._retrieving = _Retrieving(RetrievalIndex.open(root, part=part, parts=parts))
 
@@ -784,6 +843,7 @@ class LinksApi:
         max_retrievals: int = MAX_RETRIEVALS,
         shard_timeout_s: float = SHARD_TIMEOUT_S,
     ) -> None:
+        use_replica_cpus()
         self.root = root
         self.shards = list(shards or [])
         self.max_retrievals = max_retrievals
@@ -792,6 +852,7 @@ class LinksApi:
         self._shard_paths: list[int] | None = None  # learned from the shards once
         self._retrieving: _Retrieving | None = None
         self._syntheses = 0  # running or waiting; only the event loop's thread counts
+        self._line: list[_Turn] = []  # for the refinement thread: the first holds it
         # Refinement runs here, one synthesis at a time (each uses every core itself), at the
         # retrievals' niceness, never in the thread pool health checks and simulations use.
         self._refining = ThreadPoolExecutor(
@@ -907,12 +968,7 @@ class LinksApi:
     async def api_retrieve(self, request: Request) -> JsonResponse:
         """The k curated paths nearest to a drawn curve, best first, with their mechanisms;
         503 with `Retry-After` when MAX_RETRIEVALS are already under way here."""
-        if self._retrievals >= self.max_retrievals:  # refused before reading the body
-            raise _busy(
-                f"busy: {self._retrievals} retrievals under way, the most this server "
-                f"holds; retry after {RETRY_AFTER_S} s"
-            )
-        self._retrievals += 1
+        self._claim_retrieval()  # refused before reading the body
         try:
             points, k, floor = retrieve_args(await read_json_object(request))
             start = time.perf_counter()
@@ -937,7 +993,10 @@ class LinksApi:
     )
     async def api_synthesize(self, request: Request) -> Response:
         """Mechanisms retrieved for a drawn curve and refined onto it, best first, within the
-        request's `seconds`; 503 with `Retry-After` when MAX_SYNTHESES are under way here.
+        request's `seconds` (or for its fixed `iterations`); 503 with `Retry-After` when
+        MAX_SYNTHESES are under way here, when its retrieval would pass the retrieval limit,
+        or when it would wait longer than its own budget. The budget starts when its
+        refinement does (its retrieval counted), and `queued_ms` says how long it waited.
         With `"stream": true` the answer is NDJSON: a `{"progress": ...}` line each time the
         best so far improves, then the answer's own line (`_synthesis_lines`)."""
         if self._syntheses >= MAX_SYNTHESES:  # refused before reading the body
@@ -946,63 +1005,145 @@ class LinksApi:
                 f"retry after {RETRY_AFTER_S} s"
             )
         self._syntheses += 1
+        turn: _Turn | None = None
         released = True  # until the refinement, once submitted, releases its place itself
         try:
             body = await read_json_object(request)
-            points, k, seconds, partial, floor = synthesize_args(body)
+            points, k, seconds, partial, floor, seed, iterations = synthesize_args(body)
             stream = stream_arg(body)
             start = time.perf_counter()
-            count = max(CANDIDATES, k)
-            if self._retrieving is not None:
-                retrieved = await self._retrieving.retrieve(points, count, floor)
-            else:
-                answers = await self._ask_shards("retrieve", points, count, floor)
-                retrieved = merge_results(answers, count)
+            retrieved, waited = await self._synthesis_candidates(points, max(CANDIDATES, k), floor)
+            retrieved_at = time.perf_counter()
+            retrieval_s = retrieved_at - start - waited
+            budget = None if seconds is None else max(0.0, seconds - retrieval_s)
+            # Fixed work is not weakened by waiting; it waits as long as a request may take.
+            patience = (MAX_SYNTHESIS_SECONDS if seconds is None else seconds) - waited
+            turn = await self._wait_for_refiner(budget, patience)
             loop = asyncio.get_running_loop()
             reports: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
-            refine = functools.partial(
-                refine_retrieved,
-                points,
-                retrieved,
-                k,
-                seconds,
-                partial,
-                started=start,
-                margin_deg=floor,
-                progress=(
-                    (lambda best: loop.call_soon_threadsafe(reports.put_nowait, best))
-                    if stream
-                    else None
-                ),
-            )
+
+            def refine() -> tuple[list[dict], float]:
+                began = time.perf_counter()
+                results = refine_retrieved(
+                    points,
+                    retrieved,
+                    k,
+                    seconds,
+                    partial,
+                    started=began - retrieval_s,  # waiting spent none of the budget
+                    seed=seed,
+                    margin_deg=floor,
+                    progress=(
+                        (lambda best: loop.call_soon_threadsafe(reports.put_nowait, best))
+                        if stream
+                        else None
+                    ),
+                    iterations=iterations,
+                )
+                return results, waited + began - retrieved_at
+
+            turn.began = time.perf_counter()
             refining = loop.run_in_executor(self._refining, refine)
             # The place is freed when the refinement ends, whether or not anyone still
             # reads its stream (a client gone mid-stream must not hold it for good).
-            refining.add_done_callback(lambda _: self._synthesis_done())
+            refining.add_done_callback(functools.partial(self._synthesis_done, turn))
             released = False
             if stream:
                 return StreamingResponse(
                     self._synthesis_lines(reports, refining, start),
                     media_type="application/x-ndjson",
                 )
-            results = await refining
+            results, queued_s = await refining
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
             if released:
                 self._syntheses -= 1
-        return JsonResponse({"results": results, "took_ms": round(took_ms, 3)})
+                if turn is not None:
+                    self._next_turn(turn)
+        return JsonResponse(_synthesis_answer(results, took_ms, queued_s))
 
-    def _synthesis_done(self) -> None:
+    async def _synthesis_candidates(
+        self, points: np.ndarray, count: int, floor: float
+    ) -> tuple[list[dict], float]:
+        """A synthesis's retrieved candidates, counted against the retrieval limit as any
+        retrieval (503 beyond it), and the seconds they waited behind other retrievals (0
+        with shards: they wait in the shards' replicas)."""
+        self._claim_retrieval()
+        try:
+            if self._retrieving is not None:
+                return await self._retrieving.retrieve_waited(points, count, floor)
+            answers = await self._ask_shards("retrieve", points, count, floor)
+            return merge_results(answers, count), 0.0
+        finally:
+            self._retrievals -= 1
+
+    def _claim_retrieval(self) -> None:
+        """Count one more retrieval under way, or refuse it 503 at the limit."""
+        if self._retrievals >= self.max_retrievals:
+            raise _busy(
+                f"busy: {self._retrievals} retrievals under way, the most this server "
+                f"holds; retry after {RETRY_AFTER_S} s"
+            )
+        self._retrievals += 1
+
+    def _expected_wait(self) -> float | None:
+        """Seconds until the syntheses in line end their budgets; None if one does fixed work
+        (its length is not known beforehand)."""
+        now = time.perf_counter()
+        wait = 0.0
+        for turn in self._line:
+            if turn.budget is None:
+                return None
+            wait += turn.budget if turn.began is None else max(0.0, turn.began + turn.budget - now)
+        return wait
+
+    async def _wait_for_refiner(self, budget: float | None, patience: float) -> _Turn:
+        """This synthesis's turn at the refinement thread, once the ones before it are done;
+        503 with `Retry-After` if it would wait longer than `patience` seconds: at once when
+        the wait is known beforehand, else once it has waited that long."""
+        expected = self._expected_wait()
+        if expected is not None and expected > patience:
+            raise _busy(
+                f"busy: the syntheses under way end in about {expected:.1f} s, longer than "
+                f"this one may wait ({max(0.0, patience):.1f} s of its budget)",
+                retry_after=expected - max(0.0, patience),
+            )
+        turn = _Turn(budget)
+        self._line.append(turn)
+        if len(self._line) == 1:
+            turn.ready.set_result(None)
+        try:
+            await asyncio.wait({turn.ready}, timeout=max(0.0, patience))
+        except BaseException:  # the client went away: its place, or its turn, goes on
+            self._next_turn(turn)
+            raise
+        if not turn.ready.done():
+            self._next_turn(turn)
+            raise _busy(
+                f"busy: waited {max(0.0, patience):.1f} s for the syntheses under way, as "
+                "long as this one may wait; retry after they end"
+            )
+        return turn
+
+    def _next_turn(self, turn: _Turn) -> None:
+        """`turn` is done with the refinement thread: the next in line takes it."""
+        self._line.remove(turn)
+        if self._line and not self._line[0].ready.done():
+            self._line[0].ready.set_result(None)
+
+    def _synthesis_done(self, turn: _Turn, _: object = None) -> None:
         self._syntheses -= 1
+        self._next_turn(turn)
 
     async def _synthesis_lines(
         self,
         reports: asyncio.Queue[dict[str, Any]],
-        refining: asyncio.Future[list[dict]],
+        refining: asyncio.Future[tuple[list[dict], float]],
         start: float,
     ) -> AsyncIterator[bytes]:
         """A streamed synthesis: `{"progress": best so far}` lines while it refines, then
-        `{"results", "took_ms"}` (or `{"error"}` if it failed after the stream began)."""
+        `{"results", "took_ms", "queued_ms"}` (or `{"error"}` if it failed after the stream
+        began)."""
         while not refining.done() or not reports.empty():
             waiting = asyncio.ensure_future(reports.get())
             await asyncio.wait({waiting, refining}, return_when=asyncio.FIRST_COMPLETED)
@@ -1011,13 +1152,13 @@ class LinksApi:
             else:
                 waiting.cancel()
         try:
-            results = refining.result()
+            results, queued_s = refining.result()
         except Exception as exc:  # the status is sent: the failure can only be a line
             logger.warning("links-ray API: a streamed synthesis failed (%s)", type(exc).__name__)
             yield _json_line({"error": "synthesis failed"})
             return
         took_ms = (time.perf_counter() - start) * 1e3
-        yield _json_line({"results": results, "took_ms": round(took_ms, 3)})
+        yield _json_line(_synthesis_answer(results, took_ms, queued_s))
 
     async def _shard_counts(self) -> list[int]:
         """Each shard's paths, asked once (a shard's index does not change while it serves)."""

@@ -21,7 +21,9 @@ from links_ray.engine.inputs import (
     MAX_K,
     MAX_POINTS,
     MAX_REQUEST_JOINTS,
+    MAX_SEED,
     MAX_STEPS,
+    MAX_SYNTHESIS_ITERATIONS,
     MAX_SYNTHESIS_SECONDS,
     MAX_TRANSMISSION_DEG,
     MIN_JOINTS,
@@ -83,11 +85,22 @@ class RetrieveRequest(Request):
 
 
 class SynthesizeRequest(RetrieveRequest):
-    """POST /api/synthesize: retrieval, then refinement within `seconds`."""
+    """POST /api/synthesize: retrieval, then refinement within `seconds`, or for a fixed
+    number of `iterations`."""
 
     seconds: float = Field(
-        DEFAULT_SYNTHESIS_SECONDS, gt=0.0, le=MAX_SYNTHESIS_SECONDS, description="time budget"
+        DEFAULT_SYNTHESIS_SECONDS,
+        gt=0.0,
+        le=MAX_SYNTHESIS_SECONDS,
+        description="time budget (not with iterations); it starts when the refinement does",
     )
+    iterations: int | None = Field(
+        None,
+        ge=1,
+        le=MAX_SYNTHESIS_ITERATIONS,
+        description="fixed work instead of a time budget: equal requests, bit-equal answers",
+    )
+    seed: int = Field(0, ge=0, le=MAX_SEED, description="seed of the random restarts")
     partial: bool = Field(False, description="the drawing is part of a curve: match a run")
     stream: bool = Field(
         False,
@@ -140,6 +153,7 @@ class LimitsResponse(BaseModel):
     default_steps: int
     max_joint_steps: int
     max_seconds: float
+    max_iterations: int
     default_seconds: float
     max_transmission_deg: float
     max_coordinate: float
@@ -193,6 +207,7 @@ class SynthesisResult(BaseModel):
 class SynthesizeResponse(BaseModel):
     results: list[SynthesisResult] = Field(description="best first")
     took_ms: float
+    queued_ms: float = Field(description="of took_ms, waited behind other work")
 
 
 class Lock(BaseModel):
