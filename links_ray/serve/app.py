@@ -38,7 +38,9 @@ Sharded (`build_app(root, shards=N)`, `links serve --shards N`): N `IndexShard` 
 each open part P of the index (`RetrievalIndex.open(root, part=P, parts=N)`: the curated
 shards numbered P modulo N), and the front, `LinksApi`, holds no index: it asks every part for
 its own top k through their deployment handles, at once, and keeps the k best by (chamfer,
-path id), as one index over all the paths would. A part that is unavailable, or parts that do
+path id), the order of one index: no worse than one index's answer, since each part passes on
+a larger share of its paths to the exact distance (the same answer where every search is
+exhaustive; docs/CONTRACT.md). A part that is unavailable, or parts that do
 not all answer within `SHARD_TIMEOUT_S`, give 503 with `Retry-After`.
 
 `run_server` (what `links serve` runs) starts its own Ray and, with one replica, has the replica
