@@ -463,6 +463,41 @@ def dataset(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> str:
     return out
 
 
+#: Curated paths the large dataset holds at least, and the splits whose every part must
+#: still be searched by its coarse lists (more than one list), not only by the sketch scan.
+SCALE_PATHS, SCALE_LISTED_SPLITS = 40_000, (1, 2)
+
+
+@pytest.fixture(scope="session")
+def scale_root(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A dataset of at least SCALE_PATHS curated paths (mechanisms and curated only), its index
+    saved whole and split in 2 and 4 parts: made once and cached between runs
+    (tests/scale_data.py), linked into this session's own folder.
+
+    Large enough that the search scans: one index and every part of each split pass on fewer
+    candidates than they hold paths (a smaller index estimates every path, in every variant),
+    and one index and the parts of 2 hold several coarse lists. Checked here, so that every
+    test of it fails if the index's thresholds move above the data."""
+    from scale_data import SPLITS, scale_dataset
+
+    from links_ray.search.index import RetrievalIndex, stage_sizes
+
+    root = tmp_path_factory.mktemp("scale") / "links"
+    scale_dataset(root)
+    for parts in SPLITS:
+        for part in range(parts):
+            index = RetrievalIndex.open(str(root), part=part, parts=parts)
+            candidates, paths = stage_sizes(len(index))[0], len(index)
+            where = f"part {part} of {parts}"
+            assert paths >= SCALE_PATHS / parts / 2, f"{where} holds {paths} paths"
+            assert candidates < paths, f"{where}: {candidates} candidates of {paths} paths"
+            if parts in SCALE_LISTED_SPLITS:
+                assert len(index.centroids) > 1, f"{where}: {paths} paths in one coarse list"
+            if parts == 1:
+                assert paths >= SCALE_PATHS, f"{paths} curated paths"
+    return str(root)
+
+
 @pytest.fixture(scope="module")
 def client(dataset: str, serve_port: int) -> Iterator[Client]:
     """The links app for one test module, answering on `serve_port` from its replica as

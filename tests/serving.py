@@ -89,23 +89,25 @@ def low_port() -> int:
 @contextlib.contextmanager
 def serving(app: Any, port: int) -> Iterator[Client]:
     """Run the Serve application `app`, its HTTP replica answering on `port` (Serve's direct
-    ingress, as under `links serve`: the `ray_cluster` fixture set Ray up for it); shut Serve
-    down after. No other app may be running."""
+    ingress, as under `links serve`: the `ray_cluster` fixture set Ray up for it) and Serve's
+    HTTP proxy on a port of its own (the client's `proxy`); shut Serve down after. No other
+    app may be running."""
     from ray import serve
 
     from links_ray.cli.bench_services import wait_for_port
 
     wait_for_port(port)  # the last app's replica may still be letting go of it
     no_access_log = {"enable_access_log": False}
+    proxy_port = low_port()
     serve.start(
-        http_options={"host": "127.0.0.1", "port": low_port()},
+        http_options={"host": "127.0.0.1", "port": proxy_port},
         logging_config=no_access_log,
     )
     try:
         start = time.perf_counter()
         serve.run(app, name="links", route_prefix="/", logging_config=no_access_log)
         print(f"\nServe app ready in {time.perf_counter() - start:.1f} s")
-        yield Client(port)
+        yield Client(port, proxy=Client(proxy_port))
     finally:
         serve.shutdown()
 

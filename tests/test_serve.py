@@ -845,6 +845,29 @@ def test_an_app_that_cannot_fit_is_refused() -> None:
         check_fits(1, 2, 0.5, 6, two_cpus)
 
 
+def test_shards_share_the_cpus_the_front_leaves() -> None:
+    """On a Ray `links serve` started, shards given no CPUs reserve 1 each where that fits,
+    else an equal share of what the front's replicas (one CPU each) leave, in Ray's steps of
+    0.0001 CPU, and the app then fits; where nothing is left, a refusal naming why."""
+    from links_ray.serve.app import check_fits, fit_shard_cpus
+
+    for cpus, replicas, shards, share in (
+        (8, 1, 2, 1.0),
+        (3, 1, 2, 1.0),
+        (2, 1, 2, 0.5),
+        (2, 1, 4, 0.25),
+        (2, 1, 3, 0.3333),
+        (4, 2, 3, 0.3333),
+        (1.5, 1, 2, 0.25),
+    ):
+        resources = {"CPU": float(cpus), "memory": 8e9}
+        assert fit_shard_cpus(replicas, shards, resources) == share
+        check_fits(replicas, shards, share, None, resources)
+    for cpus, replicas in ((2, 2), (1, 1), (0, 1)):
+        with pytest.raises(ValueError, match=r"none is left for the shards"):
+            fit_shard_cpus(replicas, 2, {"CPU": float(cpus)})
+
+
 def listening_process(port: int) -> str:
     """The command line of the process listening on TCP port `port` of 127.0.0.1 ('' if none),
     from /proc: which process answers, not only that something does."""
@@ -871,27 +894,39 @@ def test_the_replica_answers_http_itself(client: Client) -> None:
     assert client.proxy.get("/api/health") == client.get("/api/health")
 
 
+#: The Ray a `links serve` of these tests starts has 2 CPUs, whatever the machine's count
+#: (Ray's own override of a node's resources): as on a 2-core laptop.
+TWO_CPU_RAY = {"RAY_OVERRIDE_RESOURCES": json.dumps({"CPU": 2})}
+
+
 @pytest.mark.parametrize("shards", [None, 2], ids=["one-index", "2-shards"])
 def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
-    dataset: str, curated: Any, shards: int | None
+    dataset: str, curated: Any, shards: int | None, tmp_path: Path
 ) -> None:
     """`links serve` starts its own Ray; the replica (the front, with --shards) answers on
-    --port, and Ctrl-C (one index) or SIGTERM (shards) stops all, cleanly."""
+    --port, and Ctrl-C (one index) or SIGTERM (shards) stops all, cleanly. On its Ray of 2
+    CPUs, `--shards 2` does not fit at 1 CPU a shard beside the front's 1: the shards share
+    the CPU the front leaves, said in one line on stderr."""
     port = bindable_port("127.0.0.1", 0)
-    sharding = [] if shards is None else ["--shards", str(shards), "--shard-cpus", "0.5"]
-    server = subprocess.Popen(
-        [sys.executable, "-m", "links_ray.cli", "serve", dataset, "--port", str(port), *sharding],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    sharding = [] if shards is None else ["--shards", str(shards)]
+    errors = tmp_path / "stderr.txt"
+    command = [sys.executable, "-m", "links_ray.cli", "serve", dataset, "--port", str(port)]
+    with errors.open("w") as stderr:
+        server = subprocess.Popen(
+            [*command, *sharding],
+            stdout=subprocess.PIPE,
+            stderr=stderr,
+            text=True,
+            env={**os.environ, **TWO_CPU_RAY},
+        )
     try:
         lines = []
         for line in server.stdout:  # until it says it is serving (or exits)
             lines.append(line)
             if "links-ray: serving" in line:
                 break
-        assert f"http://127.0.0.1:{port}/" in lines[-1], "".join(lines[-20:])
+        said = "".join(lines[-20:]) + errors.read_text()[-3000:]
+        assert lines and f"http://127.0.0.1:{port}/" in lines[-1], said
         served = Client(port)
         status, health = served.get("/api/health")
         assert status == 200 and health["paths"] == len(curated)
@@ -917,6 +952,43 @@ def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
         if server.poll() is None:
             server.kill()
             server.wait()
+    notices = [line for line in errors.read_text().splitlines() if "shard replicas" in line]
+    if shards is None:
+        assert notices == []
+    else:
+        assert notices == [
+            "links-ray: this Ray has 2 CPUs and the front takes 1: each of the 2 shard "
+            "replicas reserves 0.5 CPU (--shard-cpus to choose)"
+        ]
+    assert "Traceback" not in errors.read_text()
+
+
+def test_links_serve_refuses_shards_when_the_front_takes_every_cpu(dataset: str) -> None:
+    """Where no share is left (two front replicas on 2 CPUs), one line and exit status 2,
+    not a server waiting for CPUs forever; and the same for shards told to take 1 CPU each."""
+    port = str(bindable_port("127.0.0.1", 0))
+    for options, words in (
+        (
+            ["--replicas", "2"],
+            "this Ray has 2 CPUs and the front takes 2 (one a replica): none "
+            "is left for the shards; serve fewer replicas, or no shards",
+        ),
+        (
+            ["--shard-cpus", "1"],
+            "the app needs 3 CPUs (1 a front replica, 1 a shard replica) and this Ray has 2",
+        ),
+    ):
+        command = [sys.executable, "-m", "links_ray.cli", "serve", dataset, "--port", port]
+        refused = subprocess.run(
+            [*command, "--shards", "2", *options],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            env={**os.environ, **TWO_CPU_RAY},
+        )
+        assert refused.returncode == 2, refused.stderr[-3000:]
+        last = refused.stderr.strip().splitlines()[-1]
+        assert last.startswith("links serve: error: ") and words in last, refused.stderr[-3000:]
 
 
 def test_serve_cli_refuses_a_root_without_curated_paths(

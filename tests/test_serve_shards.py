@@ -2,10 +2,12 @@
 real Parquet and real HTTP on loopback.
 
 The index is split into N parts, each served by its own deployment, and the front merges their
-answers: over HTTP they must be one index's answers exactly (same path ids, same chamfer
-distances, same mechanisms), and the exact brute force's where the small dataset makes the
-search exact, for N = 1, 2 and 4. Each part builds and saves only its own folder under
-`_links/index/`. Failures and load are in test_serve_load.py.
+answers. The dataset is small enough that every part's search, and one index's, estimates
+every path: over HTTP the answers must then be one index's exactly (same path ids, same chamfer
+distances, same mechanisms), and the exact brute force's, for N = 1, 2 and 4. Each part builds
+and saves only its own folder under `_links/index/`. Where the searches scan, sharded answers
+are compared with one index's in test_retrieval_scale.py; failures and load are in
+test_serve_load.py.
 """
 
 from __future__ import annotations

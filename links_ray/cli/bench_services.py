@@ -603,14 +603,19 @@ def bench_serve(
 
     from links_ray.cluster.connect import connect
     from links_ray.search.index import RetrievalIndex
-    from links_ray.serve.app import bindable_port, build_app, check_root, direct_ingress_env
+    from links_ray.serve.app import (
+        bindable_port,
+        build_app,
+        check_root,
+        direct_ingress_env,
+        fit_shard_cpus,
+    )
 
     counts = [0, 1, 2] if shards is None else shards
     root = root or retrieval_dataset(paths)
     for count in counts:
         check_root(root, count or None)
     queries = _held_out_queries(64, seed=77)
-    cpus = os.cpu_count() or 1
     ray.shutdown()  # generating the dataset may have started one
     port = _listening_port()
     os.environ.update(direct_ingress_env(port))
@@ -622,8 +627,8 @@ def bench_serve(
             parts = max(count, 1)
             for part in range(parts):  # built before the run, not during it
                 RetrievalIndex.open(root, part=part, parts=parts)
-            shard_cpus = min(1.0, max(cpus - 1, 1) / parts)
-            app = build_app(root, shards=count or None, shard_cpus=shard_cpus)
+            shard_cpus = fit_shard_cpus(1, count, ray.cluster_resources()) if count else None
+            app = build_app(root, shards=count or None, shard_cpus=shard_cpus or 1.0)
             wait_for_port(port)  # the last run's front may still be letting go of it
             serve.start(
                 http_options={"host": "127.0.0.1", "port": bindable_port("127.0.0.1", 0)},
@@ -642,7 +647,7 @@ def bench_serve(
             runs.append(
                 {
                     "shards": count,
-                    "shard_cpus": shard_cpus if count else None,
+                    "shard_cpus": shard_cpus,
                     "paths": indexed,
                     "seconds": record["seconds"],
                     "retrievals_per_s": answered / record["seconds"],

@@ -451,8 +451,9 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument(
         "--shard-cpus",
         type=_positive_float,
-        default=1.0,
-        help="CPUs Ray reserves for each shard replica (default 1)",
+        default=None,
+        help="CPUs Ray reserves for each shard replica (default 1, or on a Ray this command "
+        "starts, if that does not fit, an equal share of what the front leaves)",
     )
     serve.add_argument(
         "--shard-memory-gb",

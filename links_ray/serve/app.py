@@ -42,7 +42,9 @@ Sharded (`build_app(root, shards=N)`, `links serve --shards N`): N `IndexShard` 
 each open part P of the index (`RetrievalIndex.open(root, part=P, parts=N)`: the curated
 shards numbered P modulo N), and the front, `LinksApi`, holds no index: it asks every part for
 its own top k through their deployment handles, at once, and keeps the k best by (chamfer,
-path id), as one index over all the paths would. A part that is unavailable, or parts that do
+path id), the order of one index: no worse than one index's answer, since each part passes on
+a larger share of its paths to the exact distance (the same answer where every search is
+exhaustive; docs/CONTRACT.md). A part that is unavailable, or parts that do
 not all answer within `SHARD_TIMEOUT_S`, give 503 with `Retry-After`.
 
 `run_server` (what `links serve` runs) starts its own Ray and, with one replica, has the replica
@@ -62,6 +64,7 @@ import math
 import os
 import signal
 import socket
+import sys
 import threading
 import time
 from collections.abc import AsyncIterator, Callable
@@ -681,6 +684,9 @@ FRONT_MAX_ONGOING, FRONT_MAX_QUEUED = 100, 100
 SHARD_MAX_ONGOING = 4
 #: How long the front waits for all the shards' answers before answering 503.
 SHARD_TIMEOUT_S = 30.0
+#: CPUs a shard replica reserves unless told otherwise (and unless `fit_shard_cpus` gives it
+#: less on a Ray that `links serve` started itself); Ray counts CPUs in steps of 1 / CPU_STEPS.
+SHARD_CPUS, CPU_STEPS = 1.0, 10_000
 #: Shard failures that mean "not there now" (a replica that died or is restarting, a shard
 #: with no replica, backpressure): answered 503 with `Retry-After`, not 500.
 SHARD_UNAVAILABLE = (
@@ -1249,7 +1255,7 @@ def build_app(
     root: str,
     replicas: int = 1,
     shards: int | None = None,
-    shard_cpus: float = 1.0,
+    shard_cpus: float = SHARD_CPUS,
     shard_memory_gb: float | None = None,
     max_retrievals: int = MAX_RETRIEVALS,
     shard_timeout_s: float = SHARD_TIMEOUT_S,
@@ -1382,6 +1388,23 @@ def check_fits(
         )
 
 
+def fit_shard_cpus(replicas: int, shards: int, resources: dict[str, float]) -> float:
+    """CPUs each shard replica reserves on one machine's Ray of these `resources`: SHARD_CPUS
+    if the app fits so, else an equal share of what the front's replicas (one CPU each) leave,
+    rounded down to Ray's steps (1 / CPU_STEPS); ValueError if they leave none."""
+    have = resources.get("CPU", 0.0)
+    if float(replicas) + shards * replicas * SHARD_CPUS <= have + 1e-9:
+        return SHARD_CPUS
+    left = math.floor(round((have - replicas) * CPU_STEPS, 6))  # in steps
+    share = max(left, 0) // (shards * replicas)
+    if share == 0:
+        raise ValueError(
+            f"this Ray has {have:g} CPUs and the front takes {replicas} (one a replica): none "
+            "is left for the shards; serve fewer replicas, or no shards"
+        )
+    return share / CPU_STEPS
+
+
 def run_server(
     root: str,
     host: str = "127.0.0.1",
@@ -1389,23 +1412,27 @@ def run_server(
     replicas: int = 1,
     blocking: bool = True,
     shards: int | None = None,
-    shard_cpus: float = 1.0,
+    shard_cpus: float | None = None,
     shard_memory_gb: float | None = None,
 ) -> None:
     """Serve `root` on http://host:port/ (Ray local unless RAY_ADDRESS) until Ctrl-C; with
-    `shards`, split the index into that many `IndexShard` deployments (`build_app`).
+    `shards`, split the index into that many `IndexShard` deployments (`build_app`), each
+    replica reserving `shard_cpus` CPUs (default SHARD_CPUS).
 
     When this call starts Ray and serves one replica (of the front, with shards), the replica
     answers on `port` directly (`direct_ingress_env`) and Serve's proxy takes a free port;
-    otherwise the proxy answers. On a Ray it starts itself, an app that cannot fit is refused
-    at once (ValueError naming what it needs), where Serve would wait for resources forever.
+    otherwise the proxy answers. On a Ray it starts itself, shards given no `shard_cpus`
+    share what the front leaves when SHARD_CPUS each would not fit (`fit_shard_cpus`, said
+    in one line on stderr), and an app that cannot fit is refused at once (ValueError naming
+    what it needs), where Serve would wait for resources forever.
     """
     import ray
 
     from links_ray.cluster.connect import connect
 
     check_root(root, shards)  # a wrong ROOT is one line here, not a replica failing to start
-    app = build_app(root, replicas, shards, shard_cpus, shard_memory_gb)
+    cpus = SHARD_CPUS if shard_cpus is None else shard_cpus
+    app = build_app(root, replicas, shards, cpus, shard_memory_gb)  # checks the numbers first
     local = not ray.is_initialized() and not os.environ.get("RAY_ADDRESS")
     direct = replicas == 1 and local
     proxy_port = port
@@ -1416,7 +1443,19 @@ def run_server(
     connect()
     if local:
         try:
-            check_fits(replicas, shards, shard_cpus, shard_memory_gb, ray.cluster_resources())
+            resources = ray.cluster_resources()
+            if shards and shard_cpus is None:
+                cpus = fit_shard_cpus(replicas, shards, resources)
+                if cpus < SHARD_CPUS:
+                    print(
+                        f"links-ray: this Ray has {resources.get('CPU', 0.0):g} CPUs and the "
+                        f"front takes {replicas}: each of the {shards * replicas} shard "
+                        f"replicas reserves {cpus:g} CPU (--shard-cpus to choose)",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                    app = build_app(root, replicas, shards, cpus, shard_memory_gb)
+            check_fits(replicas, shards, cpus, shard_memory_gb, resources)
         except ValueError:
             ray.shutdown()
             raise
