@@ -376,6 +376,12 @@ def _shape_text(shape: tuple[int | None, ...]) -> str:
     return "(" + ", ".join(parts) + ("," if len(parts) == 1 else "") + ")"
 
 
+def _an(text: str) -> str:
+    return (
+        "an " if text.startswith(("int", "integer", "unsigned", "a", "e", "o")) else "a "
+    ) + text
+
+
 def check_buffer(
     name: str,
     array: object,
@@ -413,16 +419,16 @@ def check_buffer(
     wanted_type = {"iu": "integer", "u": "unsigned integer", "f": "float"}.get(
         dtype, str(np.dtype(dtype)) if not isinstance(dtype, str) else f"kind {dtype!r}"
     )
-    wanted = (
-        f"a {'writeable ' if writeable else ''}{'C-contiguous ' if contiguous else ''}"
+    wanted = _an(
+        f"{'writeable ' if writeable else ''}{'C-contiguous ' if contiguous else ''}"
         f"{wanted_type} array of shape {_shape_text(shape)}"
     )
     if not isinstance(array, np.ndarray):
-        got = f"a {type(array).__name__}"
+        got = _an(type(array).__name__)
     else:
         layout = "" if array.flags.c_contiguous or not contiguous else "non-contiguous "
         frozen = "" if array.flags.writeable or not writeable else "read-only "
-        got = f"a {frozen}{layout}{array.dtype} array of shape {_shape_text(array.shape)}"
+        got = _an(f"{frozen}{layout}{array.dtype} array of shape {_shape_text(array.shape)}")
     raise ValueError(f"{name} must be {wanted}, got {got}")
 
 
@@ -434,14 +440,17 @@ def check_indices(name: str, values: np.ndarray, limit: int, of: str) -> None:
         raise ValueError(f"{name} must index {of} (0 to {limit - 1}), got {shown(bad)}")
 
 
-def check_solution_path(order: object, joints: int, fixed: object = None) -> None:
+def check_solution_path(
+    order: object, joints: int, fixed: object = None, positions: str = "pos"
+) -> None:
     """Refuse a solution path `order` (m, 3) of (joint, parent_a, parent_b) rows, or fixed
-    joints `fixed` (f,), naming a joint outside the `joints` of the positions given with them,
-    and positions without the crank's two joints."""
+    joints `fixed` (f,), naming a joint outside the `joints` of the positions given with them
+    (the buffer called `positions`), and positions without the crank's two joints."""
     if joints < MIN_JOINTS:
-        raise ValueError(f"positions must hold at least the crank's 2 joints, got {joints}")
+        raise ValueError(f"{positions} must hold at least the crank's 2 joints, got {joints}")
+    of = f"the {joints} joints of {positions}"
     check_buffer("order", order, (None, 3), "iu")
-    check_indices("order", order, joints, f"the {joints} joints given")  # type: ignore[arg-type]
+    check_indices("order", order, joints, of)  # type: ignore[arg-type]
     if fixed is not None:
         check_buffer("fixed", fixed, (None,), "iu")
-        check_indices("fixed", fixed, joints, f"the {joints} joints given")  # type: ignore[arg-type]
+        check_indices("fixed", fixed, joints, of)  # type: ignore[arg-type]

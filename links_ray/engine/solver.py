@@ -384,7 +384,7 @@ def simulate_candidates(
     (-1 where valid)."""
     check_buffer("positions", positions, (None, None, 2))
     batch, n = positions.shape[:2]
-    check_solution_path(order, n, fixed)
+    check_solution_path(order, n, fixed, positions="positions")
     check_buffer("crank", crank, (None, 2))
     steps = crank.shape[0]
     check_buffer("out", out, (batch, n, steps, 2) if keep else (1, n, None, 2))

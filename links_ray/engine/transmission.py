@@ -53,7 +53,7 @@ def least_sines(order: np.ndarray, trajectories: np.ndarray, out: np.ndarray) ->
     """out (B, m): the least sine of each dyad's transmission angle over each mechanism's
     steps, for trajectories (B, n, steps, 2) of one topology (`_least_sines`)."""
     check_buffer("trajectories", trajectories, (None, None, None, 2), "f")
-    check_solution_path(order, trajectories.shape[1])
+    check_solution_path(order, trajectories.shape[1], positions="trajectories")
     check_buffer("out", out, (trajectories.shape[0], order.shape[0]))
     _least_sines(order, trajectories, out)
 

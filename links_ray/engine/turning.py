@@ -301,5 +301,5 @@ def rigid_dyads(order: np.ndarray, traj: np.ndarray) -> np.ndarray:
     """(m,) bool: the dyads of `order` whose parents keep their distance over the sampled turn
     `traj` (n, steps, 2) (`_rigid_dyads`)."""
     check_buffer("traj", traj, (None, None, 2))
-    check_solution_path(order, traj.shape[0])
+    check_solution_path(order, traj.shape[0], positions="traj")
     return _rigid_dyads(order, traj)

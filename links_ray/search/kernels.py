@@ -550,7 +550,6 @@ def sketch_scan(
     check_buffer("slots", slots, (None,), "iu")
     check_indices("slots", slots, SKETCH_POINTS, "a sketch's points")
     check_buffer("out", out, (None,), "f")
-    check_buffer("likely", likely, (out.shape[0],), np.int8)
     if pieces:
         rows = sketches.shape[0]
         if not ((starts >= 0) & (starts <= ends) & (ends <= rows)).all():
@@ -559,6 +558,7 @@ def sketch_scan(
             raise ValueError(
                 f"out must hold every range's scores from its `at` on: {out.shape[0]} is too few"
             )
+    check_buffer("likely", likely, (out.shape[0],), np.int8)
     _sketch_scan(sketches, starts, ends, at, levels, slots, margin, out, likely)
 
 

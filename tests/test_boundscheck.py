@@ -1,0 +1,83 @@
+"""The kernel tests again, with numba checking every index (NUMBA_BOUNDSCHECK=1).
+
+numba checks no bounds by default: a kernel given a buffer too small for what it writes
+corrupts memory silently, and the process may crash much later, elsewhere. The kernels'
+entry points check their buffers' shapes (inputs.check_buffer); this pass catches what those
+checks cannot see, a kernel indexing past a buffer it made itself or one whose shape was
+right and whose contents were not. It runs the engine's, refinement's and the search
+kernels' tests in a process of their own (the setting is read when numba is imported), with
+their compiled code cached apart from the package's (.pytest_cache/d/numba-boundscheck).
+By hand:
+
+    NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=/tmp/links-boundscheck \\
+        python -m pytest -q -p no:cacheprovider -p tests.boundscheck <files of KERNEL_TESTS>
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+#: Every test file that calls a kernel with buffers it made, and those of the engine,
+#: refinement and retrieval kernels besides; tests.boundscheck leaves out the tests that need
+#: S3 or Ray.
+KERNEL_TESTS = (
+    "tests/test_kernel_buffers.py",
+    "tests/test_turning.py",
+    "tests/test_solver.py",
+    "tests/test_simulate_calls.py",
+    "tests/test_sampling.py",
+    "tests/test_transmission.py",
+    "tests/test_topology.py",
+    "tests/test_reduce.py",
+    "tests/test_validation.py",
+    "tests/test_paths.py",
+    "tests/test_refine.py",
+    "tests/test_synthesis.py",
+    "tests/test_retrieval.py",
+)
+#: Fewer passing tests than this means the pass ran far less than it should.
+MIN_PASSED = 300
+
+
+def boundscheck_cache(config: pytest.Config, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Where the pass's compiled kernels are kept: in pytest's cache, so later runs load
+    them (numba drops what an edit made stale), or for this session alone without it."""
+    cache = getattr(config, "cache", None)
+    if cache is not None:
+        return Path(cache.mkdir("numba-boundscheck"))
+    return tmp_path_factory.mktemp("numba-boundscheck")
+
+
+def run_bound_checked(files: tuple[str, ...], cache: Path) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "NUMBA_BOUNDSCHECK": "1", "NUMBA_CACHE_DIR": str(cache)}
+    command = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"]
+    return subprocess.run(
+        [*command, "-p", "tests.boundscheck", *files],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=3600,
+    )
+
+
+def passed(output: str) -> int:
+    found = re.search(r"(\d+) passed", output)
+    return int(found.group(1)) if found else 0
+
+
+def test_the_kernel_tests_pass_with_bounds_checked(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> None:
+    run = run_bound_checked(KERNEL_TESTS, boundscheck_cache(request.config, tmp_path_factory))
+    tail = "\n".join(run.stdout.splitlines()[-60:] + run.stderr.splitlines()[-20:])
+    assert run.returncode == 0, f"the bound-checked pass failed:\n{tail}"
+    assert passed(run.stdout) >= MIN_PASSED, f"the bound-checked pass ran too little:\n{tail}"
