@@ -15,7 +15,7 @@ from pathlib import Path
 import numba
 import numpy as np
 import pytest
-from numba.core import config
+from numba.core import config as numba_config
 
 #: Fixtures whose tests the pass leaves out: they start SeaweedFS (and Ray on top of it).
 NEEDS_SERVICES = ("s3_server",)
@@ -26,8 +26,8 @@ def _write_past_end(buffer: np.ndarray) -> None:
     buffer[buffer.shape[0]] = 1.0
 
 
-def pytest_configure(config_: pytest.Config) -> None:
-    if config.BOUNDSCHECK != 1:
+def pytest_configure(config: pytest.Config) -> None:
+    if numba_config.BOUNDSCHECK != 1:
         raise pytest.UsageError("tests.boundscheck: run with NUMBA_BOUNDSCHECK=1")
     cache = os.environ.get("NUMBA_CACHE_DIR", "")
     if not cache or Path(cache).resolve().is_relative_to(PACKAGE):

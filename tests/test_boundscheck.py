@@ -6,8 +6,8 @@ entry points check their buffers' shapes (inputs.check_buffer); this pass catche
 checks cannot see, a kernel indexing past a buffer it made itself or one whose shape was
 right and whose contents were not. It runs the engine's, refinement's and the search
 kernels' tests in a process of their own (the setting is read when numba is imported), with
-their compiled code cached apart from the package's (.pytest_cache/d/numba-boundscheck).
-By hand:
+their compiled code cached apart from the package's (.pytest_cache/d/numba-boundscheck/KEY,
+KEY a digest of the kernels' sources). By hand:
 
     NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=/tmp/links-boundscheck \\
         python -m pytest -q -p no:cacheprovider -p tests.boundscheck <files of KERNEL_TESTS>
@@ -15,12 +15,15 @@ By hand:
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import numba
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -47,13 +50,31 @@ KERNEL_TESTS = (
 MIN_PASSED = 300
 
 
+def kernel_sources_key() -> str:
+    """A digest of every module that holds kernels, and of numba's version. numba keys a
+    cached kernel on its own file only, but a kernel calling another module's carries a copy
+    of it: a cache kept across an edit of the callee would run the old callee unnoticed."""
+    digest = hashlib.sha256(numba.__version__.encode())
+    package = ROOT / "links_ray"
+    for path in sorted([*package.glob("engine/*.py"), package / "search" / "kernels.py"]):
+        digest.update(path.relative_to(package).as_posix().encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
 def boundscheck_cache(config: pytest.Config, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Where the pass's compiled kernels are kept: in pytest's cache, so later runs load
-    them (numba drops what an edit made stale), or for this session alone without it."""
+    """Where the pass's compiled kernels are kept: in pytest's cache under the kernels'
+    `kernel_sources_key`, so later runs of the same code load them (older keys' folders are
+    removed), or for this session alone when pytest keeps no cache."""
     cache = getattr(config, "cache", None)
-    if cache is not None:
-        return Path(cache.mkdir("numba-boundscheck"))
-    return tmp_path_factory.mktemp("numba-boundscheck")
+    if cache is None:
+        return tmp_path_factory.mktemp("numba-boundscheck")
+    root = Path(cache.mkdir("numba-boundscheck"))
+    key = kernel_sources_key()
+    for old in root.iterdir():
+        if old.name != key:
+            shutil.rmtree(old, ignore_errors=True)
+    (root / key).mkdir(exist_ok=True)
+    return root / key
 
 
 def run_bound_checked(files: tuple[str, ...], cache: Path) -> subprocess.CompletedProcess[str]:
@@ -79,5 +100,6 @@ def test_the_kernel_tests_pass_with_bounds_checked(
 ) -> None:
     run = run_bound_checked(KERNEL_TESTS, boundscheck_cache(request.config, tmp_path_factory))
     tail = "\n".join(run.stdout.splitlines()[-60:] + run.stderr.splitlines()[-20:])
+    print(run.stdout.splitlines()[-1] if run.stdout else "")  # its summary, with -s or -rP
     assert run.returncode == 0, f"the bound-checked pass failed:\n{tail}"
     assert passed(run.stdout) >= MIN_PASSED, f"the bound-checked pass ran too little:\n{tail}"
