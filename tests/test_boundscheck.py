@@ -51,13 +51,16 @@ MIN_PASSED = 300
 
 
 def kernel_sources_key() -> str:
-    """A digest of every module that holds kernels, and of numba's version. numba keys a
-    cached kernel on its own file only, but a kernel calling another module's carries a copy
-    of it: a cache kept across an edit of the callee would run the old callee unnoticed."""
+    """A digest of every module of the package that compiles kernels, and of numba's
+    version. numba keys a cached kernel on its own file only, but a kernel calling another
+    module's carries a copy of it: a cache kept across an edit of the callee would run the
+    old callee unnoticed."""
     digest = hashlib.sha256(numba.__version__.encode())
     package = ROOT / "links_ray"
-    for path in sorted([*package.glob("engine/*.py"), package / "search" / "kernels.py"]):
-        digest.update(path.relative_to(package).as_posix().encode() + b"\0" + path.read_bytes())
+    for path in sorted(package.rglob("*.py")):
+        source = path.read_bytes()
+        if b"njit" in source:
+            digest.update(path.relative_to(package).as_posix().encode() + b"\0" + source)
     return digest.hexdigest()[:16]
 
 

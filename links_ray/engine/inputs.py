@@ -394,9 +394,8 @@ def check_buffer(
     """Refuse a buffer a compiled kernel would index past its end, or misread: unless `array`
     is a NumPy array of `shape` (None: any length on that axis) and `dtype` (a type, or kind
     characters such as "iu" for any integer), C-contiguous where `contiguous` and writeable
-    where `writeable`, ValueError
-    naming it, what was expected and what was given. numba checks no bounds: without this a
-    short buffer is written past its end, silently.
+    where `writeable`, ValueError naming it, what was expected and what was given. numba
+    checks no bounds: without this a short buffer is written past its end, silently.
 
     Costs about a microsecond; kernels called in loops by their own module, with buffers made
     there, are called without it."""
