@@ -154,6 +154,8 @@ def test_a_grazing_turn_is_refused_within_the_split_budget() -> None:
     for _ in range(60):
         simulator = TopologySimulator(*random_topology(rng))
         topology = simulator.topology
+        # Every buffer sized for this topology: a kernel given another's raises ValueError.
+        geometry = np.empty((len(topology.order), 3))
         for positions in PositionSampler(simulator).search(5, rng, "sequential").positions:
             trajectory = np.empty((topology.n_joints, 2000, 2))
             if (

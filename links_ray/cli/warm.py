@@ -31,11 +31,11 @@ class KernelGroup:
     seconds: int  # about how long compiling the group takes on one core
 
 
-SOLVER = KernelGroup("the solver's kernels", "links_ray.engine.solver", "simulate_one", 15)
+SOLVER = KernelGroup("the solver's kernels", "links_ray.engine.solver", "_simulate_one", 15)
 PATHS = KernelGroup("the path kernels", "links_ray.engine.paths", "_normalize_batch", 5)
-SEARCH = KernelGroup("the search kernels", "links_ray.search.kernels", "sketch_chamfer", 15)
+SEARCH = KernelGroup("the search kernels", "links_ray.search.kernels", "_sketch_chamfer", 15)
 REFINE = KernelGroup(
-    "the refinement kernels", "links_ray.engine.refine_kernels", "nearest_pairs", 5
+    "the refinement kernels", "links_ray.engine.refine_kernels", "_nearest_pairs", 5
 )
 #: Every group, as `links warm` checks them.
 ALL_GROUPS = (SOLVER, PATHS, SEARCH, REFINE)

@@ -10,6 +10,8 @@ import math
 import numba
 import numpy as np
 
+from links_ray.engine.inputs import check_buffer
+
 __all__ = [
     "CIRCLE_VARIANCE_THRESHOLD",
     "chamfer",
@@ -505,14 +507,8 @@ def chamfer_to_many(query: object, candidates: object, out: np.ndarray | None = 
     n = cands.shape[0]
     if out is None:
         out = np.empty(n)
-    elif not (
-        isinstance(out, np.ndarray)
-        and out.dtype == np.float64
-        and out.shape == (n,)
-        and out.flags.c_contiguous
-        and out.flags.writeable
-    ):
-        raise ValueError(f"out must be a writeable contiguous float64 array of shape ({n},)")
+    else:
+        check_buffer("out", out, (n,), contiguous=True, writeable=True)
     bad = _chamfer_to_many(q, cands, out)
     if bad >= 0:
         raise ValueError(f"candidates must be finite (candidate {bad} has NaN or inf)")

@@ -7,6 +7,9 @@ every value its exact derivative with respect to all 2n initial coordinates. The
 lever of each dyad are functions of the initial positions, so their derivatives count; the
 branch sign is piecewise constant and contributes none.
 
+The kernels' entry points, called from Python with the caller's buffers, check their shapes
+first (`inputs.check_buffer`): numba checks no bounds.
+
 Pure numpy/numba, plain-array signatures: no Ray.
 """
 
@@ -15,12 +18,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from links_ray.engine.inputs import check_buffer, check_solution_path
 from links_ray.engine.paths import _nearest_sq
-from links_ray.engine.solver import dyad_fails, dyad_geometry, place_crank, place_fixed
+from links_ray.engine.solver import _dyad_geometry, _place_crank, _place_fixed, dyad_fails
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def solve_tangents(
+def _solve_tangents(
     order: np.ndarray,
     fixed: np.ndarray,
     pos: np.ndarray,
@@ -35,7 +39,7 @@ def solve_tangents(
 
     Writes traj (n, steps, 2), the solver's trajectories; trans (m, steps), per dyad k of
     `order` the sine of the angle at its solved joint between the links to its two parents
-    (0 at a dead centre); geometry (m, 3) as `dyad_geometry`. If dtraj has shape
+    (0 at a dead centre); geometry (m, 3) as `_dyad_geometry`. If dtraj has shape
     (n, steps, 2, 2n) it receives d traj / d pos, column 2i + c for coordinate c of joint i, and
     dtrans (m, steps, 2n) likewise; pass zero-width arrays (last axis 0) for values only.
     Returns (-1, -1) when every step assembles, else (first locking step, joint) as
@@ -47,9 +51,9 @@ def solve_tangents(
     """
     steps = crank.shape[0]
     cols = dtraj.shape[3]
-    dyad_geometry(order, pos, geometry)
-    place_fixed(fixed, pos, traj, steps)
-    place_crank(pos, crank, traj, 0, steps, 0)
+    _dyad_geometry(order, pos, geometry)
+    _place_fixed(fixed, pos, traj, steps)
+    _place_crank(pos, crank, traj, 0, steps, 0)
     if cols:
         dtraj[:] = 0.0
         for i in range(fixed.shape[0]):
@@ -153,7 +157,7 @@ def solve_tangents(
 
 
 @njit(cache=True, nogil=True)
-def nearest_pairs(
+def _nearest_pairs(
     path: np.ndarray,
     target: np.ndarray,
     path_nn: np.ndarray,
@@ -181,7 +185,7 @@ def nearest_pairs(
 
 
 @njit(cache=True, nogil=True)
-def best_interval(path: np.ndarray, stroke: np.ndarray, min_count: int) -> tuple[int, int, float]:
+def _best_interval(path: np.ndarray, stroke: np.ndarray, min_count: int) -> tuple[int, int, float]:
     """The run of consecutive path points (cyclic) whose chamfer to `stroke` is least.
 
     Tries every start and every count from `min_count` to all the points: (start, count,
@@ -227,3 +231,70 @@ def best_interval(path: np.ndarray, stroke: np.ndarray, min_count: int) -> tuple
             if value < best_value or (value == best_value and count < best_count):
                 best_start, best_count, best_value = start, count, value
     return best_start, best_count, best_value
+
+
+# -- entry points ------------------------------------------------------------------------------
+
+
+def solve_tangents(
+    order: np.ndarray,
+    fixed: np.ndarray,
+    pos: np.ndarray,
+    crank: np.ndarray,
+    traj: np.ndarray,
+    dtraj: np.ndarray,
+    trans: np.ndarray,
+    dtrans: np.ndarray,
+    geometry: np.ndarray,
+) -> tuple[int, int]:
+    """Trajectories traj (n, steps, 2), per-dyad transmission sines trans (m, steps) and
+    geometry (m, 3) of the positions `pos` (n, 2), and with dtraj (n, steps, 2, 2n) and dtrans
+    (m, steps, 2n) their derivatives (zero-width last axes for values only): `_solve_tangents`.
+    """
+    check_buffer("pos", pos, (None, 2))
+    n = pos.shape[0]
+    check_solution_path(order, n, fixed)
+    check_buffer("crank", crank, (None, 2))
+    m, steps = order.shape[0], crank.shape[0]
+    check_buffer("traj", traj, (n, steps, 2))
+    cols = dtraj.shape[3] if isinstance(dtraj, np.ndarray) and dtraj.ndim == 4 else 0
+    cols = cols if cols in (0, 2 * n) else 2 * n  # a width that is neither is refused below
+    check_buffer("dtraj", dtraj, (n, steps, 2, cols))
+    check_buffer("trans", trans, (m, steps))
+    check_buffer("dtrans", dtrans, (m, steps, cols))
+    check_buffer("geometry", geometry, (m, 3))
+    return _solve_tangents(order, fixed, pos, crank, traj, dtraj, trans, dtrans, geometry)
+
+
+def nearest_pairs(
+    path: np.ndarray,
+    target: np.ndarray,
+    path_nn: np.ndarray,
+    path_d: np.ndarray,
+    target_nn: np.ndarray,
+    target_d: np.ndarray,
+) -> None:
+    """For each point of `path` (P, 2) its nearest point of `target` (T, 2), into path_nn (P,)
+    int64 and path_d (P,), and the other way into target_nn (T,) int64 and target_d (T,)."""
+    check_buffer("path", path, (None, 2))
+    check_buffer("target", target, (None, 2))
+    points, targets = path.shape[0], target.shape[0]
+    if points == 0 or targets == 0:
+        raise ValueError(f"path and target must hold points, got {points} and {targets}")
+    check_buffer("path_nn", path_nn, (points,), np.int64)
+    check_buffer("path_d", path_d, (points,))
+    check_buffer("target_nn", target_nn, (targets,), np.int64)
+    check_buffer("target_d", target_d, (targets,))
+    _nearest_pairs(path, target, path_nn, path_d, target_nn, target_d)
+
+
+def best_interval(path: np.ndarray, stroke: np.ndarray, min_count: int) -> tuple[int, int, float]:
+    """The run of consecutive points of `path` (S, 2), cyclic, whose chamfer to `stroke` (M, 2)
+    is least: (start, count, chamfer) (`_best_interval`)."""
+    check_buffer("path", path, (None, 2))
+    check_buffer("stroke", stroke, (None, 2))
+    if path.shape[0] == 0 or stroke.shape[0] == 0:
+        raise ValueError(
+            f"path and stroke must hold points, got {path.shape[0]} and {stroke.shape[0]}"
+        )
+    return _best_interval(path, stroke, min_count)

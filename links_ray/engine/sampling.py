@@ -33,16 +33,16 @@ from links_ray.engine.mechanism import CRANK_CENTER, CRANK_TIP, Topology
 from links_ray.engine.solver import (
     CHECK_BLOCK,
     TopologySimulator,
+    _dyad_geometry,
+    _place_crank,
+    _place_fixed,
+    _simulate_one,
+    _simulate_turn,
+    _solve_span,
     dyad_fails,
-    dyad_geometry,
-    place_crank,
-    place_fixed,
-    simulate_one,
-    simulate_turn,
-    solve_span,
 )
 from links_ray.engine.topology import SeedLike, grow_topology
-from links_ray.engine.turning import turn_lock
+from links_ray.engine.turning import _turn_lock
 
 Sampler = Literal["sequential", "rejection"]
 SAMPLERS: tuple[str, ...] = ("sequential", "rejection")
@@ -115,9 +115,9 @@ def _rejection_kernel(
         for k in range(order.shape[0]):
             pos[order[k, 0], 0] = np.random.random()
             pos[order[k, 0], 1] = np.random.random()
-        step, _ = simulate_one(order, fixed, pos, crank_low, False, scratch, geometry)
+        step, _ = _simulate_one(order, fixed, pos, crank_low, False, scratch, geometry)
         if step < 0:
-            step, _ = simulate_turn(order, fixed, pos, crank, trajectories[found], geometry)
+            step, _ = _simulate_turn(order, fixed, pos, crank, trajectories[found], geometry)
         if step < 0:
             positions[found] = pos
             found += 1
@@ -155,8 +155,8 @@ def _sequential_kernel(
         attempts += 1
         traj = trajectories[found]
         _place_crank_and_ground(fixed, pos)
-        place_fixed(fixed, pos, traj, steps)
-        place_crank(pos, crank, traj, 0, steps, 0)
+        _place_fixed(fixed, pos, traj, steps)
+        _place_crank(pos, crank, traj, 0, steps, 0)
         placed_all = True
         for k in range(order.shape[0]):
             j, a, b = order[k, 0], order[k, 1], order[k, 2]
@@ -172,11 +172,11 @@ def _sequential_kernel(
             for _ in range(draws_per_joint):
                 pos[j, 0] = np.random.random()
                 pos[j, 1] = np.random.random()
-                dyad_geometry(order[k : k + 1], pos, geometry)
+                _dyad_geometry(order[k : k + 1], pos, geometry)
                 r1, r2 = geometry[0, 0], geometry[0, 1]
                 # Exactly the lock test of the solver, at the extremes of the parents' distance.
                 if not (dyad_fails(d_sq_max, r1, r2) or dyad_fails(d_sq_min, r1, r2)):
-                    placed = solve_span(traj, j, a, b, r1, r2, geometry[0, 2], 0, steps) == 0
+                    placed = _solve_span(traj, j, a, b, r1, r2, geometry[0, 2], 0, steps) == 0
                 if placed:
                     break
                 if kept < negatives.shape[0]:
@@ -188,8 +188,8 @@ def _sequential_kernel(
                 break
         if placed_all:
             # Every dyad assembles at every step; the turn must also pass between them.
-            dyad_geometry(order, pos, whole)
-            if turn_lock(order, pos, whole, traj)[0] < 0:
+            _dyad_geometry(order, pos, whole)
+            if _turn_lock(order, pos, whole, traj)[0] < 0:
                 positions[found] = pos
                 found += 1
             elif kept < negatives.shape[0]:

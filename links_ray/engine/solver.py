@@ -24,10 +24,13 @@ from links_ray.engine.inputs import (
     MIN_LINK_LENGTH,
     as_positions,
     as_steps,
+    check_buffer,
+    check_indices,
     check_positions,
+    check_solution_path,
 )
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
-from links_ray.engine.turning import turn_lock
+from links_ray.engine.turning import _turn_lock
 
 #: Steps solved together per joint when trajectories are kept (see `simulate_one`).
 BLOCK = 16
@@ -53,7 +56,7 @@ def crank_table(steps: int) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def dyad_geometry(order: np.ndarray, pos: np.ndarray, geometry: np.ndarray) -> None:
+def _dyad_geometry(order: np.ndarray, pos: np.ndarray, geometry: np.ndarray) -> None:
     """Per solved joint: radius to each parent and the frozen branch sign, from the initial pose.
 
     The branch sign is the side of the line parent_a -> parent_b the joint starts on (+1 left,
@@ -82,7 +85,7 @@ def dyad_fails(d_sq: float, r1: float, r2: float) -> bool:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def solve_span(
+def _solve_span(
     traj: np.ndarray, j: int, a: int, b: int, r1: float, r2: float, side: float, lo: int, hi: int
 ) -> int:
     """Place joint j at rows lo:hi of `traj` (n, rows, 2) from parents a and b.
@@ -113,7 +116,7 @@ def solve_span(
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def first_failure(traj: np.ndarray, a: int, b: int, r1: float, r2: float, lo: int, hi: int) -> int:
+def _first_failure(traj: np.ndarray, a: int, b: int, r1: float, r2: float, lo: int, hi: int) -> int:
     """The first row in lo:hi where a dyad on parents a and b cannot be assembled, else -1."""
     for s in range(lo, hi):
         dx = traj[b, s, 0] - traj[a, s, 0]
@@ -124,7 +127,7 @@ def first_failure(traj: np.ndarray, a: int, b: int, r1: float, r2: float, lo: in
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def place_crank(
+def _place_crank(
     pos: np.ndarray, crank: np.ndarray, traj: np.ndarray, start: int, stop: int, row: int
 ) -> None:
     """Joint 1 at crank steps start:stop, the initial crank turned, into `traj` from `row` on."""
@@ -137,7 +140,7 @@ def place_crank(
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def place_fixed(fixed: np.ndarray, pos: np.ndarray, traj: np.ndarray, rows: int) -> None:
+def _place_fixed(fixed: np.ndarray, pos: np.ndarray, traj: np.ndarray, rows: int) -> None:
     """Fixed joints at their initial positions in the first `rows` rows of `traj`."""
     for i in range(fixed.shape[0]):
         f = fixed[i]
@@ -147,7 +150,7 @@ def place_fixed(fixed: np.ndarray, pos: np.ndarray, traj: np.ndarray, rows: int)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def simulate_one(
+def _simulate_one(
     order: np.ndarray,
     fixed: np.ndarray,
     pos: np.ndarray,
@@ -167,21 +170,21 @@ def simulate_one(
     """
     steps = crank.shape[0]
     block = BLOCK if keep else out.shape[1]
-    dyad_geometry(order, pos, geometry)
-    place_fixed(fixed, pos, out, steps if keep else block)
+    _dyad_geometry(order, pos, geometry)
+    _place_fixed(fixed, pos, out, steps if keep else block)
     for start in range(0, steps, block):
         stop = min(start + block, steps)
         # Rows of `out` for this block: absolute steps with `keep`, block-relative without.
         lo = start if keep else 0
         hi = lo + stop - start
-        place_crank(pos, crank, out, start, stop, lo)
+        _place_crank(pos, crank, out, start, stop, lo)
         lock_step, lock_node = -1, -1
         for k in range(order.shape[0]):
             j, a, b = order[k, 0], order[k, 1], order[k, 2]
             r1, r2 = geometry[k, 0], geometry[k, 1]
-            if solve_span(out, j, a, b, r1, r2, geometry[k, 2], lo, hi):
+            if _solve_span(out, j, a, b, r1, r2, geometry[k, 2], lo, hi):
                 # Later joints need only the rows before this joint's first lock.
-                hi = first_failure(out, a, b, r1, r2, lo, hi)
+                hi = _first_failure(out, a, b, r1, r2, lo, hi)
                 lock_step, lock_node = start + hi - lo, j
         if lock_step >= 0:
             return lock_step, lock_node
@@ -189,7 +192,7 @@ def simulate_one(
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def positions_suspect(
+def _positions_suspect(
     pos: np.ndarray, link_i: np.ndarray, link_j: np.ndarray, max_coordinate: float, min_link: float
 ) -> bool:
     """Whether `inputs.as_positions` or `inputs.check_positions` might refuse position sets
@@ -211,7 +214,7 @@ def positions_suspect(
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def simulate_turn(
+def _simulate_turn(
     order: np.ndarray,
     fixed: np.ndarray,
     pos: np.ndarray,
@@ -221,14 +224,14 @@ def simulate_turn(
 ) -> tuple[int, int]:
     """`simulate_one` keeping every step in `out` (n, steps, 2), then the check between the
     steps (`turning.turn_lock`): (-1, -1) only if the crank certainly turns fully."""
-    step, node = simulate_one(order, fixed, pos, crank, True, out, geometry)
+    step, node = _simulate_one(order, fixed, pos, crank, True, out, geometry)
     if step < 0:
-        step, node = turn_lock(order, pos, geometry, out)
+        step, node = _turn_lock(order, pos, geometry, out)
     return step, node
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def simulate_candidates(
+def _simulate_candidates(
     order: np.ndarray,
     fixed: np.ndarray,
     positions: np.ndarray,
@@ -248,13 +251,13 @@ def simulate_candidates(
     turn = np.empty((0, 0, 2))  # a whole turn, for candidates a blockwise check passes
     for b in range(positions.shape[0]):
         if keep:
-            step, node = simulate_turn(order, fixed, positions[b], crank, out[b], geometry)
+            step, node = _simulate_turn(order, fixed, positions[b], crank, out[b], geometry)
         else:
-            step, node = simulate_one(order, fixed, positions[b], crank, False, out[0], geometry)
+            step, node = _simulate_one(order, fixed, positions[b], crank, False, out[0], geometry)
             if step < 0:
                 if turn.shape[0] == 0:
                     turn = np.empty((positions.shape[1], crank.shape[0], 2))
-                step, node = simulate_turn(order, fixed, positions[b], crank, turn, geometry)
+                step, node = _simulate_turn(order, fixed, positions[b], crank, turn, geometry)
         lock_step[b] = step
         lock_node[b] = node
         if keep and step >= 0:
@@ -262,7 +265,7 @@ def simulate_candidates(
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def trace_joints(
+def _trace_joints(
     orders: np.ndarray,
     order_start: np.ndarray,
     positions: np.ndarray,
@@ -294,11 +297,144 @@ def trace_joints(
         fixed = np.flatnonzero(~solved).astype(np.int64)
         traj = np.empty((n, steps, 2))
         geometry = np.empty((order.shape[0], 3))
-        step, _ = simulate_one(order, fixed, pos, crank, True, traj, geometry)
+        step, _ = _simulate_one(order, fixed, pos, crank, True, traj, geometry)
         if step >= 0:
             out[i] = np.nan
         else:
             out[i] = traj[joints[i]]
+
+
+# -- entry points: the kernels above, called from Python with the caller's buffers --------------
+# numba checks no bounds, so each checks its buffers' shapes against the positions and the
+# solution path first (`inputs.check_buffer`). This module's own callers, which make their
+# buffers from the topology they hold, call the kernels directly.
+
+
+def _check_turn_buffers(
+    order: np.ndarray, fixed: np.ndarray | None, pos: np.ndarray, crank: np.ndarray
+) -> tuple[int, int, int]:
+    """(n, m, steps) of a mechanism's positions `pos` (n, 2), its solution path and `crank`."""
+    check_buffer("pos", pos, (None, 2))
+    n = pos.shape[0]
+    check_solution_path(order, n, fixed)
+    check_buffer("crank", crank, (None, 2))
+    return n, order.shape[0], crank.shape[0]
+
+
+def dyad_geometry(order: np.ndarray, pos: np.ndarray, geometry: np.ndarray) -> None:
+    """Per solved joint k of `order`, into geometry[k] (m, 3): its radius to each parent and
+    its frozen branch sign (+1 left of the line parent_a -> parent_b, -1 right), from the
+    positions `pos` (n, 2)."""
+    check_buffer("pos", pos, (None, 2))
+    check_solution_path(order, pos.shape[0])
+    check_buffer("geometry", geometry, (order.shape[0], 3))
+    _dyad_geometry(order, pos, geometry)
+
+
+def simulate_one(
+    order: np.ndarray,
+    fixed: np.ndarray,
+    pos: np.ndarray,
+    crank: np.ndarray,
+    keep: bool,
+    out: np.ndarray,
+    geometry: np.ndarray,
+) -> tuple[int, int]:
+    """Simulate the positions `pos` (n, 2) over the `crank` (steps, 2) steps, checking only
+    the steps themselves: (-1, -1) when every step assembles, else (first locking step,
+    joint). With `keep`, `out` (n, steps, 2) receives the trajectories; without, it is
+    scratch (n, block, 2). `geometry` (m, 3) receives `dyad_geometry`'s."""
+    n, m, steps = _check_turn_buffers(order, fixed, pos, crank)
+    check_buffer("out", out, (n, steps, 2) if keep else (n, None, 2))
+    if not keep and out.shape[1] == 0:
+        raise ValueError("out must have at least one step of scratch, got shape (n, 0, 2)")
+    check_buffer("geometry", geometry, (m, 3))
+    return _simulate_one(order, fixed, pos, crank, keep, out, geometry)
+
+
+def simulate_turn(
+    order: np.ndarray,
+    fixed: np.ndarray,
+    pos: np.ndarray,
+    crank: np.ndarray,
+    out: np.ndarray,
+    geometry: np.ndarray,
+) -> tuple[int, int]:
+    """`simulate_one` keeping every step in `out` (n, steps, 2), then the check between the
+    steps: (-1, -1) only if the crank certainly turns fully."""
+    n, m, steps = _check_turn_buffers(order, fixed, pos, crank)
+    check_buffer("out", out, (n, steps, 2))
+    check_buffer("geometry", geometry, (m, 3))
+    return _simulate_turn(order, fixed, pos, crank, out, geometry)
+
+
+def simulate_candidates(
+    order: np.ndarray,
+    fixed: np.ndarray,
+    positions: np.ndarray,
+    crank: np.ndarray,
+    keep: bool,
+    out: np.ndarray,
+    lock_step: np.ndarray,
+    lock_node: np.ndarray,
+) -> None:
+    """Position sets (B, n, 2) of one topology, each checked between its steps too: with
+    `keep`, trajectories into `out` (B, n, steps, 2), NaN where a set locks; without, `out`
+    is scratch (1, n, block, 2). lock_step and lock_node (B,) int64 receive each set's lock
+    (-1 where valid)."""
+    check_buffer("positions", positions, (None, None, 2))
+    batch, n = positions.shape[:2]
+    check_solution_path(order, n, fixed, positions="positions")
+    check_buffer("crank", crank, (None, 2))
+    steps = crank.shape[0]
+    check_buffer("out", out, (batch, n, steps, 2) if keep else (1, n, None, 2))
+    if not keep and out.shape[2] == 0:
+        raise ValueError("out must have at least one step of scratch, got shape (1, n, 0, 2)")
+    check_buffer("lock_step", lock_step, (batch,), np.int64)
+    check_buffer("lock_node", lock_node, (batch,), np.int64)
+    _simulate_candidates(order, fixed, positions, crank, keep, out, lock_step, lock_node)
+
+
+def trace_joints(
+    orders: np.ndarray,
+    order_start: np.ndarray,
+    positions: np.ndarray,
+    joint_start: np.ndarray,
+    mechanisms: np.ndarray,
+    joints: np.ndarray,
+    crank: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """out[i] (F, steps, 2) = the trajectory of joint joints[i] of mechanism mechanisms[i],
+    of mechanisms held packed (`_trace_joints` says how); NaN rows where a mechanism locks.
+    The packed solution paths are the holder's (`search.mechanisms.MechanismBank`), checked
+    when it was made; the rest is checked here."""
+    check_buffer("orders", orders, (None, 3), "iu")
+    check_buffer("order_start", order_start, (None,), "iu")
+    count = order_start.shape[0] - 1
+    check_buffer("positions", positions, (None, 2))
+    check_buffer("joint_start", joint_start, (count + 1,), "iu")
+    check_buffer("mechanisms", mechanisms, (None,), "iu")
+    rows = mechanisms.shape[0]
+    check_buffer("joints", joints, (rows,), "iu")
+    check_buffer("crank", crank, (None, 2))
+    check_buffer("out", out, (rows, crank.shape[0], 2))
+    if count < 0:
+        raise ValueError("order_start must hold at least one entry, got none")
+    check_indices("order_start", order_start, orders.shape[0] + 1, "the rows of orders")
+    check_indices("joint_start", joint_start, positions.shape[0] + 1, "the rows of positions")
+    check_indices("mechanisms", mechanisms, count, f"the {count} mechanisms held")
+    if rows:
+        sizes = joint_start[mechanisms + 1] - joint_start[mechanisms]
+        if (sizes < 2).any() or (order_start[mechanisms + 1] < order_start[mechanisms]).any():
+            raise ValueError("order_start and joint_start must not decrease")
+        if not ((joints >= 0) & (joints < sizes)).all():
+            i = int(np.flatnonzero((joints < 0) | (joints >= sizes))[0])
+            raise ValueError(
+                f"joints must index each mechanism's joints: joints[{i}] = {int(joints[i])}, "
+                f"mechanism {int(mechanisms[i])} has {int(sizes[i])}"
+            )
+    _trace_joints(orders, order_start, positions, joint_start, mechanisms, joints, crank, out)
 
 
 @functools.lru_cache(maxsize=16)
@@ -346,9 +482,10 @@ class TopologySimulator:
         *,
         out: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Unchecked fast path: (trajectories, lock_step, lock_node), -1 where valid.
+        """Fast path: (trajectories, lock_step, lock_node), -1 where valid.
 
-        `positions` must already be a valid float64 (B, n, 2) array. Passing a reused float64
+        `positions` must already be a valid float64 (B, n, 2) array: its shape and an `out`'s
+        are checked (ValueError), its values are not. Passing a reused float64
         `out` of shape (B, n, steps, 2) saves the page faults of a fresh large array, which can
         cost more than the simulation itself.
         """
@@ -377,7 +514,7 @@ class TopologySimulator:
         return self.lock_check(positions, steps)
 
     def lock_check(self, positions: np.ndarray, steps: int) -> tuple[np.ndarray, np.ndarray]:
-        """Unchecked fast path of `first_lock`."""
+        """Fast path of `first_lock`: positions as `run` takes them."""
         batch = positions.shape[0]
         lock_step = np.empty(batch, dtype=np.int64)
         lock_node = np.empty(batch, dtype=np.int64)
@@ -481,7 +618,7 @@ def checked_input(
     batch (B, n, 2) the steps first, else the positions' form, the steps, their geometry.
 
     The positions' checks run in full only for an array that is not plain float64 or where
-    `positions_suspect` finds something they might refuse: a call in a loop costs about a
+    `_positions_suspect` finds something they might refuse: a call in a loop costs about a
     microsecond, not tens."""
     if batch:
         steps = as_steps(steps)
@@ -497,7 +634,7 @@ def checked_input(
         positions = as_positions(positions, n, batch=batch)
     link_i, link_j = topology.links
     sets = positions.reshape(-1, n, 2)
-    suspect = positions_suspect(sets, link_i, link_j, MAX_COORDINATE, MIN_LINK_LENGTH)
+    suspect = _positions_suspect(sets, link_i, link_j, MAX_COORDINATE, MIN_LINK_LENGTH)
     if suspect:
         as_positions(positions, n, batch=batch)  # names NaN or infinite entries
     if not batch:
@@ -523,7 +660,7 @@ def simulate(
     positions, steps = checked_input(topology, positions, steps)
     out = np.empty((simulator.n_joints, steps, 2))
     geometry = np.empty((topology.order.shape[0], 3))
-    step, node = simulate_turn(
+    step, node = _simulate_turn(
         topology.order, topology.fixed_joints, positions, crank_turn(steps), out, geometry
     )
     if step >= 0:
@@ -548,7 +685,7 @@ def simulate_until_lock(
     out = np.empty((simulator.n_joints, steps, 2))
     geometry = np.empty((topology.order.shape[0], 3))
     crank = crank_turn(steps)
-    step, node = simulate_turn(
+    step, node = _simulate_turn(
         topology.order, topology.fixed_joints, positions, crank, out, geometry
     )
     if step < 0:
@@ -556,7 +693,7 @@ def simulate_until_lock(
     # Every step before the first lock assembles: solve just those, on the same crank angles,
     # without the check between steps (the part of a turn before a lock does not close).
     before = np.empty((simulator.n_joints, step, 2))
-    simulate_one(
+    _simulate_one(
         topology.order, topology.fixed_joints, positions, crank[:step], True, before, geometry
     )
     return before, step, node

@@ -22,12 +22,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from links_ray.engine.inputs import check_buffer, check_solution_path
+
 #: The angle of a joint whose motion goes through no dyad (fixed joints and the crank tip).
 NO_DYAD_DEG = 90.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def least_sines(order: np.ndarray, trajectories: np.ndarray, out: np.ndarray) -> None:
+def _least_sines(order: np.ndarray, trajectories: np.ndarray, out: np.ndarray) -> None:
     """out[i, k]: the least sine of dyad k's transmission angle over the steps of mechanism i,
     for trajectories (B, n, steps, 2) of one topology whose solution path is `order`."""
     for i in range(trajectories.shape[0]):
@@ -45,6 +47,15 @@ def least_sines(order: np.ndarray, trajectories: np.ndarray, out: np.ndarray) ->
                 else:
                     least = 0.0
             out[i, k] = least
+
+
+def least_sines(order: np.ndarray, trajectories: np.ndarray, out: np.ndarray) -> None:
+    """out (B, m): the least sine of each dyad's transmission angle over each mechanism's
+    steps, for trajectories (B, n, steps, 2) of one topology (`_least_sines`)."""
+    check_buffer("trajectories", trajectories, (None, None, None, 2), "f")
+    check_solution_path(order, trajectories.shape[1], positions="trajectories")
+    check_buffer("out", out, (trajectories.shape[0], order.shape[0]))
+    _least_sines(order, trajectories, out)
 
 
 def joint_transmission_deg(order: np.ndarray, trajectories: np.ndarray) -> np.ndarray:

@@ -26,7 +26,7 @@ part of every interval there unsure down to the last depth, and proving it turne
 budget keeps every check to milliseconds; what it refuses turns, if at all, by a hair.
 
 Most intervals of most mechanisms pass at once. The first pass goes dyad by dyad over the
-sampled turn (`unsure_intervals`), each parents' distance measured once per step; only the
+sampled turn (`_unsure_intervals`), each parents' distance measured once per step; only the
 intervals it leaves unsure are split, and each split keeps the poses at its ends for its
 parts. On valid 8-20 joint mechanisms the check costs two to three simulations of the turn.
 
@@ -37,6 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+from links_ray.engine.inputs import check_buffer, check_solution_path
 
 #: The parents' path length over an interval is taken as at most this times their chord.
 ARC_FACTOR = 2.0
@@ -73,7 +75,7 @@ def _moved(start: np.ndarray, end: np.ndarray, a: int, b: int) -> float:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def pose_at(
+def _pose_at(
     order: np.ndarray, pos: np.ndarray, geometry: np.ndarray, angle: float, out: np.ndarray
 ) -> int:
     """Every joint at crank `angle` into `out` (n, 2), on the branches of `geometry`; returns
@@ -100,7 +102,7 @@ def pose_at(
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def rigid_dyads(order: np.ndarray, traj: np.ndarray) -> np.ndarray:
+def _rigid_dyads(order: np.ndarray, traj: np.ndarray) -> np.ndarray:
     """(m,) bool: dyads whose parents keep their distance over the sampled turn `traj`
     (n, steps, 2) to within `RIGID_TOLERANCE` of it: parts of one rigid body."""
     rigid = np.empty(order.shape[0], dtype=np.bool_)
@@ -118,7 +120,7 @@ def rigid_dyads(order: np.ndarray, traj: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def unsure_dyad(
+def _unsure_dyad(
     order: np.ndarray,
     geometry: np.ndarray,
     rigid: np.ndarray,
@@ -141,15 +143,15 @@ def unsure_dyad(
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def unsure_intervals(
+def _unsure_intervals(
     order: np.ndarray, geometry: np.ndarray, traj: np.ndarray, rigid: np.ndarray
 ) -> np.ndarray:
     """(steps,) bool: the sampled intervals (t, t + 1) of `traj` (n, steps, 2), the last
-    wrapping to step 0, where `unsure_dyad` finds a dyad unsure; fills `rigid` (m,) as
-    `rigid_dyads` does.
+    wrapping to step 0, where `_unsure_dyad` finds a dyad unsure; fills `rigid` (m,) as
+    `_rigid_dyads` does.
 
     Dyad by dyad, so each parents' distance is measured once per step rather than at both
-    ends of two intervals; the numbers compared are `unsure_dyad`'s.
+    ends of two intervals; the numbers compared are `_unsure_dyad`'s.
     """
     steps = traj.shape[1]
     unsure = np.zeros(steps, dtype=np.bool_)
@@ -203,7 +205,7 @@ def _interval_lock(
     depths = np.empty(stack_size, dtype=np.int64)
     dyads = np.empty(stack_size, dtype=np.int64)  # the unsure dyad of each waiting interval
     poses = np.empty((SPLIT + 1, n, 2))
-    k = unsure_dyad(order, geometry, rigid, start, end)
+    k = _unsure_dyad(order, geometry, rigid, start, end)
     if k < 0:
         return -1
     lows[0], highs[0], depths[0], dyads[0] = lo, hi, 0, k
@@ -219,12 +221,12 @@ def _interval_lock(
         poses[0] = ends[top, 0]
         poses[SPLIT] = ends[top, 1]
         for s in range(1, SPLIT):
-            failed = pose_at(order, pos, geometry, lo + (hi - lo) * s / SPLIT, poses[s])
+            failed = _pose_at(order, pos, geometry, lo + (hi - lo) * s / SPLIT, poses[s])
             if failed >= 0:
                 return failed
         # Only the unsure parts go on the stack, the latest first so the earliest comes out.
         for s in range(SPLIT - 1, -1, -1):
-            k = unsure_dyad(order, geometry, rigid, poses[s], poses[s + 1])
+            k = _unsure_dyad(order, geometry, rigid, poses[s], poses[s + 1])
             if k >= 0:
                 lows[top] = lo + (hi - lo) * s / SPLIT
                 highs[top] = lo + (hi - lo) * (s + 1) / SPLIT
@@ -237,7 +239,7 @@ def _interval_lock(
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def turn_lock(
+def _turn_lock(
     order: np.ndarray,
     pos: np.ndarray,
     geometry: np.ndarray,
@@ -251,7 +253,7 @@ def turn_lock(
     """
     n, steps = traj.shape[0], traj.shape[1]
     rigid = np.empty(order.shape[0], dtype=np.bool_)
-    unsure = unsure_intervals(order, geometry, traj, rigid)
+    unsure = _unsure_intervals(order, geometry, traj, rigid)
     start = np.empty((n, 2))
     end = np.empty((n, 2))
     ends = np.empty((0, 2, n, 2))  # scratch of `_interval_lock`, made when first needed
@@ -269,3 +271,35 @@ def turn_lock(
         if k >= 0:
             return t + 1, order[k, 0]
     return -1, -1
+
+
+# -- entry points, called from Python with the caller's buffers: numba checks no bounds, so
+# each checks their shapes first (`inputs.check_buffer`).
+
+
+def turn_lock(
+    order: np.ndarray,
+    pos: np.ndarray,
+    geometry: np.ndarray,
+    traj: np.ndarray,
+    max_splits: int = MAX_SPLITS,
+) -> tuple[int, int]:
+    """(step, joint) of the first lock between the sampled steps of `traj` (n, steps, 2), a
+    turn of the positions `pos` (n, 2) on the branches of `geometry` (m, 3) that assembles at
+    every sampled step, else (-1, -1) (`_turn_lock` says how it is reported)."""
+    check_buffer("pos", pos, (None, 2))
+    n = pos.shape[0]
+    check_solution_path(order, n)
+    check_buffer("geometry", geometry, (order.shape[0], 3))
+    check_buffer("traj", traj, (n, None, 2))
+    if traj.shape[1] == 0:
+        raise ValueError(f"traj must hold at least one step, got shape {traj.shape}")
+    return _turn_lock(order, pos, geometry, traj, max_splits)
+
+
+def rigid_dyads(order: np.ndarray, traj: np.ndarray) -> np.ndarray:
+    """(m,) bool: the dyads of `order` whose parents keep their distance over the sampled turn
+    `traj` (n, steps, 2) (`_rigid_dyads`)."""
+    check_buffer("traj", traj, (None, None, 2))
+    check_solution_path(order, traj.shape[0], positions="traj")
+    return _rigid_dyads(order, traj)

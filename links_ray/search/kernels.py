@@ -20,10 +20,14 @@ rounded to one of SKETCH_LEVELS + 1 levels over [0, 1] and stored as uint8: 256 
 points 1, 3, ...; the y levels likewise after all x levels), so the leading ROUGH_POINTS of
 each half are a coarser sketch of their own, in half the cache lines. With 255 levels a
 variant's flip is `level ^ 255`, and the query's distance from every level point
-(`level_table`) is read without arithmetic.
+(`_level_table`) is read without arithmetic.
 
 The kernels that visit rows in an arbitrary order `prefetch` the rows a few steps ahead:
 without it they wait on memory most of the time.
+
+Each kernel is called from Python through its entry point of the same name without the
+underscore, which checks the buffers' shapes, types and the rows they index first
+(`inputs.check_buffer`): numba checks no bounds.
 """
 
 from __future__ import annotations
@@ -38,6 +42,8 @@ from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from links_ray.engine.inputs import check_buffer, check_indices
+
 #: Descriptor grid: GRID x GRID nodes spanning [0, 1]^2 (node spacing 1 / (GRID - 1)).
 GRID = 24
 #: Query distance table: TABLE_CELLS x TABLE_CELLS cells over [TABLE_LO, TABLE_HI]^2.
@@ -46,7 +52,7 @@ TABLE_LO, TABLE_HI = -0.05, 1.05
 #: Rows per parallel chunk: large enough that scheduling costs nothing.
 _CHUNK = 4096
 #: Points and coordinate levels of a path's sketch (255: all ones in uint8, see
-#: `sketch_chamfer`), and the points of its coarser leading part.
+#: `_sketch_chamfer`), and the points of its coarser leading part.
 SKETCH_POINTS, SKETCH_LEVELS, ROUGH_POINTS = 128, 255, 64
 #: Query points the rough estimate measures from (evenly along the query).
 ROUGH_SAMPLE = 32
@@ -107,8 +113,8 @@ def _distance_fields(paths: np.ndarray, stride: int, fields: np.ndarray) -> None
 
 
 #: For many paths; the serial twin serves a single query without waking threads.
-distance_fields = njit(cache=True, nogil=True, parallel=True)(_distance_fields)
-distance_fields_serial = njit(cache=True, nogil=True)(_distance_fields)
+_distance_fields_parallel = njit(cache=True, nogil=True, parallel=True)(_distance_fields)
+_distance_fields_serial = njit(cache=True, nogil=True)(_distance_fields)
 
 
 @njit(cache=True, inline="always")
@@ -126,7 +132,7 @@ def _least_two(
 
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
-def sketch_scan(
+def _sketch_scan(
     sketches: np.ndarray,
     starts: np.ndarray,
     ends: np.ndarray,
@@ -139,7 +145,7 @@ def sketch_scan(
 ) -> None:
     """For the rows i of each range starts[j]:ends[j] (pieces of a few thousand rows, so the
     threads share them evenly), at o = at[j] + i - starts[j]: out[o] = the least over the four
-    variants of the mean distance to the query (`levels`, its `level_table`) of the sketch
+    variants of the mean distance to the query (`levels`, its `_level_table`) of the sketch
     points stored at `slots`; likely[o] = 4 * that variant + the second least variant if its
     mean is within `margin`, else the least again.
 
@@ -171,7 +177,7 @@ def sketch_scan(
 def scan_pieces(
     starts: np.ndarray, ends: np.ndarray, piece: int = _CHUNK
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Row ranges cut into pieces of at most `piece` rows for `sketch_scan`: (starts, ends,
+    """Row ranges cut into pieces of at most `piece` rows for `_sketch_scan`: (starts, ends,
     at), `at` where each piece's scores begin in the output."""
     lengths = ends - starts
     counts = (lengths + piece - 1) // piece
@@ -193,10 +199,10 @@ def scan_slots(points: int) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
-def distance_table(query: np.ndarray, out: np.ndarray, owners: np.ndarray) -> None:
+def _distance_table(query: np.ndarray, out: np.ndarray, owners: np.ndarray) -> None:
     """out[a, b] = distance from node (TABLE_LO + a * size, TABLE_LO + b * size) to the query,
     and owners[a, b] = the index of the query point at that distance; out is square, of
-    TABLE_CELLS + 1 nodes a side for the search (any number for `nearest_node_bounds`)."""
+    TABLE_CELLS + 1 nodes a side for the search (any number for `_nearest_node_bounds`)."""
     nodes = out.shape[0]
     size = (TABLE_HI - TABLE_LO) / (nodes - 1)
     for a in prange(nodes):
@@ -255,7 +261,7 @@ def _slot(s: int) -> int:
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def sketch_paths(points: np.ndarray, out: np.ndarray) -> None:
+def _sketch_paths(points: np.ndarray, out: np.ndarray) -> None:
     """out[p] = the sketch of normalized path p (T, 2): the levels of SKETCH_POINTS points
     evenly spaced in time, even points first, x levels first, then y."""
     count = points.shape[1]
@@ -286,7 +292,7 @@ def _owned_distance(query: np.ndarray, owners: np.ndarray, x: float, y: float) -
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def level_table(query: np.ndarray, owners: np.ndarray, out: np.ndarray) -> None:
+def _level_table(query: np.ndarray, owners: np.ndarray, out: np.ndarray) -> None:
     """out[i, j] = the distance from (i, j) / SKETCH_LEVELS to the query (`_owned_distance`):
     from every point a sketch can hold."""
     for i in prange(SKETCH_LEVELS + 1):
@@ -298,14 +304,14 @@ def level_table(query: np.ndarray, owners: np.ndarray, out: np.ndarray) -> None:
 def sketch_midpoints(steps: int) -> np.ndarray:
     """The time-ordered sketch points s (int32) of a path of `steps` points that are more than
     one step before the next (s + 1): a midpoint between them stands in for what the sketch
-    left out (`sketch_chamfer`). At 200 steps, 72 of the 127 gaps. Made once per `steps` and
+    left out (`_sketch_chamfer`). At 200 steps, 72 of the 127 gaps. Made once per `steps` and
     shared: not to be written to."""
     times = np.array([_sketch_time(s, steps) for s in range(SKETCH_POINTS)])
     return np.flatnonzero(np.diff(times) >= 2).astype(np.int32)
 
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
-def sketch_chamfer(
+def _sketch_chamfer(
     sample: np.ndarray,
     levels: np.ndarray,
     sketches: np.ndarray,
@@ -318,7 +324,7 @@ def sketch_chamfer(
     """out[r] estimates chamfer(query variant `variants[r]`, path `rows[r]`) from the leading
     `used` points of the path's sketch (ROUGH_POINTS or SKETCH_POINTS): query to path from
     the query points `sample` (S, 2) int32, in levels; path to query from `levels` (the
-    query's `level_table`).
+    query's `_level_table`).
 
     With the whole sketch, `midpoints` (`sketch_midpoints`) adds the midpoint between each
     listed point and the next, so the estimate sees as many points as the path has: a query
@@ -378,7 +384,7 @@ def sketch_chamfer(
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def path_to_query_bounds(table: np.ndarray, points: np.ndarray, out: np.ndarray) -> None:
+def _path_to_query_bounds(table: np.ndarray, points: np.ndarray, out: np.ndarray) -> None:
     """out[p, v] <= the mean distance from path p, as variant v, to the query: a lower bound
     of the chamfer distance (its path-to-query half)."""
     size = (TABLE_HI - TABLE_LO) / TABLE_CELLS
@@ -411,9 +417,9 @@ def path_to_query_bounds(table: np.ndarray, points: np.ndarray, out: np.ndarray)
 
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
-def nearest_node_bounds(tables: np.ndarray, points: np.ndarray, out: np.ndarray) -> None:
+def _nearest_node_bounds(tables: np.ndarray, points: np.ndarray, out: np.ndarray) -> None:
     """out[p, v, q] <= the mean distance from path p, as variant v, to query q, for many
-    queries at once: `tables` (nodes, nodes, Q) float32 holds each query's `distance_table`
+    queries at once: `tables` (nodes, nodes, Q) float32 holds each query's `_distance_table`
     over [TABLE_LO, TABLE_HI]^2, queries last, so the one node a path point needs gives all
     queries' distances from one place in memory. Each point is bounded from its nearest node
     (the distance is 1-Lipschitz): d(point) >= d(node) - |point - node|.
@@ -446,7 +452,7 @@ def nearest_node_bounds(tables: np.ndarray, points: np.ndarray, out: np.ndarray)
 
 
 @njit(cache=True, nogil=True, parallel=True, fastmath=True)
-def sample_to_path_sums(
+def _sample_to_path_sums(
     sample: np.ndarray, points: np.ndarray, rows: np.ndarray, variants: np.ndarray, out: np.ndarray
 ) -> None:
     """out[r] = the sum over the query points `sample` (S, 2) of their distance to path
@@ -473,3 +479,179 @@ def sample_to_path_sums(
             for i in range(taken):
                 total += math.sqrt(nearest[i])
             out[r] = total
+
+
+# -- entry points ------------------------------------------------------------------------------
+
+#: A sketch's bytes: x levels, then y levels.
+SKETCH_BYTES = 2 * SKETCH_POINTS
+#: Sides of a level table: every level a sketch coordinate can hold.
+LEVEL_SIDE = SKETCH_LEVELS + 1
+#: Sides of the search's distance table, in nodes.
+TABLE_NODES = TABLE_CELLS + 1
+
+
+def _check_paths(name: str, points: np.ndarray) -> tuple[int, int]:
+    """(P, T) of paths `points` (P, T, 2), T >= 1."""
+    check_buffer(name, points, (None, None, 2), "f")
+    if points.shape[1] == 0:
+        raise ValueError(f"{name} must hold at least one point per path, got shape {points.shape}")
+    return points.shape[0], points.shape[1]
+
+
+def _check_query(name: str, query: np.ndarray) -> int:
+    """The points of a query `query` (Q, 2), Q >= 1."""
+    check_buffer(name, query, (None, 2), "f")
+    if query.shape[0] == 0:
+        raise ValueError(f"{name} must hold at least one point, got shape {query.shape}")
+    return query.shape[0]
+
+
+def distance_fields(paths: np.ndarray, stride: int, fields: np.ndarray) -> None:
+    """fields (P, GRID * GRID): the distance field of each path of `paths` (P, T, 2) at the
+    grid's nodes, from every `stride`-th point; on all cores."""
+    _check_fields(paths, stride, fields)
+    _distance_fields_parallel(paths, stride, fields)
+
+
+def distance_fields_serial(paths: np.ndarray, stride: int, fields: np.ndarray) -> None:
+    """`distance_fields` on the calling thread alone (a query's few paths)."""
+    _check_fields(paths, stride, fields)
+    _distance_fields_serial(paths, stride, fields)
+
+
+def _check_fields(paths: np.ndarray, stride: int, fields: np.ndarray) -> None:
+    count, _ = _check_paths("paths", paths)
+    if not (isinstance(stride, int | np.integer) and stride >= 1):
+        raise ValueError(f"stride must be an integer >= 1, got {stride!r}")
+    check_buffer("fields", fields, (count, GRID * GRID), "f")
+
+
+def sketch_scan(
+    sketches: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    at: np.ndarray,
+    levels: np.ndarray,
+    slots: np.ndarray,
+    margin: float,
+    out: np.ndarray,
+    likely: np.ndarray,
+) -> None:
+    """Scores `out` and likely variants `likely` of the rows starts[j]:ends[j] of `sketches`
+    (R, SKETCH_BYTES) uint8, packed from at[j] on, against a query's `levels` table
+    (`_sketch_scan`)."""
+    check_buffer("sketches", sketches, (None, SKETCH_BYTES), np.uint8)
+    check_buffer("starts", starts, (None,), "iu")
+    pieces = starts.shape[0]
+    check_buffer("ends", ends, (pieces,), "iu")
+    check_buffer("at", at, (pieces,), "iu")
+    check_buffer("levels", levels, (LEVEL_SIDE, LEVEL_SIDE), "f")
+    check_buffer("slots", slots, (None,), "iu")
+    check_indices("slots", slots, SKETCH_POINTS, "a sketch's points")
+    check_buffer("out", out, (None,), "f")
+    if pieces:
+        rows = sketches.shape[0]
+        if not ((starts >= 0) & (starts <= ends) & (ends <= rows)).all():
+            raise ValueError(f"starts and ends must be ranges of the {rows} rows of sketches")
+        if not ((at >= 0) & (at + (ends - starts) <= out.shape[0])).all():
+            raise ValueError(
+                f"out must hold every range's scores from its `at` on: {out.shape[0]} is too few"
+            )
+    check_buffer("likely", likely, (out.shape[0],), np.int8)
+    _sketch_scan(sketches, starts, ends, at, levels, slots, margin, out, likely)
+
+
+def distance_table(query: np.ndarray, out: np.ndarray, owners: np.ndarray) -> None:
+    """out (N, N): the distance from each node of an N x N grid over [TABLE_LO, TABLE_HI]^2 to
+    `query` (Q, 2), and owners (N, N) int32 the query point at that distance."""
+    _check_query("query", query)
+    check_buffer("out", out, (None, None), "f")
+    nodes = out.shape[0]
+    if nodes < 2 or out.shape[1] != nodes:
+        raise ValueError(f"out must be square, at least 2 nodes a side, got shape {out.shape}")
+    check_buffer("owners", owners, (nodes, nodes), np.int32)
+    _distance_table(query, out, owners)
+
+
+def sketch_paths(points: np.ndarray, out: np.ndarray) -> None:
+    """out (P, SKETCH_BYTES) uint8: the sketch of each normalized path of `points` (P, T, 2)."""
+    count, _ = _check_paths("points", points)
+    check_buffer("out", out, (count, SKETCH_BYTES), np.uint8)
+    _sketch_paths(points, out)
+
+
+def level_table(query: np.ndarray, owners: np.ndarray, out: np.ndarray) -> None:
+    """out (LEVEL_SIDE, LEVEL_SIDE): the distance from every point a sketch can hold to `query`
+    (Q, 2), whose `distance_table` owners (TABLE_NODES, TABLE_NODES) are given."""
+    points = _check_query("query", query)
+    check_buffer("owners", owners, (TABLE_NODES, TABLE_NODES), "iu")
+    check_indices("owners", owners, points, "the query's points")
+    check_buffer("out", out, (LEVEL_SIDE, LEVEL_SIDE), "f")
+    _level_table(query, owners, out)
+
+
+def sketch_chamfer(
+    sample: np.ndarray,
+    levels: np.ndarray,
+    sketches: np.ndarray,
+    rows: np.ndarray,
+    variants: np.ndarray,
+    used: int,
+    midpoints: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """out[r]: the chamfer distance of query variant variants[r] and path rows[r], estimated
+    from the leading `used` points of its sketch in `sketches` (R, SKETCH_BYTES) uint8 and
+    `midpoints`, from query points `sample` (S, 2) int32 and `levels` (`_sketch_chamfer`)."""
+    check_buffer("sample", sample, (None, 2), np.int32)
+    check_buffer("levels", levels, (LEVEL_SIDE, LEVEL_SIDE), "f")
+    check_buffer("sketches", sketches, (None, SKETCH_BYTES), np.uint8)
+    check_buffer("rows", rows, (None,), "iu")
+    count = rows.shape[0]
+    check_indices("rows", rows, sketches.shape[0], "the rows of sketches")
+    check_buffer("variants", variants, (count,), "iu")
+    if used not in (ROUGH_POINTS, SKETCH_POINTS):
+        raise ValueError(f"used must be {ROUGH_POINTS} or {SKETCH_POINTS}, got {used!r}")
+    check_buffer("midpoints", midpoints, (None,), "iu")
+    if midpoints.shape[0] and used != SKETCH_POINTS:
+        raise ValueError("midpoints must be empty with a partial sketch")
+    check_indices("midpoints", midpoints, SKETCH_POINTS - 1, "a sketch's gaps")
+    check_buffer("out", out, (count,), "f")
+    _sketch_chamfer(sample, levels, sketches, rows, variants, used, midpoints, out)
+
+
+def path_to_query_bounds(table: np.ndarray, points: np.ndarray, out: np.ndarray) -> None:
+    """out (P, 4): a lower bound of the path-to-query half of the chamfer distance of each
+    path of `points` (P, T, 2) in each variant, from the query's `distance_table` `table`
+    (TABLE_NODES, TABLE_NODES)."""
+    check_buffer("table", table, (TABLE_NODES, TABLE_NODES), "f")
+    count, _ = _check_paths("points", points)
+    check_buffer("out", out, (count, 4), "f")
+    _path_to_query_bounds(table, points, out)
+
+
+def nearest_node_bounds(tables: np.ndarray, points: np.ndarray, out: np.ndarray) -> None:
+    """out (P, 4, Q): `path_to_query_bounds` of each path of `points` (P, T, 2) for each of Q
+    queries at once, from their distance tables `tables` (N, N, Q) (`_nearest_node_bounds`)."""
+    check_buffer("tables", tables, (None, None, None), "f")
+    nodes, queries = tables.shape[0], tables.shape[2]
+    if nodes < 2 or tables.shape[1] != nodes:
+        raise ValueError(f"tables must be square, at least 2 nodes a side, got {tables.shape}")
+    count, _ = _check_paths("points", points)
+    check_buffer("out", out, (count, 4, queries), "f")
+    _nearest_node_bounds(tables, points, out)
+
+
+def sample_to_path_sums(
+    sample: np.ndarray, points: np.ndarray, rows: np.ndarray, variants: np.ndarray, out: np.ndarray
+) -> None:
+    """out[r]: the summed distance of the query points `sample` (S, 2) to path rows[r] of
+    `points` (P, T, 2) as variant variants[r]."""
+    check_buffer("sample", sample, (None, 2), "f")
+    paths, _ = _check_paths("points", points)
+    check_buffer("rows", rows, (None,), "iu")
+    check_indices("rows", rows, paths, "the paths of points")
+    check_buffer("variants", variants, (rows.shape[0],), "iu")
+    check_buffer("out", out, (rows.shape[0],), "f")
+    _sample_to_path_sums(sample, points, rows, variants, out)
