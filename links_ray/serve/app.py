@@ -51,6 +51,7 @@ proxy answers on the port and balances the replicas.
 
 import asyncio
 import functools
+import gc
 import importlib.resources
 import json
 import logging
@@ -96,12 +97,14 @@ from links_ray.data.dataset import open_table
 from links_ray.data.store import Store
 from links_ray.engine.fabrication import fabrication
 from links_ray.engine.inputs import (
+    BODY_TIMEOUT_S,
     DEFAULT_CRANK_MM,
     DEFAULT_K,
     DEFAULT_STEPS,
     MAX_BODY_BYTES,
     MAX_REQUEST_JOINT_STEPS,
     MAX_REQUEST_JOINTS,
+    MIN_BODY_BYTES_PER_S,
     as_crank_mm,
     as_flag,
     as_steps,
@@ -191,14 +194,90 @@ class JsonResponse(JSONResponse):
 
     def render(self, content: Any) -> bytes:
         """The body: compact JSON, NaN and infinity refused."""
-        return json.dumps(
-            content, allow_nan=False, separators=(",", ":"), default=_jsonable
-        ).encode("utf-8")
+        return _dumps(content)
 
 
-def _json_line(content: Any) -> bytes:
+def _dumps(content: Any) -> bytes:
+    """`content` as JsonResponse renders it: compact JSON, NaN and infinity refused."""
+    return json.dumps(content, allow_nan=False, separators=(",", ":"), default=_jsonable).encode(
+        "utf-8"
+    )
+
+
+#: The most numbers one call of the JSON encoder renders (a few milliseconds). The encoder
+#: and the parser are C code that holds the GIL until it returns, so in any thread one long
+#: call stalls the event loop for its whole length; pieces of this size let it in between.
+JSON_PIECE_NUMBERS = 4096
+#: Bodies up to this many bytes are parsed on the event loop (well under a millisecond); larger
+#: ones in `JSON_POOL`.
+INLINE_JSON_BYTES = 64 * 1024
+#: The one thread that parses large request bodies and renders large answers. One, so that
+#: at most one long run of the GIL-holding JSON code is under way at a time, whatever the
+#: number of clients: the event loop waits for at most one piece of it.
+JSON_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="links-json")
+
+
+def _json_size(value: Any) -> int:
+    """About how many numbers `value` renders to: lists are taken to be alike throughout (their
+    first item times their length), so this costs a few steps, not a walk."""
+    if isinstance(value, np.ndarray):
+        return value.size
+    if isinstance(value, dict):
+        return sum(_json_size(item) for item in value.values()) + len(value)
+    if isinstance(value, list | tuple):
+        return len(value) * _json_size(value[0]) if value else 1
+    return 1
+
+
+def _json_pieces(value: Any, out: list[bytes]) -> None:
+    """Append `value`'s compact JSON to `out` in pieces of at most about JSON_PIECE_NUMBERS
+    numbers each; their concatenation is `_dumps(value)`."""
+    if _json_size(value) <= JSON_PIECE_NUMBERS:
+        out.append(_dumps(value))
+    elif isinstance(value, dict):
+        out.append(b"{")
+        for i, (key, item) in enumerate(value.items()):
+            out.append((b"," if i else b"") + _dumps(str(key)) + b":")
+            _json_pieces(item, out)
+        out.append(b"}")
+    else:  # a long list, tuple or array: runs of small items together, large items in pieces
+        out.append(b"[")
+        per_item = max(1, _json_size(value[0]))
+        run = max(1, JSON_PIECE_NUMBERS // per_item)
+        for start in range(0, len(value), run):
+            if start:
+                out.append(b",")
+            if per_item > JSON_PIECE_NUMBERS:
+                _json_pieces(value[start], out)
+            else:
+                part = value[start : start + run]
+                out.append(_dumps(part.tolist() if isinstance(part, np.ndarray) else part)[1:-1])
+        out.append(b"]")
+
+
+def render_json(content: Any) -> bytes:
+    """`content` as compact JSON (`_dumps`), rendered piece by piece (`_json_pieces`)."""
+    out: list[bytes] = []
+    _json_pieces(content, out)
+    return b"".join(out)
+
+
+async def rendered_json(content: Any) -> bytes:
+    """`render_json(content)`, in JSON_POOL when it is large, so that the event loop keeps
+    answering meanwhile (health checks, other requests)."""
+    if _json_size(content) <= JSON_PIECE_NUMBERS:
+        return _dumps(content)
+    return await asyncio.get_running_loop().run_in_executor(JSON_POOL, render_json, content)
+
+
+async def json_answer(content: Any, status: int = 200) -> Response:
+    """A JSON answer (as JsonResponse's) rendered off the event loop when large."""
+    return Response(await rendered_json(content), status, media_type="application/json")
+
+
+async def _json_line(content: Any) -> bytes:
     """One NDJSON line, as compact as JsonResponse's bodies."""
-    return JsonResponse(content).body + b"\n"
+    return await rendered_json(content) + b"\n"
 
 
 def _error(status: int, message: str, **extra: Any) -> JsonResponse:
@@ -368,7 +447,8 @@ def _refuse_constant(name: str) -> float:
 
 
 async def read_json_object(request: Request) -> dict[str, Any]:
-    """The request body as a JSON object, or ApiError (400, 413 or 415) naming the problem."""
+    """The request body as a JSON object, or ApiError (400, 408, 413 or 415) naming the
+    problem. A large body is parsed in JSON_POOL, off the event loop."""
     content_type = request.headers.get("content-type")
     if content_type is not None:
         media = content_type.split(";", 1)[0].strip().lower()
@@ -382,17 +462,44 @@ async def read_json_object(request: Request) -> dict[str, Any]:
             raise ApiError(400, "Content-Length is not a byte count")
         if int(declared) > MAX_BODY_BYTES:
             raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
+    body = await read_body(request)
+    if len(body) <= INLINE_JSON_BYTES:
+        return parse_json_object(body)
+    return await asyncio.get_running_loop().run_in_executor(JSON_POOL, parse_json_object, body)
+
+
+async def read_body(request: Request) -> bytes:
+    """The request body, at most MAX_BODY_BYTES (else ApiError 413), cut off with 408 when it
+    pauses for BODY_TIMEOUT_S or falls behind MIN_BODY_BYTES_PER_S (engine.inputs)."""
+    loop = asyncio.get_running_loop()
+    start = loop.time()
     chunks: list[bytes] = []
     size = 0
     try:
-        async for chunk in request.stream():
-            size += len(chunk)
-            if size > MAX_BODY_BYTES:
-                raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
-            chunks.append(chunk)
+        async with asyncio.timeout(start + BODY_TIMEOUT_S) as deadline:
+            async for chunk in request.stream():
+                size += len(chunk)
+                if size > MAX_BODY_BYTES:
+                    raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
+                chunks.append(chunk)
+                behind = start + BODY_TIMEOUT_S + size / MIN_BODY_BYTES_PER_S
+                deadline.reschedule(min(loop.time() + BODY_TIMEOUT_S, behind))
     except ClientDisconnect:  # nobody is left to answer; not a server error
         raise ApiError(400, "the client disconnected before sending the whole body") from None
-    body = b"".join(chunks)
+    except TimeoutError:
+        # The rest of the body is never read: the connection is closed after the answer.
+        raise ApiError(
+            408,
+            f"the body came too slowly ({size} bytes in {loop.time() - start:.1f} s): it may "
+            f"pause at most {BODY_TIMEOUT_S:g} s and must keep up {MIN_BODY_BYTES_PER_S} "
+            "bytes a second",
+            headers={"Connection": "close"},
+        ) from None
+    return b"".join(chunks)
+
+
+def parse_json_object(body: bytes) -> dict[str, Any]:
+    """`body` parsed as a JSON object, or ApiError 400 naming the problem."""
     if not body.strip():
         raise ApiError(400, "the body is empty: expected a JSON object")
     try:
@@ -578,12 +685,8 @@ def analyze_mechanism(
         trajectories, step, node = simulate_until_lock(adjacency, node_types, positions, steps)
         if step >= 0:
             found["lock"] = {"step": step, "node": node, "angle": 360.0 * step / steps}
-            found["trajectories"] = trajectories.tolist()
+            found["trajectories"] = trajectories  # rendered in pieces (`json_answer`)
     return found
-
-
-def _simulate_lists(adjacency: list, node_types: list, positions: list, steps: int) -> list:
-    return simulate(adjacency, node_types, positions, steps).tolist()
 
 
 #: /api/export's formats: (media type, file suffix) of each.
@@ -665,6 +768,16 @@ FRONT_MAX_ONGOING, FRONT_MAX_QUEUED = 100, 100
 SHARD_MAX_ONGOING = 4
 #: How long the front waits for all the shards' answers before answering 503.
 SHARD_TIMEOUT_S = 30.0
+#: Seconds a stopping replica lets the requests under way finish (Serve's
+#: `graceful_shutdown_timeout_s`); then it is stopped whatever it holds. Syntheses at their
+#: default budget and every other request finish well within it.
+SHUTDOWN_DRAIN_S = 20.0
+#: How often a draining replica looks whether its requests are done (Serve's
+#: `graceful_shutdown_wait_loop_s`, 2 s by default: an idle replica waited that long to stop).
+SHUTDOWN_POLL_S = 0.2
+#: Seconds `links serve` gives Serve's controller beyond the drain to stop the replicas and
+#: proxies, before it stops Ray under them.
+SHUTDOWN_STOP_S = 5.0
 #: Shard failures that mean "not there now" (a replica that died or is restarting, a shard
 #: with no replica, backpressure): answered 503 with `Retry-After`, not 500.
 SHARD_UNAVAILABLE = (
@@ -735,6 +848,8 @@ def _lower_priority() -> None:
 @serve.deployment(
     name="IndexShard",
     max_ongoing_requests=SHARD_MAX_ONGOING,
+    graceful_shutdown_timeout_s=SHUTDOWN_DRAIN_S,
+    graceful_shutdown_wait_loop_s=SHUTDOWN_POLL_S,
     ray_actor_options={"num_cpus": 1, "runtime_env": {"env_vars": REPLICA_ENV}},
 )
 class IndexShard:
@@ -769,6 +884,8 @@ class IndexShard:
     max_ongoing_requests=FRONT_MAX_ONGOING,
     max_queued_requests=FRONT_MAX_QUEUED,
     backpressure_config={"status_code": 503, "retry_after_s": RETRY_AFTER_S},
+    graceful_shutdown_timeout_s=SHUTDOWN_DRAIN_S,
+    graceful_shutdown_wait_loop_s=SHUTDOWN_POLL_S,
     ray_actor_options={"num_cpus": 1, "runtime_env": {"env_vars": REPLICA_ENV}},
 )
 @serve.ingress(api)
@@ -846,12 +963,12 @@ class LinksApi:
         """Trajectories [n][steps][2] of a mechanism, 422 if it locks, 4xx if malformed."""
         args = simulate_args(await read_json_object(request))
         try:
-            trajectories = await run_in_threadpool(_simulate_lists, *args)
+            trajectories = await run_in_threadpool(simulate, *args)
         except LockingError as exc:
             return _error(422, "locking", step=exc.step, node=exc.node)
         except ValueError as exc:  # InvalidMechanismError names the problem
             raise ApiError(400, str(exc)) from None
-        return JsonResponse({"trajectories": trajectories})
+        return await json_answer({"trajectories": trajectories})
 
     @api.post(
         "/api/analyze",
@@ -859,7 +976,7 @@ class LinksApi:
         responses=models.error_responses(400, 413, 415),
         openapi_extra=request_body("/api/analyze"),
     )
-    async def api_analyze(self, request: Request) -> JsonResponse:
+    async def api_analyze(self, request: Request) -> Response:
         """Degree of freedom, dyadic solvability and, given positions, where it locks."""
         body = await read_json_object(request)
         if body.get("positions") is None:
@@ -871,7 +988,7 @@ class LinksApi:
             found = await run_in_threadpool(analyze_mechanism, *args)
         except ValueError as exc:  # degenerate positions: named as /api/simulate names them
             raise ApiError(400, str(exc)) from None
-        return JsonResponse(found)
+        return await json_answer(found)
 
     @api.post(
         "/api/export",
@@ -904,7 +1021,7 @@ class LinksApi:
         responses=models.error_responses(400, 413, 415, 503),
         openapi_extra=request_body("/api/retrieve"),
     )
-    async def api_retrieve(self, request: Request) -> JsonResponse:
+    async def api_retrieve(self, request: Request) -> Response:
         """The k curated paths nearest to a drawn curve, best first, with their mechanisms;
         503 with `Retry-After` when MAX_RETRIEVALS are already under way here."""
         if self._retrievals >= self.max_retrievals:  # refused before reading the body
@@ -927,7 +1044,7 @@ class LinksApi:
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
             self._retrievals -= 1
-        return JsonResponse({"results": results, "took_ms": round(took_ms, 3)})
+        return await json_answer({"results": results, "took_ms": round(took_ms, 3)})
 
     @api.post(
         "/api/synthesize",
@@ -990,7 +1107,7 @@ class LinksApi:
         finally:
             if released:
                 self._syntheses -= 1
-        return JsonResponse({"results": results, "took_ms": round(took_ms, 3)})
+        return await json_answer({"results": results, "took_ms": round(took_ms, 3)})
 
     def _synthesis_done(self) -> None:
         self._syntheses -= 1
@@ -1007,17 +1124,17 @@ class LinksApi:
             waiting = asyncio.ensure_future(reports.get())
             await asyncio.wait({waiting, refining}, return_when=asyncio.FIRST_COMPLETED)
             if waiting.done():
-                yield _json_line({"progress": waiting.result()})
+                yield await _json_line({"progress": waiting.result()})
             else:
                 waiting.cancel()
         try:
             results = refining.result()
         except Exception as exc:  # the status is sent: the failure can only be a line
             logger.warning("links-ray API: a streamed synthesis failed (%s)", type(exc).__name__)
-            yield _json_line({"error": "synthesis failed"})
+            yield await _json_line({"error": "synthesis failed"})
             return
         took_ms = (time.perf_counter() - start) * 1e3
-        yield _json_line({"results": results, "took_ms": round(took_ms, 3)})
+        yield await _json_line({"results": results, "took_ms": round(took_ms, 3)})
 
     async def _shard_counts(self) -> list[int]:
         """Each shard's paths, asked once (a shard's index does not change while it serves)."""
@@ -1272,30 +1389,51 @@ def run_server(
         bindable_port(host, port)  # else the replica retries and fails without saying why
         os.environ.update(direct_ingress_env(port))
         proxy_port = bindable_port(host, 0)
-    connect()
-    if local:
-        try:
+    if blocking:
+        # A service manager stops with SIGTERM: shut down as on Ctrl-C, not with a stack
+        # trace, from the start on (set again once Ray has started: it sets its own).
+        signal.signal(signal.SIGTERM, signal.default_int_handler)
+    stop = True
+    try:
+        connect()
+        if blocking:
+            signal.signal(signal.SIGTERM, signal.default_int_handler)
+        if local:
             check_fits(replicas, shards, shard_cpus, shard_memory_gb, ray.cluster_resources())
-        except ValueError:
-            ray.shutdown()
-            raise
-    no_access_log = {"enable_access_log": False}
-    serve.start(http_options={"host": host, "port": proxy_port}, logging_config=no_access_log)
-    try:
+        no_access_log = {"enable_access_log": False}
+        serve.start(http_options={"host": host, "port": proxy_port}, logging_config=no_access_log)
         serve.run(app, name="links", route_prefix="/", logging_config=no_access_log)
-    except BaseException:
-        serve.shutdown()
-        raise
-    shown = f"[{host}]" if ":" in host else host
-    print(f"links-ray: serving {root} at http://{shown}:{port}/ (API under /api)", flush=True)
-    if not blocking:
-        return
-    # A service manager stops with SIGTERM: shut down as on Ctrl-C, not with a stack trace.
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
-    try:
+        shown = f"[{host}]" if ":" in host else host
+        print(f"links-ray: serving {root} at http://{shown}:{port}/ (API under /api)", flush=True)
+        if not blocking:
+            stop = False
+            return
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
         print("links-ray: shutting down", flush=True)
     finally:
-        serve.shutdown()
+        if stop:
+            stop_serving(ray_started=local)
+            if blocking:
+                # The process ends next: the interpreter's last collections need not walk
+                # the heap of Ray, numba and pandas objects (2-3 s on a busy 2-core machine).
+                gc.freeze()
+
+
+def stop_serving(ray_started: bool) -> None:
+    """Stop Serve, then Ray if this process started it, in bounded time: the replicas drain
+    the requests under way for at most SHUTDOWN_DRAIN_S (a replica with none stops at once),
+    Serve's controller gets SHUTDOWN_STOP_S more to stop them and the proxies, then Ray stops.
+    `serve.shutdown()` alone waited for the controller for 30 s, and the replicas for 20 s
+    each, and left Ray to the interpreter's exit."""
+    import ray
+
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second one must not cut the drain short
+    # `serve.shutdown()` with a bound: it takes none; its client's `shutdown` does.
+    client = serve.context._get_global_client(raise_if_no_controller_running=False)
+    if client is not None:
+        client.shutdown(timeout_s=SHUTDOWN_DRAIN_S + SHUTDOWN_STOP_S)
+    serve.context._disconnect()
+    if ray_started:
+        ray.shutdown()
