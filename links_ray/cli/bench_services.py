@@ -438,9 +438,18 @@ def retrieval_load(
     its place in the load: the server stays full as long as more clients want in than it
     holds.
     `finish_load` gives what they saw."""
+    bodies = [json.dumps({"points": np.asarray(q).tolist(), "k": k}) for q in queries]
+    return post_load(port, "/api/retrieve", bodies, seconds, clients)
+
+
+def post_load(
+    port: int, route: str, bodies: list[str], seconds: float, clients: int
+) -> subprocess.Popen:
+    """`retrieval_load`'s clients, posting `bodies` (in turn) to any `route`."""
     spec = {
         "port": port,
-        "bodies": [json.dumps({"points": np.asarray(q).tolist(), "k": k}) for q in queries],
+        "route": route,
+        "bodies": bodies,
         "seconds": seconds,
         "clients": clients,
         "pause_s": LOAD_PAUSE_S,
@@ -495,7 +504,7 @@ def _load() -> None:
                 conn = http.client.HTTPConnection("127.0.0.1", spec["port"], timeout=60)
             start = time.perf_counter()
             try:
-                conn.request("POST", "/api/retrieve", body, {"Content-Type": "application/json"})
+                conn.request("POST", spec["route"], body, {"Content-Type": "application/json"})
                 response = conn.getresponse()
                 raw = response.read()
             except (OSError, http.client.HTTPException) as exc:
