@@ -443,10 +443,12 @@ def retrieval_load(
 
 
 def post_load(
-    port: int, route: str, bodies: list[str], seconds: float, clients: int
+    port: int, route: str, bodies: list[str], seconds: float, clients: int, niceness: int = 0
 ) -> subprocess.Popen:
-    """`retrieval_load`'s clients, posting `bodies` (in turn) to any `route`."""
+    """`retrieval_load`'s clients, posting `bodies` (in turn: client i starts with body i) to
+    any `route`, their process `niceness` lower in priority than this one."""
     spec = {
+        "niceness": niceness,
         "port": port,
         "route": route,
         "bodies": bodies,
@@ -487,6 +489,7 @@ def _load() -> None:
     """The load clients' process (`retrieval_load`): the spec on stdin, the record on
     stdout."""
     spec = json.loads(sys.stdin.read())
+    os.nice(spec.get("niceness", 0))  # before the clients' threads, which inherit it
     bodies = [body.encode() for body in spec["bodies"]]
     clients, pause_s = spec["clients"], spec["pause_s"]
     lock = threading.Lock()
