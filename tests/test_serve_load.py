@@ -165,12 +165,15 @@ def largest_simulation() -> dict:
         "positions": positions,
         "steps": steps,
     }
-    text = json.dumps({**body, "pad": []})
-    pad = rng.uniform(-1, 1, (MAX_BODY_BYTES - len(text)) // 20).tolist()
-    text = json.dumps({**body, "pad": pad})
-    while len(text) > MAX_BODY_BYTES:
-        pad.pop()
-        text = json.dumps({**body, "pad": pad})
+    opening = json.dumps({**body, "pad": []})[:-2]  # up to the pad's "["
+    size, pad = len(opening) + len("]}"), []
+    for number in map(json.dumps, rng.uniform(-1, 1, MAX_BODY_BYTES // 20).tolist()):
+        more = len(number) + (len(", ") if pad else 0)
+        if size + more > MAX_BODY_BYTES:
+            break
+        pad.append(number)
+        size += more
+    text = opening + ", ".join(pad) + "]}"
     text += " " * (MAX_BODY_BYTES - len(text))
     assert len(text.encode()) == MAX_BODY_BYTES
     return {"body": body, "text": text}
