@@ -689,6 +689,33 @@ def test_lying_content_length_is_refused(client: Client) -> None:
     _check_error(status, headers, data, 413, OVER_LIMIT)
 
 
+def test_large_answers_render_in_pieces_as_one_call_would() -> None:
+    """`render_json` gives the bytes one `json.dumps` call gives (JsonResponse's), for answers
+    of every shape, in pieces of at most about JSON_PIECE_NUMBERS numbers."""
+    from links_ray.serve.app import JSON_PIECE_NUMBERS, _dumps, _json_pieces, render_json
+
+    rng = np.random.default_rng(3)
+    trajectories = rng.uniform(-1, 1, (100, 1000, 2))
+    results = [
+        {"path_id": i, "points": rng.random((200, 2)).tolist(), "chamfer": np.float64(i / 7)}
+        for i in range(100)
+    ]
+    for content in (
+        {"trajectories": trajectories},
+        {"trajectories": trajectories.tolist(), "lock": None},
+        {"results": results, "took_ms": 1.25},
+        {"x": list(range(10_000)), "y": rng.random(9_001), "e": [], "d": {}},
+        [[1, 2]] * 5_000,
+        {"status": "ok"},
+    ):
+        pieces: list[bytes] = []
+        _json_pieces(content, pieces)
+        assert render_json(content) == b"".join(pieces) == _dumps(content)
+        assert max(len(piece) for piece in pieces) < 30 * JSON_PIECE_NUMBERS
+    with pytest.raises(ValueError, match="not JSON compliant"):
+        render_json({"trajectories": np.full((10, 1000, 2), np.nan)})
+
+
 def raw_post(port: int, length: int, pieces: list[tuple[float, bytes]]) -> dict[str, Any]:
     """POST /api/retrieve over a plain socket: headers declaring `length` body bytes at once,
     then each (pause in seconds, bytes) of `pieces`, then nothing, the connection held open.
