@@ -214,10 +214,11 @@ def test_health_is_answered_while_the_largest_bodies_and_answers_are_handled(
     with serving(build_app(dataset), serve_port) as client:
         status, data = client.post("/api/simulate", largest["text"].encode())
         assert status == 200 and data["trajectories"] == expected
-        # Client i posts body i modulo BIG_CLIENTS: one client the body over the limit, which
-        # is refused at once, the others the largest simulation. They run below the server's
-        # priority, as clients on other machines would not take its CPU.
-        bodies = [largest["text"]] * (BIG_CLIENTS - 1) + [over]
+        # Client i posts bodies i, i + BIG_CLIENTS, ... in turn: the last client alternates
+        # the body over the limit, refused at once, with the largest simulation, so that it
+        # does not only upload bodies to be refused; the others post the largest simulation.
+        # They run below the server's priority: clients on other machines take none of its CPU.
+        bodies = [largest["text"]] * (2 * BIG_CLIENTS - 1) + [over]
         load = post_load(client.port, "/api/simulate", bodies, BIG_SECONDS, BIG_CLIENTS, 10)
         try:
             probes = health_probes(client.port, BIG_SECONDS)
