@@ -14,13 +14,16 @@
 | `GET /studio/<file>` | the studio's scripts and style sheet, from the package |
 
 Every bad request gets a 4xx with a JSON `{"error": "<what is wrong>"}`: 400 for malformed
-input, 404/405 for unknown routes and methods, 413 for a body over `MAX_BODY_BYTES`, a
+input, 404/405 for unknown routes and methods, 408 for a body that pauses `BODY_TIMEOUT_S` or
+falls behind `MIN_BODY_BYTES_PER_S` (`read_body`), 413 for a body over `MAX_BODY_BYTES`, a
 mechanism over `MAX_REQUEST_JOINTS` or a simulation over `MAX_REQUEST_JOINT_STEPS`, 415 for a
 body that is declared as something other than JSON. The limits and the checks of the values
 are the engine's (`links_ray.engine.inputs`, whose ValueErrors become 400s); this module checks
 only what JSON alone can get wrong (types, booleans for numbers, array lengths) first. Anything
 unexpected is logged by exception type and location only (never a request body) and answered
-500 `{"error": "internal error"}`; the replica keeps serving.
+500 `{"error": "internal error"}`; the replica keeps serving. Bodies over `INLINE_JSON_BYTES`
+are parsed, and large answers rendered in pieces, in `JSON_POOL`'s one thread, off the event
+loop that answers health checks (`json_answer`).
 
 Each replica opens the retrieval index once, in its constructor. Retrievals run one at a time
 per replica (the index's compiled kernels are parallel, and the JIT's workqueue threading layer,
@@ -46,7 +49,9 @@ not all answer within `SHARD_TIMEOUT_S`, give 503 with `Retry-After`.
 ingress*, which its throughput mode uses. Through Serve's HTTP proxy every request costs about
 12 ms more here (an actor hop and a second one to fetch the body). Serve's proxy then listens on
 another loopback port. With several replicas, or on a cluster that Ray was already running, the
-proxy answers on the port and balances the replicas.
+proxy answers on the port and balances the replicas. On Ctrl-C or SIGTERM it stops in bounded
+time (`stop_serving`): the replicas drain the requests under way for at most
+`SHUTDOWN_DRAIN_S`, then Serve and the Ray it started stop.
 """
 
 import asyncio
