@@ -924,6 +924,12 @@ class LinksApi:
         else:  # warming the index also loads the solver /api/simulate uses
             self._retrieving = _Retrieving(RetrievalIndex.open(root))
         studio_files()  # a package without the studio fails here, not on a user's first visit
+        # What the replica holds from here on (the index, the compiled kernels, the libraries'
+        # objects) is not garbage: out of the collector's sight, a full collection (which the
+        # objects of large bodies and answers set off) walks only what requests made, not a
+        # quarter of a million objects, which held the GIL for 0.3 s.
+        gc.collect()
+        gc.freeze()
 
     def __del__(self) -> None:
         if getattr(self, "_retrieving", None) is not None:
