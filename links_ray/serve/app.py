@@ -64,6 +64,7 @@ import math
 import os
 import signal
 import socket
+import sys
 import threading
 import time
 from collections.abc import AsyncIterator, Callable
@@ -212,7 +213,7 @@ def _dumps(content: Any) -> bytes:
 #: The most numbers one call of the JSON encoder renders (a few milliseconds). The encoder
 #: and the parser are C code that holds the GIL until it returns, so in any thread one long
 #: call stalls the event loop for its whole length; pieces of this size let it in between.
-JSON_PIECE_NUMBERS = 4096
+JSON_PIECE_NUMBERS = 1024
 #: Bodies up to this many bytes are parsed on the event loop (well under a millisecond); larger
 #: ones in `JSON_POOL`.
 INLINE_JSON_BYTES = 64 * 1024
@@ -220,6 +221,8 @@ INLINE_JSON_BYTES = 64 * 1024
 #: at most one long run of the GIL-holding JSON code is under way at a time, whatever the
 #: number of clients: the event loop waits for at most one piece of it.
 JSON_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="links-json")
+#: The replica's GIL switch interval (seconds; `sys.setswitchinterval`).
+GIL_SWITCH_S = 0.0005
 
 
 def _json_size(value: Any) -> int:
@@ -930,6 +933,10 @@ class LinksApi:
         # quarter of a million objects, which held the GIL for 0.3 s.
         gc.collect()
         gc.freeze()
+        # A thread that wants the GIL (the event loop's, to answer a health check) waits this
+        # long before the holder must yield it: 5 ms by default, paid at every hop of a request
+        # while JSON is parsed or rendered in JSON_POOL.
+        sys.setswitchinterval(GIL_SWITCH_S)
 
     def __del__(self) -> None:
         if getattr(self, "_retrieving", None) is not None:
