@@ -8,6 +8,7 @@ import http.client
 import json
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -138,3 +139,45 @@ def retrieved(client: Client, query: np.ndarray, k: int) -> list[dict]:
 def as_served(results: list[dict]) -> list[dict]:
     """Results as they come back over HTTP (JSON round-trips floats exactly)."""
     return json.loads(json.dumps(results))
+
+
+def descendants(pid: int) -> dict[int, str]:
+    """The processes below `pid` (children, theirs, ...) and their command lines, from /proc."""
+    children: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                # The parent is the 2nd field after the command, which is in parentheses.
+                parent = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError):
+                continue
+            children.setdefault(parent, []).append(int(entry.name))
+    found: dict[int, str] = {}
+    frontier = [pid]
+    while frontier:
+        for child in children.get(frontier.pop(), []):
+            found[child] = command_line(child)
+            frontier.append(child)
+    return found
+
+
+def command_line(pid: int) -> str:
+    """The command line of a live process (not a zombie), else ''."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        if state == "Z":
+            return ""
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode().strip()
+    except (OSError, IndexError):
+        return ""
+
+
+def processes_mentioning(text: str) -> dict[int, str]:
+    """Live processes whose command line holds `text`."""
+    found = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            line = command_line(int(entry.name))
+            if text in line:
+                found[int(entry.name)] = line
+    return found

@@ -6,17 +6,21 @@ to the port the replica answers on itself, as under `links serve`. The studio's 
 are tested in test_studio.py.
 """
 
+import contextlib
 import http.client
 import importlib
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import xml.etree.ElementTree as ET
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +28,14 @@ import numpy as np
 import pytest
 import yaml
 from fourbars import stretched_four_bar, window_slack
-from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
+from serving import (
+    FOUR_BAR,
+    LOCKING_FOUR_BAR,
+    Client,
+    command_line,
+    descendants,
+    processes_mentioning,
+)
 
 import links_ray
 from links_ray.engine import inputs
@@ -710,6 +721,143 @@ def test_lying_content_length_is_refused(client: Client) -> None:
     _check_error(status, headers, data, 413, OVER_LIMIT)
 
 
+def test_large_answers_render_in_pieces_as_one_call_would() -> None:
+    """`render_json` gives the bytes one `json.dumps` call gives (JsonResponse's), for answers
+    of every shape, in pieces of at most about JSON_PIECE_NUMBERS numbers."""
+    from links_ray.serve.app import JSON_PIECE_NUMBERS, _dumps, _json_pieces, render_json
+
+    rng = np.random.default_rng(3)
+    trajectories = rng.uniform(-1, 1, (100, 1000, 2))
+    results = [
+        {"path_id": i, "points": rng.random((200, 2)).tolist(), "chamfer": np.float64(i / 7)}
+        for i in range(100)
+    ]
+    for content in (
+        {"trajectories": trajectories},
+        {"trajectories": trajectories.tolist(), "lock": None},
+        {"results": results, "took_ms": 1.25},
+        {"x": list(range(10_000)), "y": rng.random(9_001), "e": [], "d": {}},
+        [[1, 2]] * 5_000,
+        {"status": "ok"},
+    ):
+        pieces: list[bytes] = []
+        _json_pieces(content, pieces)
+        assert render_json(content) == b"".join(pieces) == _dumps(content)
+        assert max(len(piece) for piece in pieces) < 30 * JSON_PIECE_NUMBERS
+    with pytest.raises(ValueError, match="not JSON compliant"):
+        render_json({"trajectories": np.full((10, 1000, 2), np.nan)})
+
+
+def raw_post(port: int, length: int, pieces: list[tuple[float, bytes]]) -> dict[str, Any]:
+    """POST /api/retrieve over a plain socket: headers declaring `length` body bytes at once,
+    then each (pause in seconds, bytes) of `pieces`, then nothing, the connection held open.
+    What came back: `seconds` from the headers to the answer's first byte, the `status`, the
+    `headers`, the JSON `body`, and whether the server then `closed` the connection."""
+    import socket
+
+    sock = socket.create_connection(("127.0.0.1", port), timeout=120)
+    head = (
+        f"POST /api/retrieve HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+        f"Content-Type: application/json\r\nContent-Length: {length}\r\n\r\n"
+    )
+    answered = threading.Event()
+
+    def send() -> None:
+        for pause, piece in pieces:
+            if answered.wait(pause):
+                return
+            try:
+                sock.sendall(piece)
+            except OSError:  # the server has closed: it answered
+                return
+
+    start = time.monotonic()
+    sock.sendall(head.encode())
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    received = b""
+    seconds = None
+    try:
+        while True:
+            chunk = sock.recv(65536)
+            if seconds is None:
+                seconds = time.monotonic() - start
+                answered.set()
+            if not chunk:
+                closed = True
+                break
+            received += chunk
+            header, _, rest = received.partition(b"\r\n\r\n")
+            declared = [
+                int(line.split(b":", 1)[1])
+                for line in header.split(b"\r\n")
+                if line.lower().startswith(b"content-length:")
+            ]
+            if declared and len(rest) >= declared[0] and b"connection: close" not in header:
+                closed = False  # a whole answer on a connection kept alive
+                break
+    except TimeoutError:
+        closed = False
+    finally:
+        answered.set()
+        sock.close()
+    header, _, rest = received.partition(b"\r\n\r\n")
+    lines = header.decode().split("\r\n")
+    headers = dict(line.lower().split(": ", 1) for line in lines[1:] if ": " in line)
+    return {
+        "seconds": seconds,
+        "status": int(lines[0].split()[1]) if lines[0] else None,
+        "headers": headers,
+        "body": json.loads(rest) if rest else None,
+        "closed": closed,
+    }
+
+
+def test_a_body_that_stalls_or_trickles_is_cut_off_with_408(client: Client) -> None:
+    """A body that stops coming, or trickles in a byte at a time, is answered 408 with a JSON
+    error once BODY_TIMEOUT_S have passed (not before), and the connection is closed; a body
+    sent in pieces with pauses shorter than that, at more than MIN_BODY_BYTES_PER_S, is
+    answered as usual though it takes longer than BODY_TIMEOUT_S in all."""
+    timeout, rate = inputs.BODY_TIMEOUT_S, inputs.MIN_BODY_BYTES_PER_S
+    stall = ([(0.0, b'{"points": [[0, 0], ')], 1000)
+    trickle = ([(0.0 if i == 0 else 0.25, b" ") for i in range(400)], 100_000)
+    # Four pieces of 2 x rate bytes, 0.4 x timeout apart (12 s in all): each pause well within
+    # the timeout, and each piece buys 2 s at the rate, so the last comes 4 s before the rate
+    # would cut the body off.
+    whole = json.dumps({"points": POINTS, "k": 2}).encode()
+    piece = 2 * rate
+    body = whole.ljust(4 * piece)
+    pieces = [(0.4 * timeout if i else 0.0, body[i * piece : (i + 1) * piece]) for i in range(4)]
+    paced = (pieces, len(body))
+    found: dict[str, dict[str, Any]] = {}
+
+    def run(name: str, case: tuple[list[tuple[float, bytes]], int]) -> None:
+        found[name] = raw_post(client.port, case[1], case[0])
+
+    threads = [
+        threading.Thread(target=run, args=(name, case))
+        for name, case in (("stall", stall), ("trickle", trickle), ("paced", paced))
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    for name in ("stall", "trickle"):
+        answer = found[name]
+        assert answer["status"] == 408, (name, answer)
+        assert answer["headers"]["content-type"].startswith("application/json")
+        assert set(answer["body"]) == {"error"}, answer
+        assert answer["body"]["error"].startswith("the body came too slowly"), answer
+        assert f"pause at most {timeout:g} s" in answer["body"]["error"]
+        assert answer["closed"], (name, answer)
+        # Not before the timeout; the upper bound is loose, for a busy machine.
+        assert timeout - 0.5 <= answer["seconds"] < timeout + 20, (name, answer)
+    answer = found["paced"]
+    assert answer["status"] == 200 and len(answer["body"]["results"]) == 2, answer
+    assert answer["seconds"] > timeout, answer
+    assert client.get("/api/health")[0] == 200
+
+
 def test_still_serving_after_bad_requests(client: Client, curated: Any) -> None:
     from ray import serve
 
@@ -991,6 +1139,113 @@ def test_links_serve_refuses_shards_when_the_front_takes_every_cpu(dataset: str)
         assert last.startswith("links serve: error: ") and words in last, refused.stderr[-3000:]
 
 
+@contextlib.contextmanager
+def served_by_the_cli(root: str) -> Iterator[tuple[subprocess.Popen, Client, list[str]]]:
+    """`links serve root` in a process of its own, once it answers health: the process, a
+    client and the lines it prints (as they come). Its Ray keeps its files in a folder of
+    its own (RAY_TMPDIR), so it neither joins nor is confused with any other Ray here."""
+    port = bindable_port("127.0.0.1", 0)
+    ray_dir = tempfile.mkdtemp(prefix="links-serve-", dir="/tmp")  # short: Ray's socket paths
+    env = {name: value for name, value in os.environ.items() if name != "RAY_ADDRESS"}
+    env["RAY_TMPDIR"] = ray_dir
+    server = subprocess.Popen(
+        [sys.executable, "-m", "links_ray.cli", "serve", root, "--port", str(port)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+    )
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(server.stdout), daemon=True)
+    reader.start()
+    served = Client(port)
+    try:
+        deadline = time.monotonic() + 600
+        while True:
+            assert server.poll() is None, "".join(lines[-30:])
+            assert time.monotonic() < deadline, "".join(lines[-30:])
+            try:
+                if served.get("/api/health")[0] == 200:
+                    break
+            except OSError:  # not listening yet
+                pass
+            time.sleep(0.25)
+        yield server, served, lines
+    finally:
+        if server.poll() is None:
+            for pid in descendants(server.pid):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            server.kill()
+            server.wait()
+        for pid in processes_mentioning(ray_dir):
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        shutil.rmtree(ray_dir, ignore_errors=True)
+
+
+def stopped_by_sigterm(server: subprocess.Popen, timeout: float) -> tuple[float, dict[int, str]]:
+    """SIGTERM `server`: the seconds it took to exit, and those of its processes (Ray's,
+    as they were when it was sent) still alive when it had."""
+    below = descendants(server.pid)
+    assert below, "links serve has started no processes: is its Ray its own?"
+    start = time.monotonic()
+    server.send_signal(signal.SIGTERM)
+    try:
+        server.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"links serve still running {timeout:g} s after SIGTERM")
+    seconds = time.monotonic() - start
+    left = {pid: line for pid, line in below.items() if line and command_line(pid) == line}
+    return seconds, left
+
+
+#: What `links serve` may take to exit after SIGTERM when no request is under way.
+EXIT_S = 10.0
+
+
+def test_links_serve_exits_soon_after_sigterm(dataset: str) -> None:
+    """SIGTERM as soon as `links serve` answers health: it exits within EXIT_S, with status 0,
+    saying so, and leaves none of its Ray's processes behind."""
+    with served_by_the_cli(dataset) as (server, _, lines):
+        seconds, left = stopped_by_sigterm(server, timeout=120)
+        text = "".join(lines)
+        print(f"\nlinks serve exited {seconds:.1f} s after SIGTERM")
+        assert server.returncode == 0, text[-3000:]
+        assert "links-ray: shutting down" in text and "Traceback" not in text, text[-3000:]
+        assert seconds < EXIT_S, f"{seconds:.1f} s"
+        assert left == {}, left
+
+
+def test_links_serve_finishes_a_request_under_way_at_sigterm(dataset: str) -> None:
+    """A synthesis under way when SIGTERM comes is answered in full (200, its results), after
+    the signal; then the server exits, within the drain bound and EXIT_S more."""
+    from links_ray.serve.app import SHUTDOWN_DRAIN_S
+
+    seconds = 4.0
+    with served_by_the_cli(dataset) as (server, served, lines):
+        answer: dict[str, Any] = {}
+
+        def synthesize() -> None:
+            status, data = served.post("/api/synthesize", {"points": POINTS, "seconds": seconds})
+            answer.update(status=status, data=data, at=time.monotonic())
+
+        asking = threading.Thread(target=synthesize)
+        asking.start()
+        time.sleep(1.0)  # under way: its budget is seconds
+        assert not answer, answer
+        sent = time.monotonic()
+        exited, left = stopped_by_sigterm(server, timeout=120)
+        asking.join(timeout=60)
+        text = "".join(lines)
+        print(f"\nlinks serve exited {exited:.1f} s after SIGTERM, a request under way")
+        assert answer["status"] == 200 and len(answer["data"]["results"]) == 3, answer
+        assert answer["at"] > sent
+        assert server.returncode == 0, text[-3000:]
+        assert exited < SHUTDOWN_DRAIN_S + EXIT_S, f"{exited:.1f} s"
+        assert left == {}, left
+
+
 def test_serve_cli_refuses_a_root_without_curated_paths(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -1063,7 +1318,12 @@ def test_rayservice_manifest() -> None:
     assert given == {"replicas": 1, "shards": 32, "shard_cpus": 7.0, "shard_memory_gb": 8.0}
     cluster = spec["rayClusterConfig"]
     pods = [cluster["headGroupSpec"]] + cluster["workerGroupSpecs"]
+    from links_ray.serve.app import SHUTDOWN_DRAIN_S
+
     for pod in pods:
+        # Kubernetes kills a pod this long after SIGTERM: the replicas' drain, and the 10 s
+        # `links serve` takes to stop when idle (test_links_serve_exits_soon_after_sigterm).
+        assert pod["template"]["spec"]["terminationGracePeriodSeconds"] == SHUTDOWN_DRAIN_S + EXIT_S
         (container,) = pod["template"]["spec"]["containers"]
         assert container["image"] == "links-ray:latest"
         env = {item["name"]: item for item in container["env"]}

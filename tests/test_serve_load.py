@@ -6,11 +6,15 @@ the `Retry-After` it is given) while another checks health and simulates: retrie
 the front's bound are refused at once with 503, `Retry-After` and a JSON error, nothing else
 fails, health checks and simulations stay fast, and afterwards the server answers as before;
 with one index in the front and with two shards. A shard whose replica dies makes retrievals
-503 until Serve has replaced it.
+503 until Serve has replaced it. Clients posting bodies and asking for simulations as large as
+the limits allow do not hold up the event loop, which answers health checks.
 """
 
 from __future__ import annotations
 
+import http.client
+import json
+import os
 import time
 
 import numpy as np
@@ -20,9 +24,11 @@ from serving import FOUR_BAR, as_served, retrieved, serving
 import links_ray
 from links_ray.cli.bench_services import (
     finish_load,
+    post_load,
     probe_loop,
     retrieval_load,
 )
+from links_ray.engine.inputs import MAX_BODY_BYTES, MAX_REQUEST_JOINT_STEPS, MAX_REQUEST_JOINTS
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.app import build_app
 
@@ -131,3 +137,107 @@ def test_under_load(
         status, data = client.post("/api/simulate", FOUR_BAR)
         assert status == 200 and data["trajectories"] == links_ray.simulate(**FOUR_BAR).tolist()
         assert retrieved(client, queries[1], K) == as_served(reference.retrieve(queries[1], K))
+
+
+#: Clients posting the largest bodies and simulations at once, and for how long (seconds).
+BIG_CLIENTS, BIG_SECONDS = 8, 20.0
+#: What health checks must stay under meanwhile (99th percentile). Health is answered on the
+#: replica's event loop: any JSON parsed or rendered there, or any one long call that holds
+#: the GIL in another thread, shows up here at these sizes (a body takes about 45 ms to parse,
+#: an answer about 150 ms to render, on this machine when quiet).
+BIG_HEALTH_P99_S = 0.100
+
+
+def largest_simulation() -> dict:
+    """A /api/simulate body at the request limits: MAX_REQUEST_JOINTS joints (a crank and
+    rigid triangles on it, so it never locks) and the most steps they may take, padded with
+    numbers (costly to parse, unlike spaces) to exactly MAX_BODY_BYTES."""
+    n = MAX_REQUEST_JOINTS
+    steps = MAX_REQUEST_JOINT_STEPS // n
+    adjacency = np.zeros((n, n), dtype=int)
+    adjacency[0, 1:] = adjacency[1:, 0] = 1
+    adjacency[1, 2:] = adjacency[2:, 1] = 1
+    rng = np.random.default_rng(11)
+    positions = [[0.0, 0.0], [0.1, 0.0], *rng.uniform(-1, 1, (n - 2, 2)).tolist()]
+    body = {
+        "adjacency": adjacency.tolist(),
+        "node_types": [0, 2] + [1] * (n - 2),
+        "positions": positions,
+        "steps": steps,
+    }
+    opening = json.dumps({**body, "pad": []})[:-2]  # up to the pad's "["
+    size, pad = len(opening) + len("]}"), []
+    for number in map(json.dumps, rng.uniform(-1, 1, MAX_BODY_BYTES // 20).tolist()):
+        more = len(number) + (len(", ") if pad else 0)
+        if size + more > MAX_BODY_BYTES:
+            break
+        pad.append(number)
+        size += more
+    text = opening + ", ".join(pad) + "]}"
+    text += " " * (MAX_BODY_BYTES - len(text))
+    assert len(text.encode()) == MAX_BODY_BYTES
+    return {"body": body, "text": text}
+
+
+def health_probes(port: int, seconds: float) -> dict:
+    """Health checks one after another (20 ms apart) on one kept-alive connection for
+    `seconds`: their latencies (seconds) and statuses."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+    found: dict = {"latencies": [], "statuses": {}}
+    stop = time.monotonic() + seconds
+    try:
+        while time.monotonic() < stop:
+            start = time.perf_counter()
+            conn.request("GET", "/api/health")
+            response = conn.getresponse()
+            response.read()
+            found["latencies"].append(time.perf_counter() - start)
+            found["statuses"][response.status] = found["statuses"].get(response.status, 0) + 1
+            time.sleep(0.02)
+    finally:
+        conn.close()
+    return found
+
+
+def test_health_is_answered_while_the_largest_bodies_and_answers_are_handled(
+    dataset: str, serve_port: int
+) -> None:
+    """BIG_CLIENTS clients post bodies of MAX_BODY_BYTES asking for simulations of
+    MAX_REQUEST_JOINTS joints x their most steps (100 x 1,000, about 4 MB of JSON back), one
+    of them a byte more (413), for BIG_SECONDS: every answer is 200, 413 or 503, and health checks
+    meanwhile stay under BIG_HEALTH_P99_S at the 99th percentile; the large answer is right."""
+    largest = largest_simulation()
+    body = largest["body"]
+    assert len(body["node_types"]) * body["steps"] == MAX_REQUEST_JOINT_STEPS
+    over = largest["text"] + " "
+    expected = links_ray.simulate(**body).tolist()
+    with serving(build_app(dataset), serve_port) as client:
+        status, data = client.post("/api/simulate", largest["text"].encode())
+        assert status == 200 and data["trajectories"] == expected
+        # Client i posts bodies i, i + BIG_CLIENTS, ... in turn: the last client alternates
+        # the body over the limit, refused at once, with the largest simulation, so that it
+        # does not only upload bodies to be refused; the others post the largest simulation.
+        # They run below the server's priority: clients on other machines take none of its CPU.
+        bodies = [largest["text"]] * (2 * BIG_CLIENTS - 1) + [over]
+        load = post_load(client.port, "/api/simulate", bodies, BIG_SECONDS, BIG_CLIENTS, 10)
+        try:
+            probes = health_probes(client.port, BIG_SECONDS)
+        finally:
+            record = finish_load(load)
+        statuses = record["statuses"]
+        latencies = np.array(probes["latencies"])
+        p50, p99 = np.percentile(latencies, [50, 99])
+        print(
+            f"\nlargest bodies: {statuses} in {record['seconds']:.1f} s; health p50/p99/max "
+            f"{p50 * 1e3:.1f}/{p99 * 1e3:.1f}/{latencies.max() * 1e3:.1f} ms over "
+            f"{len(latencies)} checks; load average {os.getloadavg()[0]:.1f}"
+        )
+        assert set(statuses) <= {"200", "413", "503"}, statuses
+        assert statuses.get("200", 0) >= BIG_CLIENTS and statuses.get("413", 0) > 0, statuses
+        assert record["not_json"] == 0, record
+        assert set(probes["statuses"]) == {200} and len(latencies) > 50, probes["statuses"]
+        assert p99 < BIG_HEALTH_P99_S, (
+            f"health p99 {p99 * 1e3:.1f} ms (load average {os.getloadavg()[0]:.1f})"
+        )
+        status, data = client.post("/api/simulate", largest["text"].encode())
+        assert status == 200 and data["trajectories"] == expected

@@ -438,9 +438,20 @@ def retrieval_load(
     its place in the load: the server stays full as long as more clients want in than it
     holds.
     `finish_load` gives what they saw."""
+    bodies = [json.dumps({"points": np.asarray(q).tolist(), "k": k}) for q in queries]
+    return post_load(port, "/api/retrieve", bodies, seconds, clients)
+
+
+def post_load(
+    port: int, route: str, bodies: list[str], seconds: float, clients: int, niceness: int = 0
+) -> subprocess.Popen:
+    """`retrieval_load`'s clients, posting `bodies` (in turn: client i starts with body i) to
+    any `route`, their process `niceness` lower in priority than this one."""
     spec = {
+        "niceness": niceness,
         "port": port,
-        "bodies": [json.dumps({"points": np.asarray(q).tolist(), "k": k}) for q in queries],
+        "route": route,
+        "bodies": bodies,
         "seconds": seconds,
         "clients": clients,
         "pause_s": LOAD_PAUSE_S,
@@ -478,6 +489,7 @@ def _load() -> None:
     """The load clients' process (`retrieval_load`): the spec on stdin, the record on
     stdout."""
     spec = json.loads(sys.stdin.read())
+    os.nice(spec.get("niceness", 0))  # before the clients' threads, which inherit it
     bodies = [body.encode() for body in spec["bodies"]]
     clients, pause_s = spec["clients"], spec["pause_s"]
     lock = threading.Lock()
@@ -495,7 +507,7 @@ def _load() -> None:
                 conn = http.client.HTTPConnection("127.0.0.1", spec["port"], timeout=60)
             start = time.perf_counter()
             try:
-                conn.request("POST", "/api/retrieve", body, {"Content-Type": "application/json"})
+                conn.request("POST", spec["route"], body, {"Content-Type": "application/json"})
                 response = conn.getresponse()
                 raw = response.read()
             except (OSError, http.client.HTTPException) as exc:

@@ -84,6 +84,13 @@ MAX_REQUEST_JOINTS = 100
 MAX_REQUEST_JOINT_STEPS = 100_000
 #: Largest request body, in bytes (MAX_POINTS points take about 0.5 MB).
 MAX_BODY_BYTES = 2 * 1024 * 1024
+#: A request body must keep coming: a pause of BODY_TIMEOUT_S seconds with nothing of it, or
+#: a body that falls behind MIN_BODY_BYTES_PER_S (after t seconds it must have sent
+#: (t - BODY_TIMEOUT_S) x MIN_BODY_BYTES_PER_S bytes), is cut off with 408. A slow client
+#: then holds a connection for at most BODY_TIMEOUT_S + MAX_BODY_BYTES / MIN_BODY_BYTES_PER_S
+#: (138 s), however it sends.
+BODY_TIMEOUT_S = 10.0
+MIN_BODY_BYTES_PER_S = 16 * 1024
 
 
 def request_limits() -> dict[str, float | int]:
@@ -107,6 +114,8 @@ def request_limits() -> dict[str, float | int]:
         "max_transmission_deg": MAX_TRANSMISSION_DEG,
         "max_coordinate": MAX_COORDINATE,
         "max_body_bytes": MAX_BODY_BYTES,
+        "body_timeout_s": BODY_TIMEOUT_S,
+        "min_body_bytes_per_s": MIN_BODY_BYTES_PER_S,
     }
 
 

@@ -14,13 +14,16 @@
 | `GET /studio/<file>` | the studio's scripts and style sheet, from the package |
 
 Every bad request gets a 4xx with a JSON `{"error": "<what is wrong>"}`: 400 for malformed
-input, 404/405 for unknown routes and methods, 413 for a body over `MAX_BODY_BYTES`, a
+input, 404/405 for unknown routes and methods, 408 for a body that pauses `BODY_TIMEOUT_S` or
+falls behind `MIN_BODY_BYTES_PER_S` (`read_body`), 413 for a body over `MAX_BODY_BYTES`, a
 mechanism over `MAX_REQUEST_JOINTS` or a simulation over `MAX_REQUEST_JOINT_STEPS`, 415 for a
 body that is declared as something other than JSON. The limits and the checks of the values
 are the engine's (`links_ray.engine.inputs`, whose ValueErrors become 400s); this module checks
 only what JSON alone can get wrong (types, booleans for numbers, array lengths) first. Anything
 unexpected is logged by exception type and location only (never a request body) and answered
-500 `{"error": "internal error"}`; the replica keeps serving.
+500 `{"error": "internal error"}`; the replica keeps serving. Bodies over `INLINE_JSON_BYTES`
+are parsed, and large answers rendered in pieces, in `JSON_POOL`'s one thread, off the event
+loop that answers health checks (`json_answer`).
 
 Each replica opens the retrieval index once, in its constructor. Retrievals run one at a time
 per replica (the index's compiled kernels are parallel, and the JIT's workqueue threading layer,
@@ -52,11 +55,14 @@ not all answer within `SHARD_TIMEOUT_S`, give 503 with `Retry-After`.
 ingress*, which its throughput mode uses. Through Serve's HTTP proxy every request costs about
 12 ms more here (an actor hop and a second one to fetch the body). Serve's proxy then listens on
 another loopback port. With several replicas, or on a cluster that Ray was already running, the
-proxy answers on the port and balances the replicas.
+proxy answers on the port and balances the replicas. On Ctrl-C or SIGTERM it stops in bounded
+time (`stop_serving`): the replicas drain the requests under way for at most
+`SHUTDOWN_DRAIN_S`, then Serve and the Ray it started stop.
 """
 
 import asyncio
 import functools
+import gc
 import importlib.resources
 import json
 import logging
@@ -105,6 +111,7 @@ from links_ray.data.store import Store
 from links_ray.engine.cpus import set_given_cpus
 from links_ray.engine.fabrication import fabrication
 from links_ray.engine.inputs import (
+    BODY_TIMEOUT_S,
     DEFAULT_CRANK_MM,
     DEFAULT_K,
     DEFAULT_STEPS,
@@ -112,6 +119,7 @@ from links_ray.engine.inputs import (
     MAX_REQUEST_JOINT_STEPS,
     MAX_REQUEST_JOINTS,
     MAX_SYNTHESIS_SECONDS,
+    MIN_BODY_BYTES_PER_S,
     as_crank_mm,
     as_flag,
     as_steps,
@@ -202,14 +210,92 @@ class JsonResponse(JSONResponse):
 
     def render(self, content: Any) -> bytes:
         """The body: compact JSON, NaN and infinity refused."""
-        return json.dumps(
-            content, allow_nan=False, separators=(",", ":"), default=_jsonable
-        ).encode("utf-8")
+        return _dumps(content)
 
 
-def _json_line(content: Any) -> bytes:
+def _dumps(content: Any) -> bytes:
+    """`content` as JsonResponse renders it: compact JSON, NaN and infinity refused."""
+    return json.dumps(content, allow_nan=False, separators=(",", ":"), default=_jsonable).encode(
+        "utf-8"
+    )
+
+
+#: The most numbers one call of the JSON encoder renders (a few milliseconds). The encoder
+#: and the parser are C code that holds the GIL until it returns, so in any thread one long
+#: call stalls the event loop for its whole length; pieces of this size let it in between.
+JSON_PIECE_NUMBERS = 1024
+#: Bodies up to this many bytes are parsed on the event loop (well under a millisecond); larger
+#: ones in `JSON_POOL`.
+INLINE_JSON_BYTES = 64 * 1024
+#: The one thread that parses large request bodies and renders large answers. One, so that
+#: at most one long run of the GIL-holding JSON code is under way at a time, whatever the
+#: number of clients: the event loop waits for at most one piece of it.
+JSON_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="links-json")
+#: The replica's GIL switch interval (seconds; `sys.setswitchinterval`).
+GIL_SWITCH_S = 0.0005
+
+
+def _json_size(value: Any) -> int:
+    """About how many numbers `value` renders to: lists are taken to be alike throughout (their
+    first item times their length), so this costs a few steps, not a walk."""
+    if isinstance(value, np.ndarray):
+        return value.size
+    if isinstance(value, dict):
+        return sum(_json_size(item) for item in value.values()) + len(value)
+    if isinstance(value, list | tuple):
+        return len(value) * _json_size(value[0]) if value else 1
+    return 1
+
+
+def _json_pieces(value: Any, out: list[bytes]) -> None:
+    """Append `value`'s compact JSON to `out` in pieces of at most about JSON_PIECE_NUMBERS
+    numbers each; their concatenation is `_dumps(value)`."""
+    if _json_size(value) <= JSON_PIECE_NUMBERS:
+        out.append(_dumps(value))
+    elif isinstance(value, dict):
+        out.append(b"{")
+        for i, (key, item) in enumerate(value.items()):
+            out.append((b"," if i else b"") + _dumps(str(key)) + b":")
+            _json_pieces(item, out)
+        out.append(b"}")
+    else:  # a long list, tuple or array: runs of small items together, large items in pieces
+        out.append(b"[")
+        per_item = max(1, _json_size(value[0]))
+        run = max(1, JSON_PIECE_NUMBERS // per_item)
+        for start in range(0, len(value), run):
+            if start:
+                out.append(b",")
+            if per_item > JSON_PIECE_NUMBERS:
+                _json_pieces(value[start], out)
+            else:
+                part = value[start : start + run]
+                out.append(_dumps(part.tolist() if isinstance(part, np.ndarray) else part)[1:-1])
+        out.append(b"]")
+
+
+def render_json(content: Any) -> bytes:
+    """`content` as compact JSON (`_dumps`), rendered piece by piece (`_json_pieces`)."""
+    out: list[bytes] = []
+    _json_pieces(content, out)
+    return b"".join(out)
+
+
+async def rendered_json(content: Any) -> bytes:
+    """`render_json(content)`, in JSON_POOL when it is large, so that the event loop keeps
+    answering meanwhile (health checks, other requests)."""
+    if _json_size(content) <= JSON_PIECE_NUMBERS:
+        return _dumps(content)
+    return await asyncio.get_running_loop().run_in_executor(JSON_POOL, render_json, content)
+
+
+async def json_answer(content: Any, status: int = 200) -> Response:
+    """A JSON answer (as JsonResponse's) rendered off the event loop when large."""
+    return Response(await rendered_json(content), status, media_type="application/json")
+
+
+async def _json_line(content: Any) -> bytes:
     """One NDJSON line, as compact as JsonResponse's bodies."""
-    return JsonResponse(content).body + b"\n"
+    return await rendered_json(content) + b"\n"
 
 
 def _error(status: int, message: str, **extra: Any) -> JsonResponse:
@@ -379,7 +465,8 @@ def _refuse_constant(name: str) -> float:
 
 
 async def read_json_object(request: Request) -> dict[str, Any]:
-    """The request body as a JSON object, or ApiError (400, 413 or 415) naming the problem."""
+    """The request body as a JSON object, or ApiError (400, 408, 413 or 415) naming the
+    problem. A large body is parsed in JSON_POOL, off the event loop."""
     content_type = request.headers.get("content-type")
     if content_type is not None:
         media = content_type.split(";", 1)[0].strip().lower()
@@ -393,17 +480,44 @@ async def read_json_object(request: Request) -> dict[str, Any]:
             raise ApiError(400, "Content-Length is not a byte count")
         if int(declared) > MAX_BODY_BYTES:
             raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
+    body = await read_body(request)
+    if len(body) <= INLINE_JSON_BYTES:
+        return parse_json_object(body)
+    return await asyncio.get_running_loop().run_in_executor(JSON_POOL, parse_json_object, body)
+
+
+async def read_body(request: Request) -> bytes:
+    """The request body, at most MAX_BODY_BYTES (else ApiError 413), cut off with 408 when it
+    pauses for BODY_TIMEOUT_S or falls behind MIN_BODY_BYTES_PER_S (engine.inputs)."""
+    loop = asyncio.get_running_loop()
+    start = loop.time()
     chunks: list[bytes] = []
     size = 0
     try:
-        async for chunk in request.stream():
-            size += len(chunk)
-            if size > MAX_BODY_BYTES:
-                raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
-            chunks.append(chunk)
+        async with asyncio.timeout(start + BODY_TIMEOUT_S) as deadline:
+            async for chunk in request.stream():
+                size += len(chunk)
+                if size > MAX_BODY_BYTES:
+                    raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
+                chunks.append(chunk)
+                behind = start + BODY_TIMEOUT_S + size / MIN_BODY_BYTES_PER_S
+                deadline.reschedule(min(loop.time() + BODY_TIMEOUT_S, behind))
     except ClientDisconnect:  # nobody is left to answer; not a server error
         raise ApiError(400, "the client disconnected before sending the whole body") from None
-    body = b"".join(chunks)
+    except TimeoutError:
+        # The rest of the body is never read: the connection is closed after the answer.
+        raise ApiError(
+            408,
+            f"the body came too slowly ({size} bytes in {loop.time() - start:.1f} s): it may "
+            f"pause at most {BODY_TIMEOUT_S:g} s and must keep up {MIN_BODY_BYTES_PER_S} "
+            "bytes a second",
+            headers={"Connection": "close"},
+        ) from None
+    return b"".join(chunks)
+
+
+def parse_json_object(body: bytes) -> dict[str, Any]:
+    """`body` parsed as a JSON object, or ApiError 400 naming the problem."""
     if not body.strip():
         raise ApiError(400, "the body is empty: expected a JSON object")
     try:
@@ -595,12 +709,8 @@ def analyze_mechanism(
         trajectories, step, node = simulate_until_lock(adjacency, node_types, positions, steps)
         if step >= 0:
             found["lock"] = {"step": step, "node": node, "angle": 360.0 * step / steps}
-            found["trajectories"] = trajectories.tolist()
+            found["trajectories"] = trajectories  # rendered in pieces (`json_answer`)
     return found
-
-
-def _simulate_lists(adjacency: list, node_types: list, positions: list, steps: int) -> list:
-    return simulate(adjacency, node_types, positions, steps).tolist()
 
 
 #: /api/export's formats: (media type, file suffix) of each.
@@ -687,6 +797,16 @@ SHARD_TIMEOUT_S = 30.0
 #: CPUs a shard replica reserves unless told otherwise (and unless `fit_shard_cpus` gives it
 #: less on a Ray that `links serve` started itself); Ray counts CPUs in steps of 1 / CPU_STEPS.
 SHARD_CPUS, CPU_STEPS = 1.0, 10_000
+#: Seconds a stopping replica lets the requests under way finish (Serve's
+#: `graceful_shutdown_timeout_s`); then it is stopped whatever it holds. Syntheses at their
+#: default budget and every other request finish well within it.
+SHUTDOWN_DRAIN_S = 20.0
+#: How often a draining replica looks whether its requests are done (Serve's
+#: `graceful_shutdown_wait_loop_s`, 2 s by default: an idle replica waited that long to stop).
+SHUTDOWN_POLL_S = 0.2
+#: Seconds `links serve` gives Serve's controller beyond the drain to stop the replicas and
+#: proxies, before it stops Ray under them.
+SHUTDOWN_STOP_S = 5.0
 #: Shard failures that mean "not there now" (a replica that died or is restarting, a shard
 #: with no replica, backpressure): answered 503 with `Retry-After`, not 500.
 SHARD_UNAVAILABLE = (
@@ -799,6 +919,8 @@ def _lower_priority() -> None:
 @serve.deployment(
     name="IndexShard",
     max_ongoing_requests=SHARD_MAX_ONGOING,
+    graceful_shutdown_timeout_s=SHUTDOWN_DRAIN_S,
+    graceful_shutdown_wait_loop_s=SHUTDOWN_POLL_S,
     ray_actor_options={"num_cpus": 1, "runtime_env": {"env_vars": REPLICA_ENV}},
 )
 class IndexShard:
@@ -834,6 +956,8 @@ class IndexShard:
     max_ongoing_requests=FRONT_MAX_ONGOING,
     max_queued_requests=FRONT_MAX_QUEUED,
     backpressure_config={"status_code": 503, "retry_after_s": RETRY_AFTER_S},
+    graceful_shutdown_timeout_s=SHUTDOWN_DRAIN_S,
+    graceful_shutdown_wait_loop_s=SHUTDOWN_POLL_S,
     ray_actor_options={"num_cpus": 1, "runtime_env": {"env_vars": REPLICA_ENV}},
 )
 @serve.ingress(api)
@@ -869,6 +993,16 @@ class LinksApi:
         else:  # warming the index also loads the solver /api/simulate uses
             self._retrieving = _Retrieving(RetrievalIndex.open(root))
         studio_files()  # a package without the studio fails here, not on a user's first visit
+        # What the replica holds from here on (the index, the compiled kernels, the libraries'
+        # objects) is not garbage: out of the collector's sight, a full collection (which the
+        # objects of large bodies and answers set off) walks only what requests made, not a
+        # quarter of a million objects, which held the GIL for 0.3 s.
+        gc.collect()
+        gc.freeze()
+        # A thread that wants the GIL (the event loop's, to answer a health check) waits this
+        # long before the holder must yield it: 5 ms by default, paid at every hop of a request
+        # while JSON is parsed or rendered in JSON_POOL.
+        sys.setswitchinterval(GIL_SWITCH_S)
 
     def __del__(self) -> None:
         if getattr(self, "_retrieving", None) is not None:
@@ -913,12 +1047,12 @@ class LinksApi:
         """Trajectories [n][steps][2] of a mechanism, 422 if it locks, 4xx if malformed."""
         args = simulate_args(await read_json_object(request))
         try:
-            trajectories = await run_in_threadpool(_simulate_lists, *args)
+            trajectories = await run_in_threadpool(simulate, *args)
         except LockingError as exc:
             return _error(422, "locking", step=exc.step, node=exc.node)
         except ValueError as exc:  # InvalidMechanismError names the problem
             raise ApiError(400, str(exc)) from None
-        return JsonResponse({"trajectories": trajectories})
+        return await json_answer({"trajectories": trajectories})
 
     @api.post(
         "/api/analyze",
@@ -926,7 +1060,7 @@ class LinksApi:
         responses=models.error_responses(400, 413, 415),
         openapi_extra=request_body("/api/analyze"),
     )
-    async def api_analyze(self, request: Request) -> JsonResponse:
+    async def api_analyze(self, request: Request) -> Response:
         """Degree of freedom, dyadic solvability and, given positions, where it locks."""
         body = await read_json_object(request)
         if body.get("positions") is None:
@@ -938,7 +1072,7 @@ class LinksApi:
             found = await run_in_threadpool(analyze_mechanism, *args)
         except ValueError as exc:  # degenerate positions: named as /api/simulate names them
             raise ApiError(400, str(exc)) from None
-        return JsonResponse(found)
+        return await json_answer(found)
 
     @api.post(
         "/api/export",
@@ -971,7 +1105,7 @@ class LinksApi:
         responses=models.error_responses(400, 413, 415, 503),
         openapi_extra=request_body("/api/retrieve"),
     )
-    async def api_retrieve(self, request: Request) -> JsonResponse:
+    async def api_retrieve(self, request: Request) -> Response:
         """The k curated paths nearest to a drawn curve, best first, with their mechanisms;
         503 with `Retry-After` when MAX_RETRIEVALS are already under way here."""
         self._claim_retrieval()  # refused before reading the body
@@ -989,7 +1123,7 @@ class LinksApi:
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
             self._retrievals -= 1
-        return JsonResponse({"results": results, "took_ms": round(took_ms, 3)})
+        return await json_answer({"results": results, "took_ms": round(took_ms, 3)})
 
     @api.post(
         "/api/synthesize",
@@ -1066,7 +1200,7 @@ class LinksApi:
                 self._syntheses -= 1
                 if turn is not None:
                     self._next_turn(turn)
-        return JsonResponse(_synthesis_answer(results, took_ms, queued_s))
+        return await json_answer(_synthesis_answer(results, took_ms, queued_s))
 
     async def _synthesis_candidates(
         self, points: np.ndarray, count: int, floor: float
@@ -1154,17 +1288,17 @@ class LinksApi:
             waiting = asyncio.ensure_future(reports.get())
             await asyncio.wait({waiting, refining}, return_when=asyncio.FIRST_COMPLETED)
             if waiting.done():
-                yield _json_line({"progress": waiting.result()})
+                yield await _json_line({"progress": waiting.result()})
             else:
                 waiting.cancel()
         try:
             results, queued_s = refining.result()
         except Exception as exc:  # the status is sent: the failure can only be a line
             logger.warning("links-ray API: a streamed synthesis failed (%s)", type(exc).__name__)
-            yield _json_line({"error": "synthesis failed"})
+            yield await _json_line({"error": "synthesis failed"})
             return
         took_ms = (time.perf_counter() - start) * 1e3
-        yield _json_line(_synthesis_answer(results, took_ms, queued_s))
+        yield await _json_line(_synthesis_answer(results, took_ms, queued_s))
 
     async def _shard_counts(self) -> list[int]:
         """Each shard's paths, asked once (a shard's index does not change while it serves)."""
@@ -1440,9 +1574,16 @@ def run_server(
         bindable_port(host, port)  # else the replica retries and fails without saying why
         os.environ.update(direct_ingress_env(port))
         proxy_port = bindable_port(host, 0)
-    connect()
-    if local:
-        try:
+    if blocking:
+        # A service manager stops with SIGTERM: shut down as on Ctrl-C, not with a stack
+        # trace, from the start on (set again once Ray has started: it sets its own).
+        signal.signal(signal.SIGTERM, signal.default_int_handler)
+    stop = True
+    try:
+        connect()
+        if blocking:
+            signal.signal(signal.SIGTERM, signal.default_int_handler)
+        if local:
             resources = ray.cluster_resources()
             if shards and shard_cpus is None:
                 cpus = fit_shard_cpus(replicas, shards, resources)
@@ -1456,26 +1597,40 @@ def run_server(
                     )
                     app = build_app(root, replicas, shards, cpus, shard_memory_gb)
             check_fits(replicas, shards, cpus, shard_memory_gb, resources)
-        except ValueError:
-            ray.shutdown()
-            raise
-    no_access_log = {"enable_access_log": False}
-    serve.start(http_options={"host": host, "port": proxy_port}, logging_config=no_access_log)
-    try:
+        no_access_log = {"enable_access_log": False}
+        serve.start(http_options={"host": host, "port": proxy_port}, logging_config=no_access_log)
         serve.run(app, name="links", route_prefix="/", logging_config=no_access_log)
-    except BaseException:
-        serve.shutdown()
-        raise
-    shown = f"[{host}]" if ":" in host else host
-    print(f"links-ray: serving {root} at http://{shown}:{port}/ (API under /api)", flush=True)
-    if not blocking:
-        return
-    # A service manager stops with SIGTERM: shut down as on Ctrl-C, not with a stack trace.
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
-    try:
+        shown = f"[{host}]" if ":" in host else host
+        print(f"links-ray: serving {root} at http://{shown}:{port}/ (API under /api)", flush=True)
+        if not blocking:
+            stop = False
+            return
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
         print("links-ray: shutting down", flush=True)
     finally:
-        serve.shutdown()
+        if stop:
+            stop_serving(ray_started=local)
+            if blocking:
+                # The process ends next: the interpreter's last collections need not walk
+                # the heap of Ray, numba and pandas objects (2-3 s on a busy 2-core machine).
+                gc.freeze()
+
+
+def stop_serving(ray_started: bool) -> None:
+    """Stop Serve, then Ray if this process started it, in bounded time: the replicas drain
+    the requests under way for at most SHUTDOWN_DRAIN_S (a replica with none stops at once),
+    Serve's controller gets SHUTDOWN_STOP_S more to stop them and the proxies, then Ray stops.
+    `serve.shutdown()` alone waited for the controller for 30 s, and the replicas for 20 s
+    each, and left Ray to the interpreter's exit."""
+    import ray
+
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second one must not cut the drain short
+    # `serve.shutdown()` with a bound: it takes none; its client's `shutdown` does.
+    client = serve.context._get_global_client(raise_if_no_controller_running=False)
+    if client is not None:
+        client.shutdown(timeout_s=SHUTDOWN_DRAIN_S + SHUTDOWN_STOP_S)
+    serve.context._disconnect()
+    if ray_started:
+        ray.shutdown()

@@ -158,6 +158,8 @@ class LimitsResponse(BaseModel):
     max_transmission_deg: float
     max_coordinate: float
     max_body_bytes: int
+    body_timeout_s: float
+    min_body_bytes_per_s: int
 
 
 class SimulateResponse(BaseModel):
