@@ -441,11 +441,7 @@ def ray_cluster(s3_server: S3Server, serve_port: int) -> Iterator[str]:
     )
     ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING")
     yield ray.get_runtime_context().gcs_address
-    if _full_teardown():
-        ray.shutdown()
-    # Otherwise the cluster ends with the process (pytest_unconfigure): a whole-suite run once
-    # passed every test and was then aborted inside ray.shutdown() (exit 134, SIGABRT in the
-    # driver's core worker teardown), failing CI for nothing the tests found.
+    ray.shutdown()
 
 
 # -- the Serve app (test_serve.py, test_studio.py) -------------------------------------------
@@ -546,91 +542,3 @@ def reference(dataset: str) -> Any:
     from links_ray.search.index import RetrievalIndex
 
     return RetrievalIndex.open(dataset)
-
-
-# -- the end of the run -------------------------------------------------------------------------
-
-#: The session's exit status, kept for `pytest_unconfigure`.
-_EXIT_STATUS: list[int] = []
-
-
-def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
-    _EXIT_STATUS.append(int(exitstatus))
-
-
-def _full_teardown() -> bool:
-    """LINKS_TESTS_FULL_TEARDOWN=1: shut Ray down and let the interpreter tear down, as a
-    normal process would (to look into the crashes the default avoids)."""
-    return os.environ.get("LINKS_TESTS_FULL_TEARDOWN") == "1"
-
-
-def _descendants(pid: int) -> list[int]:
-    """The processes below `pid` (children, theirs, ...), from /proc."""
-    children: dict[int, list[int]] = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            # The parent is the 2nd field after the command, which is in parentheses.
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        children.setdefault(int(fields[1]), []).append(int(entry.name))
-    found, frontier = [], [pid]
-    while frontier:
-        below = children.get(frontier.pop(), [])
-        found += below
-        frontier += below
-    return found
-
-
-#: Run detached: waits for the test process to end, then stops what it left (Ray's
-#: agents outlive their raylet, holding the output pipes of whoever ran the tests).
-_REAPER = """
-import os, signal, sys, time
-parent, pids = int(sys.argv[1]), [int(p) for p in sys.argv[2:]]
-def alive(pid):
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    return True
-while alive(parent):
-    time.sleep(0.05)
-for sig in (signal.SIGTERM, signal.SIGKILL):
-    for pid in pids:
-        try:
-            os.kill(pid, sig)
-        except ProcessLookupError:
-            pass
-    deadline = time.monotonic() + 3
-    while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
-        time.sleep(0.05)
-"""
-
-
-@pytest.hookimpl(trylast=True)
-def pytest_unconfigure(config: pytest.Config) -> None:
-    """End the process with the session's status once pytest has reported, skipping Ray's
-    shutdown and the interpreter's own teardown. Whole-suite runs that passed every test have
-    died there: once of SIGSEGV in the interpreter's teardown (exit 139: Ray's, Arrow's and
-    numba's native threads outlive the modules they call back into), once of SIGABRT in
-    ray.shutdown() (exit 134); either would fail CI for nothing the tests found. What the
-    process started (Ray's processes) is stopped by a detached reaper once it has exited.
-    PYTHONFAULTHANDLER=1 (tests/run sets it) prints a traceback of any crash before this
-    point."""
-    if _EXIT_STATUS and not _full_teardown():
-        import sys
-
-        left = _descendants(os.getpid())
-        if left:
-            subprocess.Popen(
-                [sys.executable, "-c", _REAPER, str(os.getpid()), *map(str, left)],
-                stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
-                start_new_session=True,
-            )
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(_EXIT_STATUS[-1])
