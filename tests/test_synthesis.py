@@ -60,8 +60,11 @@ def traced(result: dict, steps: int = 200) -> np.ndarray:
 def test_an_unrefined_retrieval_measures_the_retrievals_chamfer(
     reference: RetrievalIndex, queries: list
 ) -> None:
+    assert len(queries) > 0
     for query in queries:
-        for result in reference.retrieve(query, k=3):
+        retrieved = reference.retrieve(query, k=3)
+        assert len(retrieved) == 3
+        for result in retrieved:
             mechanism = result["mechanism"]
             value, interval = fit(
                 query,
