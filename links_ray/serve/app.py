@@ -1627,7 +1627,7 @@ def run_server(
             stop_serving(ray_started=local)
             if blocking:
                 # The process ends next: the interpreter's last collections need not walk
-                # the heap of Ray, numba and pandas objects (2-3 s on a busy 2-core machine).
+                # the whole heap of the libraries it loaded, which takes seconds.
                 gc.freeze()
 
 
