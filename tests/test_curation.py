@@ -1,7 +1,8 @@
 """Curation on Ray Data, the loading helper and `links stats`, on real generated data.
 
-Every path row is checked against the definitions (docs/CONTRACT.md, Paths) from the mechanism and
-simulation rows it came from; curation's kept share is checked against binomial bounds.
+Every path row is checked against the definitions (docs/reference/contract.md, Paths) from the
+mechanism and simulation rows it came from; curation's kept share is checked against binomial
+bounds.
 """
 
 from __future__ import annotations

@@ -58,7 +58,7 @@ def read_all(uri: str) -> dict[str, pa.Table]:
 
 
 def check_dataset(uri: str, mechanisms: int) -> dict[str, pa.Table]:
-    """Assert every rule of docs/CONTRACT.md on the dataset at `uri`; returns its tables."""
+    """Assert every rule of docs/reference/contract.md on the dataset at `uri`; return tables."""
     tables = read_all(uri)
     rows = tables["mechanisms"].to_pylist()
     assert [row["mechanism_id"] for row in rows] == list(range(mechanisms))

@@ -1,4 +1,4 @@
-"""Path normalization, circle detection and chamfer distance (docs/CONTRACT.md, Paths).
+"""Path normalization, circle detection and chamfer distance (docs/reference/contract.md, Paths).
 
 Everything is checked against independent brute-force numpy computations or exact geometric
 facts: the longest chord against an O(T^2) search, normalization by its invariance under

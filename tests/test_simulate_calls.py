@@ -1,5 +1,5 @@
 """`simulate` called one mechanism at a time: the topology cache and the fast positions check
-(docs/CONTRACT.md, Python API) change nothing that a call returns or raises.
+(docs/reference/contract.md, Python API) change nothing that a call returns or raises.
 
 Truth is independent of the cache: a fresh `TopologySimulator` (no cache), the plain-Python
 solver (`engine.reference`), closed-form four-bars that lock only between sampled steps

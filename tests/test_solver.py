@@ -1,4 +1,4 @@
-"""The dyadic solver against independent truth (docs/CONTRACT.md, Simulation).
+"""The dyadic solver against independent truth (docs/reference/contract.md, Simulation).
 
 * Four-bar linkages against the closed-form Freudenstein solution: coupler curves of Grashof
   crank-rockers to ~1e-9, and the exact first locking step of four-bars whose crank cannot turn.

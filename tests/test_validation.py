@@ -1,4 +1,4 @@
-"""Input validation (docs/CONTRACT.md, Mechanisms and Python API): bad mechanisms are refused.
+"""Input validation (docs/reference/contract.md, Mechanisms, Python API): bad mechanisms refused.
 
 Every case must raise `InvalidMechanismError` (a `ValueError`) naming the problem, through each
 public entry point: `simulate`, `simulate_batch` and `TopologySimulator` (construction for

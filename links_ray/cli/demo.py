@@ -1,7 +1,8 @@
 """A small end-to-end run of the engine on one core: topologies, valid positions, simulations.
 
-`links demo` writes `mechanisms.jsonl` (one mechanism per line: the fields of docs/CONTRACT.md,
-Mechanisms, plus the traced path of its last joint) and `summary.json` into a local folder.
+`links demo` writes `mechanisms.jsonl` (one mechanism per line: the fields of
+docs/reference/contract.md, Mechanisms, plus the traced path of its last joint) and
+`summary.json` into a local folder.
 """
 
 from __future__ import annotations

@@ -565,7 +565,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--seed",
         type=_non_negative_int,
         default=0,
-        help="seed of the curves' random frames (default 0, the README's table)",
+        help="seed of the curves' random frames (default 0, the benchmarks page's table)",
     )
     synthesize_bench.add_argument(
         "--iterations",

@@ -1,4 +1,4 @@
-"""From simulations to path rows (docs/CONTRACT.md, Dataset layout), for one shard at a time.
+"""From simulations to path rows (docs/reference/contract.md, Dataset layout), one shard at a time.
 
 The trajectories come from the shard's `simulations` table or, when generation left it out,
 from the engine: `simulated_trajectories` casts them to the stored type exactly as generation

@@ -1,5 +1,5 @@
-"""Export to the LINKS release layout: numpy arrays, chunk by chunk (README, Export to the LINKS
-release layout).
+"""Export to the LINKS release layout: numpy arrays, chunk by chunk (docs/guides/exports.md,
+The dataset in the LINKS release layout).
 
 Like the original release, each chunk holds mechanisms (adjacency, initial positions, node
 types), their simulations, every moving joint's normalized curve and the curated curves, each

@@ -1,6 +1,6 @@
 """The dataset's tables: their names, their columns as written, and how they are written.
 
-Each table is Hive-partitioned Parquet under the root (docs/CONTRACT.md, Dataset layout)::
+Each table is Hive-partitioned Parquet under the root (docs/reference/contract.md, Dataset layout)::
 
     ROOT/<table>/n_joints=12/shard-000042-<attempt>.parquet
 """

@@ -1,4 +1,4 @@
-"""Train, validation and test splits by topology (README, Splits for training).
+"""Train, validation and test splits by topology (docs/guides/training.md, Splits).
 
 A topology's split is a pure function of its id: a splitmix64 draw of ``(SPLIT_SALT,
 topology_id)`` (`pathset.keep_draw`) against the cumulative fractions. It depends on nothing

@@ -3,7 +3,8 @@
 The Python API, the CLI and the HTTP API check what users give them here, so that each limit
 has one value and one message wherever it is hit. A refused input raises `ValueError` (its
 subclass `InvalidMechanismError` for mechanisms) with a message naming the problem; the HTTP
-API answers it with a 4xx and `{"error": <the message>}`. docs/CONTRACT.md, Limits, lists them.
+API answers it with a 4xx and `{"error": <the message>}`. docs/reference/contract.md, Limits,
+lists them.
 
 Pure numpy: no numba, no Ray. The compiled kernels' entry points check their buffers here
 too (`check_buffer`, `check_indices`).
@@ -60,8 +61,8 @@ MAX_TRANSMISSION_DEG = 45.0
 #: a synthesis holds a core for its whole budget, so a request may not hold one for long.
 DEFAULT_SYNTHESIS_SECONDS, MAX_SYNTHESIS_SECONDS = 3.0, 30.0
 #: Most refinement iterations a synthesis of fixed work may be given (`iterations`, summed over
-#: its candidates): about what MAX_SYNTHESIS_SECONDS allow on two cores (1,000 took about 4 s
-#: on the Serve tests' data), so that fixed work holds a replica about as long as a timed one.
+#: its candidates): about what MAX_SYNTHESIS_SECONDS allow on two cores (docs/benchmarks.md,
+#: Synthesis), so that fixed work holds a replica about as long as a timed one.
 MAX_SYNTHESIS_ITERATIONS = 10_000
 #: Seeds are what numpy's generators take whole: non-negative, here within 64 bits.
 MAX_SEED = 2**64 - 1

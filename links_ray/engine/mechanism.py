@@ -1,6 +1,6 @@
 """Mechanism model: the crank and ground rules, the dyadic solution path, the dataset rules.
 
-A mechanism is a graph (docs/CONTRACT.md, Mechanisms): joints are nodes, links are edges.
+A mechanism is a graph (docs/reference/contract.md, Mechanisms): joints are nodes, links are edges.
 Joint 0 is fixed, joint 1 is the only actuated joint, and link (0, 1) is the crank. A simple
 joint is solved once exactly two of its neighbours are known; the order in which joints get
 solved is the solution path, found once per topology and reused for every position set. The
@@ -197,8 +197,8 @@ def dataset_rule_violations(
 ) -> list[str]:
     """The dataset rules this mechanism breaks (empty when it obeys them all).
 
-    The rules are those of docs/CONTRACT.md, Mechanisms. Locking is not checked here; simulate
-    for that.
+    The rules are those of docs/reference/contract.md, Mechanisms. Locking is not checked here;
+    simulate for that.
     """
     problems = structure_violations(topology)
     n = topology.n_joints
@@ -245,7 +245,7 @@ def arc_flags(adjacency: np.ndarray, node_types: np.ndarray) -> np.ndarray:
     """Which joints trace arcs: the moving joints linked to a fixed joint (they turn about it).
 
     adjacency (..., n, n) and node_types (..., n) -> (..., n) bool; a batch of mechanisms of
-    one size works as one mechanism does. docs/CONTRACT.md, Dataset layout, `is_arc`.
+    one size works as one mechanism does. docs/reference/contract.md, Dataset layout, `is_arc`.
     """
     fixed = np.asarray(node_types) == FIXED
     on_ground = ((np.asarray(adjacency) != 0) & fixed[..., None, :]).any(axis=-1)

@@ -1,4 +1,4 @@
-"""The compiled dyadic solver (docs/CONTRACT.md, Simulation).
+"""The compiled dyadic solver (docs/reference/contract.md, Simulation).
 
 One numba kernel serves every topology: the topology enters as data (its solution path), so
 nothing is compiled per topology. A candidate is simulated step by step and stops at its first

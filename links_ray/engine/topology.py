@@ -23,7 +23,7 @@ rules pick the operators and the parents, both tracking the joints nobody depend
   ground.
 - `feasible`: N_g is drawn with GROUND_SHARE, and a simple joint's parents are drawn uniformly
   among all pairs after which the remaining steps can still absorb every leaf. It links more
-  moving joints to ground than `links` does (measured in the README).
+  moving joints to ground than `links` does (docs/benchmarks.md has the shares).
 
 Pure numpy/numba: no Ray.
 """

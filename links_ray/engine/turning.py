@@ -21,9 +21,9 @@ frozen branches) and checks those in turn. An interval still unsure after `MAX_D
 (SPLIT ** MAX_DEPTH times finer than the sampled steps) counts as a lock: a dead centre touched.
 So does a turn that needs more than `MAX_SPLITS` splits in all to prove: a dyad that grazes
 its dead centre along a stretch of the turn, its slack never quite zero, leaves nearly every
-part of every interval there unsure down to the last depth, and proving it turned took up to
-79 s for one 12-joint mechanism at 2,000 steps (a synthesis refinement had made it). The
-budget keeps every check to milliseconds; what it refuses turns, if at all, by a hair.
+part of every interval there unsure down to the last depth, and proving that it turns could
+take far longer than the rest of a synthesis (docs/benchmarks.md, The check between steps).
+The budget keeps every check to milliseconds; what it refuses turns, if at all, by a hair.
 
 Most intervals of most mechanisms pass at once. The first pass goes dyad by dyad over the
 sampled turn (`_unsure_intervals`), each parents' distance measured once per step; only the
