@@ -1,0 +1,50 @@
+"""MkDocs hook: the command-line and HTTP reference pages, written from the code at build time.
+
+`reference/cli.md` comes from the `links` argument parser and `reference/http.md` from the app's
+OpenAPI document, so neither can say what the code does not; neither is a file in the
+repository. `mkdocs serve` rebuilds them when the package changes (`watch` in mkdocs.yml).
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from reference_cli import cli_page
+from reference_http import http_page
+
+#: Where each generated page sits in the site (the nav names these).
+CLI_PAGE = "reference/cli.md"
+HTTP_PAGE = "reference/http.md"
+
+
+def cli_parser() -> argparse.ArgumentParser:
+    """The `links` command's argument parser."""
+    from links_ray.cli.main import build_parser
+
+    return build_parser()
+
+
+def openapi_document() -> dict[str, Any]:
+    """The HTTP app's OpenAPI document, as `GET /openapi.json` serves it."""
+    from links_ray.serve.app import api_openapi
+
+    return api_openapi()
+
+
+def pages() -> dict[str, str]:
+    """Each generated page's path in the site and its Markdown."""
+    return {CLI_PAGE: cli_page(cli_parser()), HTTP_PAGE: http_page(openapi_document())}
+
+
+def on_files(files: Any, config: Any) -> Any:
+    """Add the generated pages to the site's files, refusing a file of the same name in
+    docs/, which would be a stale copy."""
+    from mkdocs.exceptions import PluginError
+    from mkdocs.structure.files import File
+
+    for path, markdown in pages().items():
+        if files.get_file_from_path(path) is not None:
+            raise PluginError(f"docs/{path} is written at build time; remove the file")
+        files.append(File.generated(config, path, content=markdown))
+    return files
