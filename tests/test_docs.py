@@ -27,7 +27,6 @@ from tests.needs import need_module
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs"
-HOOKS = DOCS / "hooks"
 
 #: Fenced blocks whose lines are shell commands (or a console's, prompts and output).
 SHELL_BLOCKS = {"", "bash", "sh", "shell", "console", "shell-session", "zsh", "text"}
@@ -52,16 +51,20 @@ def load_hooks() -> ModuleType:
     """docs/hooks/reference_pages.py, the site's hook, loaded as MkDocs loads it (its own
     folder importable while it runs): it is where the CLI parser and the OpenAPI document
     are taken from."""
-    spec = importlib.util.spec_from_file_location("reference_pages", HOOKS / "reference_pages.py")
+    folder = DOCS / "hooks"
+    spec = importlib.util.spec_from_file_location("reference_pages", folder / "reference_pages.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     saved = sys.path.copy()
-    sys.path.insert(0, str(HOOKS))
+    sys.path.insert(0, str(folder))
     try:
         spec.loader.exec_module(module)
     finally:
         sys.path[:] = saved
     return module
+
+
+HOOKS = load_hooks()
 
 
 @dataclass
@@ -83,17 +86,12 @@ class Names:
 
 def subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
     """The subcommands of `parser` by name."""
-    return {
-        name: sub
-        for action in parser._actions
-        if isinstance(action, argparse._SubParsersAction)
-        for name, sub in action.choices.items()
-    }
+    return {name: sub for name, _, sub in HOOKS.reference_cli.subcommands(parser)}
 
 
 def subparser_options(parser: argparse.ArgumentParser) -> set[str]:
     """The option strings `parser` itself takes."""
-    return {string for action in parser._actions for string in action.option_strings}
+    return HOOKS.reference_cli.option_strings(parser)
 
 
 def code_units(markdown: str) -> Iterator[tuple[int, str, bool]]:
@@ -227,19 +225,7 @@ def site_pages() -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def names() -> Names:
-    hooks = load_hooks()
-    document = hooks.openapi_document()
-    return Names(hooks.cli_parser(), hooks_routes(hooks, document))
-
-
-def hooks_routes(hooks: ModuleType, document: dict) -> dict[str, set[str]]:
-    """Each route of the OpenAPI document and its methods, as the HTTP page lists them."""
-    sys.path.insert(0, str(HOOKS))
-    try:
-        from reference_http import routes
-    finally:
-        sys.path.remove(str(HOOKS))
-    return routes(document)
+    return Names(HOOKS.cli_parser(), HOOKS.reference_http.routes(HOOKS.openapi_document()))
 
 
 def test_pages_name_only_commands_options_and_routes_the_code_has(names: Names) -> None:

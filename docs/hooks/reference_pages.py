@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from reference_cli import cli_page
-from reference_http import http_page
+import reference_cli
+import reference_http
 
 #: Where each generated page sits in the site (the nav names these).
 CLI_PAGE = "reference/cli.md"
@@ -34,7 +34,10 @@ def openapi_document() -> dict[str, Any]:
 
 def pages() -> dict[str, str]:
     """Each generated page's path in the site and its Markdown."""
-    return {CLI_PAGE: cli_page(cli_parser()), HTTP_PAGE: http_page(openapi_document())}
+    return {
+        CLI_PAGE: reference_cli.cli_page(cli_parser()),
+        HTTP_PAGE: reference_http.http_page(openapi_document()),
+    }
 
 
 def on_files(files: Any, config: Any) -> Any:
