@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 from collections.abc import Iterator
 
+from reference_text import text
+
 HEADER = """# Command line
 
 The `links` command. This page is written from the command's own argument parser each time the
@@ -36,14 +38,6 @@ def subcommands(parser: argparse.ArgumentParser) -> list[tuple[str, str, argpars
 def option_strings(parser: argparse.ArgumentParser) -> set[str]:
     """Every option string `parser` itself accepts (`-h` and `--help` included)."""
     return {string for action in parser._actions for string in action.option_strings}
-
-
-def _markdown(text: str) -> str:
-    """`text` safe in a table cell: no pipes, and no angle bracket read as HTML outside code."""
-    parts = text.replace("\n", " ").split("`")
-    for i in range(0, len(parts), 2):  # outside code spans
-        parts[i] = parts[i].replace("<", "&lt;").replace(">", "&gt;").replace("*", r"\*")
-    return "`".join(parts).replace("|", r"\|")
 
 
 def _help(action: argparse.Action, prog: str) -> str:
@@ -84,7 +78,7 @@ def _arguments(parser: argparse.ArgumentParser) -> Iterator[str]:
         help_text = _help(action, parser.prog)
         if action.required or not action.option_strings:
             help_text = f"{help_text} (required)" if help_text else "required"
-        rows.append(f"| {name} | {_value(action)} | {_markdown(help_text) or '-'} |")
+        rows.append(f"| {name} | {_value(action)} | {text(help_text) or '-'} |")
     if rows:
         yield "| argument | value | meaning |"
         yield "|---|---|---|"
@@ -97,7 +91,7 @@ def _table(commands: list[tuple[str, str, argparse.ArgumentParser]]) -> Iterator
     yield "| command | what it does |"
     yield "|---|---|"
     for _, summary, parser in commands:
-        yield f"| [`{parser.prog}`](#{parser.prog.replace(' ', '-')}) | {_markdown(summary)} |"
+        yield f"| [`{parser.prog}`](#{parser.prog.replace(' ', '-')}) | {text(summary)} |"
     yield ""
 
 
@@ -106,7 +100,7 @@ def _command(summary: str, parser: argparse.ArgumentParser, level: int) -> Itera
     yield f"{'#' * level} {parser.prog}"
     yield ""
     if summary:
-        yield _markdown(summary[0].upper() + summary[1:]) + "."
+        yield text(summary[0].upper() + summary[1:]) + "."
         yield ""
     yield "```text"
     yield _usage(parser)

@@ -12,6 +12,8 @@ import re
 from collections.abc import Iterator
 from typing import Any
 
+from reference_text import cell, text
+
 METHODS = ("get", "put", "post", "delete", "patch", "head", "options")
 
 HEADER = """# HTTP API
@@ -38,21 +40,6 @@ def route_anchor(method: str, path: str) -> str:
 def schema_anchor(name: str) -> str:
     """The anchor of a schema's section: `schema-retrieveresponse`."""
     return "schema-" + re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-")
-
-
-def _cell(markdown: str) -> str:
-    """Markdown safe in a table cell: one line, no pipes."""
-    return " ".join(markdown.split()).replace("|", r"\|")
-
-
-def _text(text: str) -> str:
-    """Plain `text` (code spans allowed) as Markdown: one line, and outside code spans no
-    angle bracket read as HTML, nor square brackets read as a link."""
-    parts = " ".join(text.split()).split("`")
-    for i in range(0, len(parts), 2):
-        for char, escaped in (("<", "&lt;"), (">", "&gt;"), ("*", r"\*"), ("[", r"\[")):
-            parts[i] = parts[i].replace(char, escaped)
-    return _cell("`".join(parts))
 
 
 def _number(value: float | int) -> str:
@@ -123,9 +110,9 @@ def _fields(schema: dict[str, Any], anchors: dict[str, str]) -> Iterator[str]:
     for name, field in properties.items():
         default = _literal(field["default"]) if "default" in field else ""
         yield (
-            f"| `{name}` | {_cell(type_text(field, anchors))} | "
+            f"| `{name}` | {cell(type_text(field, anchors))} | "
             f"{'yes' if name in required else 'no'} | {f'`{default}`' if default else ''} | "
-            f"{_text(field.get('description', ''))} |"
+            f"{text(field.get('description', ''))} |"
         )
     yield ""
 
@@ -157,7 +144,7 @@ def _route(
     yield ""
     description = operation.get("description") or operation.get("summary", "")
     if description:
-        yield _text(description)
+        yield text(description)
         yield ""
     parameters = operation.get("parameters", [])
     if parameters:
@@ -168,9 +155,9 @@ def _route(
         for parameter in parameters:
             yield (
                 f"| `{parameter['name']}` | {parameter['in']} | "
-                f"{_cell(type_text(parameter.get('schema', {}), anchors))} | "
+                f"{cell(type_text(parameter.get('schema', {}), anchors))} | "
                 f"{'yes' if parameter.get('required') else 'no'} | "
-                f"{_text(parameter.get('description', ''))} |"
+                f"{text(parameter.get('description', ''))} |"
             )
         yield ""
     body = operation.get("requestBody")
@@ -180,7 +167,7 @@ def _route(
             yield f"Request body (`{media}`, {name}):"
             yield ""
             if schema.get("description"):
-                yield _text(schema["description"])
+                yield text(schema["description"])
                 yield ""
             yield from _fields(schema, anchors)
     yield "Answers:"
@@ -197,7 +184,7 @@ def _route(
             elif schema and schema.get("type"):
                 shown += f" {type_text(schema, anchors)}"
             bodies.append(shown)
-        yield f"| {status} | {_text(answer.get('description', ''))} | {_cell(', '.join(bodies))} |"
+        yield f"| {status} | {text(answer.get('description', ''))} | {cell(', '.join(bodies))} |"
     yield ""
 
 
@@ -210,7 +197,7 @@ def http_page(document: dict[str, Any]) -> str:
     lines = [HEADER]
     info = document.get("info", {}).get("description")
     if info:
-        lines += [_text(info), ""]
+        lines += [text(info), ""]
     lines += ["| route | what it does |", "|---|---|"]
     for path, item in document["paths"].items():
         for method, operation in item.items():
@@ -219,7 +206,7 @@ def http_page(document: dict[str, Any]) -> str:
                 summary = re.split(r"; |\. ", summary)[0].rstrip(".")
                 lines.append(
                     f"| [{method.upper()} `{path}`](#{route_anchor(method, path)}) | "
-                    f"{_text(summary)} |"
+                    f"{text(summary)} |"
                 )
     lines.append("")
     for path, item in document["paths"].items():
@@ -232,6 +219,6 @@ def http_page(document: dict[str, Any]) -> str:
             schema = schemas[name]
             lines += [f"### {name} {{#{anchors[name]}}}", ""]
             if schema.get("description"):
-                lines += [_text(schema["description"]), ""]
+                lines += [text(schema["description"]), ""]
             lines.extend(_fields(schema, anchors))
     return "\n".join(lines)
