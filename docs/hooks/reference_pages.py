@@ -2,12 +2,19 @@
 
 `reference/cli.md` comes from the `links` argument parser and `reference/http.md` from the app's
 OpenAPI document, so neither can say what the code does not; neither is a file in the
-repository. `mkdocs serve` rebuilds them when the package changes (`watch` in mkdocs.yml).
+repository. They are written by a fresh Python process on every build, so that `mkdocs serve`,
+which rebuilds when the package changes (`watch` in mkdocs.yml), shows the code as it is now
+rather than as it was first imported.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
 from typing import Any
 
 import reference_cli
@@ -46,8 +53,25 @@ def on_files(files: Any, config: Any) -> Any:
     from mkdocs.exceptions import PluginError
     from mkdocs.structure.files import File
 
-    for path, markdown in pages().items():
+    for path in (CLI_PAGE, HTTP_PAGE):
         if files.get_file_from_path(path) is not None:
             raise PluginError(f"docs/{path} is written at build time; remove the file")
+    with tempfile.TemporaryDirectory() as folder:
+        out = Path(folder) / "pages.json"
+        done = subprocess.run(
+            [sys.executable, __file__, str(out)],
+            capture_output=True,
+            text=True,
+            cwd=Path(config.config_file_path).parent,
+            check=False,
+        )
+        if done.returncode != 0:
+            raise PluginError(f"writing the reference pages failed:\n{done.stderr}")
+        written = json.loads(out.read_text(encoding="utf-8"))
+    for path, markdown in written.items():
         files.append(File.generated(config, path, content=markdown))
     return files
+
+
+if __name__ == "__main__":  # the hook's fresh process: the pages as JSON into the file named
+    Path(sys.argv[1]).write_text(json.dumps(pages()), encoding="utf-8")
