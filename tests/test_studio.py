@@ -122,8 +122,16 @@ class Studio:
         """One screen pixel in world units, in the editor."""
         return 1.0 / self.js("() => window.studio.editor.view.scale")
 
+    def start_blank(self) -> None:
+        """New: the crank and one ground joint, standing still (the page opens on a four-bar)."""
+        self.click("new")
+        self.wait_idle()
+        assert self.js("() => window.studio.editor.playing") is False
+
     def build_four_bar(self) -> None:
-        """FOUR_BAR by clicks: the J-operator on joints 1 and 2, placed at joint 3's spot."""
+        """FOUR_BAR by clicks from New: the J-operator on joints 1 and 2, placed at joint 3's
+        spot."""
+        self.start_blank()
         self.click("tool-joint")
         self.click_world(FOUR_BAR["positions"][1])
         self.click_world(FOUR_BAR["positions"][2])
@@ -264,12 +272,117 @@ def assert_assembled(mechanism: dict[str, Any], trajectories: np.ndarray) -> Non
         assert np.all(side(trajectories[j], trajectories[a], trajectories[b]) == expected)
 
 
+# -- the first screen ---------------------------------------------------------------------------
+
+
+def transmission_deg(trajectories: np.ndarray, joint: int, a: int, b: int) -> float:
+    """The least angle at `joint` between its links to `a` and `b` over the turn, folded to
+    0-90 degrees (90 transmits best, 0 is a dead centre)."""
+    u = trajectories[a] - trajectories[joint]
+    v = trajectories[b] - trajectories[joint]
+    cos = np.sum(u * v, axis=1) / (np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1))
+    angle = np.degrees(np.arccos(np.clip(cos, -1, 1)))
+    return float(np.min(np.minimum(angle, 180 - angle)))
+
+
+def test_the_studio_opens_on_a_moving_four_bar(studio: Studio, client: Client, shots: Path) -> None:
+    """The first screen: a crank-rocker four-bar with a coupler point, simulated by the server,
+    its coupler curve drawn as the engine computes it, turning without a click, and a hint that
+    invites the first edit."""
+    mechanism = studio.mechanism()
+    topology = analyze_topology(mechanism["adjacency"], mechanism["node_types"])
+    assert mechanism["node_types"] == [0, 2, 0, 1, 1]
+    links = {(int(i), int(j)) for i, j in np.argwhere(np.triu(topology.adjacency))}
+    assert links == {(0, 1), (1, 3), (2, 3), (1, 4), (3, 4)}  # 1-3-4 is the coupler plate
+    p = np.array(mechanism["positions"])
+    crank, coupler, rocker, ground = (
+        math.dist(p[i], p[j]) for i, j in [(0, 1), (1, 3), (2, 3), (0, 2)]
+    )
+    # Grashof with the crank shortest and on the ground: a crank-rocker, the crank turns fully.
+    shortest, *middle, longest = sorted([crank, coupler, rocker, ground])
+    assert shortest == crank and shortest + longest < sum(middle)
+    truth = simulate(mechanism)  # the engine in this process: a full turn, no lock
+    # Good transmission over the whole turn: the rocker's dyad and the coupler plate.
+    assert transmission_deg(truth, 3, 1, 2) >= 45
+    assert transmission_deg(truth, 4, 1, 3) >= 45
+    swing = np.ptp(np.unwrap(np.arctan2(*(truth[3] - p[2]).T[::-1])))
+    assert math.radians(20) < swing < math.pi  # the rocker rocks, it does not turn
+
+    # Valid by the engine's checks, shown as such; no rule of the dataset's stored mechanisms
+    # flagged but their size (four-bars come from 8-20 joint mechanisms reduced to the joints
+    # a path needs).
+    studio.wait("() => window.studio.editor.playing")
+    assert studio.text("dof").startswith("1 (2 x 3 moving joints - 5 links)")
+    assert studio.text("solvable") == "yes"
+    assert "every joint assembles" in studio.text("status")
+    _, analysis = client.post("/api/analyze", mechanism)
+    assert analysis["lock"] is None and analysis["dataset_rules"] == ["5 joints, outside 8-20"]
+    assert studio.text("rules") == "unlike the dataset's mechanisms: 5 joints, outside 8-20"
+    assert not studio.page.get_by_test_id("error").is_visible()
+    # The first edit, invited in one line; it goes at the first action.
+    assert "Drag joint 4" in studio.text("hint")
+
+    # What the page holds is /api/simulate's answer, equal to the engine's here...
+    np.testing.assert_array_equal(studio.trajectories(), truth)
+    # ... and what it draws is that: the coupler curve, every step, where the view puts it.
+    # (read a frame on, so the paint read is of the view read)
+    drawn = studio.js(
+        """async () => {
+          await new Promise((r) => requestAnimationFrame(r));
+          return {paths: window.studio.editor.drawnPaths, view: window.studio.editor.view};
+        }"""
+    )
+    view = drawn["view"]
+    coupler_path = np.array(drawn["paths"][4])
+    assert coupler_path.shape == (STEPS, 2)
+    expected = np.stack(
+        [
+            view["width"] / 2 + (truth[4][:, 0] - view["cx"]) * view["scale"],
+            view["height"] / 2 - (truth[4][:, 1] - view["cy"]) * view["scale"],
+        ],
+        axis=1,
+    )
+    np.testing.assert_allclose(coupler_path, expected, rtol=0, atol=1e-9)
+    extent = np.ptp(coupler_path, axis=0)
+    assert extent.min() > 40, extent  # a curve you can see, not a dot (CSS pixels)
+    assert [drawn["paths"][j] is None for j in range(5)] == [True, False, True, False, False]
+
+    # It moves on its own: two samples of the studio's state some animation frames apart
+    # (frames, not seconds: a busy machine only makes each frame later).
+    sample = """async (frames) => {
+      const e = window.studio.editor;
+      for (let i = 0; i < frames; i++) await new Promise((r) => requestAnimationFrame(r));
+      return {step: e.step, pose: e.pose(), shown: e.canvas.dataset.step};
+    }"""
+    first = studio.js(sample, 1)
+    later = first
+    for _ in range(20):  # at most 20 x 30 frames; it moves within the first few on any machine
+        later = studio.js(sample, 30)
+        if later["step"] != first["step"]:
+            break
+    assert later["step"] != first["step"]
+    for s in (first, later):
+        assert s["shown"] == str(s["step"])
+        # Step 0 shows the starting positions, which the solver reproduces to a rounding.
+        np.testing.assert_allclose(s["pose"], truth[:, s["step"]], rtol=0, atol=1e-12)
+    moved = np.subtract(later["pose"][4], first["pose"][4])
+    assert np.linalg.norm(moved) > 0
+    studio.shot("studio-opening.png", shots)
+
+    # The first action takes the hint's place.
+    studio.click("tool-move")
+    assert "Drag joint 4" not in studio.text("hint")
+
+
 # -- the editor ---------------------------------------------------------------------------------
 
 
 def test_page_loads_without_console_errors(studio: Studio, client: Client) -> None:
     _, health = client.get("/api/health")
     assert studio.text("health").startswith(f"{health['paths']:,}")
+    assert len(studio.mechanism()["node_types"]) == 5  # the opening four-bar, tested below
+    assert not studio.page.get_by_test_id("error").is_visible()
+    studio.start_blank()
     assert studio.mechanism() == {
         "adjacency": [[0, 1, 0], [1, 0, 0], [0, 0, 0]],
         "node_types": [0, 2, 0],
@@ -301,6 +414,7 @@ def test_the_studio_takes_its_limits_from_the_api(
         page.route("**/api/limits", lambda route: route.fulfill(json=other))
         narrow = Studio(page, studio.base)
         narrow.open()
+        opened = narrow.mechanism()
         assert narrow.page.get_by_test_id("k").get_attribute("max") == "7"
         assert narrow.page.get_by_test_id("min-transmission").get_attribute("max") == "20"
         six_joints = {
@@ -318,7 +432,7 @@ def test_the_studio_takes_its_limits_from_the_api(
         narrow.import_mechanism(tmp_path, six_joints, "six.json")
         narrow.wait("() => !document.querySelector('[data-testid=error]').hidden")
         assert "at most 5 joints, got 6" in narrow.text("error")
-        assert len(narrow.mechanism()["node_types"]) == 3
+        assert narrow.mechanism() == opened
         assert narrow.unexpected_errors() == []
     finally:
         context.close()
@@ -486,6 +600,7 @@ def test_touch_builds_and_drags_on_a_phone_sized_screen(browser: Any, client: Cl
     try:
         studio = Studio(context.new_page(), f"http://127.0.0.1:{client.port}")
         studio.open()
+        studio.start_blank()
         studio.click("tool-joint")
         for position in FOUR_BAR["positions"][1:]:
             studio.page.touchscreen.tap(*studio.editor_point(position))

@@ -301,6 +301,7 @@ def bench_sample(per_joint_count: int = 10, count: int = 5, seed: int = 0) -> di
 
 
 def machine_info() -> dict:
+    """The machine a benchmark ran on: CPU count, processor, Python and numba versions."""
     return {
         "cpus": os.cpu_count(),
         "processor": platform.processor() or platform.machine(),

@@ -37,6 +37,8 @@ def add_command(commands: argparse._SubParsersAction, count: Callable[[str], int
 
 
 def run(args: argparse.Namespace) -> None:
+    """`links export-dataset`: write the release and print its summary (or its manifest as
+    JSON with --json)."""
     manifest = export_release(args.root, args.out, chunk_size=args.chunk_size, split=args.split)
     if args.json:
         print(json.dumps(manifest))

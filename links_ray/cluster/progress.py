@@ -34,6 +34,7 @@ class Progress:
             self._show(force=True)
 
     def advance(self, amount: int) -> None:
+        """Count `amount` more items done and show progress if it is time to."""
         self.done += amount
         self._show()
 
@@ -42,6 +43,7 @@ class Progress:
         return (self.done - self._start_done) / elapsed if elapsed > 0 else 0.0
 
     def line(self) -> str:
+        """Done of total, the share, the rate in units a second and the seconds left."""
         rate = self._rate()
         left = self.total - self.done
         eta = f"{left / rate:,.0f} s left" if rate > 0 else "estimating"
@@ -69,6 +71,7 @@ class Progress:
             self._shown = now
 
     def close(self) -> None:
+        """Show the final count and end a live bar's line."""
         if not self.enabled:
             return
         self._show(force=True)

@@ -73,6 +73,7 @@ def shard_file(table: str, n_joints: int, shard_id: int, attempt: str) -> str:
 
 
 def marker_file(shard_id: int, stage: str = "shards") -> str:
+    """The path, relative to the root, of a shard's commit marker for `stage`."""
     return f"{META}/{stage}/shard-{shard_id:06d}.json"
 
 
@@ -197,6 +198,7 @@ class ShardWriter:
 
     @property
     def marker(self) -> str:
+        """The path of this shard's commit marker, relative to the root."""
         return marker_file(self.shard_id, self.stage)
 
     def _final(self, table: str) -> str:

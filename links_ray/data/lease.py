@@ -62,6 +62,7 @@ Done = TypeVar("Done")
 
 
 def lease_file(name: str) -> str:
+    """The path, relative to the root, of lease `name`'s record."""
     return f"{META}/leases/{name}.json"
 
 
@@ -105,6 +106,7 @@ class Lease:
 
     @property
     def token(self) -> str:
+        """This holder's token: the lease is this run's while the record carries it."""
         return self.record["token"]
 
     @classmethod

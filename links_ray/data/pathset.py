@@ -41,6 +41,7 @@ KEEP_SHARE = 0.005
 
 
 def path_ids(mechanism_ids: np.ndarray, joints: np.ndarray) -> np.ndarray:
+    """int64 path ids: the mechanism id shifted left by JOINT_BITS, or'ed with the joint."""
     return (mechanism_ids.astype(np.int64) << JOINT_BITS) | joints.astype(np.int64)
 
 

@@ -65,6 +65,7 @@ class Shard:
     count: int
 
     def topology_ids(self) -> range:
+        """The shard's topology ids: `first`, `first + JOINT_COUNTS`, ... (`count` of them)."""
         return range(self.first, self.first + JOINT_COUNTS * self.count, JOINT_COUNTS)
 
 
@@ -116,6 +117,7 @@ class GenerationPlan:
 
     @property
     def topologies(self) -> int:
+        """Topologies the run draws: `mechanisms` over `variants`, rounded up."""
         return -(-self.mechanisms // self.variants)
 
     def config(self) -> dict:

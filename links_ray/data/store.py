@@ -134,10 +134,12 @@ class Store:
         self.fs.get_file_info(pafs.FileSelector(self.root, allow_not_found=True))
 
     def path(self, relative: str) -> str:
+        """The full path (bucket and prefix for S3) of `relative`, a path under the root."""
         return f"{self.root}/{relative}"
 
     @property
     def is_local(self) -> bool:
+        """Whether the root is a folder on this machine."""
         return isinstance(self.fs, pafs.LocalFileSystem)
 
     def _make_parent(self, relative: str) -> None:
@@ -209,6 +211,7 @@ class Store:
             return pq.read_table(source, columns=columns)
 
     def write_json(self, relative: str, value: dict) -> None:
+        """Write `value` as indented JSON, whole or not at all (`write_bytes`)."""
         self.write_bytes(relative, (json.dumps(value, indent=1) + "\n").encode())
 
     def read_json(self, relative: str) -> dict | None:
@@ -266,6 +269,7 @@ class Store:
 
     @property
     def is_s3(self) -> bool:
+        """Whether the root is an S3 bucket (or prefix)."""
         return isinstance(self.fs, pafs.S3FileSystem)
 
     def read_versioned(self, relative: str) -> tuple[bytes, str] | None:

@@ -57,10 +57,12 @@ class Topology:
 
     @property
     def n_joints(self) -> int:
+        """The number of joints."""
         return int(self.node_types.shape[0])
 
     @cached_property
     def fixed_joints(self) -> np.ndarray:
+        """(f,) int64: the fixed joints' indices, ascending."""
         return np.flatnonzero(self.node_types == FIXED).astype(np.int64)
 
     @cached_property

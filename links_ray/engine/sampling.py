@@ -71,6 +71,7 @@ class PositionSearch:
 
     @property
     def candidates_per_valid(self) -> float:
+        """`candidates` over the valid position sets found (ZeroDivisionError if none)."""
         return self.candidates / len(self.positions)
 
 
@@ -208,6 +209,7 @@ class PositionSampler:
 
     @property
     def topology(self) -> Topology:
+        """The validated topology whose positions are drawn."""
         return self.simulator.topology
 
     def search(

@@ -458,6 +458,7 @@ class TopologySimulator:
 
     @property
     def n_joints(self) -> int:
+        """The topology's number of joints."""
         return self.topology.n_joints
 
     def crank(self, steps: int) -> np.ndarray:

@@ -126,6 +126,8 @@ class LockingResponse(BaseModel):
 
 
 class ShardInfo(BaseModel):
+    """One part of a split index: its number and the curated paths it holds."""
+
     part: int
     paths: int
 
@@ -163,6 +165,8 @@ class LimitsResponse(BaseModel):
 
 
 class SimulateResponse(BaseModel):
+    """200 from /api/simulate: every joint's position at every crank step."""
+
     trajectories: list[list[Point]] = Field(description="[joint][step] = [x, y]")
 
 
@@ -180,6 +184,8 @@ class RetrieveResult(BaseModel):
 
 
 class RetrieveResponse(BaseModel):
+    """200 from /api/retrieve: the nearest curated paths and how long the search took (ms)."""
+
     results: list[RetrieveResult] = Field(description="best first")
     took_ms: float
 
@@ -207,12 +213,16 @@ class SynthesisResult(BaseModel):
 
 
 class SynthesizeResponse(BaseModel):
+    """200 from /api/synthesize: the refined mechanisms and the time taken (ms)."""
+
     results: list[SynthesisResult] = Field(description="best first")
     took_ms: float
     queued_ms: float = Field(description="of took_ms, waited behind other work")
 
 
 class Lock(BaseModel):
+    """Where a mechanism locks: the first crank step it cannot be assembled at, and the joint."""
+
     step: int
     node: int
     angle: float = Field(description="the crank's turn at the lock, degrees")

@@ -11,6 +11,7 @@ import {
   addJoint,
   clone,
   links,
+  opening,
   removeJoint,
   starter,
   toggleLink,
@@ -47,6 +48,8 @@ const HINTS = {
       : "Link: pick two joints to add or remove the link between them.",
   delete: () => "Delete: click a joint (not the crank's 0 or 1) or a link.",
 };
+// Until the first action on the opening four-bar: what to try first.
+const WELCOME = "Drag joint 4 to reshape its curve, or press New to build your own.";
 
 function fields(mech) {
   return { adjacency: mech.adjacency, node_types: mech.node_types, positions: mech.positions };
@@ -67,7 +70,7 @@ export class Editor {
     this.ui = ui;
     this.notify = notify;
     this.view = new View();
-    this.history = [starter()];
+    this.history = [opening()];
     this.at = 0;
     this.mech = this.history[0];
     this.version = 0; // bumps on every change to `mech`, drags included
@@ -78,6 +81,9 @@ export class Editor {
     this.gesture = null; // the drag, pan or pinch under way
     this.pointers = new Map(); // pointer id -> screen point, for pinching
     this.message = null; // a refusal to show in the hint line until the next action
+    this.welcome = WELCOME; // shown in the hint line until the first action
+    this.autoplay = true; // play once the mechanism shown first has simulated
+    this.drawnPaths = null; // screen points of each joint's path as last painted (null: none)
     this.sim = { version: -1, state: "pending", trajectories: null, lock: null, problem: null };
     this.queued = null; // the pose last sent to be simulated (JSON of its fields)
     this.analysis = null;
@@ -92,13 +98,16 @@ export class Editor {
       this.view.width = width;
       this.view.height = height;
       if (!this.fitted && width > 1) {
-        this.fit(0.5); // room around the starter to add joints
+        this.fit(0.3); // room around the mechanism to add joints
         this.fitted = true;
       }
       this.draw();
     });
     this.listen();
     this.changed();
+    // Once its paths are known, show the opening mechanism large, with room around it.
+    this.refit = this.version;
+    this.refitExtent = 0.3;
   }
 
   // -- changes and history ------------------------------------------------------------------
@@ -113,13 +122,20 @@ export class Editor {
     this.changed();
   }
 
-  /** Replace the mechanism (an import, a share link or a retrieval result) and show it whole. */
-  load(mech) {
+  /**
+   * Replace the mechanism (an import, a share link or a retrieval result) and show it whole,
+   * at its starting pose; with `play`, it plays once simulated, if it turns fully.
+   */
+  load(mech, { play = false } = {}) {
     this.picks = [];
     this.selected = -1;
+    this.welcome = null;
+    this.setPlaying(false);
+    this.autoplay = play;
     this.set(clone(mech));
     this.fit();
     this.refit = this.version; // fit again once its paths are known, unless the user moves the view
+    this.refitExtent = 0.1;
   }
 
   undo() {
@@ -236,7 +252,7 @@ export class Editor {
 
   showHint() {
     const hint = this.ui.hint;
-    hint.textContent = this.message || HINTS[this.tool](this.picks);
+    hint.textContent = this.message || this.welcome || HINTS[this.tool](this.picks);
     hint.classList.toggle("bad", Boolean(this.message));
     for (const button of this.ui.tools) {
       button.setAttribute("aria-pressed", String(button.dataset.tool === this.tool));
@@ -286,7 +302,11 @@ export class Editor {
     this.showStep();
     if (this.refit === sim.version) {
       this.refit = null;
-      this.fit();
+      this.fit(this.refitExtent);
+    }
+    if (this.autoplay && sim.version === this.version) {
+      this.autoplay = false;
+      if (sim.state === "ok") this.setPlaying(true);
     }
     this.draw();
   }
@@ -309,7 +329,9 @@ export class Editor {
       rules.textContent = "not checked until it is solvable";
       rules.className = "";
     } else if (a.dataset_rules.length) {
-      rules.textContent = `outside the dataset: ${a.dataset_rules.join("; ")}`;
+      // The rules are those of a stored mechanism; smaller ones are still retrieved, as the
+      // joints a stored mechanism's path needs.
+      rules.textContent = `unlike the dataset's mechanisms: ${a.dataset_rules.join("; ")}`;
       rules.className = "";
     } else {
       rules.textContent = "its topology could be in the dataset";
@@ -411,7 +433,7 @@ export class Editor {
     drawGrid(ctx, view);
     const trajectories = this.trajectories();
     const locked = this.sim.state === "locking" ? this.sim.lock : null;
-    drawPaths(ctx, view, mech, trajectories, { full: !locked });
+    this.drawnPaths = drawPaths(ctx, view, mech, trajectories, { full: !locked });
     if (locked && this.sim.n === mech.node_types.length) this.paintLock(locked, trajectories);
     const pose = this.pose();
     if (this.tool === "joint" && this.picks.length === 2 && this.hover) this.paintPreview(pose);
@@ -522,6 +544,7 @@ export class Editor {
     const p = this.local(e);
     this.pointers.set(e.pointerId, p);
     this.message = null;
+    this.welcome = null;
     if (this.pointers.size === 2) {
       this.startPinch();
       return;
@@ -669,6 +692,7 @@ export class Editor {
     this.tool = tool;
     this.picks = [];
     this.message = null;
+    this.welcome = null;
     this.showHint();
     this.draw();
   }
@@ -706,6 +730,8 @@ export class Editor {
   /** A fresh start: the crank and one ground joint. */
   reset() {
     this.load(starter());
+    this.refit = null;
+    this.fit(0.5); // room around it to add joints
   }
 
   /** The current mechanism's fields (a copy). */

@@ -24,6 +24,33 @@ export function starter() {
   };
 }
 
+/**
+ * What the studio opens on: a crank-rocker four-bar whose coupler plate carries joint 4.
+ * Crank 0-1 0.05 (the dataset's crank), coupler 1-3 0.13, rocker 2-3 0.09, ground 0-2 0.15:
+ * Grashof (0.05 + 0.15 < 0.13 + 0.09) with the crank shortest and grounded, so the crank turns
+ * fully while the rocker swings 67 degrees. The transmission angle at joint 3 stays within
+ * 50-130 degrees; the plate 1-3-4 is isosceles, 53 degrees at joint 4.
+ */
+export function opening() {
+  return {
+    adjacency: [
+      [0, 1, 0, 0, 0],
+      [1, 0, 0, 1, 1],
+      [0, 0, 0, 1, 0],
+      [0, 1, 1, 0, 1],
+      [0, 1, 0, 1, 0],
+    ],
+    node_types: [FIXED, ACTUATED, FIXED, SIMPLE, SIMPLE],
+    positions: [
+      [0.5, 0.5],
+      [0.55, 0.5],
+      [0.65, 0.5],
+      [0.644, 0.5898],
+      [0.5072, 0.6389],
+    ],
+  };
+}
+
 export function clone(mech) {
   return {
     adjacency: mech.adjacency.map((row) => row.slice()),

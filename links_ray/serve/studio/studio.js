@@ -161,7 +161,7 @@ document.addEventListener("keydown", (e) => {
 
 try {
   const shared = sharedMechanism();
-  if (shared) editor.load(shared);
+  if (shared) editor.load(shared, { play: true }); // the page opens moving, as on its own
 } catch (err) {
   notify(`The shared link could not be opened: ${err.message}`, "share");
 }

@@ -125,31 +125,36 @@ export function drawGrid(ctx, view) {
   ctx.restore();
 }
 
+/** Stroke `points` (world); returns the screen points drawn, or null when too few to draw. */
 export function drawPolyline(ctx, view, points, stroke, width = 1.5, closed = false) {
-  if (!points || points.length < 2) return;
+  if (!points || points.length < 2) return null;
+  const screen = points.map((p) => view.toScreen(p));
   ctx.save();
   ctx.strokeStyle = stroke;
   ctx.lineWidth = width;
   ctx.lineJoin = "round";
   ctx.lineCap = "round";
   ctx.beginPath();
-  points.forEach((p, i) => {
-    const [sx, sy] = view.toScreen(p);
+  screen.forEach(([sx, sy], i) => {
     if (i === 0) ctx.moveTo(sx, sy);
     else ctx.lineTo(sx, sy);
   });
   if (closed) ctx.closePath();
   ctx.stroke();
   ctx.restore();
+  return screen;
 }
 
-/** Each moving joint's path; a full turn is drawn closed, a path cut short by a lock is not. */
+/**
+ * Each moving joint's path; a full turn is drawn closed, a path cut short by a lock is not.
+ * Returns the screen points drawn per joint (null for a fixed joint), or null with no paths.
+ */
 export function drawPaths(ctx, view, mech, trajectories, { full = true, emphasize = -1 } = {}) {
-  if (!trajectories) return;
-  trajectories.forEach((path, j) => {
-    if (mech.node_types[j] === FIXED) return;
+  if (!trajectories) return null;
+  return trajectories.map((path, j) => {
+    if (mech.node_types[j] === FIXED) return null;
     const strong = j === emphasize;
-    drawPolyline(ctx, view, path, jointColor(j, strong ? 1 : 0.8), strong ? 3 : 1.5, full);
+    return drawPolyline(ctx, view, path, jointColor(j, strong ? 1 : 0.8), strong ? 3 : 1.5, full);
   });
 }
 
