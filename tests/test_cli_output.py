@@ -65,6 +65,9 @@ REAL_WARNINGS = (
     "replicas that have taken more than 30s to initialize",
     "This may be caused by a slow __init__ or reconfigure method.",
     "Failed to get queue length from Replica",
+    "Proxy actor readiness check for proxy on",
+    "Proxy actor reported not ready on node",
+    "failed the health check 3 times in a row",
 )
 
 
@@ -97,6 +100,16 @@ def unexpected_ray_lines(output: str) -> list[str]:
         "\x1b[33m(raylet)\x1b[0m Spilled 2048 MiB, 3 objects, write throughput 512 MiB/s.",
         "Running 0: 0.00 row [00:00, ? row/s][2026-11-25 22:36:41,510 W 15161 15161] "
         "object_manager.cc:120: a warning after a progress bar",
+    ],
+    ids=[
+        "core",
+        "python",
+        "python-node-dead",
+        "serve-forwarded",
+        "serve-driver",
+        "actor-print",
+        "raylet-spill",
+        "core-after-a-bar",
     ],
 )
 def test_ray_formats_are_recognized(line: str) -> None:
