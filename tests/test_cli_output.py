@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -166,6 +167,7 @@ def ran(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]:
         env, "synthesize", root, "--points", str(drawing), "--iterations", "20"
     )
     yield outputs
+    shutil.rmtree(ray_dir, ignore_errors=True)  # every command's Ray has stopped
 
 
 @pytest.mark.parametrize(
