@@ -531,9 +531,9 @@ def queries() -> list:
     in random frames, and hand-drawn curves."""
     from serving import hand_drawn
 
-    from links_ray.cli.bench_services import _held_out_queries
+    from links_ray.search.held_out import held_out_queries
 
-    return _held_out_queries(6, seed=31) + hand_drawn()
+    return held_out_queries(6, seed=31) + hand_drawn()
 
 
 @pytest.fixture(scope="module")

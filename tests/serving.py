@@ -95,7 +95,7 @@ def serving(app: Any, port: int) -> Iterator[Client]:
     app may be running."""
     from ray import serve
 
-    from links_ray.cli.bench_services import wait_for_port
+    from links_ray.serve.load_clients import wait_for_port
 
     wait_for_port(port)  # the last app's replica may still be letting go of it
     no_access_log = {"enable_access_log": False}

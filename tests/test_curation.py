@@ -9,7 +9,12 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
+import signal
+import subprocess
+import threading
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -184,6 +189,60 @@ def test_rerun_and_fresh_curation_give_identical_rows(curated_run: dict) -> None
         assert read_table(store, table).sort_by("path_id").equals(curated_run[table])
     with pytest.raises(StoreError, match="seed=11"):
         curate(out, seed=12, progress=False)
+
+
+def _curator_pids() -> list[int]:
+    """The worker processes of this session's Ray (children of its raylet) that hold a
+    `ShardCurator` actor; none of any other Ray on the machine."""
+    import ray
+    from ray._private import ray_constants
+
+    node = ray._private.worker._global_node
+    raylet = node.all_processes[ray_constants.PROCESS_TYPE_RAYLET][0].process.pid
+    listing = subprocess.run(
+        ["ps", "-eo", "pid=,ppid=,args="], capture_output=True, text=True, check=True
+    ).stdout
+    rows = [line.split(None, 2) for line in listing.splitlines()]
+    return [
+        int(row[0])
+        for row in rows
+        if len(row) == 3 and int(row[1]) == raylet and "ShardCurator" in row[2]
+    ]
+
+
+def test_a_curator_lost_mid_pass_changes_no_row(curated_run: dict) -> None:
+    """A curator's worker killed once the pass has committed a shard: the run makes another
+    pass over the shards left, and its rows are the undisturbed run's."""
+    copy = Path(curated_run["out"]).parent / "lost-curator"
+    shutil.copytree(curated_run["out"], copy)
+    for table in CURATION_TABLES:
+        shutil.rmtree(copy / table)
+    shutil.rmtree(copy / META / "curation")
+    (copy / META / "curation.json").unlink()
+    store = Store.open(str(copy))
+    shards = len(committed_shards(store))
+    killed: dict[str, int] = {}
+
+    def kill_a_curator() -> None:
+        deadline = time.monotonic() + 600
+        while time.monotonic() < deadline:
+            done = len(committed_shards(store, "curation"))
+            pids = _curator_pids() if done else []
+            if pids:
+                os.kill(pids[0], signal.SIGKILL)
+                killed.update(pid=pids[0], done=done)
+                return
+            time.sleep(0.1)
+
+    killer = threading.Thread(target=kill_a_curator, daemon=True)
+    killer.start()
+    summary = curate(str(copy), seed=11, progress=False)
+    killer.join(timeout=5)
+    assert killed and 0 < killed["done"] < shards, killed  # killed while shards were left
+    assert summary["shards_this_run"] == summary["shards"] == shards
+    for table in CURATION_TABLES:
+        assert read_table(store, table).sort_by("path_id").equals(curated_run[table])
+    assert_only_committed_files(str(copy), CURATION_TABLES)
 
 
 def test_curation_on_s3_matches_local(ray_cluster: str, s3_env: str, curated_run: dict) -> None:

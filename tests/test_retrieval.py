@@ -12,7 +12,6 @@ import pytest
 from test_cli import links
 
 import links_ray
-from links_ray.cli.bench_services import _held_out_queries
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
 from links_ray.data.store import Store
@@ -20,6 +19,7 @@ from links_ray.engine.inputs import validate_query
 from links_ray.engine.paths import chamfer, chamfer_to_many, normalization, normalize_path
 from links_ray.search import index as search_index
 from links_ray.search import kernels as kernels
+from links_ray.search.held_out import held_out_queries
 from links_ray.search.index import (
     RetrievalIndex,
     _about_least,
@@ -50,7 +50,7 @@ def hand_drawn(rng: np.random.Generator) -> np.ndarray:
 
 def queries() -> list[np.ndarray]:
     rng = np.random.default_rng(3)
-    return [*_held_out_queries(6, seed=7), hand_drawn(rng), hand_drawn(rng)[::-1] * [-1, 1]]
+    return [*held_out_queries(6, seed=7), hand_drawn(rng), hand_drawn(rng)[::-1] * [-1, 1]]
 
 
 def test_top3_is_exactly_the_brute_force_top3(index: RetrievalIndex) -> None:

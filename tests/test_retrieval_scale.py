@@ -20,8 +20,8 @@ import pytest
 from scale_data import cached_json, index_key
 from serving import hand_drawn, retrieved, serving
 
-from links_ray.cli.bench_services import _held_out_queries
 from links_ray.engine.paths import normalize_path
+from links_ray.search.held_out import held_out_queries
 from links_ray.search.index import RetrievalIndex, query_variants
 from links_ray.serve.app import build_app, fit_shard_cpus
 
@@ -36,7 +36,7 @@ ROUNDING = 1e-9
 @pytest.fixture(scope="module")
 def scale_queries() -> list[np.ndarray]:
     """50 held-out queries: paths of fresh random mechanisms in random frames, and drawings."""
-    queries = _held_out_queries(45, seed=4242) + hand_drawn()
+    queries = held_out_queries(45, seed=4242) + hand_drawn()
     assert len(queries) == 50
     return queries
 

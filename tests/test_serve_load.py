@@ -22,15 +22,15 @@ import pytest
 from serving import FOUR_BAR, as_served, retrieved, serving
 
 import links_ray
-from links_ray.cli.bench_services import (
+from links_ray.engine.inputs import MAX_BODY_BYTES, MAX_REQUEST_JOINT_STEPS, MAX_REQUEST_JOINTS
+from links_ray.search.index import RetrievalIndex
+from links_ray.serve.app import build_app
+from links_ray.serve.load_clients import (
     finish_load,
     post_load,
     probe_loop,
     retrieval_load,
 )
-from links_ray.engine.inputs import MAX_BODY_BYTES, MAX_REQUEST_JOINT_STEPS, MAX_REQUEST_JOINTS
-from links_ray.search.index import RetrievalIndex
-from links_ray.serve.app import build_app
 
 #: Results per query in the comparisons.
 K = 5

@@ -56,7 +56,7 @@ def bench_synthesize(
     restarts seeded with `seed` (no overrun then: there is no budget). `figure`: a
     PNG path for a picture of every curve, its best retrieved path and its refined mechanism
     (needs the `plots` extra)."""
-    from links_ray.cli.bench_services import retrieval_dataset
+    from links_ray.cli.bench_data import retrieval_dataset
     from links_ray.engine.synthesis import synthesize
     from links_ray.search.index import RetrievalIndex
 

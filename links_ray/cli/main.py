@@ -84,17 +84,24 @@ def _generate(args: argparse.Namespace) -> None:
     _report(args, summary, report.format_generate)
 
 
-def _bench_service(args: argparse.Namespace, name: str, **options: int | bool) -> None:
-    """Run `bench_services.bench_<name>` and report it with `format_<name>`."""
-    from links_ray.cli import bench_services  # imports Ray: only when asked for
-
-    with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
-        result = getattr(bench_services, f"bench_{name}")(**options)
-    _report(args, result, getattr(bench_services, f"format_{name}"))
+def _run_bench(
+    args: argparse.Namespace, run: Callable[[], dict], formatted: Callable[[dict], str]
+) -> None:
+    """Run a benchmark that starts Ray, its messages kept off stdout (the result's), and report
+    the result."""
+    with contextlib.redirect_stdout(sys.stderr):
+        result = run()
+    _report(args, result, formatted)
 
 
 def _bench_generate(args: argparse.Namespace) -> None:
-    _bench_service(args, "generate", mechanisms=args.mechanisms)
+    from links_ray.cli import bench_generate  # imports Ray: only when asked for
+
+    _run_bench(
+        args,
+        lambda: bench_generate.bench_generate(mechanisms=args.mechanisms),
+        bench_generate.format_generate,
+    )
 
 
 def _curate(args: argparse.Namespace) -> None:
@@ -178,30 +185,42 @@ def _synthesize(args: argparse.Namespace) -> None:
 def _bench_synthesize(args: argparse.Namespace) -> None:
     from links_ray.cli import bench_synthesis
 
-    with contextlib.redirect_stdout(sys.stderr):  # Ray's messages; stdout is the result's
-        result = bench_synthesis.bench_synthesize(
+    _run_bench(
+        args,
+        lambda: bench_synthesis.bench_synthesize(
             seconds=args.seconds,
             paths=args.paths,
             seed=args.seed,
             figure=args.figure,
             iterations=args.iterations,
-        )
-    _report(args, result, bench_synthesis.format_synthesize)
+        ),
+        bench_synthesis.format_synthesize,
+    )
 
 
 def _bench_retrieve(args: argparse.Namespace) -> None:
-    _bench_service(args, "retrieve", paths=args.paths, rebuild=not args.reuse_index)
+    from links_ray.cli import bench_retrieve
+
+    _run_bench(
+        args,
+        lambda: bench_retrieve.bench_retrieve(paths=args.paths, rebuild=not args.reuse_index),
+        bench_retrieve.format_retrieve,
+    )
 
 
 def _bench_serve(args: argparse.Namespace) -> None:
-    _bench_service(
+    from links_ray.cli import bench_serve
+
+    _run_bench(
         args,
-        "serve",
-        shards=args.shards,
-        seconds=args.seconds,
-        clients=args.clients,
-        paths=args.paths,
-        root=args.root,
+        lambda: bench_serve.bench_serve(
+            shards=args.shards,
+            seconds=args.seconds,
+            clients=args.clients,
+            paths=args.paths,
+            root=args.root,
+        ),
+        bench_serve.format_serve,
     )
 
 

@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import logging
 import time
+import warnings
 from collections.abc import Callable, Iterable
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import ray
+from ray.util.annotations import RayDeprecationWarning
 
 from links_ray.cluster.connect import connect
 from links_ray.cluster.progress import Progress
@@ -35,6 +37,9 @@ from links_ray.data.store import META, Store, StoreError, diagnose
 from links_ray.engine.inputs import DEFAULT_STEPS
 
 CURATION_FORMAT = 1
+#: Passes a run makes when curators are lost (a worker killed, a node gone): each curates
+#: only the shards the passes before it left, as a rerun of the command would.
+CURATION_PASSES = 3
 
 
 class ShardCurator:
@@ -175,26 +180,73 @@ def _curate_holding(
     todo = [marker for shard, marker in sorted(generated.items()) if shard not in curated]
 
     start = time.perf_counter()
+    curated_now = len(todo)
     if todo:
         if starting is not None:
             starting()
         connect(address)
         ctx = ray.data.DataContext.get_current()
         ctx.enable_progress_bars = False  # ours counts mechanisms, not blocks
-        cpus = int(ray.cluster_resources().get("CPU", 1))
-        actors = max(1, min(workers or cpus, cpus, len(todo)))
-        shards = ray.data.from_items(
-            [
-                {
-                    "shard": m["shard"],
-                    "n_joints": m["n_joints"],
-                    "mechanisms_file": m["files"]["mechanisms"],
-                    "simulations_file": m["files"].get("simulations", ""),
-                }
-                for m in todo
-            ],
-            override_num_blocks=len(todo),
-        )
+        total = sum(m["stats"]["mechanisms"] for m in generated.values())
+        done = sum(m["stats"]["mechanisms"] for m in curated.values())
+        meter = Progress(total=total, done=done, unit="mechanisms", enabled=progress)
+        try:
+            for passes in range(1, CURATION_PASSES + 1):
+                try:
+                    _curate_shards(store, lease, todo, seed, tables, steps, workers, meter)
+                    break
+                except ray.exceptions.RayActorError as exc:
+                    if passes == CURATION_PASSES:
+                        lost = str(exc).splitlines()[0]
+                        raise StoreError(
+                            f"curation stopped: {CURATION_PASSES} passes each lost a curator "
+                            f"({lost}); the same command finishes the pass"
+                        ) from None
+                    curated = committed_shards(store, "curation")
+                    remove_uncommitted(store, "curation", curated)
+                    todo = [m for shard, m in sorted(generated.items()) if shard not in curated]
+                    if not todo:  # the lost curator had committed its shards
+                        break
+        finally:
+            meter.close()
+        lease.confirm()
+        remove_uncommitted(store, "curation", committed_shards(store, "curation"))
+    summary = summarize_curation(store, time.perf_counter() - start, curated_now, tables)
+    store.write_json(f"{META}/curation_summary.json", summary)
+    return summary
+
+
+def _curate_shards(
+    store: Store,
+    lease: Lease,
+    todo: list[dict],
+    seed: int,
+    tables: tuple[str, ...],
+    steps: int,
+    workers: int | None,
+    meter: Progress,
+) -> None:
+    """One Ray Data pass of `ShardCurator` actors over the generation shards of `todo` (their
+    markers), each committed as it is done; RayActorError if a curator is lost, StoreError
+    (after the pass) if the store refused a shard."""
+    cpus = int(ray.cluster_resources().get("CPU", 1))
+    actors = max(1, min(workers or cpus, cpus, len(todo)))
+    shards = ray.data.from_items(
+        [
+            {
+                "shard": m["shard"],
+                "n_joints": m["n_joints"],
+                "mechanisms_file": m["files"]["mechanisms"],
+                "simulations_file": m["files"].get("simulations", ""),
+            }
+            for m in todo
+        ],
+        override_num_blocks=len(todo),
+    )
+    with warnings.catch_warnings():
+        # Ray 2.60 takes `max_restarts` for Ray Data's actors only among its deprecated
+        # `ray_remote_args`, and says so on stderr.
+        warnings.filterwarnings("ignore", "`ray_remote_args` is deprecated", RayDeprecationWarning)
         results = shards.map_batches(
             ShardCurator,
             fn_constructor_kwargs={
@@ -207,38 +259,34 @@ def _curate_holding(
             batch_size=1,
             compute=ray.data.ActorPoolStrategy(size=actors),
             num_cpus=1,
+            # Ray Data hands its actors their callable and its context through the object
+            # store, and Ray cannot promise to restart an actor whose arguments are there (it
+            # says so on stderr whenever restarts are allowed). A lost curator ends the pass
+            # instead, and `curate` makes another over the shards left.
+            max_restarts=0,
         )
-        total = sum(m["stats"]["mechanisms"] for m in generated.values())
-        done = sum(m["stats"]["mechanisms"] for m in curated.values())
-        meter = Progress(total=total, done=done, unit="mechanisms", enabled=progress)
-        data_log = logging.getLogger("ray.data")
-        level = data_log.level
-        data_log.setLevel(logging.WARNING)  # Ray Data logs every stage; the meter says enough
-        # ...and warns that its bars are off, which is this pass's choice, not the user's.
-        bars_log = logging.getLogger("ray.data._internal.progress")
-        bars_level = bars_log.level
-        bars_log.setLevel(logging.ERROR)
-        failed = ""
-        try:
-            for row in results.iter_rows():
-                if row["error"]:
-                    failed = row["error"]
-                    break
-                meter.advance(int(row["mechanisms"]))
-        finally:
-            data_log.setLevel(level)
-            bars_log.setLevel(bars_level)
-            meter.close()
-        if failed:
-            raise StoreError(
-                f"curation stopped: the store refused {failed}; once that is mended, the same "
-                "command finishes the pass"
-            )
-        lease.confirm()
-        remove_uncommitted(store, "curation", committed_shards(store, "curation"))
-    summary = summarize_curation(store, time.perf_counter() - start, len(todo), tables)
-    store.write_json(f"{META}/curation_summary.json", summary)
-    return summary
+    data_log = logging.getLogger("ray.data")
+    level = data_log.level
+    data_log.setLevel(logging.WARNING)  # Ray Data logs every stage; the meter says enough
+    # ...and warns that its bars are off, which is this pass's choice, not the user's.
+    bars_log = logging.getLogger("ray.data._internal.progress")
+    bars_level = bars_log.level
+    bars_log.setLevel(logging.ERROR)
+    failed = ""
+    try:
+        for row in results.iter_rows():
+            if row["error"]:
+                failed = row["error"]
+                break
+            meter.advance(int(row["mechanisms"]))
+    finally:
+        data_log.setLevel(level)
+        bars_log.setLevel(bars_level)
+    if failed:
+        raise StoreError(
+            f"curation stopped: the store refused {failed}; once that is mended, the same "
+            "command finishes the pass"
+        )
 
 
 def summarize_curation(
