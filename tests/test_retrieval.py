@@ -165,8 +165,8 @@ def test_finalists_are_measured_as_if_every_variant_were(index: RetrievalIndex) 
         expected = np.lexsort((index.path_ids(rows), best))[:5]
         # The likeliest variant given right, at random, and as the worst of the four.
         for likely in (plain.argmin(axis=0), rng.integers(0, 4, 40), plain.argmax(axis=0)):
-            found = index._exact_finalists(
-                variants, distance_table(normalized)[0], rows, likely, k=5
+            found = search_query.exact_finalists(
+                index, variants, distance_table(normalized)[0], rows, likely, k=5
             )
             assert [row for row, _, _ in found] == rows[expected].tolist()
             np.testing.assert_allclose([c for _, c, _ in found], best[expected], rtol=1e-12)

@@ -273,18 +273,6 @@ class RetrievalIndex:
         it, `probed` rows, passes on `candidates` paths (by default as `stage_sizes` says)."""
         return _query.ranked(self, normalized, k, candidates, probed, min_transmission)
 
-    def _exact_finalists(
-        self,
-        variants: np.ndarray,
-        table: np.ndarray,
-        rows: np.ndarray,
-        likely: np.ndarray,
-        k: int,
-        points: np.ndarray | None = None,
-    ) -> list[tuple[int, float, int]]:
-        """The exact stage of `ranked` (`search.query.exact_finalists`)."""
-        return _query.exact_finalists(self, variants, table, rows, likely, k, points)
-
     def warm(self, seconds: float = 5.0, queries: int = 200) -> int:
         """Answer queries until `seconds` pass or `queries` are answered; return how many.
         Raises ValueError unless seconds >= 0 and queries >= 1.
