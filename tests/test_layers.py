@@ -190,3 +190,62 @@ def test_the_rule_catches_what_breaks_it(broken_package: Path) -> None:
         "links_ray/serve/app.py:2: serve imports links_ray.cli.main (cli)",
         "links_ray/stray.py: in no layer",
     ]
+
+
+#: A package's face (the module its callers import) and the package of the rooms behind it:
+#: a room imports its face only for type hints (under `if TYPE_CHECKING:`), so that the face
+#: can import every room without a cycle.
+FACES = {"links_ray.search.index": "links_ray.search"}
+
+
+def hint_lines(path: Path) -> set[int]:
+    """The lines of `path` inside `if TYPE_CHECKING:` blocks."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    return {
+        line
+        for node in ast.walk(tree)
+        if isinstance(node, ast.If) and ast.unparse(node.test).endswith("TYPE_CHECKING")
+        for line in range(node.lineno, (node.end_lineno or node.lineno) + 1)
+    }
+
+
+def face_violations(package_dir: Path) -> list[str]:
+    """Every import of a face by one of its rooms that is not a type hint's."""
+    modules = module_names(package_dir)
+    known = set(modules)
+    found = []
+    for face, package in FACES.items():
+        for module, path in modules.items():
+            if module == face or not module.startswith(f"{package}."):
+                continue
+            hinted = hint_lines(path)
+            for line, name in imported(path, module, known):
+                if name == face and line not in hinted:
+                    where = path.relative_to(package_dir.parent).as_posix()
+                    found.append(f"{where}:{line}: {module} imports its face {face}")
+    return sorted(found)
+
+
+def test_rooms_import_their_face_only_for_type_hints() -> None:
+    assert face_violations(REPO / PACKAGE) == []
+
+
+def test_the_face_rule_catches_a_room_importing_its_face(tmp_path: Path) -> None:
+    sources = {
+        "__init__.py": "",
+        "search/__init__.py": "",
+        "search/index.py": "from links_ray.search import query\n",
+        "search/query.py": (
+            "from typing import TYPE_CHECKING\n\nif TYPE_CHECKING:\n"
+            "    from links_ray.search.index import RetrievalIndex\n"
+        ),
+        "search/build.py": "def f():\n    from links_ray.search import index\n",
+    }
+    for name, text in sources.items():
+        path = tmp_path / PACKAGE / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    assert face_violations(tmp_path / PACKAGE) == [
+        "links_ray/search/build.py:2: links_ray.search.build imports its face "
+        "links_ray.search.index"
+    ]

@@ -31,8 +31,9 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.paths import longest_chord
-from links_ray.engine.refine import _as_target, _constrained, _refine_one, refine, refine_many
+from links_ray.engine.refine import as_target, refine, refine_many, refine_validated
 from links_ray.engine.refine_kernels import best_interval, nearest_pairs, solve_tangents
+from links_ray.engine.refine_step import constrained_minimum
 from links_ray.engine.solver import crank_table, dyad_geometry
 
 #: A Grashof crank-rocker with a coupler point, transmission angle 54 to 100 degrees.
@@ -264,18 +265,18 @@ def test_a_start_refined_from_an_origin_keeps_the_origins_floors_and_branches() 
     adjacency, node_types, origin = fourbar(GOOD_FOURBAR)
     _, _, low = fourbar(LOW_FOURBAR)  # 31 degrees at its worst: below a 40-degree margin
     topology = analyze_topology(adjacency, node_types)
-    target = _as_target(fourbar_truth(low, 200)[4], False)
+    target = as_target(fourbar_truth(low, 200)[4], False)
     args = (topology, low, 4, target, 200, 5, 40.0)
     with pytest.raises(ValueError, match="nearer a dead centre than its origin allows"):
-        _refine_one(*args, origin=origin)
-    assert _refine_one(*args).min_transmission_deg < 40  # alone, it is its own origin
+        refine_validated(*args, origin=origin)
+    assert refine_validated(*args).min_transmission_deg < 40  # alone, it is its own origin
     mirrored = origin.copy()
     (j, a, b) = topology.order[-1]
     gap = origin[b] - origin[a]
     normal = np.array([-gap[1], gap[0]]) / np.linalg.norm(gap)
     mirrored[j] -= 2 * np.dot(origin[j] - origin[a], normal) * normal  # across its parents' line
     with pytest.raises(ValueError, match="other branches than its origin"):
-        _refine_one(topology, mirrored, 4, target, 200, 5, 3.0, origin=origin)
+        refine_validated(topology, mirrored, 4, target, 200, 5, 3.0, origin=origin)
 
 
 def test_margin_is_kept_when_the_best_fit_breaks_it() -> None:
@@ -339,14 +340,14 @@ def test_a_deadline_already_passed_does_no_work() -> None:
     passed costs not a single trial, and the start is handed back as it was."""
     adjacency, node_types, positions = fourbar(GOOD_FOURBAR)
     topology = analyze_topology(adjacency, node_types)
-    target = _as_target(fourbar_truth(positions, 200)[4] + 0.01, False)
-    late = _refine_one(
+    target = as_target(fourbar_truth(positions, 200)[4] + 0.01, False)
+    late = refine_validated(
         topology, positions, 4, target, 200, 50, 3.0, deadline=time.perf_counter() - 1.0
     )
     assert late.evaluations == 0
     np.testing.assert_array_equal(late.positions, positions)
     assert late.chamfer_after == late.chamfer_before
-    free = _refine_one(topology, positions, 4, target, 200, 50, 3.0)
+    free = refine_validated(topology, positions, 4, target, 200, 50, 3.0)
     assert free.evaluations > 0 and free.chamfer_after < free.chamfer_before
 
 
@@ -502,7 +503,7 @@ def test_guarded_step_is_the_constrained_optimum() -> None:
         rows = rng.normal(size=(m, n))
         bounds = rng.normal(size=m) - 0.5
         expected = _qp_by_enumeration(system, gradient, rows, bounds)
-        delta = _constrained(system, gradient, rows, bounds)
+        delta = constrained_minimum(system, gradient, rows, bounds)
         np.testing.assert_allclose(delta, expected, atol=1e-7)
         assert np.all(rows @ delta >= bounds - 1e-7)
         bound += not np.allclose(delta, np.linalg.solve(system, -gradient))

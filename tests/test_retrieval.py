@@ -17,20 +17,14 @@ from links_ray.cluster.generation import generate
 from links_ray.data.store import Store
 from links_ray.engine.inputs import validate_query
 from links_ray.engine.paths import chamfer, chamfer_to_many, normalization, normalize_path
-from links_ray.search import index as search_index
+from links_ray.search import build as search_build
+from links_ray.search import cache as search_cache
 from links_ray.search import kernels as kernels
+from links_ray.search import query as search_query
+from links_ray.search.build import _nearest_centroid, distance_fields, sketch_paths
 from links_ray.search.held_out import held_out_queries
-from links_ray.search.index import (
-    RetrievalIndex,
-    _about_least,
-    _nearest_centroid,
-    cache_folder,
-    distance_fields,
-    distance_table,
-    query_variants,
-    sketch_paths,
-    variant_map,
-)
+from links_ray.search.index import RetrievalIndex, cache_folder
+from links_ray.search.query import _about_least, distance_table, query_variants, variant_map
 
 
 @pytest.fixture(scope="module")
@@ -171,8 +165,8 @@ def test_finalists_are_measured_as_if_every_variant_were(index: RetrievalIndex) 
         expected = np.lexsort((index.path_ids(rows), best))[:5]
         # The likeliest variant given right, at random, and as the worst of the four.
         for likely in (plain.argmin(axis=0), rng.integers(0, 4, 40), plain.argmax(axis=0)):
-            found = index._exact_finalists(
-                variants, distance_table(normalized)[0], rows, likely, k=5
+            found = search_query.exact_finalists(
+                index, variants, distance_table(normalized)[0], rows, likely, k=5
             )
             assert [row for row, _, _ in found] == rows[expected].tolist()
             np.testing.assert_allclose([c for _, c, _ in found], best[expected], rtol=1e-12)
@@ -285,8 +279,8 @@ def test_coarse_lists_group_rows_and_probing_finds_the_near_ones(
     """With lists of about 100 rows, rows are grouped by the list of their nearest centroid;
     a query scanning only its nearest lists (a quarter of the rows) still finds a stored path
     drawn in another frame, and scanning all lists answers as the index without lists."""
-    monkeypatch.setattr(search_index, "ROWS_PER_LIST", 100)
-    monkeypatch.setitem(search_index.BUILD_SETTINGS, "rows_per_list", 100)
+    monkeypatch.setattr(search_build, "ROWS_PER_LIST", 100)
+    monkeypatch.setitem(search_cache.BUILD_SETTINGS, "rows_per_list", 100)
     copy = tmp_path / "data"  # its saved index is built otherwise: keep the fixture's
     shutil.copytree(index.store.uri, copy)
     lists = RetrievalIndex.open(str(copy))
@@ -297,7 +291,7 @@ def test_coarse_lists_group_rows_and_probing_finds_the_near_ones(
     sizes = np.diff(lists.list_start)
     assert lists.list_start[0] == 0 and lists.list_start[-1] == len(index) and sizes.min() >= 0
     stored = stored_points(index)
-    fields = distance_fields(stored_points(lists), search_index.FIELD_STRIDE)
+    fields = distance_fields(stored_points(lists), search_build.FIELD_STRIDE)
     np.testing.assert_array_equal(
         _nearest_centroid(lists.basis.field_codes(fields), lists.centroids),
         np.repeat(np.arange(count), sizes),
@@ -309,7 +303,7 @@ def test_coarse_lists_group_rows_and_probing_finds_the_near_ones(
     # A quarter of the rows scanned, a fifth of those passed on: a stored path finds itself.
     # (Not a tenth: the sketches barely tell apart the many near-straight paths, a few
     # hundredths wide, so one of those can rank 30th among its look-alikes.)
-    monkeypatch.setattr(search_index, "PROBED_ROWS", len(index) // 4)
+    monkeypatch.setattr(search_query, "PROBED_ROWS", len(index) // 4)
     rng = np.random.default_rng(6)
     path_ids = lists.path_id
     for row in rng.choice(len(index), 10, replace=False):
@@ -328,7 +322,7 @@ def test_coarse_lists_group_rows_and_probing_finds_the_near_ones(
 def test_saved_index_is_reused(index: RetrievalIndex) -> None:
     assert Store.open(index.store.uri).read_json(f"{cache_folder(0, 1)}/current.json")
     again = RetrievalIndex.open(index.store.uri)
-    for name in search_index.ROW_ARRAYS:
+    for name in search_cache.ROW_ARRAYS:
         np.testing.assert_array_equal(getattr(again, name), getattr(index, name))
     for name, array in index.bank.arrays().items():
         np.testing.assert_array_equal(getattr(again.bank, name), array)

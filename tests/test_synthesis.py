@@ -248,9 +248,9 @@ def test_usable_cpus_follow_the_affinity_and_what_was_given() -> None:
 
 def test_the_indexs_exact_pairs_use_the_cpus_given(monkeypatch: pytest.MonkeyPatch) -> None:
     """The exact chamfers of many pairs run in as many threads as the process was given."""
-    from links_ray.search import index
+    from links_ray.search import query as search_query
 
-    measured = index.chamfer_to_many
+    measured = search_query.chamfer_to_many
     names: set[str] = set()
 
     def recorded(query: np.ndarray, paths: np.ndarray) -> np.ndarray:
@@ -258,7 +258,7 @@ def test_the_indexs_exact_pairs_use_the_cpus_given(monkeypatch: pytest.MonkeyPat
         time.sleep(0.01)  # each block long enough for the pool to start every thread
         return measured(query, paths)
 
-    monkeypatch.setattr(index, "chamfer_to_many", recorded)
+    monkeypatch.setattr(search_query, "chamfer_to_many", recorded)
     rng = np.random.default_rng(0)
     points = rng.random((9000, 200, 2))
     variants = rng.random((4, 200, 2))
@@ -271,7 +271,7 @@ def test_the_indexs_exact_pairs_use_the_cpus_given(monkeypatch: pytest.MonkeyPat
         names.clear()
         cpus.set_given_cpus(given)
         try:
-            distances = index._exact_pairs(variants, points, rows, which)
+            distances = search_query.exact_pairs(variants, points, rows, which)
         finally:
             cpus.set_given_cpus(None)
         np.testing.assert_allclose(distances[:50], expected, rtol=1e-12)

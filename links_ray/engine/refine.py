@@ -17,11 +17,10 @@ derivatives of the path come from `refine_kernels.solve_tangents`.
 
 The margin is a constraint, and steps slide along it. Each step is solved subject to the
 linearized transmission sines at their lowest steps: those near a dyad's floor must stay
-CLEARANCE_DEG above it, and a rigid dyad's triangle may not flatten (`_guards`, solved by a
-small active set in `_constrained`). A best fit often lies across the margin; without the
-guards every step toward it was refused and refinement stopped there (on the bench's letter D,
-most of 32 candidates stopped within 150 iterations, their best at 0.0075; guarded, they run
-on, their best at 0.0059).
+CLEARANCE_DEG above it, and a rigid dyad's triangle may not flatten (`engine.refine_step`:
+`transmission_guards`, solved by a small active set in `constrained_minimum`). A best fit
+often lies across the margin; without the guards every step toward it would be refused and
+refinement would stop there.
 
 A step is kept only if the true chamfer falls and the mechanism stays valid: it turns fully at
 the simulation's steps and at REFINE_CHECK_STEPS steps and between them (`engine.turning`),
@@ -31,6 +30,11 @@ check step (a dyad that starts below the margin keeps half its starting sine unt
 the margin, and the margin from then on; rigid dyads, whose angle never changes, have none).
 Otherwise the damping grows and a shorter step is tried. So the chamfer never rises, and the
 result is valid whenever the input was.
+
+Synthesis (`engine.synthesis`) drives refinement in pieces through the public interface
+below the entry points: `as_target` validates a drawing once, `target_chamfer` measures a path
+against it, `refine_validated` refines a validated mechanism within a deadline and continues a
+refinement from its origin, and `check_mechanism` tells whether positions are valid.
 
 Partial strokes (`partial=True`): an open stroke matches part of a turn. The measure is then the
 least chamfer between the stroke and a run of consecutive steps (cyclic) of the path, over
@@ -68,19 +72,26 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.paths import chamfer, longest_chord
-from links_ray.engine.refine_kernels import best_interval, nearest_pairs, solve_tangents
+from links_ray.engine.refine_kernels import best_interval, solve_tangents
+from links_ray.engine.refine_step import guarded_step, normal_equations, transmission_guards
 from links_ray.engine.solver import crank_turn
 from links_ray.engine.turning import rigid_dyads, turn_lock
 
-__all__ = ["Refinement", "check_mechanism", "refine", "refine_many"]
+__all__ = [
+    "Check",
+    "Refinement",
+    "Target",
+    "as_target",
+    "check_mechanism",
+    "refine",
+    "refine_many",
+    "refine_validated",
+    "target_chamfer",
+]
 
-#: Distances below this share of the drawing's chord weigh as much as this (the IRLS floor).
-IRLS_FLOOR = 1e-4
 #: A step may bring a dyad's least transmission angle at the simulation's steps no nearer its
 #: floor than about this many degrees: the check steps between them dip lower.
 CLEARANCE_DEG = 0.25
-#: Most rounds of the active set that keeps a step within its guards.
-GUARD_ROUNDS = 12
 #: Refinement stops once the chamfer is below this share of the chord, or after STALL kept
 #: steps in a row each gaining less than STALL_GAIN of it.
 CONVERGED, STALL, STALL_GAIN = 1e-12, 5, 1e-8
@@ -92,8 +103,7 @@ BELOW_MARGIN = 0.5
 #: Damping (times the system's diagonal): start, growth on a rejected step, shrink on a kept
 #: one, the least it shrinks to, the least it grows to on a rejection (below it a rejected step
 #: barely shortens), and the end of trying. Steps stay damped (DAMPING_MIN): undamped
-#: Gauss-Newton steps jump between the nearest-point correspondences' local minima; measured on
-#: perturbed four-bars, this recovers the exact curve about twice as often.
+#: Gauss-Newton steps jump between the nearest-point correspondences' local minima.
 DAMPING_START, DAMPING_UP, DAMPING_DOWN = 1.0, 4.0, 3.0
 DAMPING_MIN, DAMPING_REJECTED, DAMPING_MAX = 1e-3, 1e-3, 1e8
 
@@ -129,13 +139,18 @@ class Refinement:
 
 @dataclass(frozen=True)
 class Check:
-    """Validity of a position set at REFINE_CHECK_STEPS: lock (step, joint) or (-1, -1), the
-    branch signs, the least transmission sine of each dyad, and which dyads are rigid (their
-    parents keep their distance, so the angle at the joint never changes: no dead centre)."""
+    """Validity of a position set at REFINE_CHECK_STEPS (`check_mechanism`).
+
+    `lock`: (step, joint) of the first lock, or (-1, -1). `sides` (m,): each dyad's assembly
+    branch sign. `min_transmission_sine` (m,): each dyad's least transmission sine over the
+    check steps (sine of the transmission angle, 0 to 1; not degrees). `rigid` (m,) bool: the
+    dyads whose parents keep their distance, so the angle at the joint never changes (no dead
+    centre).
+    """
 
     lock: tuple[int, int]
     sides: np.ndarray
-    min_transmission: np.ndarray
+    min_transmission_sine: np.ndarray
     rigid: np.ndarray
 
 
@@ -146,7 +161,7 @@ def _solve(
 
     The arrays are the calling thread's scratch for this shape: valid until its next `_solve`
     of the same shape (an iteration makes one of each of three shapes, and allocating and
-    paging in megabytes of derivatives anew each time cost a tenth of an iteration)."""
+    paging in megabytes of derivatives anew each time would cost a share of every iteration)."""
     n, m = topology.n_joints, len(topology.order)
     cols = 2 * n if tangents else 0
     key = (n, m, steps, cols)
@@ -179,8 +194,9 @@ def _solve(
 def check_mechanism(
     topology: Topology, positions: np.ndarray, rigid: np.ndarray | None = None
 ) -> Check:
-    """Simulate at REFINE_CHECK_STEPS steps: lock, branch signs, least transmission per dyad,
-    rigid dyads (found from the trajectories unless given: refinement decides them once)."""
+    """Simulate `positions` (n, 2) at REFINE_CHECK_STEPS steps: lock, branch signs, least
+    transmission sine per dyad, rigid dyads (found from the trajectories unless given:
+    refinement decides them once). A lock is reported in the `Check`, not raised."""
     lock, traj, _, trans, _, geometry = _solve(topology, positions, REFINE_CHECK_STEPS, False)
     if lock[0] < 0:  # and between the steps: valid means it turns
         lock = turn_lock(topology.order, positions, geometry, traj)
@@ -191,153 +207,45 @@ def check_mechanism(
 
 
 def _least_deg(sines: np.ndarray) -> float:
+    """The least angle in degrees of these transmission sines (90 with none)."""
     return math.degrees(math.asin(min(1.0, float(sines.min())))) if len(sines) else 90.0
 
 
 @dataclass
-class _Target:
-    """A validated drawing and its scale."""
+class Target:
+    """A validated drawing and its scale (`as_target` makes one).
+
+    `points` (T, 2) float64: the drawn points. `chord`: the drawing's longest chord, in the
+    drawing's units; refinement's chamfers are divided by it. `partial`: the points are an open
+    stroke, matched to a run of a turn.
+    """
 
     points: np.ndarray
     chord: float
     partial: bool
 
 
-def _as_target(points: object, partial: object) -> _Target:
+def as_target(points: object, partial: object) -> Target:
+    """The drawing `points` ([x, y] pairs) as a `Target`. Raises ValueError naming bad points
+    (as `target_points`) or a `partial` that is not a bool."""
     if not isinstance(partial, bool | np.bool_):
         raise ValueError(f"partial must be True or False, got {partial!r}")
     drawn = as_drawn_points(points, "target_points")
     i, j = longest_chord(drawn)
-    return _Target(drawn, float(np.hypot(*(drawn[j] - drawn[i]))), bool(partial))
+    return Target(drawn, float(np.hypot(*(drawn[j] - drawn[i]))), bool(partial))
 
 
-def _measure(target: _Target, path: np.ndarray) -> tuple[float, tuple[int, int] | None]:
-    """The true objective of a path (not yet divided by the chord) and the matched run."""
+def target_chamfer(target: Target, path: np.ndarray) -> tuple[float, tuple[int, int] | None]:
+    """(chamfer, interval): the chamfer distance between the target's points and `path`
+    (steps, 2), in the drawing's units (not yet divided by the chord), and for a partial
+    target the matched run (start step, count) of the path, else None. For a partial target
+    the chamfer is the least over the path's cyclic runs of at least MIN_POINTS steps."""
     if not target.partial:
         return chamfer(target.points, path), None
     start, count, _ = best_interval(path, target.points, MIN_POINTS)
     rows = (start + np.arange(count)) % len(path)
     # The exact chamfer of the chosen run, so accepted steps compare like with like.
     return chamfer(target.points, path[rows]), (int(start), int(count))
-
-
-def _normal_equations(
-    target: _Target,
-    path: np.ndarray,
-    jac: np.ndarray,
-    interval: tuple[int, int] | None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """IRLS Gauss-Newton system (A, g) of the chamfer with correspondences fixed at `path`.
-
-    jac (steps, 2, P) is d path / d positions. Residuals of the two directions that land on
-    the same path step are summed into one weight and one weighted residual per step.
-    """
-    steps = len(path)
-    rows = np.arange(steps) if interval is None else (interval[0] + np.arange(interval[1])) % steps
-    sub = np.ascontiguousarray(path[rows])
-    drawn = target.points
-    count, points = len(sub), len(drawn)
-    path_nn = np.empty(count, dtype=np.int64)
-    path_d = np.empty(count)
-    drawn_nn = np.empty(points, dtype=np.int64)
-    drawn_d = np.empty(points)
-    nearest_pairs(sub, drawn, path_nn, path_d, drawn_nn, drawn_d)
-    floor = IRLS_FLOOR * target.chord
-    # Weight 1 / (count x distance): the weighted squares' gradient is the mean distance's.
-    w_path = 1.0 / (count * np.maximum(path_d, floor))
-    w_drawn = 1.0 / (points * np.maximum(drawn_d, floor))
-    weight = w_path.copy()
-    np.add.at(weight, drawn_nn, w_drawn)
-    residual = w_path[:, None] * (sub - drawn[path_nn])
-    np.add.at(residual, drawn_nn, w_drawn[:, None] * (sub[drawn_nn] - drawn))
-    j = jac[rows]
-    cols = j.shape[2]
-    scaled = (j * np.sqrt(weight)[:, None, None]).reshape(-1, cols)
-    return scaled.T @ scaled, residual.reshape(-1) @ j.reshape(-1, cols)
-
-
-def _guards(
-    trans: np.ndarray, dtrans: np.ndarray, floors: np.ndarray, clearance: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Linearized transmission constraints (A, b), A delta >= b, for the next step.
-
-    Each dyad whose sine comes within 2 x `clearance` of its floor contributes one row per
-    local minimum of its sine over the steps: that minimum must stay `clearance` above the
-    floor (the check steps lie between these steps and dip lower).
-    """
-    near = trans < (floors + 2.0 * clearance)[:, None]
-    low = near & (trans <= np.roll(trans, 1, axis=1)) & (trans <= np.roll(trans, -1, axis=1))
-    dyads, steps = np.nonzero(low)
-    return dtrans[dyads, steps], floors[dyads] + clearance - trans[dyads, steps]
-
-
-def _constrained(
-    system: np.ndarray, gradient: np.ndarray, rows: np.ndarray, bounds: np.ndarray
-) -> np.ndarray:
-    """argmin of 1/2 d.system.d + gradient.d subject to rows.d >= bounds (`system` positive
-    definite). Raises LinAlgError if `system` is singular.
-
-    Solved in the dual: the step is free + system^-1 rows^T mu for the multipliers mu >= 0
-    that minimize 1/2 mu.Q.mu - c.mu, Q = rows system^-1 rows^T and c = bounds - rows.free,
-    by Lawson and Hanson's active set for non-negativity (exact in finitely many rounds; at
-    most GUARD_ROUNDS, leaving the last iterate: the trial is checked in full anyway)."""
-    free = np.linalg.solve(system, -gradient)
-    if not len(rows):
-        return free
-    towards = np.linalg.solve(system, rows.T)  # system^-1 rows^T
-    q = rows @ towards
-    # Dependent constraints (more than the coordinates, or two steps of one dead centre)
-    # make Q singular, and the active set then cycles; a ridge this small keeps it exact to
-    # the tests' tolerance.
-    q += 1e-10 * max(float(np.trace(q)), 1e-300) * np.eye(len(rows))
-    c = bounds - rows @ free
-    tolerance = 1e-12 * (1.0 + float(np.abs(c).max()))
-    mu = np.zeros(len(rows))
-    on = np.zeros(len(rows), dtype=bool)  # multipliers free to be positive
-    for _ in range(GUARD_ROUNDS):
-        descent = c - q @ mu
-        descent[on] = -np.inf
-        entering = int(np.argmax(descent))
-        if descent[entering] <= tolerance:
-            break
-        on[entering] = True
-        while True:
-            trial = np.zeros(len(rows))
-            index = np.flatnonzero(on)
-            trial[index] = np.linalg.solve(q[np.ix_(index, index)], c[index])
-            if np.all(trial[index] > 0.0):
-                mu = trial
-                break
-            # Move toward the trial as far as every multiplier stays >= 0; free the one at 0.
-            falling = index[trial[index] <= 0.0]
-            share = float(np.min(mu[falling] / (mu[falling] - trial[falling])))
-            mu = mu + share * (trial - mu)
-            on &= mu > tolerance
-            mu[~on] = 0.0
-            if not on.any():
-                break
-    return free + towards @ mu
-
-
-def _step(
-    pos: np.ndarray,
-    system: np.ndarray,
-    gradient: np.ndarray,
-    guards: tuple[np.ndarray, np.ndarray],
-    longest: float,
-) -> np.ndarray | None:
-    """pos + the damped Gauss-Newton step within the linearized guards, shortened to move no
-    joint coordinate more than `longest`; None if the system cannot be solved."""
-    try:
-        delta = _constrained(system, gradient, *guards)
-    except np.linalg.LinAlgError:
-        return None
-    if not np.all(np.isfinite(delta)):
-        return None
-    size = float(np.abs(delta).max())
-    if size > longest:
-        delta *= longest / size
-    return pos + delta.reshape(pos.shape)
 
 
 def _valid_trial(
@@ -355,7 +263,7 @@ def _valid_trial(
     check = check_mechanism(topology, trial, rigid)
     if check.lock[0] >= 0 or not np.array_equal(check.sides, sides):
         return None
-    if np.any(check.min_transmission < floors):
+    if np.any(check.min_transmission_sine < floors):
         return None
     return check
 
@@ -378,11 +286,11 @@ def _prepare(
     return topology, pos, joint
 
 
-def _refine_one(
+def refine_validated(
     topology: Topology,
     start: np.ndarray,
     joint: int,
-    target: _Target,
+    target: Target,
     steps: int,
     iterations: int,
     margin_deg: float,
@@ -390,7 +298,10 @@ def _refine_one(
     origin: np.ndarray | None = None,
     damping: float = DAMPING_START,
 ) -> Refinement:
-    """Refine a validated mechanism; raises LockingError if it locks as given.
+    """Refine a validated mechanism (`topology`, start positions (n, 2) float64, a moving
+    `joint`) toward `target` at `steps` steps, for at most `iterations` iterations, keeping a
+    transmission margin of `margin_deg` degrees; `refine`'s checks of its input are the
+    caller's. Raises LockingError if it locks as given.
 
     Stops once `time.perf_counter()` passes `deadline`: checked before each iteration, each
     damping trial and each trial's check at REFINE_CHECK_STEPS, so a refinement ends within
@@ -404,7 +315,7 @@ def _refine_one(
     lock, traj, _, _, _, _ = _solve(topology, start, steps, False)
     if lock[0] >= 0:
         raise LockingError(*lock)
-    value, interval = _measure(target, traj[joint])  # before `traj` is scratch again
+    value, interval = target_chamfer(target, traj[joint])  # before `traj` is scratch again
     check = check_mechanism(topology, start)
     if check.lock[0] >= 0:
         error = LockingError(*check.lock)
@@ -418,7 +329,7 @@ def _refine_one(
         return deadline is not None and time.perf_counter() > deadline
 
     if late():  # the origin's check would be one more 2,000-step turn past the deadline
-        least = _least_deg(check.min_transmission[~check.rigid])
+        least = _least_deg(check.min_transmission_sine[~check.rigid])
         return Refinement(
             start.copy(),
             value / target.chord,
@@ -444,18 +355,22 @@ def _refine_one(
     floors = np.where(
         rigid,
         -1.0,
-        np.where(first.min_transmission >= margin, margin, BELOW_MARGIN * first.min_transmission),
+        np.where(
+            first.min_transmission_sine >= margin,
+            margin,
+            BELOW_MARGIN * first.min_transmission_sine,
+        ),
     )
     if origin is not None:  # what the origin gained since, it keeps
-        floors = np.where(~rigid & (check.min_transmission >= margin), margin, floors)
+        floors = np.where(~rigid & (check.min_transmission_sine >= margin), margin, floors)
         # A start shaken below the origin's margins is no start either: kept as it is, it
         # would hand back a mechanism nearer a dead centre than refinement allows.
-        if np.any(check.min_transmission < floors):
+        if np.any(check.min_transmission_sine < floors):
             raise ValueError("the start is nearer a dead centre than its origin allows")
     # Steps are guarded off every dyad's floor, and off flattening a rigid dyad: a triangle
     # of links flattened to a line turns over onto the other branch (which the check
     # refuses), and its derivatives are unbounded there.
-    flat = np.minimum(margin, BELOW_MARGIN * first.min_transmission)
+    flat = np.minimum(margin, BELOW_MARGIN * first.min_transmission_sine)
     before = value
     pos = start.copy()
     damping = min(max(damping, DAMPING_MIN), DAMPING_START)
@@ -466,8 +381,8 @@ def _refine_one(
             break
         done += 1
         _, traj, dtraj, trans, dtrans, _ = _solve(topology, pos, steps, True)
-        hessian, gradient = _normal_equations(target, traj[joint], dtraj[joint], interval)
-        guards = _guards(trans, dtrans, np.where(rigid, flat, floors), clearance)
+        hessian, gradient = normal_equations(target, traj[joint], dtraj[joint], interval)
+        guards = transmission_guards(trans, dtrans, np.where(rigid, flat, floors), clearance)
         diagonal = np.diag(hessian).copy()
         # A joint the path does not depend on has a zero column; this keeps the system regular.
         diagonal += 1e-9 * max(float(diagonal.max()), 1e-300)
@@ -478,7 +393,7 @@ def _refine_one(
             if late():
                 break
             evaluations += 1
-            trial = _step(
+            trial = guarded_step(
                 pos,
                 hessian + damping * np.diag(diagonal),
                 gradient,
@@ -488,7 +403,7 @@ def _refine_one(
             if trial is not None:
                 lock, trial_traj, _, _, _, _ = _solve(topology, trial, steps, False)
                 if lock[0] < 0:
-                    trial_value, trial_interval = _measure(target, trial_traj[joint])
+                    trial_value, trial_interval = target_chamfer(target, trial_traj[joint])
                     # Cheap tests first: most rejected trials fail on the chamfer.
                     trial_check = (
                         _valid_trial(topology, trial, sides, floors, rigid)
@@ -504,7 +419,7 @@ def _refine_one(
                             trial_interval,
                             trial_check,
                         )
-                        gained = ~rigid & (check.min_transmission >= margin)
+                        gained = ~rigid & (check.min_transmission_sine >= margin)
                         floors = np.where(gained, margin, floors)
                         damping = max(damping / DAMPING_DOWN, DAMPING_MIN)
                         accepted = True
@@ -519,7 +434,7 @@ def _refine_one(
         interval=interval,
         iterations=done,
         evaluations=evaluations,
-        min_transmission_deg=_least_deg(check.min_transmission[~rigid]),
+        min_transmission_deg=_least_deg(check.min_transmission_sine[~rigid]),
         damping=damping,
     )
 
@@ -546,10 +461,10 @@ def refine(
     """
     steps = as_int("steps", steps, MIN_POINTS, None, InvalidMechanismError)
     topology, pos, joint = _prepare(adjacency, node_types, positions, joint, steps)
-    target = _as_target(target_points, partial)
+    target = as_target(target_points, partial)
     iterations = as_int("iterations", iterations, 0, MAX_REFINE_ITERATIONS)
     margin_deg = as_transmission_deg(margin_deg)
-    return _refine_one(topology, pos, joint, target, steps, iterations, margin_deg)
+    return refine_validated(topology, pos, joint, target, steps, iterations, margin_deg)
 
 
 def refine_many(
@@ -568,7 +483,7 @@ def refine_many(
     positions, so one retrieved mechanism cannot sink the rest.
     """
     steps = as_int("steps", steps, MIN_POINTS, None, InvalidMechanismError)
-    target = _as_target(target_points, partial)
+    target = as_target(target_points, partial)
     iterations = as_int("iterations", iterations, 0, MAX_REFINE_ITERATIONS)
     margin_deg = as_transmission_deg(margin_deg)
     prepared = []
@@ -586,7 +501,9 @@ def refine_many(
     results = []
     for topology, pos, joint in prepared:
         try:
-            results.append(_refine_one(topology, pos, joint, target, steps, iterations, margin_deg))
+            results.append(
+                refine_validated(topology, pos, joint, target, steps, iterations, margin_deg)
+            )
         except LockingError as exc:
             results.append(
                 Refinement(pos, math.nan, math.nan, None, 0, 0, math.nan, error=str(exc))

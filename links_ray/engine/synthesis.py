@@ -8,11 +8,11 @@ the drawing itself (`engine.refine`) within a time budget:
    rounds of `FIRST_ROUND` over them all, within `FIRST_SHARE` of the time left. Retrieval
    ranks by normalized shape alone; a few iterations show which candidates can really move
    onto the curve.
-2. A long pass: the best `FINALISTS` after the first pass are refined on, in rounds of
-   `LONG_ROUND` iterations, each continuing where the first pass left it (at the damping it
+2. A long pass: the best `LONG_PASS_CANDIDATES` after the first pass are refined on, in rounds
+   of `LONG_ROUND` iterations, each continuing where the first pass left it (at the damping it
    ended with). One that converges gives its place to the next best of the first pass, until
    the budget is spent: the first pass ranks roughly, and the one that ends best is often
-   sixth or tenth after it.
+   well down its order.
 3. Restarts: if every candidate has converged and time remains, the best are shaken (every
    joint moved by a random share of the drawing's chord, log-uniform in `SHAKE`) and refined
    again for at most `HOP_ITERATIONS`, keeping the shaken result only if it is better (a
@@ -33,7 +33,9 @@ between the normalized query and the normalized path. Every refined mechanism is
 branches and its transmission margin.
 
 `index` is anything with `retrieve(points, k, min_transmission) -> list[dict]` answering as
-`links_ray.search.index.RetrievalIndex.retrieve` does (the engine imports no index).
+`links_ray.search.index.RetrievalIndex.retrieve` does (the engine imports no index). What
+synthesis uses of refinement is `engine.refine`'s public interface (`as_target`,
+`target_chamfer`, `refine_validated`, `check_mechanism`).
 
 Pure numpy/numba and threads: no Ray, no files.
 """
@@ -64,11 +66,11 @@ from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.refine import (
     DAMPING_START,
     Refinement,
-    _as_target,
-    _measure,
-    _refine_one,
-    _Target,
+    Target,
+    as_target,
     check_mechanism,
+    refine_validated,
+    target_chamfer,
 )
 from links_ray.engine.solver import simulate
 
@@ -79,8 +81,8 @@ CANDIDATES = 96
 #: Iterations of the short pass, in rounds of FIRST_ROUND for every candidate, and the most
 #: share of the budget it may take.
 FIRST_ITERATIONS, FIRST_ROUND, FIRST_SHARE = 30, 10, 0.4
-#: Candidates the long pass refines on (at least k).
-FINALISTS = 3
+#: Candidates the long pass refines at a time (at least k), the best of the short pass first.
+LONG_PASS_CANDIDATES = 3
 #: Long-pass refinements run in rounds of LONG_ROUND iterations over the finalists.
 LONG_ROUND = 50
 #: Restarts move every joint by up to a share of the drawing's chord drawn log-uniformly
@@ -97,7 +99,10 @@ class Retriever(Protocol):
 
     def retrieve(
         self, points: object, k: int = DEFAULT_K, min_transmission: float = 0.0
-    ) -> list[dict]: ...
+    ) -> list[dict]:
+        """The k best retrieval results for the drawn `points`, best first, among the paths
+        keeping `min_transmission` degrees, each with its mechanism in the drawing's frame."""
+        ...
 
 
 @dataclass(eq=False)  # candidates are the same only if they are one: `in` compares identities
@@ -128,13 +133,13 @@ def fit(
     """(chamfer divided by the drawing's longest chord, interval) of the path `joint` traces
     at DEFAULT_STEPS steps against the drawn `points`; `interval` is (start step, count) of the
     run matched to a partial stroke, else None."""
-    target = _as_target(points, partial)
+    target = as_target(points, partial)
     path = simulate(adjacency, node_types, positions, DEFAULT_STEPS)[joint]
-    value, interval = _measure(target, path)
+    value, interval = target_chamfer(target, path)
     return value / target.chord, interval
 
 
-def _candidate(result: dict, target: _Target) -> _Candidate | None:
+def _candidate(result: dict, target: Target) -> _Candidate | None:
     """A retrieval result ready to refine, or None if it cannot be (it locks between the
     simulation's steps, or is too large to refine)."""
     mechanism = result["mechanism"]
@@ -151,14 +156,14 @@ def _candidate(result: dict, target: _Target) -> _Candidate | None:
     if path is None:
         return None
     path = path[joint]
-    value, interval = _measure(target, path)
+    value, interval = target_chamfer(target, path)
     chamfer = value / target.chord
     return _Candidate(result, topology, joint, positions, positions, chamfer, chamfer, interval)
 
 
 def _refined(
     candidate: _Candidate,
-    target: _Target,
+    target: Target,
     start: np.ndarray,
     iterations: int,
     deadline: float | None,
@@ -167,7 +172,7 @@ def _refined(
     if deadline is not None and time.perf_counter() > deadline:
         return None  # not even its checks of the start: they are 2,000-step turns
     try:
-        return _refine_one(
+        return refine_validated(
             candidate.topology,
             start,
             candidate.joint,
@@ -241,7 +246,7 @@ def refine_retrieved(
     started = time.perf_counter() if started is None else started
     seconds, seed, iterations = validate_synthesis_work(seconds, seed, iterations)
     _, k, seconds, partial = validate_synthesis(points, k, seconds, partial)
-    target = _as_target(points, partial)
+    target = as_target(points, partial)
     margin = max(DEFAULT_MARGIN_DEG, as_transmission_deg(margin_deg))
     fixed = iterations is not None
     # Fixed work has no deadline; its passes count iterations instead.
@@ -299,7 +304,7 @@ def refine_retrieved(
         now = time.perf_counter()
         first_end = now + FIRST_SHARE * max(0.0, deadline - now) if not fixed else math.inf
         # In rounds, so that when time runs short every candidate has had as many iterations
-        # (large mechanisms take ten times as long per iteration as small ones).
+        # (large mechanisms take many times as long per iteration as small ones).
         for _ in range(0, FIRST_ITERATIONS, FIRST_ROUND):
             moving = [c for c in candidates if not c.converged]
             if not moving or out_of(FIRST_SHARE, first_end):
@@ -307,9 +312,9 @@ def refine_retrieved(
             list(pool.map(short, moving))
             report()
         candidates.sort(key=lambda c: c.chamfer)
-        # The long pass refines FINALISTS at a time; one that converges makes room for the
-        # next best after the short pass (whose ranking is rough: 40 iterations in, the one
-        # that ends best is often sixth or ninth).
+        # The long pass refines LONG_PASS_CANDIDATES at a time; one that converges makes room
+        # for the next best after the short pass (whose ranking is rough: the one that ends
+        # best is often well down it).
         waiting = list(candidates)
         finalists: list[_Candidate] = []
 
@@ -320,7 +325,7 @@ def refine_retrieved(
 
         def moving_finalists() -> list[_Candidate]:
             moving = [c for c in finalists if not c.converged]
-            while len(moving) < max(FINALISTS, k) and waiting:
+            while len(moving) < max(LONG_PASS_CANDIDATES, k) and waiting:
                 c = waiting.pop(0)
                 c.converged = False  # a short round cut by its end is no sign of it
                 finalists.append(c)
@@ -340,8 +345,8 @@ def refine_retrieved(
                 report()
         # In rounds too, the finalist with the fewest rounds next (one refined to the end would
         # leave the others none), and each worker takes the next round as it finishes one:
-        # waiting for a round over all of them idled a core for a tenth of the budget, as a
-        # 16-joint finalist's round takes ten times a 6-joint one's.
+        # waiting for a round over all of them would idle a core, as a large finalist's round
+        # takes many times a small one's.
         running: dict[Future[None], _Candidate] = {}
         while not fixed and time.perf_counter() < deadline:
             moving = moving_finalists()
@@ -362,7 +367,7 @@ def refine_retrieved(
             # Each round shakes the current best ones: one per worker, or with fixed work as
             # many as the long pass refines (so the threads change nothing).
             finalists.sort(key=lambda c: c.chamfer)
-            chosen = finalists[: max(FINALISTS if fixed else workers, k)]
+            chosen = finalists[: max(LONG_PASS_CANDIDATES if fixed else workers, k)]
             shakes = np.exp(rng.uniform(*np.log(SHAKE), len(chosen))) * target.chord
             starts = [
                 c.positions + rng.uniform(-1.0, 1.0, c.positions.shape) * shake
@@ -381,16 +386,16 @@ def refine_retrieved(
 
 def _as_result(
     candidate: _Candidate,
-    target: _Target,
+    target: Target,
     trajectories: bool = False,
     elapsed: float | None = None,
 ) -> dict[str, Any]:
-    """A candidate as an answer (docs/CONTRACT.md, HTTP API, describes it); a progress report
-    adds every joint's `trajectories` and the `elapsed_ms` since the synthesis began."""
+    """A candidate as an answer (docs/reference/contract.md, HTTP API, describes it); a progress
+    report adds every joint's `trajectories` and the `elapsed_ms` since the synthesis began."""
     topology = candidate.topology
     positions = candidate.positions
     path = simulate(topology.adjacency, topology.node_types, positions, DEFAULT_STEPS)
-    value, interval = _measure(target, path[candidate.joint])
+    value, interval = target_chamfer(target, path[candidate.joint])
     result = candidate.result
     answer: dict[str, Any] = {
         "path_id": result["path_id"],

@@ -1,6 +1,6 @@
 """Compiled kernels of retrieval: distance fields (for the coarse lists), sketches, the sketch
 scan, and the chamfer estimates and lower bounds against a query. Pure numpy/numba;
-`search.index` orchestrates them.
+`search.build`, `search.query` and `search.brute_force` call them.
 
 Every kernel compares candidates with the query *as drawn*: a query variant (turned 180
 degrees, mirrored, both) is an isometry that is its own inverse, so the distance from a
@@ -330,7 +330,7 @@ def _sketch_chamfer(
     listed point and the next, so the estimate sees as many points as the path has: a query
     point's distance to the nearest of 128 points overstates its distance to the nearest of
     200 by about a quarter of the wider spacing, and by how much depends on where each path's
-    points fall, which at 1 million paths decided half the near ties the fine estimate lost.
+    points fall, which decides many of the near ties the fine estimate would otherwise lose.
     A midpoint's distance to the query is its ends' mean. Pass no midpoints with a partial
     sketch.
     """

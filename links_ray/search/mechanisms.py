@@ -37,7 +37,7 @@ class MechanismBank:
 
     @property
     def nbytes(self) -> int:
-        """Bytes held by the bank's arrays."""
+        """Bytes the bank's arrays hold."""
         return sum(getattr(self, f.name).nbytes for f in fields(self))
 
     def arrays(self) -> dict[str, np.ndarray]:
