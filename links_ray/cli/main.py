@@ -350,6 +350,8 @@ def _add_bench(
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The `links` command line: every command, its options and the function that runs it
+    (`args.run`). The site's CLI reference is written from it."""
     parser = _Parser(prog="links", description="LINKS: planar linkage mechanisms and their paths.")
     parser.add_argument("--version", action="version", version=f"links-ray {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -632,6 +634,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the `links` command `argv` (default: the process's arguments) and return its exit
+    status: 0 when it succeeds; 2, with a one-line message on stderr, on bad input or a file
+    or store it cannot use."""
     args = build_parser().parse_args(argv)
     try:
         args.run(args)
