@@ -1,7 +1,7 @@
 """The HTTP API's request and response bodies as pydantic models: what `/openapi.json` shows.
 
 Every bound comes from `links_ray.engine.inputs`, where the limits are defined once. The
-routes read and check a body with the engine's own validators (`serve.app`), so a refused
+routes read and check a body with the engine's own validators (`serve.parsing`), so a refused
 request names its problem in the engine's words, and 10,000 drawn points are checked by NumPy,
 not field by field; the models are the schema those checks enforce, and the shapes the routes
 answer with.
