@@ -45,7 +45,7 @@ class Request(BaseModel):
 
 
 class Mechanism(BaseModel):
-    """docs/CONTRACT.md, Mechanisms: joint 0 fixed, joint 1 the crank's tip."""
+    """docs/reference/contract.md, Mechanisms: joint 0 fixed, joint 1 the crank's tip."""
 
     adjacency: Annotated[list[list[Literal[0, 1]]], Joints] = Field(
         description="n x n, symmetric, zero diagonal: 1 where two joints are linked"
@@ -126,6 +126,8 @@ class LockingResponse(BaseModel):
 
 
 class ShardInfo(BaseModel):
+    """One part of a split index, and the curated paths it holds."""
+
     part: int
     paths: int
 
@@ -163,6 +165,8 @@ class LimitsResponse(BaseModel):
 
 
 class SimulateResponse(BaseModel):
+    """200 from /api/simulate: every joint's position at every crank step."""
+
     trajectories: list[list[Point]] = Field(description="[joint][step] = [x, y]")
 
 
@@ -180,6 +184,8 @@ class RetrieveResult(BaseModel):
 
 
 class RetrieveResponse(BaseModel):
+    """200 from /api/retrieve: the nearest curated paths, and the milliseconds it took."""
+
     results: list[RetrieveResult] = Field(description="best first")
     took_ms: float
 
@@ -207,12 +213,16 @@ class SynthesisResult(BaseModel):
 
 
 class SynthesizeResponse(BaseModel):
+    """200 from /api/synthesize: refined mechanisms, and the milliseconds it took and waited."""
+
     results: list[SynthesisResult] = Field(description="best first")
     took_ms: float
     queued_ms: float = Field(description="of took_ms, waited behind other work")
 
 
 class Lock(BaseModel):
+    """Where a mechanism locks: the crank step, the joint that cannot be placed, the angle."""
+
     step: int
     node: int
     angle: float = Field(description="the crank's turn at the lock, degrees")
