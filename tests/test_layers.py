@@ -43,6 +43,13 @@ FORBIDDEN = {
     "interop": ("ray", "pyarrow", "pandas"),
     "search": ("ray",),
 }
+#: Modules that must not import these, even lazily, though their layer may: the serve rooms
+#: that describe, read and answer requests need no Ray (only the deployments and the launch do).
+FORBIDDEN_IN = {
+    "links_ray.serve.models": ("ray",),
+    "links_ray.serve.parsing": ("ray",),
+    "links_ray.serve.api": ("ray",),
+}
 
 
 def module_names(package_dir: Path) -> dict[str, Path]:
@@ -123,7 +130,7 @@ def violations(package_dir: Path) -> list[str]:
             continue
         for line, name in imported(path, module, set(modules)):
             top = name.split(".")[0]
-            if top in FORBIDDEN.get(own, ()):
+            if top in FORBIDDEN.get(own, ()) + FORBIDDEN_IN.get(module, ()):
                 problems.append(f"{where}:{line}: {own} imports {name}")
             target = layer_of(name)
             if own == "root" and name in ROOT_LAZY:
@@ -134,6 +141,7 @@ def violations(package_dir: Path) -> list[str]:
 
 
 def test_every_import_goes_to_its_own_layer_or_lower() -> None:
+    assert set(FORBIDDEN_IN) <= set(module_names(REPO / PACKAGE))
     assert violations(REPO / PACKAGE) == []
 
 
@@ -167,6 +175,7 @@ def broken_package(tmp_path: Path) -> Path:
         "cluster/run.py": "from links_ray.search import index\nimport ray\n",
         "serve/__init__.py": "",
         "serve/app.py": "import links_ray\nfrom links_ray.cli import main\n",
+        "serve/parsing.py": "def f():\n    from ray import serve\n",
         "cli/__init__.py": "",
         "cli/main.py": "import links_ray\nfrom links_ray.serve import app\nfrom . import main\n",
         "stray.py": "import numpy\n",
@@ -188,6 +197,7 @@ def test_the_rule_catches_what_breaks_it(broken_package: Path) -> None:
         "links_ray/engine/solver.py:3: engine imports links_ray.data (data)",
         "links_ray/search/index.py:5: search imports links_ray.cluster.run (cluster)",
         "links_ray/serve/app.py:2: serve imports links_ray.cli.main (cli)",
+        "links_ray/serve/parsing.py:2: serve imports ray",
         "links_ray/stray.py: in no layer",
     ]
 

@@ -188,7 +188,7 @@ def test_a_replica_keeps_to_its_num_cpus(ray_cluster: str) -> None:
     under direct ingress a second app would find no port for its own)."""
     import ray
 
-    from links_ray.serve.app import use_replica_cpus
+    from links_ray.serve.deployments import use_replica_cpus
 
     @ray.remote
     class Replica:
@@ -724,7 +724,7 @@ def test_lying_content_length_is_refused(client: Client) -> None:
 def test_large_answers_render_in_pieces_as_one_call_would() -> None:
     """`render_json` gives the bytes one `json.dumps` call gives (JsonResponse's), for answers
     of every shape, in pieces of at most about JSON_PIECE_NUMBERS numbers."""
-    from links_ray.serve.app import JSON_PIECE_NUMBERS, _dumps, _json_pieces, render_json
+    from links_ray.serve.api import JSON_PIECE_NUMBERS, _dumps, _json_pieces, render_json
 
     rng = np.random.default_rng(3)
     trajectories = rng.uniform(-1, 1, (100, 1000, 2))
@@ -1220,7 +1220,7 @@ def test_links_serve_exits_soon_after_sigterm(dataset: str) -> None:
 def test_links_serve_finishes_a_request_under_way_at_sigterm(dataset: str) -> None:
     """A synthesis under way when SIGTERM comes is answered in full (200, its results), after
     the signal; then the server exits, within the drain bound and EXIT_S more."""
-    from links_ray.serve.app import SHUTDOWN_DRAIN_S
+    from links_ray.serve.deployments import SHUTDOWN_DRAIN_S
 
     seconds = 4.0
     with served_by_the_cli(dataset) as (server, served, lines):
@@ -1318,7 +1318,7 @@ def test_rayservice_manifest() -> None:
     assert given == {"replicas": 1, "shards": 32, "shard_cpus": 7.0, "shard_memory_gb": 8.0}
     cluster = spec["rayClusterConfig"]
     pods = [cluster["headGroupSpec"]] + cluster["workerGroupSpecs"]
-    from links_ray.serve.app import SHUTDOWN_DRAIN_S
+    from links_ray.serve.deployments import SHUTDOWN_DRAIN_S
 
     for pod in pods:
         # Kubernetes kills a pod this long after SIGTERM: the replicas' drain, and the 10 s

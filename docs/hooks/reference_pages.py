@@ -34,7 +34,7 @@ def cli_parser() -> argparse.ArgumentParser:
 
 def openapi_document() -> dict[str, Any]:
     """The HTTP app's OpenAPI document, as `GET /openapi.json` serves it."""
-    from links_ray.serve.app import api_openapi
+    from links_ray.serve.api import api_openapi
 
     return api_openapi()
 

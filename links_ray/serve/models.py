@@ -1,7 +1,7 @@
 """The HTTP API's request and response bodies as pydantic models: what `/openapi.json` shows.
 
 Every bound comes from `links_ray.engine.inputs`, where the limits are defined once. The
-routes read and check a body with the engine's own validators (`serve.app`), so a refused
+routes read and check a body with the engine's own validators (`serve.parsing`), so a refused
 request names its problem in the engine's words, and 10,000 drawn points are checked by NumPy,
 not field by field; the models are the schema those checks enforce, and the shapes the routes
 answer with.
@@ -45,7 +45,7 @@ class Request(BaseModel):
 
 
 class Mechanism(BaseModel):
-    """docs/CONTRACT.md, Mechanisms: joint 0 fixed, joint 1 the crank's tip."""
+    """docs/reference/contract.md, Mechanisms: joint 0 fixed, joint 1 the crank's tip."""
 
     adjacency: Annotated[list[list[Literal[0, 1]]], Joints] = Field(
         description="n x n, symmetric, zero diagonal: 1 where two joints are linked"
@@ -126,7 +126,7 @@ class LockingResponse(BaseModel):
 
 
 class ShardInfo(BaseModel):
-    """One part of a split index: its number and the curated paths it holds."""
+    """One part of a split index, and the curated paths it holds."""
 
     part: int
     paths: int
@@ -184,7 +184,7 @@ class RetrieveResult(BaseModel):
 
 
 class RetrieveResponse(BaseModel):
-    """200 from /api/retrieve: the nearest curated paths and how long the search took (ms)."""
+    """200 from /api/retrieve: the nearest curated paths, and the milliseconds it took."""
 
     results: list[RetrieveResult] = Field(description="best first")
     took_ms: float
@@ -213,7 +213,7 @@ class SynthesisResult(BaseModel):
 
 
 class SynthesizeResponse(BaseModel):
-    """200 from /api/synthesize: the refined mechanisms and the time taken (ms)."""
+    """200 from /api/synthesize: refined mechanisms, and the milliseconds it took and waited."""
 
     results: list[SynthesisResult] = Field(description="best first")
     took_ms: float
@@ -221,7 +221,7 @@ class SynthesizeResponse(BaseModel):
 
 
 class Lock(BaseModel):
-    """Where a mechanism locks: the first crank step it cannot be assembled at, and the joint."""
+    """Where a mechanism locks: the crank step, the joint that cannot be placed, the angle."""
 
     step: int
     node: int

@@ -1,0 +1,381 @@
+"""The routes of the HTTP API: what each one answers, and the work behind it.
+
+| route | answers |
+|---|---|
+| `GET /api/health` | `{"status": "ok", "paths": <indexed paths>}`; sharded also `"shards"` |
+| `POST /api/simulate` | 200 `{"trajectories"}`, 422 `{"error": "locking", "step", "node"}` |
+| `POST /api/retrieve` | 200 `{"results", "took_ms"}`, best first; 503 when busy |
+| `POST /api/synthesize` | 200 `{"results", "took_ms", "queued_ms"}`, refined; 503 when busy |
+| `POST /api/analyze` | 200 the studio's analysis: mobility, dyadic solvability, where it locks |
+| `POST /api/export` | 200 the mechanism as an SVG, DXF or table file in mm (an attachment) |
+| `GET /api/limits` | the limits a request meets (`engine.inputs.request_limits`) |
+| `GET /openapi.json` | the API described, bodies and bounds included (`serve.api`) |
+| `GET /` | the web studio (`links_ray/serve/studio/index.html`) |
+| `GET /studio/<file>` | the studio's scripts and style sheet, from the package |
+
+The routes are methods of `LinksApiRoutes`, which the front deployment `LinksApi`
+(`serve.deployments`) inherits: it holds the index or the shards' handles, and the limits on
+retrievals and syntheses under way that these routes claim and release. Bodies are read and
+checked by `serve.parsing`; simulations, analyses and exports run in the default thread pool.
+"""
+
+import asyncio
+import functools
+import importlib.resources
+import time
+from collections.abc import AsyncIterator
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from fastapi import Request
+from fastapi.responses import HTMLResponse, Response, StreamingResponse
+from starlette.concurrency import run_in_threadpool
+
+from links_ray.engine.fabrication import fabrication
+from links_ray.engine.inputs import DEFAULT_STEPS, MAX_SYNTHESIS_SECONDS, request_limits
+from links_ray.engine.mechanism import (
+    InvalidMechanismError,
+    LockingError,
+    analyze_topology,
+    dataset_rule_violations,
+    mobility,
+)
+from links_ray.engine.solver import simulate, simulate_until_lock
+from links_ray.engine.synthesis import CANDIDATES, refine_retrieved
+from links_ray.serve import models
+from links_ray.serve.api import (
+    ApiError,
+    JsonResponse,
+    _error,
+    _json_line,
+    api,
+    json_answer,
+    logger,
+    request_body,
+)
+from links_ray.serve.parsing import (
+    EXPORT_FORMATS,
+    export_args,
+    read_json_object,
+    retrieve_args,
+    simulate_args,
+    stream_arg,
+    synthesize_args,
+    topology_args,
+)
+
+if TYPE_CHECKING:
+    from links_ray.serve.deployments import _Retrieving, _Turn
+
+#: The studio's files (plain HTML, CSS and JavaScript modules; no build step) and their types.
+STUDIO_MEDIA_TYPES = {
+    ".html": "text/html; charset=utf-8",
+    ".css": "text/css; charset=utf-8",
+    ".js": "text/javascript; charset=utf-8",
+}
+#: Same-origin only: no inline scripts or styles, no third-party requests.
+STUDIO_CSP = (
+    "default-src 'self'; img-src 'self' data: blob:; object-src 'none'; base-uri 'none'; "
+    "form-action 'none'; frame-ancestors 'none'"
+)
+
+
+@functools.cache
+def studio_files() -> dict[str, tuple[bytes, str]]:
+    """The studio's files by name, as (content, media type), read once from the package."""
+    folder = importlib.resources.files("links_ray.serve") / "studio"
+    files = {}
+    for entry in folder.iterdir():
+        media_type = STUDIO_MEDIA_TYPES.get("." + entry.name.rpartition(".")[2])
+        if entry.is_file() and media_type is not None:
+            files[entry.name] = (entry.read_bytes(), media_type)
+    if "index.html" not in files:
+        raise FileNotFoundError(f"the studio's index.html is missing from {folder}")
+    return files
+
+
+def studio_response(name: str) -> Response:
+    """One studio file, or 404 `{"error"}` for a name the studio does not have."""
+    found = studio_files().get(name)
+    if found is None:
+        raise ApiError(404, f"the studio has no file {name[:80]!r}")
+    content, media_type = found
+    headers = {"Cache-Control": "no-cache", "X-Content-Type-Options": "nosniff"}
+    if name.endswith(".html"):
+        headers["Content-Security-Policy"] = STUDIO_CSP
+    return Response(content, media_type=media_type, headers=headers)
+
+
+def analyze_mechanism(
+    adjacency: list, node_types: list, positions: list | None, steps: int
+) -> dict[str, Any]:
+    """The studio's analysis of a mechanism, from the engine's own checks.
+
+    Always: `joints`, `moving`, `links`, `dof` (2 x moving - links), `solvable` (dyadic),
+    `problem` (the engine's message, or None), `order` (the solution path as [joint, a, b]
+    rows) and `dataset_rules` (the dataset rules it breaks: docs/reference/contract.md, Mechanisms).
+    With positions and a solvable topology also `lock` (None, or `step`, `node` and `angle`,
+    the crank's turn in degrees) and, when it locks, `trajectories` [n][step][2] of the steps
+    before the lock.
+    Raises InvalidMechanismError for degenerate positions, as /api/simulate does.
+    """
+    moving, links, dof = mobility(adjacency, node_types)
+    found: dict[str, Any] = {"joints": len(node_types), "moving": moving, "links": links}
+    found["dof"] = dof
+    try:
+        topology = analyze_topology(adjacency, node_types)
+    except InvalidMechanismError as exc:
+        return {**found, "solvable": False, "problem": str(exc), "order": [], "lock": None}
+    found.update(solvable=True, problem=None, order=topology.order.tolist(), lock=None)
+    pose = None if positions is None else np.asarray(positions, dtype=np.float64)
+    found["dataset_rules"] = dataset_rule_violations(topology, pose)
+    if positions is not None:
+        trajectories, step, node = simulate_until_lock(adjacency, node_types, positions, steps)
+        if step >= 0:
+            found["lock"] = {"step": step, "node": node, "angle": 360.0 * step / steps}
+            found["trajectories"] = trajectories  # rendered in pieces (`json_answer`)
+    return found
+
+
+def export_file(
+    adjacency: list,
+    node_types: list,
+    positions: list,
+    chosen: str,
+    crank_mm: float,
+    path_joint: Any,
+) -> Response:
+    """The mechanism as a file to download (engine.fabrication), or ValueError naming why not."""
+    drawing = fabrication(adjacency, node_types, positions, crank_mm, path_joint)
+    text = {"svg": drawing.svg, "dxf": drawing.dxf, "table": drawing.table_text}[chosen]()
+    media_type, suffix = EXPORT_FORMATS[chosen]
+    name = f"mechanism-{len(node_types)}-joints-{crank_mm:g}mm.{suffix}"
+    return Response(
+        text,
+        media_type=media_type,
+        headers={
+            "Content-Disposition": f'attachment; filename="{name}"',
+            "X-Content-Type-Options": "nosniff",
+        },
+    )
+
+
+def _synthesis_answer(results: list[dict], took_ms: float, queued_s: float) -> dict[str, Any]:
+    """A synthesis's answer: its results, and the milliseconds it took and waited in them."""
+    return {"results": results, "took_ms": round(took_ms, 3), "queued_ms": round(queued_s * 1e3, 3)}
+
+
+class LinksApiRoutes:
+    """The routes of the HTTP API, as methods of the front deployment `LinksApi`, which
+    inherits them and holds what they use: its index (`_retrieving`, None with shards) or its
+    shards (`_ask_shards`, `_shard_counts`), and the retrievals and syntheses under way
+    (`_claim_retrieval`, `_claim_synthesis`, `_wait_for_refiner` and the refinement thread)."""
+
+    _retrieving: "_Retrieving | None"
+    _retrievals: int
+    _syntheses: int
+
+    @api.get("/", response_class=HTMLResponse)
+    async def api_studio(self) -> Response:
+        """The web studio's page."""
+        return studio_response("index.html")
+
+    @api.get("/studio/{name}")
+    async def api_studio_file(self, name: str) -> Response:
+        """One of the studio's scripts or its style sheet; 404 for any other name."""
+        return studio_response(name)
+
+    @api.get("/api/health", response_model=models.HealthResponse)
+    async def api_health(self) -> JsonResponse:
+        """`{"status": "ok", "paths": <indexed paths>}`, and with shards their parts' paths."""
+        if self._retrieving is not None:
+            return JsonResponse({"status": "ok", "paths": len(self._retrieving.index)})
+        counts = await self._shard_counts()
+        shards = [{"part": part, "paths": paths} for part, paths in enumerate(counts)]
+        return JsonResponse({"status": "ok", "paths": sum(counts), "shards": shards})
+
+    @api.get("/api/limits", response_model=models.LimitsResponse)
+    async def api_limits(self) -> JsonResponse:
+        """The limits every request meets (the studio reads its own from here)."""
+        return JsonResponse(request_limits())
+
+    @api.post(
+        "/api/simulate",
+        response_model=models.SimulateResponse,
+        responses={
+            422: {"model": models.LockingResponse, "description": "it locks"},
+            **models.error_responses(400, 413, 415),
+        },
+        openapi_extra=request_body("/api/simulate"),
+    )
+    async def api_simulate(self, request: Request) -> Response:
+        """Trajectories [n][steps][2] of a mechanism, 422 if it locks, 4xx if malformed."""
+        args = simulate_args(await read_json_object(request))
+        try:
+            trajectories = await run_in_threadpool(simulate, *args)
+        except LockingError as exc:
+            return _error(422, "locking", step=exc.step, node=exc.node)
+        except ValueError as exc:  # InvalidMechanismError names the problem
+            raise ApiError(400, str(exc)) from None
+        return await json_answer({"trajectories": trajectories})
+
+    @api.post(
+        "/api/analyze",
+        response_model=models.AnalyzeResponse,
+        responses=models.error_responses(400, 413, 415),
+        openapi_extra=request_body("/api/analyze"),
+    )
+    async def api_analyze(self, request: Request) -> Response:
+        """Degree of freedom, dyadic solvability and, given positions, where it locks."""
+        body = await read_json_object(request)
+        if body.get("positions") is None:
+            adjacency, node_types = topology_args(body)
+            args = (adjacency, node_types, None, DEFAULT_STEPS)
+        else:
+            args = simulate_args(body)
+        try:
+            found = await run_in_threadpool(analyze_mechanism, *args)
+        except ValueError as exc:  # degenerate positions: named as /api/simulate names them
+            raise ApiError(400, str(exc)) from None
+        return await json_answer(found)
+
+    @api.post(
+        "/api/export",
+        response_class=Response,
+        responses={
+            200: {
+                "description": "the file, as an attachment",
+                "content": {media: {} for media, _ in EXPORT_FORMATS.values()},
+            },
+            **models.error_responses(400, 413, 415),
+            422: {"model": models.LockingResponse},
+        },
+        openapi_extra=request_body("/api/export"),
+    )
+    async def api_export(self, request: Request) -> Response:
+        """The mechanism as an SVG, DXF or table file in millimetres, its crank `crank_mm`
+        long (default 20), with the path of `path_joint` if given; 422 if that path locks,
+        other 4xx JSON if it cannot."""
+        args = export_args(await read_json_object(request))
+        try:
+            return await run_in_threadpool(export_file, *args)
+        except LockingError as exc:  # only with a path: a locking mechanism has none
+            return _error(422, f"{exc}: it has no full path to draw", step=exc.step, node=exc.node)
+        except ValueError as exc:  # the engine's message: the mechanism, the scale, path_joint
+            raise ApiError(400, str(exc)) from None
+
+    @api.post(
+        "/api/retrieve",
+        response_model=models.RetrieveResponse,
+        responses=models.error_responses(400, 413, 415, 503),
+        openapi_extra=request_body("/api/retrieve"),
+    )
+    async def api_retrieve(self, request: Request) -> Response:
+        """The k curated paths nearest to a drawn curve, best first, with their mechanisms;
+        503 with `Retry-After` when MAX_RETRIEVALS are already under way here."""
+        self._claim_retrieval()  # refused before reading the body
+        try:
+            points, k, floor = retrieve_args(await read_json_object(request))
+            start = time.perf_counter()
+            results = await self._retrieve(points, k, floor)
+            took_ms = (time.perf_counter() - start) * 1e3
+        finally:
+            self._retrievals -= 1
+        return await json_answer({"results": results, "took_ms": round(took_ms, 3)})
+
+    @api.post(
+        "/api/synthesize",
+        response_model=models.SynthesizeResponse,
+        responses=models.error_responses(400, 413, 415, 503),
+        openapi_extra=request_body("/api/synthesize"),
+    )
+    async def api_synthesize(self, request: Request) -> Response:
+        """Mechanisms retrieved for a drawn curve and refined onto it, best first, within the
+        request's `seconds` (or for its fixed `iterations`); 503 with `Retry-After` when
+        MAX_SYNTHESES are under way here, when its retrieval would pass the retrieval limit,
+        or when it would wait longer than its own budget. The budget starts when its
+        refinement does (its retrieval counted), and `queued_ms` says how long it waited.
+        With `"stream": true` the answer is NDJSON: a `{"progress": ...}` line each time the
+        best so far improves, then the answer's own line (`_synthesis_lines`)."""
+        self._claim_synthesis()  # refused before reading the body
+        turn: _Turn | None = None
+        released = True  # until the refinement, once submitted, releases its place itself
+        try:
+            body = await read_json_object(request)
+            points, k, seconds, partial, floor, seed, iterations = synthesize_args(body)
+            stream = stream_arg(body)
+            start = time.perf_counter()
+            retrieved, waited = await self._synthesis_candidates(points, max(CANDIDATES, k), floor)
+            retrieved_at = time.perf_counter()
+            retrieval_s = retrieved_at - start - waited
+            budget = None if seconds is None else max(0.0, seconds - retrieval_s)
+            # Fixed work is not weakened by waiting; it waits as long as a request may take.
+            patience = (MAX_SYNTHESIS_SECONDS if seconds is None else seconds) - waited
+            turn = await self._wait_for_refiner(budget, patience)
+            loop = asyncio.get_running_loop()
+            reports: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+
+            def refine() -> tuple[list[dict], float]:
+                began = time.perf_counter()
+                results = refine_retrieved(
+                    points,
+                    retrieved,
+                    k,
+                    seconds,
+                    partial,
+                    started=began - retrieval_s,  # waiting spent none of the budget
+                    seed=seed,
+                    margin_deg=floor,
+                    progress=(
+                        (lambda best: loop.call_soon_threadsafe(reports.put_nowait, best))
+                        if stream
+                        else None
+                    ),
+                    iterations=iterations,
+                )
+                return results, waited + began - retrieved_at
+
+            turn.began = time.perf_counter()
+            refining = loop.run_in_executor(self._refining, refine)
+            # The place is freed when the refinement ends, whether or not anyone still
+            # reads its stream (a client gone mid-stream must not hold it for good).
+            refining.add_done_callback(functools.partial(self._synthesis_done, turn))
+            released = False
+            if stream:
+                return StreamingResponse(
+                    self._synthesis_lines(reports, refining, start),
+                    media_type="application/x-ndjson",
+                )
+            results, queued_s = await refining
+            took_ms = (time.perf_counter() - start) * 1e3
+        finally:
+            if released:
+                self._syntheses -= 1
+                if turn is not None:
+                    self._next_turn(turn)
+        return await json_answer(_synthesis_answer(results, took_ms, queued_s))
+
+    async def _synthesis_lines(
+        self,
+        reports: asyncio.Queue[dict[str, Any]],
+        refining: asyncio.Future[tuple[list[dict], float]],
+        start: float,
+    ) -> AsyncIterator[bytes]:
+        """A streamed synthesis: `{"progress": best so far}` lines while it refines, then
+        `{"results", "took_ms", "queued_ms"}` (or `{"error"}` if it failed after the stream
+        began)."""
+        while not refining.done() or not reports.empty():
+            waiting = asyncio.ensure_future(reports.get())
+            await asyncio.wait({waiting, refining}, return_when=asyncio.FIRST_COMPLETED)
+            if waiting.done():
+                yield await _json_line({"progress": waiting.result()})
+            else:
+                waiting.cancel()
+        try:
+            results, queued_s = refining.result()
+        except Exception as exc:  # the status is sent: the failure can only be a line
+            logger.warning("links-ray API: a streamed synthesis failed (%s)", type(exc).__name__)
+            yield await _json_line({"error": "synthesis failed"})
+            return
+        took_ms = (time.perf_counter() - start) * 1e3
+        yield await _json_line(_synthesis_answer(results, took_ms, queued_s))

@@ -1,0 +1,327 @@
+"""Request bodies read and checked: what each route takes from its JSON body.
+
+A body is read within the engine's limits (`links_ray.engine.inputs`): 408 for a body that
+pauses `BODY_TIMEOUT_S` or falls behind `MIN_BODY_BYTES_PER_S` (`read_body`), 413 for a body
+over `MAX_BODY_BYTES`, a mechanism over `MAX_REQUEST_JOINTS` or a simulation over
+`MAX_REQUEST_JOINT_STEPS`, 415 for a body declared as something other than JSON. This module
+checks only what JSON alone can get wrong (types, booleans for numbers, array lengths) first;
+the values are checked by the engine's own validators, whose ValueErrors become 400s. Each
+refusal is an `ApiError` naming the problem. `serve.models` describes the same bodies for
+`/openapi.json`.
+"""
+
+import asyncio
+import json
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import orjson
+from fastapi import Request
+from starlette.requests import ClientDisconnect
+
+from links_ray.engine.inputs import (
+    BODY_TIMEOUT_S,
+    DEFAULT_CRANK_MM,
+    DEFAULT_K,
+    DEFAULT_STEPS,
+    MAX_BODY_BYTES,
+    MAX_REQUEST_JOINT_STEPS,
+    MAX_REQUEST_JOINTS,
+    MIN_BODY_BYTES_PER_S,
+    as_crank_mm,
+    as_flag,
+    as_steps,
+    as_transmission_deg,
+    validate_query,
+    validate_synthesis,
+    validate_synthesis_work,
+)
+from links_ray.serve.api import INLINE_JSON_BYTES, JSON_POOL, ApiError
+
+
+def _kind(value: object) -> str:
+    """The JSON type of `value` for messages (never the value: it may be huge)."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "a boolean"
+    if isinstance(value, int | float):
+        return "a number"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, list):
+        return "an array"
+    if isinstance(value, dict):
+        return "an object"
+    return type(value).__name__
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _is_finite(value: int | float) -> bool:
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:  # an integer beyond float64
+        return False
+
+
+def _refuse_constant(name: str) -> float:
+    raise ValueError(f"{name} is not a JSON number (numbers must be finite)")
+
+
+async def read_json_object(request: Request) -> dict[str, Any]:
+    """The request body as a JSON object, or ApiError (400, 408, 413 or 415) naming the
+    problem. A large body is parsed in JSON_POOL, off the event loop."""
+    content_type = request.headers.get("content-type")
+    if content_type is not None:
+        media = content_type.split(";", 1)[0].strip().lower()
+        if media and media != "application/json" and not media.endswith("+json"):
+            raise ApiError(
+                415, f"the body must be JSON (Content-Type application/json), got {media[:80]!r}"
+            )
+    declared = request.headers.get("content-length")
+    if declared is not None:
+        if not declared.strip().isdigit():
+            raise ApiError(400, "Content-Length is not a byte count")
+        if int(declared) > MAX_BODY_BYTES:
+            raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
+    body = await read_body(request)
+    if len(body) <= INLINE_JSON_BYTES:
+        return parse_json_object(body)
+    return await asyncio.get_running_loop().run_in_executor(JSON_POOL, parse_json_object, body)
+
+
+async def read_body(request: Request) -> bytes:
+    """The request body, at most MAX_BODY_BYTES (else ApiError 413), cut off with 408 when it
+    pauses for BODY_TIMEOUT_S or falls behind MIN_BODY_BYTES_PER_S (engine.inputs)."""
+    loop = asyncio.get_running_loop()
+    start = loop.time()
+    chunks: list[bytes] = []
+    size = 0
+    try:
+        async with asyncio.timeout(start + BODY_TIMEOUT_S) as deadline:
+            async for chunk in request.stream():
+                size += len(chunk)
+                if size > MAX_BODY_BYTES:
+                    raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
+                chunks.append(chunk)
+                behind = start + BODY_TIMEOUT_S + size / MIN_BODY_BYTES_PER_S
+                deadline.reschedule(min(loop.time() + BODY_TIMEOUT_S, behind))
+    except ClientDisconnect:  # nobody is left to answer; not a server error
+        raise ApiError(400, "the client disconnected before sending the whole body") from None
+    except TimeoutError:
+        # The rest of the body is never read: the connection is closed after the answer.
+        raise ApiError(
+            408,
+            f"the body came too slowly ({size} bytes in {loop.time() - start:.1f} s): it may "
+            f"pause at most {BODY_TIMEOUT_S:g} s and must keep up {MIN_BODY_BYTES_PER_S} "
+            "bytes a second",
+            headers={"Connection": "close"},
+        ) from None
+    return b"".join(chunks)
+
+
+def parse_json_object(body: bytes) -> dict[str, Any]:
+    """`body` parsed as a JSON object, or ApiError 400 naming the problem."""
+    if not body.strip():
+        raise ApiError(400, "the body is empty: expected a JSON object")
+    try:
+        # orjson holds the GIL for its whole call too, but for several times less than json
+        # on a large body of numbers: so much shorter is the stall it can cause the event
+        # loop. It refuses what json's messages name (NaN, integers past 64 bits, encodings
+        # other than UTF-8), so a body it refuses is parsed again by json, for the message.
+        data = orjson.loads(body)
+    except orjson.JSONDecodeError:
+        data = _parse_json_slowly(body)
+    if not isinstance(data, dict):
+        raise ApiError(400, f"the body must be a JSON object, got {_kind(data)}")
+    return data
+
+
+def _parse_json_slowly(body: bytes) -> Any:
+    """`body` parsed by json, for its messages: ApiError 400 naming the problem."""
+    try:
+        return json.loads(body, parse_constant=_refuse_constant)
+    except UnicodeDecodeError:
+        raise ApiError(400, "the body is not UTF-8 text") from None
+    except json.JSONDecodeError as exc:
+        raise ApiError(
+            400, f"the body is not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})"
+        ) from None
+    except ValueError as exc:  # NaN / Infinity, or an integer with too many digits
+        raise ApiError(400, f"the body is not valid JSON: {exc}") from None
+    except RecursionError:
+        raise ApiError(400, "the body is not valid JSON: nested too deeply") from None
+
+
+def _required(body: dict[str, Any], name: str) -> Any:
+    if name not in body:
+        raise ApiError(400, f"missing field {name!r}")
+    return body[name]
+
+
+def _checked(check: Callable[..., Any], *args: Any) -> Any:
+    """`check(*args)`, an engine validator, with its ValueError answered 400."""
+    try:
+        return check(*args)
+    except ValueError as exc:
+        raise ApiError(400, str(exc)) from None
+
+
+def _numbers(name: str, value: object, count: int, entries: str) -> list:
+    """`value` as an array of `count` JSON numbers (not booleans); `entries` says which."""
+    if not isinstance(value, list):
+        raise ApiError(400, f"{name} must be an array of {count} numbers, got {_kind(value)}")
+    if len(value) != count:
+        raise ApiError(400, f"{name} must hold {count} entries (one per joint), got {len(value)}")
+    for i, entry in enumerate(value):
+        if not _is_number(entry):
+            raise ApiError(400, f"{name}[{i}] must be {entries}, got {_kind(entry)}")
+    return value
+
+
+#: Coordinates `_plain_pairs` passes: finite, and integers that NumPy reads as int64.
+PLAIN_COORDINATE = float(2**62)
+
+
+def _plain_pairs(pairs: list) -> bool:
+    """Whether `pairs` holds only [x, y] lists of JSON numbers within +-PLAIN_COORDINATE: one
+    pass over a drawn curve's points, much quicker than `_pairs`' loop that names the first
+    bad entry, which only a refused curve needs."""
+    return all(
+        type(pair) is list
+        and len(pair) == 2
+        and type(pair[0]) in (float, int)
+        and type(pair[1]) in (float, int)
+        and -PLAIN_COORDINATE < pair[0] < PLAIN_COORDINATE
+        and -PLAIN_COORDINATE < pair[1] < PLAIN_COORDINATE
+        for pair in pairs
+    )
+
+
+def _pairs(name: str, value: object, count: int | None = None) -> list[list[float]]:
+    """`value` as a list of finite [x, y] number pairs (`count` of them if given)."""
+    if not isinstance(value, list):
+        raise ApiError(400, f"{name} must be an array of [x, y] pairs, got {_kind(value)}")
+    if count is not None and len(value) != count:
+        raise ApiError(
+            400, f"{name} must hold {count} [x, y] pairs (one per joint), got {len(value)}"
+        )
+    if _plain_pairs(value):
+        return value
+    for i, pair in enumerate(value):
+        if not isinstance(pair, list) or len(pair) != 2:
+            what = f"{len(pair)} entries" if isinstance(pair, list) else _kind(pair)
+            raise ApiError(400, f"{name}[{i}] must be an [x, y] pair, got {what}")
+        for coordinate in pair:
+            if not _is_number(coordinate):
+                raise ApiError(400, f"{name}[{i}] must hold two numbers, got {_kind(coordinate)}")
+            if not _is_finite(coordinate):
+                raise ApiError(400, f"{name}[{i}] must hold finite numbers")
+    return value
+
+
+def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float]:
+    """The query points (T, 2), k and min_transmission of a /api/retrieve body, or ApiError
+    naming the problem."""
+    points = _pairs("points", _required(body, "points"))
+    k = body.get("k")
+    points, k = _checked(validate_query, points, DEFAULT_K if k is None else k)
+    return points, k, _min_transmission(body)
+
+
+def synthesize_args(
+    body: dict[str, Any],
+) -> tuple[np.ndarray, int, float | None, bool, float, int, int | None]:
+    """(points (T, 2), k, seconds, partial, min_transmission, seed, iterations) of a
+    /api/synthesize body, or ApiError naming the problem: the points, k and min_transmission
+    as /api/retrieve takes them; seconds None when the work is fixed (iterations)."""
+    points = _pairs("points", _required(body, "points"))
+    k = body.get("k")
+    seconds, seed, iterations = _checked(
+        validate_synthesis_work, body.get("seconds"), body.get("seed"), body.get("iterations")
+    )
+    points, k, budget, partial = _checked(
+        validate_synthesis,
+        points,
+        DEFAULT_K if k is None else k,
+        seconds,
+        body.get("partial", False),
+    )
+    budget = None if iterations is not None else budget
+    return points, k, budget, partial, _min_transmission(body), seed, iterations
+
+
+def stream_arg(body: dict[str, Any]) -> bool:
+    """A body's `stream` flag (false when absent), or ApiError naming it."""
+    return _checked(as_flag, body.get("stream", False), "stream")
+
+
+def _min_transmission(body: dict[str, Any]) -> float:
+    """A body's `min_transmission` in degrees (0 when absent), or ApiError naming it."""
+    value = body.get("min_transmission")
+    return 0.0 if value is None else _checked(as_transmission_deg, value, "min_transmission")
+
+
+def topology_args(body: dict[str, Any]) -> tuple[list, list]:
+    """(adjacency, node_types) of a /api/simulate or /api/analyze body, shapes checked."""
+    adjacency = _required(body, "adjacency")
+    node_types = _required(body, "node_types")
+    if not isinstance(adjacency, list) or not adjacency:
+        got = "an empty array" if adjacency == [] else _kind(adjacency)
+        raise ApiError(400, f"adjacency must be an n x n array of 0/1, got {got}")
+    n = len(adjacency)
+    if n > MAX_REQUEST_JOINTS:
+        raise ApiError(413, f"at most {MAX_REQUEST_JOINTS} joints per request, got {n}")
+    for i, row in enumerate(adjacency):
+        _numbers(f"adjacency[{i}]", row, n, "0 or 1")
+    _numbers("node_types", node_types, n, "0, 1 or 2")
+    return adjacency, node_types
+
+
+def simulate_args(body: dict[str, Any]) -> tuple[list, list, list, int]:
+    """(adjacency, node_types, positions, steps) of a /api/simulate body, shapes checked.
+
+    The engine checks the rest (0/1 links, symmetry, joint types, solvability) and names
+    what is wrong.
+    """
+    adjacency, node_types = topology_args(body)
+    n = len(adjacency)
+    positions = _pairs("positions", _required(body, "positions"), count=n)
+    steps = body.get("steps")
+    steps = DEFAULT_STEPS if steps is None else _checked(as_steps, steps)
+    if n * steps > MAX_REQUEST_JOINT_STEPS:
+        raise ApiError(
+            413,
+            f"simulation too large: {n} joints x {steps} steps = {n * steps}, "
+            f"the limit is {MAX_REQUEST_JOINT_STEPS} joint-steps",
+        )
+    return adjacency, node_types, positions, steps
+
+
+#: /api/export's formats: (media type, file suffix) of each.
+EXPORT_FORMATS = {
+    "svg": ("image/svg+xml", "svg"),
+    "dxf": ("image/vnd.dxf", "dxf"),
+    "table": ("text/plain; charset=utf-8", "txt"),
+}
+
+
+def export_args(body: dict[str, Any]) -> tuple[list, list, list, str, float, Any]:
+    """(adjacency, node_types, positions, format, crank_mm, path_joint) of a /api/export body,
+    or ApiError naming the problem; the engine checks the mechanism itself."""
+    adjacency, node_types = topology_args(body)
+    positions = _pairs("positions", _required(body, "positions"), count=len(adjacency))
+    chosen = body.get("format", "svg")
+    if not isinstance(chosen, str) or chosen not in EXPORT_FORMATS:
+        raise ApiError(
+            400, f"format must be one of {', '.join(EXPORT_FORMATS)}, got {_kind(chosen)}"
+        )
+    crank = body.get("crank_mm")
+    crank_mm = DEFAULT_CRANK_MM if crank is None else _checked(as_crank_mm, crank)
+    # The engine checks path_joint: an integer naming a moving joint.
+    return adjacency, node_types, positions, chosen, crank_mm, body.get("path_joint")
