@@ -184,13 +184,6 @@ def test_a_command_prints_no_line_of_rays(ran: dict[str, str], command: str, say
     assert unexpected_ray_lines(ran[command]) == []
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="Serve's controller, proxy and replicas log at INFO: `run_server` (serve/app.py) "
-    "gives serve.start and serve.run a logging_config without log_level; with "
-    '"log_level": "WARNING" there (and the driver\'s "ray.serve" logger at WARNING) they say '
-    "only what needs saying",
-)
 def test_serve_starts_up_printing_no_line_of_rays(ran: dict[str, str]) -> None:
     """`links serve` until its replica answers health, then SIGTERM: it stops cleanly."""
     port = bindable_port("127.0.0.1", 0)

@@ -17,6 +17,7 @@ then Serve and the Ray it started stop.
 """
 
 import gc
+import logging
 import math
 import os
 import signal
@@ -293,9 +294,12 @@ def run_server(
                     )
                     app = build_app(root, replicas, shards, cpus, shard_memory_gb)
             check_fits(replicas, shards, cpus, shard_memory_gb, resources)
-        no_access_log = {"enable_access_log": False}
-        serve.start(http_options={"host": host, "port": proxy_port}, logging_config=no_access_log)
-        serve.run(app, name="links", route_prefix="/", logging_config=no_access_log)
+        # Serve's controller, proxy and replicas report each step of a start-up at INFO; the
+        # command prints its own line when it serves, and Serve's warnings still show.
+        quiet = {"enable_access_log": False, "log_level": "WARNING"}
+        logging.getLogger("ray.serve").setLevel(logging.WARNING)
+        serve.start(http_options={"host": host, "port": proxy_port}, logging_config=quiet)
+        serve.run(app, name="links", route_prefix="/", logging_config=quiet)
         shown = f"[{host}]" if ":" in host else host
         print(f"links-ray: serving {root} at http://{shown}:{port}/ (API under /api)", flush=True)
         if not blocking:
