@@ -1,4 +1,4 @@
-"""The Ray Serve app (docs/CONTRACT.md, HTTP API) on real Ray, over real HTTP on loopback.
+"""The Ray Serve app (docs/reference/contract.md, HTTP API) on real Ray, over real HTTP on loopback.
 
 One small dataset (300 mechanisms, generated and curated; `dataset` in conftest.py) and one
 Serve application (`client`) serve the whole module; every request goes, with `http.client`,

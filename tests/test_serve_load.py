@@ -1,19 +1,18 @@
-"""The Serve app under load and when a shard fails (docs/CONTRACT.md, HTTP API: 503 and
+"""The Serve app under load and when a shard fails (docs/reference/contract.md, HTTP API: 503 and
 `Retry-After`), on real Ray (2 CPUs) over real HTTP on loopback.
 
 `LOAD_CLIENTS` clients retrieve for `LOAD_SECONDS` (in a process of their own, each waiting
 the `Retry-After` it is given) while another checks health and simulates: retrievals beyond
 the front's bound are refused at once with 503, `Retry-After` and a JSON error, nothing else
-fails, health checks and simulations stay fast, and afterwards the server answers as before;
-with one index in the front and with two shards. A shard whose replica dies makes retrievals
-503 until Serve has replaced it. Clients posting bodies and asking for simulations as large as
-the limits allow do not hold up the event loop, which answers health checks.
+fails, health checks and simulations are answered ahead of the queued retrievals, and
+afterwards the server answers as before; with one index in the front and with two shards. A
+shard whose replica dies makes retrievals 503 until Serve has replaced it. Clients posting
+bodies and asking for simulations as large as the limits allow do not hold up the event loop,
+which answers health checks.
 """
 
 from __future__ import annotations
 
-import http.client
-import json
 import os
 import time
 
@@ -22,11 +21,13 @@ import pytest
 from serving import FOUR_BAR, as_served, retrieved, serving
 
 import links_ray
-from links_ray.engine.inputs import MAX_BODY_BYTES, MAX_REQUEST_JOINT_STEPS, MAX_REQUEST_JOINTS
+from links_ray.engine.inputs import MAX_REQUEST_JOINT_STEPS
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.app import build_app
 from links_ray.serve.load_clients import (
     finish_load,
+    health_probes,
+    largest_simulation,
     post_load,
     probe_loop,
     retrieval_load,
@@ -37,10 +38,6 @@ K = 5
 #: The load: clients retrieving at once, and for how long (seconds) in each setting.
 LOAD_CLIENTS = 32
 LOAD_SECONDS = 20.0
-#: What health checks and simulations must stay under meanwhile: the median, which a queue
-#: behind retrievals would raise for every probe (the load keeps 32 retrievals waiting), and
-#: the 99th percentile, loose enough for a CI machine whose two cores other work shares.
-PROBE_P50_S, PROBE_P99_S = 0.050, 0.300
 #: Shard replicas' CPUs, so that the shards and the front (one CPU) fit the 2-CPU cluster.
 SHARD_CPUS = 0.25
 
@@ -100,9 +97,11 @@ def test_under_load(
     queries: list[np.ndarray],
 ) -> None:
     """LOAD_CLIENTS clients retrieve for LOAD_SECONDS while another checks health and
-    simulates: only 200s and 503s (with Retry-After and a JSON error), health and simulate
-    p50 and p99 under PROBE_P50_S and PROBE_P99_S, and afterwards the server answers as
-    before."""
+    simulates: only 200s and 503s (with Retry-After and a JSON error); health and simulate
+    faster than the retrievals at the median and the 99th percentile (a probe queued behind
+    retrievals would wait as long as they do; the load keeps more waiting than the server
+    holds), and afterwards the server answers as before. Their speed in milliseconds is
+    `links bench serve`'s to measure: here it would measure how busy the machine is."""
     app = build_app(dataset, shards=shards, shard_cpus=SHARD_CPUS)
     with serving(app, serve_port) as client:
         load = retrieval_load(client.port, queries, LOAD_SECONDS, LOAD_CLIENTS)
@@ -112,6 +111,7 @@ def test_under_load(
             record = finish_load(load)
         statuses = record["statuses"]
         answered = statuses.get("200", 0)
+        latencies = record["latencies"]
 
         def ms(values: list[float], q: float) -> str:
             return f"{np.percentile(values, q) * 1e3:.1f}" if values else "-"
@@ -129,8 +129,11 @@ def test_under_load(
         assert set(probes["statuses"]) == {"health 200", "simulate 200"}, probes["statuses"]
         assert len(probes["health"]) > 20 and len(probes["simulate"]) > 20
         for probe in ("health", "simulate"):
-            assert np.percentile(probes[probe], 50) < PROBE_P50_S, probe
-            assert np.percentile(probes[probe], 99) < PROBE_P99_S, probe
+            for q in (50, 99):
+                took, retrieving = np.percentile(probes[probe], q), np.percentile(latencies, q)
+                assert took < retrieving, (
+                    f"{probe} p{q} {took * 1e3:.1f} ms, retrieve {retrieving * 1e3:.1f} ms"
+                )
         # Afterwards: answers as before.
         status, data = client.get("/api/health")
         assert status == 200 and data["paths"] == len(reference)
@@ -141,57 +144,6 @@ def test_under_load(
 
 #: Clients posting the largest bodies and simulations at once, and for how long (seconds).
 BIG_CLIENTS, BIG_SECONDS = 8, 20.0
-
-
-def largest_simulation() -> dict:
-    """A /api/simulate body at the request limits: MAX_REQUEST_JOINTS joints (a crank and
-    rigid triangles on it, so it never locks) and the most steps they may take, padded with
-    numbers (costly to parse, unlike spaces) to exactly MAX_BODY_BYTES."""
-    n = MAX_REQUEST_JOINTS
-    steps = MAX_REQUEST_JOINT_STEPS // n
-    adjacency = np.zeros((n, n), dtype=int)
-    adjacency[0, 1:] = adjacency[1:, 0] = 1
-    adjacency[1, 2:] = adjacency[2:, 1] = 1
-    rng = np.random.default_rng(11)
-    positions = [[0.0, 0.0], [0.1, 0.0], *rng.uniform(-1, 1, (n - 2, 2)).tolist()]
-    body = {
-        "adjacency": adjacency.tolist(),
-        "node_types": [0, 2] + [1] * (n - 2),
-        "positions": positions,
-        "steps": steps,
-    }
-    opening = json.dumps({**body, "pad": []})[:-2]  # up to the pad's "["
-    size, pad = len(opening) + len("]}"), []
-    for number in map(json.dumps, rng.uniform(-1, 1, MAX_BODY_BYTES // 20).tolist()):
-        more = len(number) + (len(", ") if pad else 0)
-        if size + more > MAX_BODY_BYTES:
-            break
-        pad.append(number)
-        size += more
-    text = opening + ", ".join(pad) + "]}"
-    text += " " * (MAX_BODY_BYTES - len(text))
-    assert len(text.encode()) == MAX_BODY_BYTES
-    return {"body": body, "text": text}
-
-
-def health_probes(port: int, seconds: float) -> dict:
-    """Health checks one after another (20 ms apart) on one kept-alive connection for
-    `seconds`: their latencies (seconds) and statuses."""
-    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
-    found: dict = {"latencies": [], "statuses": {}}
-    stop = time.monotonic() + seconds
-    try:
-        while time.monotonic() < stop:
-            start = time.perf_counter()
-            conn.request("GET", "/api/health")
-            response = conn.getresponse()
-            response.read()
-            found["latencies"].append(time.perf_counter() - start)
-            found["statuses"][response.status] = found["statuses"].get(response.status, 0) + 1
-            time.sleep(0.02)
-    finally:
-        conn.close()
-    return found
 
 
 def test_health_is_answered_while_the_largest_bodies_and_answers_are_handled(

@@ -1,5 +1,5 @@
-"""Sharded serving (`links serve --shards N`; docs/CONTRACT.md, HTTP API) on real Ray (2 CPUs),
-real Parquet and real HTTP on loopback.
+"""Sharded serving (`links serve --shards N`; docs/reference/contract.md, HTTP API) on real Ray
+(2 CPUs), real Parquet and real HTTP on loopback.
 
 The index is split into N parts, each served by its own deployment, and the front merges their
 answers. The dataset is small enough that every part's search, and one index's, estimates

@@ -1,5 +1,6 @@
 """`links bench serve`: the app under load. Clients retrieve while another checks health and
-simulates, with one index in the front and with the index split into shards."""
+simulates, with one index in the front and with the index split into shards; then clients post
+the largest bodies the limits allow while another checks health."""
 
 from __future__ import annotations
 
@@ -13,7 +14,21 @@ from links_ray.cli import report
 from links_ray.cli.bench import machine_info
 from links_ray.cli.bench_data import retrieval_dataset
 from links_ray.search.held_out import held_out_queries
-from links_ray.serve.load_clients import finish_load, probe_loop, retrieval_load, wait_for_port
+from links_ray.serve.load_clients import (
+    finish_load,
+    health_probes,
+    largest_simulation,
+    post_load,
+    probe_loop,
+    retrieval_load,
+    wait_for_port,
+)
+
+#: Clients posting the largest bodies at once, in the last run.
+LARGEST_BODY_CLIENTS = 8
+#: What health checks should stay under while they do (99th percentile, milliseconds): the
+#: event loop that answers health parses no body and renders no answer of theirs.
+LARGEST_BODY_HEALTH_P99_TARGET_MS = 100.0
 
 
 def _ms(values: list[float], q: float) -> float | None:
@@ -26,6 +41,7 @@ def bench_serve(
     clients: int = 32,
     paths: int = 60_000,
     root: str | None = None,
+    largest_bodies: bool = True,
 ) -> dict:
     """Serving under load: `clients` clients retrieving for `seconds` while another checks
     health and simulates, for each count in `shards` (0: one index in the front). The app is
@@ -35,7 +51,8 @@ def bench_serve(
     Reports retrievals answered per second, p50/p99 of the answered retrievals and of the
     health checks and simulations, and the 503s. Shard replicas get an equal share of the
     CPUs the front leaves (at most one each). The clients run on the same machine as the
-    server.
+    server. With `largest_bodies`, a last run posts the largest simulations the limits allow
+    and reports health meanwhile against LARGEST_BODY_HEALTH_P99_TARGET_MS.
     """
     import ray
     from ray import serve
@@ -103,6 +120,7 @@ def bench_serve(
                     "load_average_1min": os.getloadavg()[0],
                 }
             )
+        largest = _largest_bodies(root, port, seconds, no_access_log) if largest_bodies else None
     finally:
         ray.shutdown()
     return {
@@ -111,6 +129,45 @@ def bench_serve(
         "root": root,
         "clients": clients,
         "runs": runs,
+        "largest_bodies": largest,
+    }
+
+
+def _largest_bodies(root: str, port: int, seconds: float, logging_config: dict) -> dict:
+    """LARGEST_BODY_CLIENTS clients post simulations at the request limits (bodies of
+    MAX_BODY_BYTES; one in sixteen a byte over, refused with 413) to one index's app for
+    `seconds`, at a lower priority than the server, while another checks health."""
+    from ray import serve
+
+    from links_ray.serve.app import bindable_port, build_app
+
+    body = largest_simulation()["text"]
+    bodies = [body] * (2 * LARGEST_BODY_CLIENTS - 1) + [body + " "]
+    wait_for_port(port)
+    serve.start(
+        http_options={"host": "127.0.0.1", "port": bindable_port("127.0.0.1", 0)},
+        logging_config=logging_config,
+    )
+    try:
+        serve.run(build_app(root), name="links", route_prefix="/", logging_config=logging_config)
+        load = post_load(port, "/api/simulate", bodies, seconds, LARGEST_BODY_CLIENTS, 10)
+        try:
+            probes = health_probes(port, seconds)
+        finally:
+            record = finish_load(load)
+    finally:
+        serve.shutdown()
+    return {
+        "clients": LARGEST_BODY_CLIENTS,
+        "seconds": record["seconds"],
+        "statuses": record["statuses"],
+        "simulate_p50_ms": _ms(record["latencies"], 50),
+        "health_p50_ms": _ms(probes["latencies"], 50),
+        "health_p99_ms": _ms(probes["latencies"], 99),
+        "health_max_ms": _ms(probes["latencies"], 100),
+        "health_statuses": probes["statuses"],
+        "target_health_p99_ms": LARGEST_BODY_HEALTH_P99_TARGET_MS,
+        "load_average_1min": os.getloadavg()[0],
     }
 
 
@@ -156,12 +213,22 @@ def format_serve(result: dict) -> str:
         )
     header = ["shards", "retrievals/s", "retrieve p50/p99 ms", "health p50/p99 ms"]
     header += ["simulate p50/p99 ms", "503s", "other", "load avg"]
-    return "\n".join(
-        [
-            f"{result['clients']} clients retrieving, one checking health and simulating "
-            f"({result['runs'][0]['paths']:,} curated paths)"
-            if result["runs"]
-            else "no runs",
-            report.table(header, rows),
-        ]
-    )
+    lines = [
+        f"{result['clients']} clients retrieving, one checking health and simulating "
+        f"({result['runs'][0]['paths']:,} curated paths)"
+        if result["runs"]
+        else "no runs",
+        report.table(header, rows),
+    ]
+    largest = result.get("largest_bodies")
+    if largest:
+        p99, target = largest["health_p99_ms"], largest["target_health_p99_ms"]
+        lines.append(
+            f"{largest['clients']} clients posting the largest simulations "
+            f"({largest['statuses']}, p50 {largest['simulate_p50_ms']:.0f} ms): health "
+            f"p50/p99/max {largest['health_p50_ms']:.1f} / {p99:.1f} / "
+            f"{largest['health_max_ms']:.1f} ms, target p99 < {target:.0f} ms "
+            f"({'met' if p99 < target else 'missed'}; load average "
+            f"{largest['load_average_1min']:.1f})"
+        )
+    return "\n".join(lines)

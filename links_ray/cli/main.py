@@ -219,6 +219,7 @@ def _bench_serve(args: argparse.Namespace) -> None:
             clients=args.clients,
             paths=args.paths,
             root=args.root,
+            largest_bodies=not args.no_largest_bodies,
         ),
         bench_serve.format_serve,
     )
@@ -622,6 +623,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--root",
         default=None,
         help="a curated dataset to serve (default: a cached one of --paths curated paths)",
+    )
+    serve_bench.add_argument(
+        "--no-largest-bodies",
+        action="store_true",
+        help="skip the last run, of clients posting the largest simulations the limits allow",
     )
     serve_bench.add_argument(
         "--paths",

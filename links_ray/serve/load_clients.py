@@ -1,6 +1,7 @@
 """HTTP clients that load a running server, for `links bench serve` and the tests of serving
 under load: retrieval (or any POST) clients in a process of their own, a probing client that
-checks health and simulates meanwhile, and a wait for a port to come free.
+checks health and simulates meanwhile, the largest body a simulation may have, and a wait for
+a port to come free.
 
 The clients speak plain HTTP/1.1 to 127.0.0.1, and their process imports no Ray.
 """
@@ -16,6 +17,8 @@ import threading
 import time
 
 import numpy as np
+
+from links_ray.engine.inputs import MAX_BODY_BYTES, MAX_REQUEST_JOINT_STEPS, MAX_REQUEST_JOINTS
 
 #: Seconds a load client waits after a 503 that names no `Retry-After` (it waits as long as
 #: one asks, as a well-behaved client does).
@@ -188,6 +191,58 @@ def probe_loop(port: int, seconds: float) -> dict:
             found[kind].append(time.perf_counter() - start)
             key = f"{kind} {response.status}"
             found["statuses"][key] = found["statuses"].get(key, 0) + 1
+            time.sleep(PROBE_PAUSE_S)
+    finally:
+        conn.close()
+    return found
+
+
+def largest_simulation() -> dict:
+    """A /api/simulate body at the request limits: MAX_REQUEST_JOINTS joints (a crank and
+    rigid triangles on it, so it never locks) and the most steps they may take, padded with
+    numbers (costly to parse, unlike spaces) to exactly MAX_BODY_BYTES."""
+    n = MAX_REQUEST_JOINTS
+    steps = MAX_REQUEST_JOINT_STEPS // n
+    adjacency = np.zeros((n, n), dtype=int)
+    adjacency[0, 1:] = adjacency[1:, 0] = 1
+    adjacency[1, 2:] = adjacency[2:, 1] = 1
+    rng = np.random.default_rng(11)
+    positions = [[0.0, 0.0], [0.1, 0.0], *rng.uniform(-1, 1, (n - 2, 2)).tolist()]
+    body = {
+        "adjacency": adjacency.tolist(),
+        "node_types": [0, 2] + [1] * (n - 2),
+        "positions": positions,
+        "steps": steps,
+    }
+    opening = json.dumps({**body, "pad": []})[:-2]  # up to the pad's "["
+    size, pad = len(opening) + len("]}"), []
+    for number in map(json.dumps, rng.uniform(-1, 1, MAX_BODY_BYTES // 20).tolist()):
+        more = len(number) + (len(", ") if pad else 0)
+        if size + more > MAX_BODY_BYTES:
+            break
+        pad.append(number)
+        size += more
+    text = opening + ", ".join(pad) + "]}"
+    text += " " * (MAX_BODY_BYTES - len(text))
+    assert len(text.encode()) == MAX_BODY_BYTES
+    return {"body": body, "text": text}
+
+
+def health_probes(port: int, seconds: float) -> dict:
+    """Health checks one after another (PROBE_PAUSE_S apart) on one kept-alive connection to
+    127.0.0.1:port for `seconds`: their `latencies` (seconds) and `statuses` (count by HTTP
+    status)."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+    found: dict = {"latencies": [], "statuses": {}}
+    stop = time.monotonic() + seconds
+    try:
+        while time.monotonic() < stop:
+            start = time.perf_counter()
+            conn.request("GET", "/api/health")
+            response = conn.getresponse()
+            response.read()
+            found["latencies"].append(time.perf_counter() - start)
+            found["statuses"][response.status] = found["statuses"].get(response.status, 0) + 1
             time.sleep(PROBE_PAUSE_S)
     finally:
         conn.close()

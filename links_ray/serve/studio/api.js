@@ -1,4 +1,4 @@
-// Talking to the links-ray HTTP API (docs/CONTRACT.md, HTTP API). Every failure becomes a
+// Talking to the links-ray HTTP API (docs/reference/contract.md, HTTP API). Every failure becomes a
 // sentence the page can show: the server's own `error` message when it sent one.
 
 /** POST a JSON body; resolves to {status, data, ms} for any HTTP answer, rejects on no answer. */

@@ -16,7 +16,7 @@ export function download(name, text, type) {
   setTimeout(() => URL.revokeObjectURL(url), 10_000);
 }
 
-/** The mechanism fields (docs/CONTRACT.md, Mechanisms) as JSON text. */
+/** The mechanism fields (docs/reference/contract.md, Mechanisms) as JSON text. */
 export function mechanismJson(mech) {
   const { adjacency, node_types, positions } = mech;
   return JSON.stringify({ adjacency, node_types, positions }, null, 1);

@@ -1,4 +1,4 @@
-// The mechanism model of docs/CONTRACT.md, Mechanisms (adjacency, node_types, positions) and the
+// The mechanism model of docs/reference/contract.md, Mechanisms (adjacency, node_types, positions) and the
 // edits the editor makes to it. Edits return a new mechanism and never change their input, so
 // the undo history can keep plain snapshots.
 
@@ -149,7 +149,7 @@ function isFiniteNumber(value) {
 }
 
 /**
- * A mechanism from parsed JSON: the fields of docs/CONTRACT.md, Mechanisms, or a retrieval
+ * A mechanism from parsed JSON: the fields of docs/reference/contract.md, Mechanisms, or a retrieval
  * result holding them under "mechanism". Throws an Error that says what is wrong. The server
  * checks the rest (joint types, symmetry, solvability) and the studio shows what it says.
  */
