@@ -226,6 +226,10 @@ ERROR_400 = {
 
 def api_openapi() -> dict[str, Any]:
     """FastAPI's document of the routes, plus the request bodies' schemas; made once."""
+    # The routes are declared in `handlers`, which imports this module: a document made
+    # before they are would list none, and be kept.
+    from links_ray.serve import handlers  # noqa: F401
+
     if api.openapi_schema is None:
         document = get_openapi(
             title=api.title,
