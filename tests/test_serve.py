@@ -872,7 +872,8 @@ def test_still_serving_after_bad_requests(client: Client, curated: Any) -> None:
 
 def test_concurrent_clients(client: Client, curated: Any) -> None:
     """8 threads x 25 requests (retrieve, simulate, health), each thread on a kept-alive
-    connection: every answer is 200 and correct, within a time limit."""
+    connection: every answer is 200 and correct, and every thread finishes (a hang fails the
+    join's bound of 120 s, far above the seconds this takes on a busy machine)."""
     queries = [curated.points.iloc[i % len(curated)].astype(float).tolist() for i in range(8)]
     expected_sim = links_ray.simulate(**FOUR_BAR).tolist()
     failures: list[str] = []
@@ -922,7 +923,6 @@ def test_concurrent_clients(client: Client, curated: Any) -> None:
         f"\n200 requests from 8 threads in {elapsed:.2f} s "
         f"(p50 {np.median(latencies) * 1e3:.0f} ms, max {max(latencies) * 1e3:.0f} ms)"
     )
-    assert elapsed < 60
 
 
 # -- deployment configs ---------------------------------------------------------------------
