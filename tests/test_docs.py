@@ -370,3 +370,29 @@ def test_a_dead_link_a_dead_anchor_or_a_stale_generated_page_fails_the_build(
     output = done.stdout + done.stderr
     assert done.returncode != 0, output
     assert "docs/reference/cli.md is written at build time" in output, output
+
+
+#: A Markdown link's target: `[text](target)` or `[text](target#anchor)`.
+LINK = re.compile(r"\]\((?P<target>[^)\s#]*)(?:#[^)\s]*)?\)")
+
+
+def dead_links(markdown: str, folder: Path) -> list[str]:
+    """The relative link targets in `markdown` that name no file or folder under `folder`."""
+    dead = []
+    for match in LINK.finditer(markdown):
+        target = match["target"]
+        if target and "://" not in target and not target.startswith("mailto:"):
+            if not (folder / target).exists():
+                dead.append(target)
+    return dead
+
+
+def test_the_readme_links_only_to_files_the_repository_has() -> None:
+    """The README is read on its own (no site build checks it): each relative link names a
+    file in the repository, so no link points at a page the site writes only when built."""
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    assert len(LINK.findall(readme)) >= 10
+    assert dead_links(readme, REPO) == []
+    assert dead_links("[a](docs/guides/none.md) [b](docs/index.md#x)", REPO) == [
+        "docs/guides/none.md"
+    ]
