@@ -167,8 +167,8 @@ def stroke_run(loop: np.ndarray) -> np.ndarray:
 
 
 def gait_curves() -> dict[str, np.ndarray]:
-    """Feet paths: a flat stride from (1, 0) back to (-1, 0) on the ground, then a return
-    arc lifted to `height`, its shape `sin^power`, leaning forward by `lean` of its height."""
+    """Feet paths: a flat stride from (-1, 0) to (1, 0) on the ground, then a return arc
+    lifted to `height`, its shape `sin^power`, shifted along x by `lean` times its lift."""
     kinds = {
         "gait_low": (0.25, 1.0, 0.0),
         "gait_high": (0.6, 1.0, 0.0),
@@ -180,9 +180,9 @@ def gait_curves() -> dict[str, np.ndarray]:
     u = np.linspace(0, 1, 400, endpoint=False)
     curves = {}
     for name, (height, power, lean) in kinds.items():
-        stride = np.column_stack([1 - 2 * u, np.zeros_like(u)])
+        stride = np.column_stack([2 * u - 1, np.zeros_like(u)])
         lift = height * np.sin(np.pi * u) ** power
-        arc = np.column_stack([-np.cos(np.pi * u) + lean * lift, lift])
+        arc = np.column_stack([np.cos(np.pi * u) + lean * lift, lift])
         curves[name] = np.concatenate([stride, arc])
     return curves
 
