@@ -196,3 +196,52 @@ def test_same_seed_same_arrays_and_seed_moves_only_random_curves(
 def test_missing_font_names_the_package(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="fonts-liberation"):
         curve_set(font_dirs=(tmp_path,))
+
+
+def test_set_groups_sum_up_by_half_and_family() -> None:
+    from links_ray.cli.bench_synthesis import set_groups
+
+    def row(family: str, half: str, retrieved: float, refined: float, seconds: float) -> dict:
+        return {"family": family, "half": half, "retrieved": retrieved, "refined": refined,
+                "seconds": seconds}  # fmt: skip
+
+    rows = [
+        row("gait", "tuning", 0.02, 0.01, 1.0),
+        row("gait", "tuning", 0.06, 0.03, 3.0),
+        row("cam", "held-out", 0.04, 0.02, 2.0),
+        row("letter_outline", "held-out", 0.10, 0.04, 4.0),
+    ]
+    groups = {(g["half"], g["family"]): g for g in set_groups(rows)}
+    gait = groups["tuning", "gait"]
+    assert gait["curves"] == 2 and gait["mean_refined"] == pytest.approx(0.02)
+    assert gait["ratio"] == pytest.approx(0.5) and gait["worst_seconds"] == 3.0
+    assert gait["median_seconds"] == pytest.approx(2.0)
+    smooth = groups["all", "smooth_closed"]
+    assert smooth["curves"] == 3 and smooth["mean_refined"] == pytest.approx(0.02)
+    held = groups["held-out", "all"]
+    assert held["curves"] == 2 and held["mean_retrieved"] == pytest.approx(0.07)
+    assert held["median_refined"] == pytest.approx(0.03)
+    assert ("tuning", "cam") not in groups  # no curves, no group
+    assert groups["all", "all"]["curves"] == 4
+
+
+def test_even_reference_of_a_stroke_stays_on_the_stroke() -> None:
+    from links_ray.cli.bench_synthesis import even_reference
+    from links_ray.cli.targets import even_along
+
+    corner = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
+    stroke = even_along(corner, 200, closed=False)
+    # Open, the even points lie on the stroke; closed, a third of them run back across it.
+    assert even_reference(stroke, closed=False) < 0.01
+    assert even_reference(stroke, closed=True) > 0.05
+
+
+def test_a_set_curve_frame_depends_on_its_name_and_seed_only() -> None:
+    from links_ray.cli.bench_synthesis import name_rng
+    from links_ray.cli.targets import placed
+
+    curve = target_curves(50)["bean"]
+    first = placed(curve, name_rng(0, "cam_dwell"))
+    assert np.array_equal(first, placed(curve, name_rng(0, "cam_dwell")))
+    assert not np.allclose(first, placed(curve, name_rng(0, "cam_short")))
+    assert not np.allclose(first, placed(curve, name_rng(1, "cam_dwell")))
