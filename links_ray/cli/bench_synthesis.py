@@ -156,7 +156,8 @@ def bench_synthesize(
                 best_retrieved["mechanism_joint"],
                 partial=True,
             )[0]
-        if figure is not None and labels.get("half", HALVES[1]) == HALVES[1]:
+        # The set's figure is of its held-out half; the targets' of all of them.
+        if figure is not None and labels.get("half") != HALVES[0]:
             mechanism = best_retrieved["mechanism"]
             retrieved_path = simulate(
                 mechanism["adjacency"], mechanism["node_types"], mechanism["positions"]
