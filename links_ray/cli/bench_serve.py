@@ -4,9 +4,12 @@ the largest bodies the limits allow while another checks health."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import urllib.request
+from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 
@@ -55,12 +58,10 @@ def bench_serve(
     and reports health meanwhile against LARGEST_BODY_HEALTH_P99_TARGET_MS.
     """
     import ray
-    from ray import serve
 
     from links_ray.cluster.connect import connect
     from links_ray.search.index import RetrievalIndex
     from links_ray.serve.app import (
-        bindable_port,
         build_app,
         check_root,
         direct_ingress_env,
@@ -85,20 +86,12 @@ def bench_serve(
                 RetrievalIndex.open(root, part=part, parts=parts)
             shard_cpus = fit_shard_cpus(1, count, ray.cluster_resources()) if count else None
             app = build_app(root, shards=count or None, shard_cpus=shard_cpus or 1.0)
-            wait_for_port(port)  # the last run's front may still be letting go of it
-            serve.start(
-                http_options={"host": "127.0.0.1", "port": bindable_port("127.0.0.1", 0)},
-                logging_config=no_access_log,
-            )
-            try:
-                serve.run(app, name="links", route_prefix="/", logging_config=no_access_log)
+            with _served(app, port, no_access_log):
                 with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/health") as response:
                     indexed = json.loads(response.read())["paths"]
                 load = retrieval_load(port, queries, seconds, clients)
                 probes = probe_loop(port, seconds)
                 record = finish_load(load)
-            finally:
-                serve.shutdown()
             answered = record["statuses"].get("200", 0)
             runs.append(
                 {
@@ -137,26 +130,16 @@ def _largest_bodies(root: str, port: int, seconds: float, logging_config: dict) 
     """LARGEST_BODY_CLIENTS clients post simulations at the request limits (bodies of
     MAX_BODY_BYTES; one in sixteen a byte over, refused with 413) to one index's app for
     `seconds`, at a lower priority than the server, while another checks health."""
-    from ray import serve
-
-    from links_ray.serve.app import bindable_port, build_app
+    from links_ray.serve.app import build_app
 
     body = largest_simulation()["text"]
     bodies = [body] * (2 * LARGEST_BODY_CLIENTS - 1) + [body + " "]
-    wait_for_port(port)
-    serve.start(
-        http_options={"host": "127.0.0.1", "port": bindable_port("127.0.0.1", 0)},
-        logging_config=logging_config,
-    )
-    try:
-        serve.run(build_app(root), name="links", route_prefix="/", logging_config=logging_config)
+    with _served(build_app(root), port, logging_config):
         load = post_load(port, "/api/simulate", bodies, seconds, LARGEST_BODY_CLIENTS, 10)
         try:
             probes = health_probes(port, seconds)
         finally:
             record = finish_load(load)
-    finally:
-        serve.shutdown()
     return {
         "clients": LARGEST_BODY_CLIENTS,
         "seconds": record["seconds"],
@@ -169,6 +152,26 @@ def _largest_bodies(root: str, port: int, seconds: float, logging_config: dict) 
         "target_health_p99_ms": LARGEST_BODY_HEALTH_P99_TARGET_MS,
         "load_average_1min": os.getloadavg()[0],
     }
+
+
+@contextlib.contextmanager
+def _served(app: Any, port: int, logging_config: dict) -> Iterator[None]:
+    """`app` on Serve, its front answering on `port` (once the last run's front has let go of
+    it), until the block ends."""
+    from ray import serve
+
+    from links_ray.serve.app import bindable_port
+
+    wait_for_port(port)
+    serve.start(
+        http_options={"host": "127.0.0.1", "port": bindable_port("127.0.0.1", 0)},
+        logging_config=logging_config,
+    )
+    try:
+        serve.run(app, name="links", route_prefix="/", logging_config=logging_config)
+        yield
+    finally:
+        serve.shutdown()
 
 
 def _listening_port() -> int:
