@@ -7,17 +7,28 @@ its budget that was (its overrun; the worst over the curves is the bench's), and
 the chamfer between the curve's points and the curve itself at DEFAULT_STEPS points evenly
 spaced along it, which is about what a mechanism tracing the curve exactly at an even speed
 would score (the point-sampled chamfer is not 0 even then).
+
+With `--set` (`use_set`) the curves are those of `links_ray.cli.curve_set` instead, letter
+strokes synthesized as partial strokes; each curve's frame is drawn from the seed and its name,
+so a row does not depend on the curves before it. Besides the rows it reports, per half and per
+family (and the smooth closed families together), the mean and median refined chamfer, the
+mean retrieval-only chamfer, refined / retrieved, and the median and worst seconds; its goals
+are the held-out half's, and its figure shows the held-out curves only. For a stroke the
+retrieval-only chamfer is the best retrieved mechanism's fit over the run of its path that
+matches the stroke best, as a refined one is measured.
 """
 
 from __future__ import annotations
 
+import hashlib
 import statistics
 import time
 
 import numpy as np
 
 from links_ray.cli.bench import machine_info
-from links_ray.cli.targets import TARGET_POINTS, placed, target_curves
+from links_ray.cli.curve_set import HALVES, curve_set
+from links_ray.cli.targets import TARGET_POINTS, even_along, placed, target_curves
 from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.paths import chamfer, longest_chord
 from links_ray.engine.solver import simulate
@@ -30,17 +41,61 @@ BENCH_SECONDS = 4.5
 RATIO_GOAL, MEAN_GOAL, MEDIAN_SECONDS_GOAL = 1 / 3, 0.010, 5.0
 #: The most any curve's answer may come past its budget, in milliseconds.
 OVERRUN_GOAL_MS = 50.0
+#: The curve set's goals, each on the held-out half's mean refined chamfer: over all of it,
+#: and over a group of its families.
+SET_MEAN_GOAL = 0.012
+SET_GROUP_GOALS = {"smooth_closed": 0.010, "letter_outline": 0.025, "letter_stroke": 0.015}
+#: Families grouped in the set's report as `smooth_closed`.
+SMOOTH_CLOSED = ("gait", "cam", "random_smooth")
 
 
-def even_reference(points: np.ndarray, steps: int = DEFAULT_STEPS) -> float:
-    """Chamfer, divided by the longest chord, between closed `points` and `steps` points
-    evenly spaced along their own polyline."""
-    loop = np.concatenate([points, points[:1]])
-    lengths = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(loop, axis=0), axis=1))])
-    at = np.linspace(0, lengths[-1], steps, endpoint=False)
-    even = np.column_stack([np.interp(at, lengths, loop[:, 0]), np.interp(at, lengths, loop[:, 1])])
+def even_reference(points: np.ndarray, steps: int = DEFAULT_STEPS, closed: bool = True) -> float:
+    """Chamfer, divided by the longest chord, between `points` and `steps` points evenly
+    spaced along their own polyline (closed or open)."""
+    even = even_along(points, steps, closed)
     i, j = longest_chord(points)
     return chamfer(points, even) / float(np.hypot(*(points[j] - points[i])))
+
+
+def name_rng(seed: int, name: str) -> np.random.Generator:
+    """The generator of a set curve's frame: from the bench's seed and the curve's name."""
+    return np.random.default_rng([seed, int.from_bytes(hashlib.sha256(name.encode()).digest()[:8])])
+
+
+def set_groups(rows: list[dict]) -> list[dict]:
+    """Per half (and both, `all`), per family (and `smooth_closed`, and `all`) of the set's
+    `rows`: the curves, mean retrieval-only and mean and median refined chamfer, refined /
+    retrieved (of the means), and the median and worst seconds."""
+    families = sorted({row["family"] for row in rows})
+    groups = []
+    for half in (*HALVES, "all"):
+        in_half = [row for row in rows if half in ("all", row["half"])]
+        for family in (*families, "smooth_closed", "all"):
+            members = [
+                row
+                for row in in_half
+                if family in ("all", row["family"])
+                or (family == "smooth_closed" and row["family"] in SMOOTH_CLOSED)
+            ]
+            if not members:
+                continue
+            retrieved = statistics.fmean(row["retrieved"] for row in members)
+            refined = [row["refined"] for row in members]
+            seconds = [row["seconds"] for row in members]
+            groups.append(
+                {
+                    "half": half,
+                    "family": family,
+                    "curves": len(members),
+                    "mean_retrieved": retrieved,
+                    "mean_refined": statistics.fmean(refined),
+                    "median_refined": statistics.median(refined),
+                    "ratio": statistics.fmean(refined) / retrieved,
+                    "median_seconds": statistics.median(seconds),
+                    "worst_seconds": max(seconds),
+                }
+            )
+    return groups
 
 
 def bench_synthesize(
@@ -49,15 +104,17 @@ def bench_synthesize(
     seed: int = 0,
     figure: str | None = None,
     iterations: int | None = None,
+    use_set: bool = False,
 ) -> dict:
     """Synthesize every target curve, placed in a random frame (`seed`), over the cached data
     set of `paths` curated paths; per curve and overall (means, median seconds, the worst
     overrun past the budget). `iterations`: fixed work per curve instead of `seconds`, its
     restarts seeded with `seed` (no overrun then: there is no budget). `figure`: a
     PNG path for a picture of every curve, its best retrieved path and its refined mechanism
-    (needs the `plots` extra)."""
+    (needs the `plots` extra). `use_set`: the curve set instead of the targets (its fonts need
+    the `bench` extra), reported by half and family too."""
     from links_ray.cli.bench_data import retrieval_dataset
-    from links_ray.engine.synthesis import synthesize
+    from links_ray.engine.synthesis import fit, synthesize
     from links_ray.search.index import RetrievalIndex
 
     root = retrieval_dataset(paths)
@@ -69,19 +126,38 @@ def bench_synthesize(
     # Loads the refinement kernels, so no curve pays for it.
     synthesize(index, np.column_stack([np.cos(angle), 0.4 * np.sin(angle)]), seconds=0.5)
     rng = np.random.default_rng(seed)
+    if use_set:
+        curves = [
+            (c.name, c.points, c.partial, {"family": c.family, "half": c.half}) for c in curve_set()
+        ]
+    else:
+        curves = [(name, curve, False, {}) for name, curve in target_curves().items()]
     rows = []
     drawn = []
-    for name, curve in target_curves().items():
-        points = placed(curve, rng)
+    for name, curve, partial, labels in curves:
+        points = placed(curve, name_rng(seed, name) if use_set else rng)
         start = time.perf_counter()
         if iterations is None:
-            results = synthesize(index, points, k=3, seconds=seconds)
+            results = synthesize(index, points, k=3, seconds=seconds, partial=partial)
         else:
-            results = synthesize(index, points, k=3, seed=seed, iterations=iterations)
+            results = synthesize(
+                index, points, k=3, partial=partial, seed=seed, iterations=iterations
+            )
         took = time.perf_counter() - start
         best_retrieved = index.retrieve(points, 1)[0]
         retrieved = best_retrieved["chamfer"]
-        if figure is not None:
+        if partial:
+            mechanism = best_retrieved["mechanism"]
+            retrieved = fit(
+                points,
+                mechanism["positions"],
+                mechanism["adjacency"],
+                mechanism["node_types"],
+                best_retrieved["mechanism_joint"],
+                partial=True,
+            )[0]
+        # The set's figure is of its held-out half; the targets' of all of them.
+        if figure is not None and labels.get("half") != HALVES[0]:
             mechanism = best_retrieved["mechanism"]
             retrieved_path = simulate(
                 mechanism["adjacency"], mechanism["node_types"], mechanism["positions"]
@@ -90,6 +166,7 @@ def bench_synthesize(
                 {
                     "curve": name,
                     "points": points,
+                    "partial": partial,
                     "retrieved_path": retrieved_path,
                     "retrieved": retrieved,
                     "refined": results[0]["chamfer"],
@@ -99,11 +176,13 @@ def bench_synthesize(
         rows.append(
             {
                 "curve": name,
+                **labels,
+                "partial": partial,
                 "retrieved": retrieved,
                 "refined": results[0]["chamfer"],
                 "seconds": took,
                 "overrun_ms": None if iterations is not None else (took - seconds) * 1e3,
-                "reference": even_reference(points),
+                "reference": even_reference(points, closed=not partial),
                 "joints": len(results[0]["mechanism"]["node_types"]),
             }
         )
@@ -121,6 +200,17 @@ def bench_synthesize(
         "mean_below_0.010": mean_refined < MEAN_GOAL,
         "median_at_most_5_s": median_s <= MEDIAN_SECONDS_GOAL,
     }
+    groups = set_groups(rows) if use_set else None
+    if groups is not None:
+        held_out = {
+            group["family"]: group["mean_refined"] for group in groups if group["half"] == HALVES[1]
+        }
+        goals = {f"held_out_mean_at_most_{SET_MEAN_GOAL:g}": held_out["all"] <= SET_MEAN_GOAL}
+        goals |= {
+            f"held_out_{family}_at_most_{goal:g}": held_out[family] <= goal
+            for family, goal in SET_GROUP_GOALS.items()
+        }
+        goals["median_at_most_5_s"] = median_s <= MEDIAN_SECONDS_GOAL
     if worst is not None:
         goals["overrun_under_50_ms"] = worst < OVERRUN_GOAL_MS
     return {
@@ -130,7 +220,9 @@ def bench_synthesize(
         "iterations": iterations,
         "seed": seed,
         "index_open_s": open_s,
+        "curve_set": use_set,
         "curves": rows,
+        "groups": groups,
         "mean_retrieved": mean_retrieved,
         "mean_refined": mean_refined,
         "mean_reference": statistics.fmean(row["reference"] for row in rows),
@@ -172,6 +264,19 @@ def format_synthesize(result: dict) -> str:
         f"{result['mean_refined']:.4f} | {result['mean_reference']:.4f} | | "
         f"{result['median_seconds']:.2f} | {overrun(result['worst_overrun_ms'])} |"
     )
+    if result.get("groups"):
+        lines += [
+            "",
+            "| half | family | curves | retrieval only (mean) | refined mean | refined median "
+            "| refined / retrieved | median s | worst s |",
+            "|---|---|---|---|---|---|---|---|---|",
+        ]
+        lines += [
+            f"| {g['half']} | {g['family']} | {g['curves']} | {g['mean_retrieved']:.4f} | "
+            f"{g['mean_refined']:.4f} | {g['median_refined']:.4f} | {g['ratio']:.3f} | "
+            f"{g['median_seconds']:.2f} | {g['worst_seconds']:.2f} |"
+            for g in result["groups"]
+        ]
     lines += ["", f"refined / retrieval-only: {result['ratio']:.3f}"]
     lines += [f"{goal}: {'yes' if met else 'no'}" for goal, met in result["goals"].items()]
     return "\n".join(lines)

@@ -126,7 +126,7 @@ def write_synthesis_figure(path: str | Path, curves: list[dict]) -> str:
     path of the best retrieved mechanism, and the path the refined mechanism traces, framed on
     the drawing (the mechanism's links, at the crank's start, reach out of the frame). Each
     entry: `curve` (name), `points`, `retrieved_path`, `retrieved`, `refined` (chamfers) and
-    `result` (the best synthesis result)."""
+    `result` (the best synthesis result), and `partial` if the drawing is an open stroke."""
     plt = _pyplot()
     columns = 4
     rows = -(-len(curves) // columns)
@@ -139,7 +139,8 @@ def write_synthesis_figure(path: str | Path, curves: list[dict]) -> str:
         positions = np.asarray(mechanism["positions"])
         adjacency = np.asarray(mechanism["adjacency"])
         fixed = np.asarray(mechanism["node_types"]) == 0
-        axes.plot(*np.vstack([points, points[:1]]).T, color="0.75", linewidth=5, label="drawn")
+        drawing = points if entry.get("partial") else np.vstack([points, points[:1]])
+        axes.plot(*drawing.T, color="0.75", linewidth=5, label="drawn")
         axes.plot(*retrieved.T, color="tab:orange", linewidth=1.2, label="retrieved")
         loop = np.vstack([traced, traced[:1]])
         axes.plot(*loop.T, color="tab:blue", linewidth=1.3, label="refined")

@@ -193,6 +193,7 @@ def _bench_synthesize(args: argparse.Namespace) -> None:
             seed=args.seed,
             figure=args.figure,
             iterations=args.iterations,
+            use_set=args.set,
         ),
         bench_synthesis.format_synthesize,
     )
@@ -599,6 +600,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--figure",
         default=None,
         help="also draw every curve, its retrieved path and refined mechanism into this PNG",
+    )
+    synthesize_bench.add_argument(
+        "--set",
+        action="store_true",
+        help="the curve set of links_ray.cli.curve_set (a tuning and a held-out half) instead "
+        "of the 8 targets, reported per half and family; the figure shows the held-out half "
+        "(needs the bench extra)",
     )
     serve_bench = benches.add_parser(
         "serve",

@@ -42,14 +42,22 @@ def _polyline_loop(corners: np.ndarray, radius: float, count: int) -> np.ndarray
         sweep = (last - first + np.pi) % (2 * np.pi) - np.pi
         angles = first + sweep * np.linspace(0, 1, 16)
         pieces.append(centre + radius * np.column_stack([np.cos(angles), np.sin(angles)]))
-    return _even(np.concatenate(pieces), count)
+    return even_along(np.concatenate(pieces), count)
 
 
-def _even(outline: np.ndarray, count: int) -> np.ndarray:
-    """`count` points evenly spaced along the closed polyline `outline`."""
-    outline = np.concatenate([outline, outline[:1]])
+def even_along(
+    outline: np.ndarray, count: int, closed: bool = True, share: float = 1.0
+) -> np.ndarray:
+    """`count` points evenly spaced along the polyline `outline`: around it when `closed`
+    (its last point joined to its first), else from its first point to `share` of its length,
+    both ends included."""
+    if closed:
+        outline = np.concatenate([outline, outline[:1]])
     lengths = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(outline, axis=0), axis=1))])
-    at = np.linspace(0, lengths[-1], count, endpoint=False)
+    if closed:
+        at = np.linspace(0, lengths[-1], count, endpoint=False)
+    else:
+        at = np.linspace(0, share * lengths[-1], count)
     return np.column_stack(
         [np.interp(at, lengths, outline[:, 0]), np.interp(at, lengths, outline[:, 1])]
     )
@@ -69,7 +77,7 @@ def target_curves(points: int = TARGET_POINTS) -> dict[str, np.ndarray]:
         "teardrop": np.column_stack([np.cos(t), np.sin(t) * np.sin(t / 2) ** 2]),
         "crescent": np.column_stack([np.cos(t), 0.15 * np.sin(t) + 0.45 * np.cos(t) ** 2]),
         "figure_eight": np.column_stack([np.sin(t), np.sin(t) * np.cos(t)]),
-        "letter_d": _even(
+        "letter_d": even_along(
             np.concatenate(
                 [
                     np.column_stack([np.zeros(50), np.linspace(1, -1, 50, endpoint=False)]),

@@ -1,0 +1,247 @@
+"""The curve set of `links bench synthesize --set` (links_ray.cli.curve_set): its size, names,
+families, halves fixed by name, even spacing, closure, letters read from two different fonts,
+random curves that never cross themselves, and determinism."""
+
+from __future__ import annotations
+
+import random
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from links_ray.cli.curve_set import (
+    CURVE_POINTS,
+    FONTS,
+    LETTERS,
+    SetCurve,
+    crosses_itself,
+    curve_set,
+    font_file,
+    half_of,
+    letter_outlines,
+)
+from links_ray.cli.targets import target_curves
+from links_ray.engine.paths import chamfer
+
+FAMILIES = {"letter_outline", "letter_stroke", "gait", "cam", "random_smooth"}
+
+
+@pytest.fixture(scope="module")
+def curves() -> list[SetCurve]:
+    """The set as the bench draws it (seed 0)."""
+    return curve_set()
+
+
+def gaps(curve: SetCurve) -> np.ndarray:
+    """Distances between consecutive points, the closing one included for a closed curve."""
+    points = curve.points if curve.partial else np.concatenate([curve.points, curve.points[:1]])
+    return np.linalg.norm(np.diff(points, axis=0), axis=1)
+
+
+def segments_cross(p: np.ndarray, q: np.ndarray, r: np.ndarray, s: np.ndarray) -> bool:
+    """Whether segments pq and rs share a point (orientation tests, collinear overlap too)."""
+
+    def orient(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
+        return float((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
+
+    def within(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> bool:
+        return min(a[0], b[0]) <= c[0] <= max(a[0], b[0]) and min(a[1], b[1]) <= c[1] <= max(
+            a[1], b[1]
+        )
+
+    d1, d2, d3, d4 = orient(p, q, r), orient(p, q, s), orient(r, s, p), orient(r, s, q)
+    if ((d1 > 0 > d2) or (d1 < 0 < d2)) and ((d3 > 0 > d4) or (d3 < 0 < d4)):
+        return True
+    return any(
+        d == 0 and within(a, b, c)
+        for d, a, b, c in ((d1, p, q, r), (d2, p, q, s), (d3, r, s, p), (d4, r, s, q))
+    )
+
+
+def brute_force_crosses(loop: np.ndarray) -> bool:
+    """Whether any two non-adjacent edges of the closed polyline `loop` share a point."""
+    n = len(loop)
+    for i in range(n):
+        for j in range(i + 2, n):
+            if i == 0 and j == n - 1:
+                continue
+            if segments_cross(loop[i], loop[(i + 1) % n], loop[j], loop[(j + 1) % n]):
+                return True
+    return False
+
+
+def test_set_holds_sixty_named_finite_curves_of_five_families(curves: list[SetCurve]) -> None:
+    assert len(curves) >= 60
+    names = [curve.name for curve in curves]
+    assert len(set(names)) == len(names)
+    assert {curve.family for curve in curves} == FAMILIES
+    for curve in curves:
+        assert curve.points.shape == (CURVE_POINTS, 2), curve.name
+        assert np.isfinite(curve.points).all(), curve.name
+        assert curve.partial == (curve.family == "letter_stroke"), curve.name
+    # Both fonts give every letter, as an outline and as a stroke.
+    counts = Counter(curve.family for curve in curves)
+    assert counts["letter_outline"] == counts["letter_stroke"] == len(FONTS) * len(LETTERS)
+
+
+def test_every_family_is_in_both_halves(curves: list[SetCurve]) -> None:
+    for family in FAMILIES:
+        halves = Counter(curve.half for curve in curves if curve.family == family)
+        assert halves["tuning"] > 0 and halves["held-out"] > 0, (family, halves)
+        assert set(halves) == {"tuning", "held-out"}
+
+
+def test_half_is_fixed_by_name_whatever_the_order_or_seed(curves: list[SetCurve]) -> None:
+    names = [curve.name for curve in curves]
+    shuffled = names[:]
+    random.Random(7).shuffle(shuffled)
+    assert {name: half_of(name) for name in shuffled} == {c.name: c.half for c in curves}
+    # Another seed draws other random curves under the same names, in the same halves.
+    other = {c.name: c.half for c in curve_set(seed=1)}
+    assert other == {c.name: c.half for c in curves}
+    # A letter's curves, in both fonts, outline and stroke, are in one half.
+    for letter in LETTERS:
+        halves = {
+            c.half for c in curves if c.family.startswith("letter") and f"_{letter}_" in c.name
+        }
+        assert len(halves) == 1, letter
+    # The split is pinned: a change that moves a curve to the other half fails here.
+    assert [half_of(name) for name in ("sans_E_outline", "serif_Z_stroke", "gait_low")] == [
+        "tuning",
+        "held-out",
+        "tuning",
+    ]
+
+
+def test_points_are_evenly_spaced_by_arc_length(curves: list[SetCurve]) -> None:
+    for curve in curves:
+        step = gaps(curve)
+        median = np.median(step)
+        # Chords are shorter than the arc only where a corner falls between two points.
+        assert step.max() <= 1.001 * median, curve.name
+        assert np.mean(np.abs(step / median - 1) < 0.01) >= 0.9, curve.name
+
+
+def test_closed_curves_close_and_strokes_stay_open(curves: list[SetCurve]) -> None:
+    for curve in curves:
+        step = np.linalg.norm(np.diff(curve.points, axis=0), axis=1)
+        ends = float(np.linalg.norm(curve.points[-1] - curve.points[0]))
+        if curve.partial:
+            assert ends > 10 * np.median(step), curve.name
+        else:
+            assert ends <= 1.001 * np.median(step), curve.name
+            x, y = curve.points[:, 0], curve.points[:, 1]
+            area = np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))
+            assert area > 0, f"{curve.name} is not counter-clockwise"
+
+
+def test_random_smooth_curves_never_cross_themselves(curves: list[SetCurve]) -> None:
+    random_curves = [curve for curve in curves if curve.family == "random_smooth"]
+    assert len(random_curves) >= 6
+    for curve in random_curves:
+        assert not brute_force_crosses(curve.points), curve.name
+
+
+def test_crossing_check_agrees_with_brute_force() -> None:
+    eight = target_curves(120)["figure_eight"]
+    ellipse = target_curves(120)["ellipse"]
+    bowtie = np.array([[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]])
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    for loop, crosses in ((eight, True), (ellipse, False), (bowtie, True), (square, False)):
+        assert brute_force_crosses(loop) is crosses
+        assert crosses_itself(loop) is crosses
+
+
+def test_letters_come_from_two_different_fonts(curves: list[SetCurve]) -> None:
+    by_name = {curve.name: curve.points for curve in curves}
+    for letter in LETTERS:
+        sans, serif = by_name[f"sans_{letter}_outline"], by_name[f"serif_{letter}_outline"]
+        # Framed to a box of side 2: a serif moves the outline by well over a point's spacing.
+        assert chamfer(sans, serif) > 0.02, letter
+    # Different letters of one font differ too (the glyph looked up is the letter's).
+    assert chamfer(by_name["sans_E_outline"], by_name["sans_S_outline"]) > 0.1
+
+
+def test_outline_spans_the_glyph_bounds_the_font_gives() -> None:
+    from fontTools.pens.boundsPen import BoundsPen
+    from fontTools.ttLib import TTFont
+
+    for filename in FONTS.values():
+        path = font_file(filename)
+        font = TTFont(str(path))
+        glyphs, cmap = font.getGlyphSet(), font.getBestCmap()
+        for letter, outline in letter_outlines(path).items():
+            pen = BoundsPen(glyphs)
+            glyphs[cmap[ord(letter)]].draw(pen)
+            low = outline.min(axis=0)
+            high = outline.max(axis=0)
+            # The outer contour encloses the others, so its extent is the glyph's.
+            assert np.allclose([*low, *high], pen.bounds, atol=0.5), (filename, letter)
+
+
+def test_same_seed_same_arrays_and_seed_moves_only_random_curves(
+    curves: list[SetCurve],
+) -> None:
+    again = curve_set()
+    other = {curve.name: curve.points for curve in curve_set(seed=1)}
+    for first, second in zip(curves, again, strict=True):
+        assert first.name == second.name
+        assert np.array_equal(first.points, second.points), first.name
+        moved = not np.array_equal(first.points, other[first.name])
+        assert moved == (first.family == "random_smooth"), first.name
+
+
+def test_missing_font_names_the_package(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="fonts-liberation"):
+        curve_set(font_dirs=(tmp_path,))
+
+
+def test_set_groups_sum_up_by_half_and_family() -> None:
+    from links_ray.cli.bench_synthesis import set_groups
+
+    def row(family: str, half: str, retrieved: float, refined: float, seconds: float) -> dict:
+        return {"family": family, "half": half, "retrieved": retrieved, "refined": refined,
+                "seconds": seconds}  # fmt: skip
+
+    rows = [
+        row("gait", "tuning", 0.02, 0.01, 1.0),
+        row("gait", "tuning", 0.06, 0.03, 3.0),
+        row("cam", "held-out", 0.04, 0.02, 2.0),
+        row("letter_outline", "held-out", 0.10, 0.04, 4.0),
+    ]
+    groups = {(g["half"], g["family"]): g for g in set_groups(rows)}
+    gait = groups["tuning", "gait"]
+    assert gait["curves"] == 2 and gait["mean_refined"] == pytest.approx(0.02)
+    assert gait["ratio"] == pytest.approx(0.5) and gait["worst_seconds"] == 3.0
+    assert gait["median_seconds"] == pytest.approx(2.0)
+    smooth = groups["all", "smooth_closed"]
+    assert smooth["curves"] == 3 and smooth["mean_refined"] == pytest.approx(0.02)
+    held = groups["held-out", "all"]
+    assert held["curves"] == 2 and held["mean_retrieved"] == pytest.approx(0.07)
+    assert held["median_refined"] == pytest.approx(0.03)
+    assert ("tuning", "cam") not in groups  # no curves, no group
+    assert groups["all", "all"]["curves"] == 4
+
+
+def test_even_reference_of_a_stroke_stays_on_the_stroke() -> None:
+    from links_ray.cli.bench_synthesis import even_reference
+    from links_ray.cli.targets import even_along
+
+    corner = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
+    stroke = even_along(corner, 200, closed=False)
+    # Open, the even points lie on the stroke; closed, a third of them run back across it.
+    assert even_reference(stroke, closed=False) < 0.01
+    assert even_reference(stroke, closed=True) > 0.05
+
+
+def test_a_set_curve_frame_depends_on_its_name_and_seed_only() -> None:
+    from links_ray.cli.bench_synthesis import name_rng
+    from links_ray.cli.targets import placed
+
+    curve = target_curves(50)["bean"]
+    first = placed(curve, name_rng(0, "cam_dwell"))
+    assert np.array_equal(first, placed(curve, name_rng(0, "cam_dwell")))
+    assert not np.allclose(first, placed(curve, name_rng(0, "cam_short")))
+    assert not np.allclose(first, placed(curve, name_rng(1, "cam_dwell")))
