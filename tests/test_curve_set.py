@@ -245,3 +245,32 @@ def test_a_set_curve_frame_depends_on_its_name_and_seed_only() -> None:
     assert np.array_equal(first, placed(curve, name_rng(0, "cam_dwell")))
     assert not np.allclose(first, placed(curve, name_rng(0, "cam_short")))
     assert not np.allclose(first, placed(curve, name_rng(1, "cam_dwell")))
+
+
+def test_a_bench_row_of_fixed_work_is_reproduced_bit_for_bit(
+    dataset: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Deterministic mode: a row of `links bench synthesize --set --iterations N` is the same
+    whether run with the others or alone (`--curve`), and whatever the threads."""
+    from links_ray.cli.bench_synthesis import bench_synthesize
+    from links_ray.engine import cpus
+
+    # An open stroke and a closed curve, the latter's row after the other's in the first run.
+    names = ("sans_M_stroke", "cam_dwell")
+
+    def rows(only: tuple[str, ...], given: float | None) -> dict[str, dict]:
+        monkeypatch.setattr(cpus, "_given", given)
+        result = bench_synthesize(root=dataset, use_set=True, only=only, iterations=60, seed=4)
+        assert [row["curve"] for row in result["curves"]] == [n for n in names if n in only]
+        for row in result["curves"]:
+            assert row.pop("seconds") > 0  # the one field that measures the machine
+        return {row["curve"]: row for row in result["curves"]}
+
+    together = rows(names, None)
+    alone = rows(names[1:], 1.0)
+    assert together[names[1]] == alone[names[1]]
+    assert together[names[0]]["partial"] and not together[names[1]]["partial"]
+    # Fixed work is not idle: the rows moved from their retrieval.
+    assert all(row["refined"] < row["retrieved"] for row in together.values())
+    with pytest.raises(ValueError, match="no curve named nope"):
+        bench_synthesize(root=dataset, use_set=True, only=("nope",), iterations=1)

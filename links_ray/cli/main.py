@@ -194,6 +194,7 @@ def _bench_synthesize(args: argparse.Namespace) -> None:
             figure=args.figure,
             iterations=args.iterations,
             use_set=args.set,
+            only=tuple(args.curve or ()),
         ),
         bench_synthesis.format_synthesize,
     )
@@ -581,8 +582,9 @@ def build_parser() -> argparse.ArgumentParser:
     synthesize_bench.add_argument(
         "--seconds",
         type=_positive_float,
-        default=BENCH_SECONDS,
-        help=f"budget per curve (default {BENCH_SECONDS:g})",
+        default=None,
+        help=f"budget per curve (default {BENCH_SECONDS:g}; with --set the synthesis default, "
+        f"{DEFAULT_SYNTHESIS_SECONDS:g})",
     )
     synthesize_bench.add_argument(
         "--seed",
@@ -607,6 +609,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="the curve set of links_ray.cli.curve_set (a tuning and a held-out half) instead "
         "of the 8 targets, reported per half and family; the figure shows the held-out half "
         "(needs the bench extra)",
+    )
+    synthesize_bench.add_argument(
+        "--curve",
+        action="append",
+        default=None,
+        metavar="NAME",
+        help="run only this curve (repeat for several); with --iterations its row is the same "
+        "bit for bit as in a run of them all",
     )
     serve_bench = benches.add_parser(
         "serve",
