@@ -12,7 +12,10 @@ point, each drawn point's nearest path point), and takes one damped Gauss-Newton
 (Levenberg-Marquardt) step on those point pairs, weighted 1 / distance (iteratively reweighted
 least squares): at the current positions the weighted sum of squares has the value and the
 gradient of the mean distance, so the step aims at the chamfer itself rather than at its squares,
-and far outliers (parts of a drawing the mechanism cannot reach) do not dominate. The exact
+and far outliers (parts of a drawing the mechanism cannot reach) do not dominate. Pairs nearer
+than a floor weigh alike: a quarter of the current chamfer (the floor follows the fit down), or
+a larger share of the chord if the caller asks (`irls_floor`: synthesis's short pass does, to
+pull harder on the parts of a drawing the path is far from). The exact
 derivatives of the path come from `refine_kernels.solve_tangents`.
 
 The margin is a constraint, and steps slide along it. Each step is solved subject to the
@@ -73,7 +76,12 @@ from links_ray.engine.inputs import (
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.paths import chamfer, longest_chord
 from links_ray.engine.refine_kernels import best_interval, solve_tangents
-from links_ray.engine.refine_step import guarded_step, normal_equations, transmission_guards
+from links_ray.engine.refine_step import (
+    IRLS_FLOOR,
+    guarded_step,
+    normal_equations,
+    transmission_guards,
+)
 from links_ray.engine.solver import crank_turn
 from links_ray.engine.turning import rigid_dyads, turn_lock
 
@@ -297,6 +305,7 @@ def refine_validated(
     deadline: float | None = None,
     origin: np.ndarray | None = None,
     damping: float = DAMPING_START,
+    irls_floor: float = IRLS_FLOOR,
 ) -> Refinement:
     """Refine a validated mechanism (`topology`, start positions (n, 2) float64, a moving
     `joint`) toward `target` at `steps` steps, for at most `iterations` iterations, keeping a
@@ -381,7 +390,9 @@ def refine_validated(
             break
         done += 1
         _, traj, dtraj, trans, dtrans, _ = _solve(topology, pos, steps, True)
-        hessian, gradient = normal_equations(target, traj[joint], dtraj[joint], interval)
+        hessian, gradient = normal_equations(
+            target, traj[joint], dtraj[joint], interval, irls_floor
+        )
         guards = transmission_guards(trans, dtrans, np.where(rigid, flat, floors), clearance)
         diagonal = np.diag(hessian).copy()
         # A joint the path does not depend on has a zero column; this keeps the system regular.

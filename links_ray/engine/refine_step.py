@@ -22,6 +22,10 @@ if TYPE_CHECKING:
 
 #: Distances below this share of the drawing's chord weigh as much as this (the IRLS floor).
 IRLS_FLOOR = 1e-4
+#: The floor is at least this share of the current chamfer too: pairs nearer than that weigh
+#: alike, as in least squares, and only the far ones as the chamfer weighs them. The floor
+#: follows the fit down, so the steps aim at the chamfer more closely as it falls.
+IRLS_RELATIVE = 0.25
 #: Most rounds of the active set that keeps a step within its guards.
 GUARD_ROUNDS = 12
 
@@ -31,11 +35,14 @@ def normal_equations(
     path: np.ndarray,
     jac: np.ndarray,
     interval: tuple[int, int] | None,
+    irls_floor: float = IRLS_FLOOR,
 ) -> tuple[np.ndarray, np.ndarray]:
     """IRLS Gauss-Newton system (A, g) of the chamfer with correspondences fixed at `path`.
 
     jac (steps, 2, P) is d path / d positions. Residuals of the two directions that land on
     the same path step are summed into one weight and one weighted residual per step.
+    Distances below the floor, the larger of `irls_floor` times the chord and IRLS_RELATIVE
+    times the current chamfer, weigh as the floor does.
     """
     steps = len(path)
     rows = np.arange(steps) if interval is None else (interval[0] + np.arange(interval[1])) % steps
@@ -47,7 +54,8 @@ def normal_equations(
     drawn_nn = np.empty(points, dtype=np.int64)
     drawn_d = np.empty(points)
     nearest_pairs(sub, drawn, path_nn, path_d, drawn_nn, drawn_d)
-    floor = IRLS_FLOOR * target.chord
+    current = path_d.mean() + drawn_d.mean()  # the chamfer (engine.paths.chamfer)
+    floor = max(irls_floor * target.chord, IRLS_RELATIVE * current)
     # Weight 1 / (count x distance): the weighted squares' gradient is the mean distance's.
     w_path = 1.0 / (count * np.maximum(path_d, floor))
     w_drawn = 1.0 / (points * np.maximum(drawn_d, floor))

@@ -7,7 +7,8 @@ the drawing itself (`engine.refine`) within a time budget:
 1. A short pass: every candidate gets up to `FIRST_ITERATIONS` refinement iterations, in
    rounds of `FIRST_ROUND` over them all, within `FIRST_SHARE` of the time left. Retrieval
    ranks by normalized shape alone; a few iterations show which candidates can really move
-   onto the curve.
+   onto the curve. Their steps weigh the point pairs nearer than SHORT_IRLS_FLOOR alike,
+   pulling harder toward the parts of the drawing a path is far from than the chamfer would.
 2. A long pass: the best `LONG_PASS_CANDIDATES` after the first pass are refined on, in rounds
    of `LONG_ROUND` iterations, each continuing where the first pass left it (at the damping it
    ended with). One that converges gives its place to the next best of the first pass, until
@@ -65,6 +66,7 @@ from links_ray.engine.inputs import (
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.refine import (
     DAMPING_START,
+    IRLS_FLOOR,
     Refinement,
     Target,
     as_target,
@@ -90,6 +92,11 @@ LONG_ROUND = 50
 #: HOP_ITERATIONS.
 SHAKE = (0.003, 0.05)
 HOP_ITERATIONS = 300
+#: The short pass's IRLS floor (`refine_step.normal_equations`), a share of the drawing's chord:
+#: its steps weigh every pair nearer than that alike, as least squares does, which pulls harder
+#: on the parts of the drawing the path is far from; the long pass and restarts then weigh
+#: pairs as the chamfer does (refine's default floor).
+SHORT_IRLS_FLOOR = 0.15
 #: Least seconds between two progress reports (the best so far) of one synthesis.
 PROGRESS_INTERVAL_S = 0.2
 
@@ -168,6 +175,7 @@ def _refined(
     iterations: int,
     deadline: float | None,
     margin_deg: float,
+    irls_floor: float,
 ) -> Refinement | None:
     if deadline is not None and time.perf_counter() > deadline:
         return None  # not even its checks of the start: they are 2,000-step turns
@@ -183,6 +191,7 @@ def _refined(
             deadline=deadline,
             origin=candidate.origin,
             damping=candidate.damping if start is candidate.positions else DAMPING_START,
+            irls_floor=irls_floor,
         )
     except (LockingError, ValueError):  # a shaken start that locks or is degenerate
         return None
@@ -297,7 +306,9 @@ def refine_retrieved(
         report()
 
         def short(c: _Candidate) -> None:
-            refined = _refined(c, target, c.positions, FIRST_ROUND, until(first_end), margin)
+            refined = _refined(
+                c, target, c.positions, FIRST_ROUND, until(first_end), margin, SHORT_IRLS_FLOOR
+            )
             if not _keep(c, charge(refined), FIRST_ROUND):  # no step helped: it will not move
                 c.converged = True
 
@@ -319,7 +330,9 @@ def refine_retrieved(
         finalists: list[_Candidate] = []
 
         def long(c: _Candidate) -> None:
-            refined = _refined(c, target, c.positions, LONG_ROUND, until(deadline), margin)
+            refined = _refined(
+                c, target, c.positions, LONG_ROUND, until(deadline), margin, IRLS_FLOOR
+            )
             if not _keep(c, charge(refined), LONG_ROUND):
                 c.converged = True
 
@@ -375,7 +388,9 @@ def refine_retrieved(
             ]
 
             def hop(c: _Candidate, start: np.ndarray) -> None:
-                refined = _refined(c, target, start, HOP_ITERATIONS, until(deadline), margin)
+                refined = _refined(
+                    c, target, start, HOP_ITERATIONS, until(deadline), margin, IRLS_FLOOR
+                )
                 _keep(c, charge(refined), 0)
 
             list(pool.map(hop, chosen, starts))
