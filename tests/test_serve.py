@@ -649,6 +649,30 @@ BAD_REQUESTS = [
         413,
         points=[[0.123456789012345678, i * 1e-3] for i in range(80_000)],
     ),
+    # A field a route does not take is refused by name, never dropped: a misspelled option
+    # would otherwise be ignored without the client knowing.
+    ret(
+        "misspelled k",
+        "unknown field 'K': /api/retrieve takes points, k, min_transmission",
+        points=POINTS,
+        K=3,
+    ),
+    bad(
+        "unknown field simulate", "/api/simulate", {**FOUR_BAR, "bogus": 1}, "unknown field 'bogus'"
+    ),
+    bad(
+        "unknown field analyze",
+        "/api/analyze",
+        {"adjacency": FOUR_BAR["adjacency"], "node_types": FOUR_BAR["node_types"], "step": 9},
+        "unknown field 'step'",
+    ),
+    bad("unknown field export", "/api/export", {**FOUR_BAR, "crank": 20}, "unknown field 'crank'"),
+    bad(
+        "unknown field synthesize",
+        "/api/synthesize",
+        {"points": POINTS, "constraints": {"pivots": [0, 0, 1, 1]}},
+        "unknown field 'constraints': /api/synthesize takes points, k, min_transmission, seconds",
+    ),
     bad("unknown route", "/api/nothing", None, "not found", 404, method="GET"),
     bad("GET simulate", "/api/simulate", None, "method not allowed", 405, method="GET"),
     bad("POST health", "/api/health", {}, "method not allowed", 405),

@@ -210,7 +210,7 @@ class LinksApiRoutes:
     )
     async def api_simulate(self, request: Request) -> Response:
         """Trajectories [n][steps][2] of a mechanism, 422 if it locks, 4xx if malformed."""
-        args = simulate_args(await read_json_object(request))
+        args = simulate_args(await read_json_object(request, "/api/simulate"))
         try:
             trajectories = await run_in_threadpool(simulate, *args)
         except LockingError as exc:
@@ -227,7 +227,7 @@ class LinksApiRoutes:
     )
     async def api_analyze(self, request: Request) -> Response:
         """Degree of freedom, dyadic solvability and, given positions, where it locks."""
-        body = await read_json_object(request)
+        body = await read_json_object(request, "/api/analyze")
         if body.get("positions") is None:
             adjacency, node_types = topology_args(body)
             args = (adjacency, node_types, None, DEFAULT_STEPS)
@@ -256,7 +256,7 @@ class LinksApiRoutes:
         """The mechanism as an SVG, DXF or table file in millimetres, its crank `crank_mm`
         long (default 20), with the path of `path_joint` if given; 422 if that path locks,
         other 4xx JSON if it cannot."""
-        args = export_args(await read_json_object(request))
+        args = export_args(await read_json_object(request, "/api/export"))
         try:
             return await run_in_threadpool(export_file, *args)
         except LockingError as exc:  # only with a path: a locking mechanism has none
@@ -275,7 +275,7 @@ class LinksApiRoutes:
         503 with `Retry-After` when MAX_RETRIEVALS are already under way here."""
         self._claim_retrieval()  # refused before reading the body
         try:
-            points, k, floor = retrieve_args(await read_json_object(request))
+            points, k, floor = retrieve_args(await read_json_object(request, "/api/retrieve"))
             start = time.perf_counter()
             results = await self._retrieve(points, k, floor)
             took_ms = (time.perf_counter() - start) * 1e3
@@ -301,7 +301,7 @@ class LinksApiRoutes:
         turn: _Turn | None = None
         released = True  # until the refinement, once submitted, releases its place itself
         try:
-            body = await read_json_object(request)
+            body = await read_json_object(request, "/api/synthesize")
             points, k, seconds, partial, floor, seed, iterations = synthesize_args(body)
             stream = stream_arg(body)
             start = time.perf_counter()

@@ -39,9 +39,9 @@ Joints = Field(min_length=MIN_JOINTS, max_length=MAX_REQUEST_JOINTS)
 
 
 class Request(BaseModel):
-    """A request body: a JSON object; fields it does not name are ignored."""
+    """A request body: a JSON object; a field it does not name is refused (400)."""
 
-    model_config = ConfigDict(extra="ignore")
+    model_config = ConfigDict(extra="forbid")
 
 
 class Mechanism(BaseModel):

@@ -39,6 +39,7 @@ from links_ray.engine.inputs import (
     validate_synthesis_work,
 )
 from links_ray.serve.api import INLINE_JSON_BYTES, JSON_POOL, ApiError
+from links_ray.serve.models import REQUEST_MODELS
 
 
 def _kind(value: object) -> str:
@@ -73,9 +74,11 @@ def _refuse_constant(name: str) -> float:
     raise ValueError(f"{name} is not a JSON number (numbers must be finite)")
 
 
-async def read_json_object(request: Request) -> dict[str, Any]:
-    """The request body as a JSON object, or ApiError (400, 408, 413 or 415) naming the
-    problem. A large body is parsed in JSON_POOL, off the event loop."""
+async def read_json_object(request: Request, route: str) -> dict[str, Any]:
+    """The body of a request to `route` as a JSON object, or ApiError (400, 408, 413 or 415)
+    naming the problem: a field the route's model (`models.REQUEST_MODELS`) does not name is
+    refused, so that a misspelled option is never silently dropped. A large body is parsed in
+    JSON_POOL, off the event loop."""
     content_type = request.headers.get("content-type")
     if content_type is not None:
         media = content_type.split(";", 1)[0].strip().lower()
@@ -91,8 +94,20 @@ async def read_json_object(request: Request) -> dict[str, Any]:
             raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
     body = await read_body(request)
     if len(body) <= INLINE_JSON_BYTES:
-        return parse_json_object(body)
-    return await asyncio.get_running_loop().run_in_executor(JSON_POOL, parse_json_object, body)
+        data = parse_json_object(body)
+    else:
+        data = await asyncio.get_running_loop().run_in_executor(JSON_POOL, parse_json_object, body)
+    refuse_unknown_fields(data, route)
+    return data
+
+
+def refuse_unknown_fields(body: dict[str, Any], route: str) -> None:
+    """ApiError 400 naming the first field of `body` that `route`'s request model lacks."""
+    known = REQUEST_MODELS[route].model_fields
+    for name in body:
+        if name not in known:
+            shown = name if len(name) <= 80 else name[:80] + "..."
+            raise ApiError(400, f"unknown field {shown!r}: {route} takes {', '.join(known)}")
 
 
 async def read_body(request: Request) -> bytes:
