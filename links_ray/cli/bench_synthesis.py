@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import statistics
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,6 +33,9 @@ from links_ray.cli.targets import TARGET_POINTS, even_along, placed, target_curv
 from links_ray.engine.inputs import DEFAULT_STEPS, DEFAULT_SYNTHESIS_SECONDS
 from links_ray.engine.paths import chamfer, longest_chord
 from links_ray.engine.solver import simulate
+
+if TYPE_CHECKING:
+    from links_ray.engine.synthesis import Retriever
 
 #: Seconds each curve is given: the most that keeps the median under MEDIAN_SECONDS_GOAL
 #: (retrieval and the answer included).
@@ -99,7 +103,7 @@ def set_groups(rows: list[dict]) -> list[dict]:
 
 
 def bench_row(
-    index: object,
+    index: Retriever,
     name: str,
     points: np.ndarray,
     partial: bool = False,
@@ -111,9 +115,10 @@ def bench_row(
     """One curve's row of the bench, synthesized from `points` (already in their frame) over
     `index`, and what the figure draws of it. With `iterations` the row is fixed work, the same
     bit for bit whatever the time, the load, the threads and the rows run before it; its
-    `seconds` alone vary."""
+    `seconds` alone vary. `seconds`: the budget (default the synthesis default)."""
     from links_ray.engine.synthesis import fit, synthesize
 
+    seconds = DEFAULT_SYNTHESIS_SECONDS if seconds is None else seconds
     start = time.perf_counter()
     if iterations is None:
         results = synthesize(index, points, k=3, seconds=seconds, partial=partial)
