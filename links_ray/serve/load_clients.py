@@ -15,6 +15,7 @@ import subprocess
 import sys
 import threading
 import time
+from decimal import Decimal
 
 import numpy as np
 
@@ -199,8 +200,10 @@ def probe_loop(port: int, seconds: float) -> dict:
 
 def largest_simulation() -> dict:
     """A /api/simulate body at the request limits: MAX_REQUEST_JOINTS joints (a crank and
-    rigid triangles on it, so it never locks) and the most steps they may take, padded with
-    numbers (costly to parse, unlike spaces) to exactly MAX_BODY_BYTES."""
+    rigid triangles on it, so it never locks) and the most steps they may take, written out to
+    exactly MAX_BODY_BYTES. The routes refuse fields they do not take, so the padding is in
+    the positions themselves: each coordinate is written as its exact decimal expansion and
+    then zeros, the same number, and digits cost a parser more than spaces would."""
     n = MAX_REQUEST_JOINTS
     steps = MAX_REQUEST_JOINT_STEPS // n
     adjacency = np.zeros((n, n), dtype=int)
@@ -214,17 +217,25 @@ def largest_simulation() -> dict:
         "positions": positions,
         "steps": steps,
     }
-    opening = json.dumps({**body, "pad": []})[:-2]  # up to the pad's "["
-    size, pad = len(opening) + len("]}"), []
-    for number in map(json.dumps, rng.uniform(-1, 1, MAX_BODY_BYTES // 20).tolist()):
-        more = len(number) + (len(", ") if pad else 0)
-        if size + more > MAX_BODY_BYTES:
-            break
-        pad.append(number)
-        size += more
-    text = opening + ", ".join(pad) + "]}"
-    text += " " * (MAX_BODY_BYTES - len(text))
+    exact = [format(Decimal(value), "f") for pair in positions for value in pair]
+    exact = [digits if "." in digits else digits + "." for digits in exact]
+
+    def written(zeros: list[int]) -> str:
+        coordinates = [digits + "0" * more for digits, more in zip(exact, zeros, strict=True)]
+        pairs = ", ".join(
+            f"[{x}, {y}]" for x, y in zip(coordinates[::2], coordinates[1::2], strict=True)
+        )
+        return (
+            f'{{"adjacency": {json.dumps(body["adjacency"])}, '
+            f'"node_types": {json.dumps(body["node_types"])}, '
+            f'"positions": [{pairs}], "steps": {steps}}}'
+        )
+
+    spare = MAX_BODY_BYTES - len(written([0] * len(exact)))
+    share, extra = divmod(spare, len(exact))
+    text = written([share + (i < extra) for i in range(len(exact))])
     assert len(text.encode()) == MAX_BODY_BYTES
+    assert json.loads(text) == body
     return {"body": body, "text": text}
 
 
