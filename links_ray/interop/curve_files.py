@@ -124,9 +124,7 @@ def _split_target(target: str) -> tuple[str, str | None]:
 
 def _read_bytes(file: str, label: str) -> bytes:
     """The file's bytes, refused before reading past MAX_CURVE_FILE_BYTES."""
-    too_large = (
-        f"{label}: larger than {MAX_CURVE_FILE_BYTES:,} bytes, the most a curve's file may be"
-    )
+    too_large = f"{label}: larger than {MAX_CURVE_FILE_BYTES:,} bytes, the most a curve file may be"
     try:
         if os.stat(file).st_size > MAX_CURVE_FILE_BYTES:
             raise ValueError(too_large)
