@@ -227,7 +227,7 @@ def test_set_groups_sum_up_by_half_and_family() -> None:
 
 def test_even_reference_of_a_stroke_stays_on_the_stroke() -> None:
     from links_ray.cli.bench_synthesis import even_reference
-    from links_ray.cli.targets import even_along
+    from links_ray.engine.paths import even_along
 
     corner = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
     stroke = even_along(corner, 200, closed=False)

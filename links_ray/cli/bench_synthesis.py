@@ -29,9 +29,9 @@ import numpy as np
 
 from links_ray.cli.bench import machine_info
 from links_ray.cli.curve_set import HALVES, curve_set
-from links_ray.cli.targets import TARGET_POINTS, even_along, placed, target_curves
+from links_ray.cli.targets import TARGET_POINTS, placed, target_curves
 from links_ray.engine.inputs import DEFAULT_STEPS, DEFAULT_SYNTHESIS_SECONDS
-from links_ray.engine.paths import chamfer, longest_chord
+from links_ray.engine.paths import chamfer, even_along, longest_chord
 from links_ray.engine.solver import simulate
 
 if TYPE_CHECKING:

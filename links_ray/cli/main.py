@@ -30,6 +30,7 @@ from links_ray.engine.inputs import (
     validate_synthesis_work,
 )
 from links_ray.engine.topology import TOPOLOGY_RULES
+from links_ray.interop.curve_files import DEFAULT_CURVE_POINTS
 
 
 def _report(args: argparse.Namespace, result: dict, formatted: Callable[[dict], str]) -> None:
@@ -145,9 +146,9 @@ def _serve(args: argparse.Namespace) -> None:
 
 
 def _retrieve(args: argparse.Namespace) -> None:
-    from links_ray.search.index import RetrievalIndex, read_points
+    from links_ray.search.index import RetrievalIndex
 
-    points = read_points(args.points)
+    points, _ = _query_points(args)
     note_compiling("retrieve")
     index = RetrievalIndex.open(args.root)
     start = time.perf_counter()
@@ -158,12 +159,13 @@ def _retrieve(args: argparse.Namespace) -> None:
 
 def _synthesize(args: argparse.Namespace) -> None:
     from links_ray.engine.synthesis import synthesize
-    from links_ray.search.index import RetrievalIndex, read_points
+    from links_ray.search.index import RetrievalIndex
 
-    points = read_points(args.points)
+    points, closed = _query_points(args)
+    partial = args.partial or not closed
     # Before the index loads:
     validate_synthesis_work(args.seconds, args.seed, args.iterations)
-    validate_synthesis(points, args.k, args.seconds, args.partial)
+    validate_synthesis(points, args.k, args.seconds, partial)
     as_transmission_deg(args.min_transmission, "min_transmission")
     note_compiling("synthesize")
     index = RetrievalIndex.open(args.root)
@@ -173,7 +175,7 @@ def _synthesize(args: argparse.Namespace) -> None:
         points,
         k=args.k,
         seconds=args.seconds,
-        partial=args.partial,
+        partial=partial,
         min_transmission=args.min_transmission,
         seed=args.seed,
         iterations=args.iterations,
@@ -253,11 +255,31 @@ def _warm(args: argparse.Namespace) -> None:
     _report(args, warm(args.folder), format_warm)
 
 
-def _query_arguments(command: argparse.ArgumentParser) -> None:
-    """The dataset root, the drawn points' file and k, as retrieve and synthesize take them."""
+def _query_points(args: argparse.Namespace) -> tuple[object, bool]:
+    """The query's points and whether they close: `--points` as they are (closed), or the
+    curve of `--curve` sampled evenly."""
+    from links_ray.interop.curve_files import read_curve, read_points
+
+    if args.points is not None:
+        return read_points(args.points), True
+    curve = read_curve(args.curve)
+    return curve.points, curve.closed
+
+
+def _query_arguments(command: argparse.ArgumentParser, curve_help: str = "") -> None:
+    """The dataset root, the drawn points' file or a drawing's curve, and k, as retrieve and
+    synthesize take them."""
     command.add_argument("root", help="dataset root: a folder or s3://...")
-    command.add_argument(
-        "--points", required=True, help='JSON file: [[x, y], ...] or {"points": [...]}'
+    source = command.add_mutually_exclusive_group(required=True)
+    source.add_argument(
+        "--points", metavar="FILE", help='JSON file: [[x, y], ...] or {"points": [...]}'
+    )
+    source.add_argument(
+        "--curve",
+        metavar="FILE[#ID]",
+        help="a curve in a drawing: .svg (a path or shape, #ID its id, else the first; y up), "
+        ".dxf (an LWPOLYLINE, POLYLINE or SPLINE, #ID its layer, else the first), .csv (x,y "
+        f"lines) or .json, sampled evenly to {DEFAULT_CURVE_POINTS} points{curve_help}",
     )
     command.add_argument(
         "-k",
@@ -498,7 +520,7 @@ def build_parser() -> argparse.ArgumentParser:
         "synthesize",
         help="find mechanisms for the curve in FILE and refine them onto it (offline)",
     )
-    _query_arguments(synthesize)
+    _query_arguments(synthesize, "; an open curve is matched as a stroke (as with --partial)")
     synthesize.add_argument(
         "--seconds",
         type=_positive_float,
@@ -522,7 +544,8 @@ def build_parser() -> argparse.ArgumentParser:
     synthesize.add_argument(
         "--partial",
         action="store_true",
-        help="the points are an open stroke: match them to part of a crank turn",
+        help="the points are an open stroke: match them to part of a crank turn (the default "
+        "for an open --curve)",
     )
     _json_option(synthesize, "the results (mechanisms included)")
     synthesize.set_defaults(run=_synthesize)

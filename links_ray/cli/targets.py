@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from links_ray.engine.paths import even_along
+
 #: Points per target curve: about as dense as a mouse stroke the studio records, and dense
 #: enough that the point-sampled chamfer of an exact fit is small (see bench_synthesis).
 TARGET_POINTS = 400
@@ -43,24 +45,6 @@ def _polyline_loop(corners: np.ndarray, radius: float, count: int) -> np.ndarray
         angles = first + sweep * np.linspace(0, 1, 16)
         pieces.append(centre + radius * np.column_stack([np.cos(angles), np.sin(angles)]))
     return even_along(np.concatenate(pieces), count)
-
-
-def even_along(
-    outline: np.ndarray, count: int, closed: bool = True, share: float = 1.0
-) -> np.ndarray:
-    """`count` points evenly spaced along the polyline `outline`: around it when `closed`
-    (its last point joined to its first), else from its first point to `share` of its length,
-    both ends included."""
-    if closed:
-        outline = np.concatenate([outline, outline[:1]])
-    lengths = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(outline, axis=0), axis=1))])
-    if closed:
-        at = np.linspace(0, lengths[-1], count, endpoint=False)
-    else:
-        at = np.linspace(0, share * lengths[-1], count)
-    return np.column_stack(
-        [np.interp(at, lengths, outline[:, 0]), np.interp(at, lengths, outline[:, 1])]
-    )
 
 
 def target_curves(points: int = TARGET_POINTS) -> dict[str, np.ndarray]:

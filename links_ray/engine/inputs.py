@@ -37,6 +37,9 @@ MIN_POINTS, MAX_POINTS = 3, 10_000
 #: A query spanning less than this has no curve to match (and its frame would not invert).
 MIN_EXTENT = 1e-9
 DEFAULT_K, MIN_K, MAX_K = 3, 1, 100
+#: Largest drawing a target curve is read from (SVG, DXF, CSV, JSON), in bytes: refused before
+#: it is parsed, since a parser holds the whole document, several times its size, in memory.
+MAX_CURVE_FILE_BYTES = 32 * 1024 * 1024
 
 # -- refinement (engine.refine) ----------------------------------------------------------------
 

@@ -1,4 +1,5 @@
-"""Coupler-path normalization, circle detection and bidirectional chamfer distance.
+"""Coupler-path normalization, circle detection, bidirectional chamfer distance, and points
+evenly spaced along a polyline.
 
 Pure numpy/numba: no Ray and no other ``links_ray`` module, so it can run in any worker.
 """
@@ -18,6 +19,7 @@ __all__ = [
     "chamfer_to_many",
     "circle_variance",
     "circle_variances",
+    "even_along",
     "is_circle",
     "longest_chord",
     "normalization",
@@ -513,3 +515,21 @@ def chamfer_to_many(query: object, candidates: object, out: np.ndarray | None = 
     if bad >= 0:
         raise ValueError(f"candidates must be finite (candidate {bad} has NaN or inf)")
     return out
+
+
+def even_along(
+    outline: np.ndarray, count: int, closed: bool = True, share: float = 1.0
+) -> np.ndarray:
+    """`count` points evenly spaced along the polyline `outline`: around it when `closed`
+    (its last point joined to its first), else from its first point to `share` of its length,
+    both ends included."""
+    if closed:
+        outline = np.concatenate([outline, outline[:1]])
+    lengths = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(outline, axis=0), axis=1))])
+    if closed:
+        at = np.linspace(0, lengths[-1], count, endpoint=False)
+    else:
+        at = np.linspace(0, share * lengths[-1], count)
+    return np.column_stack(
+        [np.interp(at, lengths, outline[:, 0]), np.interp(at, lengths, outline[:, 1])]
+    )

@@ -25,11 +25,9 @@ No Ray: the Serve app and the CLI wrap this module.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -91,21 +89,10 @@ __all__ = [
     "distance_fields",
     "distance_table",
     "query_variants",
-    "read_points",
     "sketch_paths",
     "stage_sizes",
     "variant_map",
 ]
-
-
-def read_points(path: str) -> np.ndarray:
-    """Points from a JSON file holding [[x, y], ...] or {"points": [[x, y], ...]}; ValueError
-    naming the file if it cannot be read."""
-    try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"cannot read points from {path}: {exc}") from None
-    return data["points"] if isinstance(data, dict) and "points" in data else data
 
 
 @dataclass
