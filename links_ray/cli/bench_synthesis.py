@@ -111,11 +111,13 @@ def bench_row(
     iterations: int | None = None,
     seed: int = 0,
     labels: dict | None = None,
-) -> tuple[dict, dict]:
+    draw: bool = False,
+) -> tuple[dict, dict | None]:
     """One curve's row of the bench, synthesized from `points` (already in their frame) over
-    `index`, and what the figure draws of it. With `iterations` the row is fixed work, the same
-    bit for bit whatever the time, the load, the threads and the rows run before it; its
-    `seconds` alone vary. `seconds`: the budget (default the synthesis default)."""
+    `index`, and with `draw` what the figure draws of it (else None). With `iterations` the
+    row is fixed work, the same bit for bit whatever the time, the load, the threads and the
+    rows run before it; its `seconds` alone vary. `seconds`: the budget (default the synthesis
+    default)."""
     from links_ray.engine.synthesis import fit, synthesize
 
     seconds = DEFAULT_SYNTHESIS_SECONDS if seconds is None else seconds
@@ -149,6 +151,8 @@ def bench_row(
         "joints": len(results[0]["mechanism"]["node_types"]),
         "path_id": results[0]["path_id"],
     }
+    if not draw:
+        return row, None
     drawn = {
         "curve": name,
         "points": points,
@@ -216,10 +220,13 @@ def bench_synthesize(
         points = placed(curve, name_rng(seed, name) if use_set else rng)
         if only and name not in only:
             continue
-        row, picture = bench_row(index, name, points, partial, seconds, iterations, seed, labels)
-        rows.append(row)
         # The set's figure is of its held-out half; the targets' of all of them.
-        if not use_set or labels["half"] == HALVES[1]:
+        draw = figure is not None and (not use_set or labels["half"] == HALVES[1])
+        row, picture = bench_row(
+            index, name, points, partial, seconds, iterations, seed, labels, draw
+        )
+        rows.append(row)
+        if picture is not None:
             drawn.append(picture)
     if figure is not None:
         from links_ray.cli.figures import write_synthesis_figure

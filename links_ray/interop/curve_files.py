@@ -86,7 +86,7 @@ def read_curve(target: str | os.PathLike[str], points: int = DEFAULT_CURVE_POINT
     if part is not None and kind in (".csv", ".json"):
         raise ValueError(f"{file}: a {kind[1:].upper()} file holds one curve, there is no #{part}")
     outline, closed, source = reader(file, data, part)
-    if closed and len(outline) > 1 and np.array_equal(outline[-1], outline[0]):
+    if closed and _repeats_first(outline):
         outline = outline[:-1]
     if not np.all(np.isfinite(outline)):
         raise ValueError(f"{file}: coordinates must be finite numbers")
