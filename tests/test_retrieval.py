@@ -502,6 +502,27 @@ def test_offline_cli(index: RetrievalIndex, tmp_path: Path) -> None:
     result = links("retrieve", index.store.uri, "--points", str(bad))
     assert result.returncode == 2
     assert result.stderr == "links retrieve: error: points must hold 3 to 10000 pairs, got 2\n"
+    # Kept to simple mechanisms: the index's own answer, each result within the limit.
+    most = int(np.median(index.n_joints))
+    result = links(
+        "retrieve", index.store.uri, "--points", str(query), "-k", "3", "--max-joints", str(most)
+    )
+    assert result.returncode == 0, result.stderr
+    simple = json.loads(result.stdout)["results"]
+    drawn = hand_drawn(np.random.default_rng(1))
+    expected = index.retrieve(drawn, k=3, max_joints=most)
+    assert [r["path_id"] for r in simple] == [r["path_id"] for r in expected]
+    assert len(simple) == 3 and all(r["n_joints"] <= most for r in simple)
+    for value, message in [
+        ("1", "max_joints must be from 2 to 20, got 1"),
+        ("21", "max_joints must be from 2 to 20, got 21"),
+    ]:
+        result = links("retrieve", index.store.uri, "--points", str(query), "--max-joints", value)
+        assert result.returncode == 2
+        assert result.stderr == f"links retrieve: error: {message}\n"
+    result = links("retrieve", index.store.uri, "--points", str(query), "--max-joints", "six")
+    assert result.returncode == 2
+    assert len(result.stderr.splitlines()) == 1 and "--max-joints" in result.stderr
 
 
 def test_sketch_scan_is_the_mean_distance_of_its_points_in_the_best_variants() -> None:
