@@ -46,6 +46,7 @@ from links_ray.serve.app import bindable_port
 REPO = Path(__file__).resolve().parents[1]
 RESULT_FIELDS = {
     "path_id",
+    "n_joints",
     "mechanism_id",
     "joint",
     "chamfer",
@@ -124,6 +125,8 @@ def test_openapi_bodies_carry_the_engines_limits(client: Client) -> None:
             inputs.DEFAULT_K,
         )
         assert fields["min_transmission"]["maximum"] == inputs.MAX_TRANSMISSION_DEG
+    most = requests["/api/retrieve"]["max_joints"]["anyOf"][0]
+    assert (most["minimum"], most["maximum"]) == (inputs.MIN_JOINTS, inputs.MAX_DATASET_JOINTS)
     seconds = requests["/api/synthesize"]["seconds"]
     assert seconds["exclusiveMinimum"] == 0
     assert seconds["maximum"] == inputs.MAX_SYNTHESIS_SECONDS
@@ -316,6 +319,7 @@ def _check_result(result: dict[str, Any]) -> None:
     assert np.array(mechanism["adjacency"]).shape == (n, n)
     assert np.array(mechanism["positions"]).shape == (n, 2)
     assert 0 <= result["mechanism_joint"] < n
+    assert result["n_joints"] == n
     assert np.array(result["points"]).shape == (200, 2)
     assert isinstance(result["chamfer"], float) and result["chamfer"] >= 0
 
@@ -359,6 +363,30 @@ def test_retrieve_finds_a_stored_path_and_a_mechanism_that_traces_it(
     path = np.array(traced["trajectories"])[best["mechanism_joint"]]
     size = np.ptp(query, axis=0).max()
     assert links_ray.chamfer(path, query) < 1e-4 * size
+
+
+def test_retrieve_keeps_to_mechanisms_of_at_most_max_joints(
+    client: Client, reference: Any, queries: list
+) -> None:
+    """`max_joints` reaches the index: one index's answer kept to paths whose reduced
+    mechanism has at most that many joints (tests/test_retrieval.py holds that against brute
+    force), each saying its count; null keeps none out; a limit below every path's, none."""
+    counts = reference.n_joints
+    most = int(np.median(counts))
+    for query in queries[:3]:
+        body = {"points": np.asarray(query).tolist(), "k": 5}
+        _, data = _post(client, "/api/retrieve", {**body, "max_joints": most})
+        expected = json.loads(json.dumps(reference.retrieve(query, 5, max_joints=most)))
+        assert len(expected) == 5 and data["results"] == expected
+        assert all(result["n_joints"] <= most for result in data["results"])
+        _, unrestricted = _post(client, "/api/retrieve", {**body, "max_joints": None})
+        assert unrestricted["results"] == json.loads(json.dumps(reference.retrieve(query, 5)))
+    smallest = int(counts.min())
+    if smallest > inputs.MIN_JOINTS:
+        _, data = _post(client, "/api/retrieve", {**body, "max_joints": smallest - 1})
+        assert data["results"] == []
+    _, data = _post(client, "/api/retrieve", {**body, "max_joints": smallest})
+    assert data["results"] and {r["n_joints"] for r in data["results"]} == {smallest}
 
 
 def test_retrieve_default_k_and_longest_query(client: Client, curated: Any) -> None:
@@ -640,6 +668,26 @@ BAD_REQUESTS = [
         "min_transmission must be a number of degrees, got '5'",
         points=POINTS,
         min_transmission="5",
+    ),
+    ret("max_joints 1", "max_joints must be from 2 to 20, got 1", points=POINTS, max_joints=1),
+    ret("max_joints 21", "max_joints must be from 2 to 20, got 21", points=POINTS, max_joints=21),
+    ret(
+        "max_joints text",
+        "max_joints must be an integer from 2 to 20, got '6'",
+        points=POINTS,
+        max_joints="6",
+    ),
+    ret(
+        "max_joints float",
+        "max_joints must be an integer from 2 to 20, got 6.5",
+        points=POINTS,
+        max_joints=6.5,
+    ),
+    ret(
+        "max_joints true",
+        "max_joints must be an integer from 2 to 20, got True",
+        points=POINTS,
+        max_joints=True,
     ),
     # Size limits and routes.
     ret("oversized body", OVER_LIMIT, 413, points=POINTS, pad=PAD),

@@ -21,10 +21,13 @@ from links_ray.cli.warm import format_warm, note_compiling, warm
 from links_ray.engine.inputs import (
     DEFAULT_K,
     DEFAULT_SYNTHESIS_SECONDS,
+    MAX_DATASET_JOINTS,
     MAX_K,
     MAX_SYNTHESIS_ITERATIONS,
     MAX_SYNTHESIS_SECONDS,
     MAX_TRANSMISSION_DEG,
+    MIN_JOINTS,
+    as_max_joints,
     as_transmission_deg,
     validate_synthesis,
     validate_synthesis_work,
@@ -149,10 +152,13 @@ def _retrieve(args: argparse.Namespace) -> None:
     from links_ray.search.index import RetrievalIndex
 
     points, _ = _query_points(args)
+    as_max_joints(args.max_joints)  # before the index loads
     note_compiling("retrieve")
     index = RetrievalIndex.open(args.root)
     start = time.perf_counter()
-    results = index.retrieve(points, k=args.k, min_transmission=args.min_transmission)
+    results = index.retrieve(
+        points, k=args.k, min_transmission=args.min_transmission, max_joints=args.max_joints
+    )
     took_ms = (time.perf_counter() - start) * 1e3
     _report(args, {"results": results, "took_ms": took_ms}, report.format_retrieve)
 
@@ -513,6 +519,14 @@ def build_parser() -> argparse.ArgumentParser:
         "retrieve", help="find mechanisms whose path matches the points in FILE (offline)"
     )
     _query_arguments(retrieve)
+    retrieve.add_argument(
+        "--max-joints",
+        type=int,
+        default=None,
+        metavar="J",
+        help="only paths whose reduced mechanism has at most J joints "
+        f"({MIN_JOINTS}-{MAX_DATASET_JOINTS}, default: any)",
+    )
     _json_option(retrieve, "the results (points and placed mechanisms included)", piped=True)
     retrieve.set_defaults(run=_retrieve)
 

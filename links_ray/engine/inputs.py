@@ -607,3 +607,39 @@ def check_solution_path(
     if fixed is not None:
         check_buffer("fixed", fixed, (None,), "iu")
         check_indices("fixed", fixed, joints, of)  # type: ignore[arg-type]
+
+
+def check_packed_paths(
+    orders: np.ndarray,
+    order_start: np.ndarray,
+    joint_start: np.ndarray,
+    mechanisms: np.ndarray,
+    joints: np.ndarray,
+) -> None:
+    """Refuse packed mechanisms (`search.mechanisms.MechanismBank`: solution paths `orders`
+    (R, 3), `order_start` and `joint_start` (M + 1,)) and the (mechanisms[i], joints[i]) a
+    kernel is to follow in them, naming the first bad buffer: a mechanism outside the M held,
+    a joint outside its mechanism, or offsets that decrease."""
+    check_buffer("orders", orders, (None, 3), "iu")
+    check_buffer("order_start", order_start, (None,), "iu")
+    count = order_start.shape[0] - 1
+    check_buffer("joint_start", joint_start, (count + 1,), "iu")
+    check_buffer("mechanisms", mechanisms, (None,), "iu")
+    rows = mechanisms.shape[0]
+    check_buffer("joints", joints, (rows,), "iu")
+    if count < 0:
+        raise ValueError("order_start must hold at least one entry, got none")
+    check_indices("order_start", order_start, orders.shape[0] + 1, "the rows of orders")
+    check_indices("mechanisms", mechanisms, count, f"the {count} mechanisms held")
+    if rows:
+        sizes = joint_start[mechanisms + 1] - joint_start[mechanisms]
+        if (sizes < MIN_JOINTS).any() or (
+            order_start[mechanisms + 1] < order_start[mechanisms]
+        ).any():
+            raise ValueError("order_start and joint_start must not decrease")
+        if not ((joints >= 0) & (joints < sizes)).all():
+            i = int(np.flatnonzero((joints < 0) | (joints >= sizes))[0])
+            raise ValueError(
+                f"joints must index each mechanism's joints: joints[{i}] = {int(joints[i])}, "
+                f"mechanism {int(mechanisms[i])} has {int(sizes[i])}"
+            )

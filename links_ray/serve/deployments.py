@@ -172,9 +172,11 @@ class _Retrieving:
         )
         self.pool.submit(index.warm).result()
 
-    async def retrieve(self, points: np.ndarray, k: int, min_transmission: float) -> list[dict]:
+    async def retrieve(
+        self, points: np.ndarray, k: int, min_transmission: float, max_joints: int | None = None
+    ) -> list[dict]:
         return await asyncio.get_running_loop().run_in_executor(
-            self.pool, self.index.retrieve, points, k, min_transmission
+            self.pool, self.index.retrieve, points, k, min_transmission, max_joints
         )
 
     async def retrieve_waited(
@@ -231,10 +233,14 @@ class IndexShard:
         return {"part": self.part, "parts": self.parts, "paths": len(self._retrieving.index)}
 
     async def retrieve(
-        self, points: np.ndarray, k: int, min_transmission: float = 0.0
+        self,
+        points: np.ndarray,
+        k: int,
+        min_transmission: float = 0.0,
+        max_joints: int | None = None,
     ) -> list[dict]:
         """The k best results of this part, best first (`RetrievalIndex.retrieve`)."""
-        return await self._retrieving.retrieve(points, k, min_transmission)
+        return await self._retrieving.retrieve(points, k, min_transmission, max_joints)
 
     def __del__(self) -> None:
         if hasattr(self, "_retrieving"):
@@ -300,15 +306,17 @@ class LinksApi(LinksApiRoutes):
         if hasattr(self, "_refining"):
             self._refining.shutdown(wait=False, cancel_futures=True)
 
-    async def _retrieve(self, points: np.ndarray, k: int, floor: float) -> list[dict]:
+    async def _retrieve(
+        self, points: np.ndarray, k: int, floor: float, max_joints: int | None = None
+    ) -> list[dict]:
         """The k best results for a query: from this replica's index (a ValueError it raises
         answered 400), or the shards' answers merged."""
         if self._retrieving is not None:
             try:
-                return await self._retrieving.retrieve(points, k, floor)
+                return await self._retrieving.retrieve(points, k, floor, max_joints)
             except ValueError as exc:
                 raise ApiError(400, str(exc)) from None
-        answers = await self._ask_shards("retrieve", points, k, floor)
+        answers = await self._ask_shards("retrieve", points, k, floor, max_joints)
         return merge_results(answers, k)
 
     async def _synthesis_candidates(

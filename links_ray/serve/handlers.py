@@ -275,9 +275,10 @@ class LinksApiRoutes:
         503 with `Retry-After` when MAX_RETRIEVALS are already under way here."""
         self._claim_retrieval()  # refused before reading the body
         try:
-            points, k, floor = retrieve_args(await read_json_object(request, "/api/retrieve"))
+            body = await read_json_object(request, "/api/retrieve")
+            points, k, floor, most = retrieve_args(body)
             start = time.perf_counter()
-            results = await self._retrieve(points, k, floor)
+            results = await self._retrieve(points, k, floor, most)
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
             self._retrievals -= 1

@@ -18,6 +18,7 @@ from links_ray.engine.inputs import (
     DEFAULT_SYNTHESIS_SECONDS,
     MAX_COORDINATE,
     MAX_CRANK_MM,
+    MAX_DATASET_JOINTS,
     MAX_K,
     MAX_POINTS,
     MAX_REQUEST_JOINTS,
@@ -71,8 +72,8 @@ class AnalyzeRequest(Request):
     steps: int = Field(DEFAULT_STEPS, ge=MIN_STEPS, le=MAX_STEPS)
 
 
-class RetrieveRequest(Request):
-    """POST /api/retrieve: a drawn curve, not all one point."""
+class CurveRequest(Request):
+    """A drawn curve, not all one point, and the answers wanted for it."""
 
     points: Annotated[list[Point], Field(min_length=MIN_POINTS, max_length=MAX_POINTS)]
     k: int = Field(DEFAULT_K, ge=MIN_K, le=MAX_K, description="results wanted")
@@ -84,7 +85,18 @@ class RetrieveRequest(Request):
     )
 
 
-class SynthesizeRequest(RetrieveRequest):
+class RetrieveRequest(CurveRequest):
+    """POST /api/retrieve: a drawn curve, not all one point."""
+
+    max_joints: int | None = Field(
+        None,
+        ge=MIN_JOINTS,
+        le=MAX_DATASET_JOINTS,
+        description="only paths whose reduced mechanism has at most this many joints",
+    )
+
+
+class SynthesizeRequest(CurveRequest):
     """POST /api/synthesize: retrieval, then refinement within `seconds`, or for a fixed
     number of `iterations`."""
 
@@ -178,6 +190,7 @@ class RetrieveResult(BaseModel):
     joint: int = Field(description="the path's joint in the stored mechanism")
     chamfer: float = Field(description="between the normalized query and path")
     min_transmission_deg: float | None = None
+    n_joints: int = Field(description="joints of `mechanism`, the path's reduced mechanism")
     points: list[Point] = Field(description="the path, normalized")
     mechanism: Mechanism = Field(description="reduced to the joints the path needs")
     mechanism_joint: int = Field(description="the path's joint in `mechanism`")

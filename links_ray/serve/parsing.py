@@ -32,6 +32,7 @@ from links_ray.engine.inputs import (
     MIN_BODY_BYTES_PER_S,
     as_crank_mm,
     as_flag,
+    as_max_joints,
     as_steps,
     as_transmission_deg,
     validate_query,
@@ -240,13 +241,13 @@ def _pairs(name: str, value: object, count: int | None = None) -> list[list[floa
     return value
 
 
-def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float]:
-    """The query points (T, 2), k and min_transmission of a /api/retrieve body, or ApiError
-    naming the problem."""
+def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float, int | None]:
+    """The query points (T, 2), k, min_transmission and max_joints of a /api/retrieve body,
+    or ApiError naming the problem."""
     points = _pairs("points", _required(body, "points"))
     k = body.get("k")
     points, k = _checked(validate_query, points, DEFAULT_K if k is None else k)
-    return points, k, _min_transmission(body)
+    return points, k, _min_transmission(body), _checked(as_max_joints, body.get("max_joints"))
 
 
 def synthesize_args(
