@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from drawings import dxf_parts, read_dxf
 from fourbars import stretched_four_bar, window_slack
 from serving import (
     FOUR_BAR,
@@ -41,6 +42,7 @@ import links_ray
 from links_ray.engine import inputs
 from links_ray.engine.fabrication import fabrication
 from links_ray.engine.inputs import validate_query
+from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve.app import bindable_port
 
 REPO = Path(__file__).resolve().parents[1]
@@ -262,7 +264,13 @@ def test_export_answers_the_file_as_an_attachment(
         f'attachment; filename="mechanism-4-joints-12.5mm.{suffix}"'
     )
     drawing = fabrication(**FOUR_BAR, crank_mm=12.5, path_joint=3)
-    assert text == {"svg": drawing.svg, "dxf": drawing.dxf, "table": drawing.table_text}[chosen]()
+    if chosen == "dxf":  # each file has its own time stamps and GUIDs: the same parts drawn
+        written = read_dxf(text)
+        assert written.header["$INSUNITS"] == 4
+        assert dxf_parts(written) == dxf_parts(read_dxf(dxf_drawing(drawing)))
+        assert [kind for kind, _, _ in dxf_parts(written)].count("LWPOLYLINE") == 1  # the path
+    else:
+        assert text == {"svg": svg_drawing, "table": type(drawing).table_text}[chosen](drawing)
     if chosen == "svg":  # at scale: the crank's line is 12.5 mm long in 1 mm user units
         crank = ET.fromstring(text).find(".//{http://www.w3.org/2000/svg}line[@data-joints='0 1']")
         x1, y1, x2, y2 = (float(crank.get(k)) for k in ("x1", "y1", "x2", "y2"))
@@ -272,7 +280,7 @@ def test_export_answers_the_file_as_an_attachment(
 def test_export_defaults_and_refusals(client: Client) -> None:
     status, headers, text = client.request("POST", "/api/export", FOUR_BAR)
     assert status == 200 and headers["content-type"].startswith("image/svg+xml")
-    assert text == fabrication(**FOUR_BAR, crank_mm=20).svg()  # SVG, crank 20 mm, no path
+    assert text == svg_drawing(fabrication(**FOUR_BAR, crank_mm=20))  # SVG, crank 20 mm, no path
     # A locking mechanism draws, but its path does not: 422 with where it locks.
     assert client.request("POST", "/api/export", LOCKING_FOUR_BAR)[0] == 200
     status, data = client.post("/api/export", {**LOCKING_FOUR_BAR, "path_joint": 3})

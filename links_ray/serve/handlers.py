@@ -31,7 +31,7 @@ from fastapi import Request
 from fastapi.responses import HTMLResponse, Response, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
-from links_ray.engine.fabrication import fabrication
+from links_ray.engine.fabrication import Fabrication, fabrication
 from links_ray.engine.inputs import DEFAULT_STEPS, MAX_SYNTHESIS_SECONDS, request_limits
 from links_ray.engine.mechanism import (
     InvalidMechanismError,
@@ -42,6 +42,7 @@ from links_ray.engine.mechanism import (
 )
 from links_ray.engine.solver import simulate, simulate_until_lock
 from links_ray.engine.synthesis import CANDIDATES, refine_retrieved
+from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve import models
 from links_ray.serve.api import (
     ApiError,
@@ -145,9 +146,11 @@ def export_file(
     crank_mm: float,
     path_joint: Any,
 ) -> Response:
-    """The mechanism as a file to download (engine.fabrication), or ValueError naming why not."""
+    """The mechanism as a file to download (engine.fabrication, written by interop.drawings),
+    or ValueError naming why not."""
     drawing = fabrication(adjacency, node_types, positions, crank_mm, path_joint)
-    text = {"svg": drawing.svg, "dxf": drawing.dxf, "table": drawing.table_text}[chosen]()
+    writers = {"svg": svg_drawing, "dxf": dxf_drawing, "table": Fabrication.table_text}
+    text = writers[chosen](drawing)
     media_type, suffix = EXPORT_FORMATS[chosen]
     name = f"mechanism-{len(node_types)}-joints-{crank_mm:g}mm.{suffix}"
     return Response(
