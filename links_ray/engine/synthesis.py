@@ -85,7 +85,15 @@ from links_ray.engine.refine import (
 from links_ray.engine.solver import simulate
 from links_ray.engine.timing import best_start
 
-__all__ = ["Retriever", "SynthesisResults", "fit", "refine_retrieved", "synthesize"]
+__all__ = [
+    "Retriever",
+    "SynthesisResults",
+    "fit",
+    "pooled",
+    "refine_retrieved",
+    "retrievals",
+    "synthesize",
+]
 
 #: Retrieved candidates the short pass refines.
 CANDIDATES = 96
@@ -515,6 +523,32 @@ def refine_retrieved(
     return answer
 
 
+def retrievals(k: int, max_joints: int | None, front: bool) -> list[tuple[int, int | None]]:
+    """The retrievals a synthesis asks for, as (count, max_joints): CANDIDATES (at least k) of
+    at most `max_joints` joints, and for a front FRONT_CANDIDATES more of each smaller count
+    of FRONT_JOINTS; `pooled` joins their answers."""
+    wanted: list[tuple[int, int | None]] = [(max(CANDIDATES, k), max_joints)]
+    if front:
+        wanted += [
+            (FRONT_CANDIDATES, joints)
+            for joints in FRONT_JOINTS
+            if max_joints is None or joints < max_joints
+        ]
+    return wanted
+
+
+def pooled(answers: Sequence[Sequence[dict]]) -> list[dict]:
+    """The results of several retrievals (`retrievals`), each path once, in their order."""
+    seen: set[int] = set()
+    results = []
+    for answer in answers:
+        for result in answer:
+            if result["path_id"] not in seen:
+                seen.add(result["path_id"])
+                results.append(result)
+    return results
+
+
 def _front(candidates: Sequence[_Candidate]) -> list[_Candidate]:
     """The best candidate of each joint count that ranks better than every simpler one's, by
     joints ascending."""
@@ -632,16 +666,12 @@ def synthesize(
     front = as_flag(front, "front")
     constraints = as_constraints(constraints)
     as_timing(timing, len(drawn), partial)  # refused before any retrieval
-    retrieved = index.retrieve(drawn, max(CANDIDATES, k), floor, max_joints)
-    if front:
-        seen = {result["path_id"] for result in retrieved}
-        for joints in FRONT_JOINTS:
-            if max_joints is not None and joints >= max_joints:
-                break
-            for result in index.retrieve(drawn, FRONT_CANDIDATES, floor, joints):
-                if result["path_id"] not in seen:
-                    seen.add(result["path_id"])
-                    retrieved.append(result)
+    retrieved = pooled(
+        [
+            index.retrieve(drawn, count, floor, most)
+            for count, most in retrievals(k, max_joints, front)
+        ]
+    )
     return refine_retrieved(
         drawn,
         retrieved,

@@ -58,6 +58,7 @@ from ray.serve.handle import DeploymentHandle, DeploymentResponse
 
 from links_ray.engine.cpus import set_given_cpus
 from links_ray.engine.solver import simulate
+from links_ray.engine.synthesis import pooled
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.api import ApiError, api, logger
 from links_ray.serve.handlers import LinksApiRoutes, studio_files
@@ -180,7 +181,11 @@ class _Retrieving:
         )
 
     async def retrieve_waited(
-        self, points: np.ndarray, k: int, min_transmission: float
+        self,
+        points: np.ndarray,
+        k: int,
+        min_transmission: float,
+        max_joints: int | None = None,
     ) -> tuple[list[dict], float]:
         """`retrieve`'s answer, and the seconds it waited behind other retrievals."""
         asked = time.perf_counter()
@@ -188,7 +193,7 @@ class _Retrieving:
 
         def run() -> list[dict]:
             began.append(time.perf_counter())
-            return self.index.retrieve(points, k, min_transmission)
+            return self.index.retrieve(points, k, min_transmission, max_joints)
 
         results = await asyncio.get_running_loop().run_in_executor(self.pool, run)
         return results, began[0] - asked
@@ -320,17 +325,26 @@ class LinksApi(LinksApiRoutes):
         return merge_results(answers, k)
 
     async def _synthesis_candidates(
-        self, points: np.ndarray, count: int, floor: float
+        self, points: np.ndarray, wanted: list[tuple[int, int | None]], floor: float
     ) -> tuple[list[dict], float]:
-        """A synthesis's retrieved candidates, counted against the retrieval limit as any
-        retrieval (503 beyond it), and the seconds they waited behind other retrievals (0
-        with shards: they wait in the shards' replicas)."""
+        """A synthesis's retrieved candidates (`synthesis.retrievals`: (count, max_joints)
+        each, `pooled`), counted against the retrieval limit as one retrieval (503 beyond
+        it), and the seconds they waited behind other retrievals (0 with shards: they wait in
+        the shards' replicas)."""
         self._claim_retrieval()
         try:
-            if self._retrieving is not None:
-                return await self._retrieving.retrieve_waited(points, count, floor)
-            answers = await self._ask_shards("retrieve", points, count, floor)
-            return merge_results(answers, count), 0.0
+            answers, waited = [], 0.0
+            for count, most in wanted:
+                if self._retrieving is not None:
+                    answer, wait = await self._retrieving.retrieve_waited(
+                        points, count, floor, most
+                    )
+                    answers.append(answer)
+                    waited += wait
+                else:
+                    shards = await self._ask_shards("retrieve", points, count, floor, most)
+                    answers.append(merge_results(shards, count))
+            return pooled(answers), waited
         finally:
             self._retrievals -= 1
 

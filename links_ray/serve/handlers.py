@@ -41,7 +41,7 @@ from links_ray.engine.mechanism import (
     mobility,
 )
 from links_ray.engine.solver import simulate, simulate_until_lock
-from links_ray.engine.synthesis import CANDIDATES, refine_retrieved
+from links_ray.engine.synthesis import SynthesisResults, refine_retrieved, retrievals
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve import models
 from links_ray.serve.api import (
@@ -163,9 +163,17 @@ def export_file(
     )
 
 
-def _synthesis_answer(results: list[dict], took_ms: float, queued_s: float) -> dict[str, Any]:
-    """A synthesis's answer: its results, and the milliseconds it took and waited in them."""
-    return {"results": results, "took_ms": round(took_ms, 3), "queued_ms": round(queued_s * 1e3, 3)}
+def _synthesis_answer(results: SynthesisResults, took_ms: float, queued_s: float) -> dict[str, Any]:
+    """A synthesis's answer: its results, the milliseconds it took and waited in them, and
+    `unmet` when no candidate kept the constraints."""
+    answer = {
+        "results": list(results),
+        "took_ms": round(took_ms, 3),
+        "queued_ms": round(queued_s * 1e3, 3),
+    }
+    if results.unmet is not None:
+        answer["unmet"] = results.unmet
+    return answer
 
 
 class LinksApiRoutes:
@@ -306,10 +314,11 @@ class LinksApiRoutes:
         released = True  # until the refinement, once submitted, releases its place itself
         try:
             body = await read_json_object(request, "/api/synthesize")
-            points, k, seconds, partial, floor, seed, iterations = synthesize_args(body)
+            points, k, seconds, partial, floor, seed, iterations, design = synthesize_args(body)
             stream = stream_arg(body)
             start = time.perf_counter()
-            retrieved, waited = await self._synthesis_candidates(points, max(CANDIDATES, k), floor)
+            wanted = retrievals(k, design["max_joints"], design["front"])
+            retrieved, waited = await self._synthesis_candidates(points, wanted, floor)
             retrieved_at = time.perf_counter()
             retrieval_s = retrieved_at - start - waited
             budget = None if seconds is None else max(0.0, seconds - retrieval_s)
@@ -319,7 +328,7 @@ class LinksApiRoutes:
             loop = asyncio.get_running_loop()
             reports: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
 
-            def refine() -> tuple[list[dict], float]:
+            def refine() -> tuple[SynthesisResults, float]:
                 began = time.perf_counter()
                 results = refine_retrieved(
                     points,
@@ -336,6 +345,9 @@ class LinksApiRoutes:
                         else None
                     ),
                     iterations=iterations,
+                    front=design["front"],
+                    constraints=design["constraints"],
+                    timing=design["timing"],
                 )
                 return results, waited + began - retrieved_at
 
@@ -362,7 +374,7 @@ class LinksApiRoutes:
     async def _synthesis_lines(
         self,
         reports: asyncio.Queue[dict[str, Any]],
-        refining: asyncio.Future[tuple[list[dict], float]],
+        refining: asyncio.Future[tuple[SynthesisResults, float]],
         start: float,
     ) -> AsyncIterator[bytes]:
         """A streamed synthesis: `{"progress": best so far}` lines while it refines, then
