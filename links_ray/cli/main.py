@@ -222,6 +222,22 @@ def _json_file(path: str | None, option: str) -> object:
 def _bench_synthesize(args: argparse.Namespace) -> None:
     from links_ray.cli import bench_synthesis
 
+    if args.design:
+        from links_ray.cli import bench_design
+
+        if args.set or args.curve or args.iterations is not None or args.figure:
+            raise ValueError(
+                "--design runs the 8 targets at a time budget: no --set, --curve, "
+                "--iterations or --figure"
+            )
+        _run_bench(
+            args,
+            lambda: bench_design.bench_design(
+                seconds=args.seconds, paths=args.paths, seed=args.seed
+            ),
+            bench_design.format_design,
+        )
+        return
     _run_bench(
         args,
         lambda: bench_synthesis.bench_synthesize(
@@ -704,6 +720,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="the curve set of links_ray.cli.curve_set (a tuning and a held-out half) instead "
         "of the 8 targets, reported per half and family; the figure shows the held-out half "
         "(needs the bench extra)",
+    )
+    synthesize_bench.add_argument(
+        "--design",
+        action="store_true",
+        help="buildable answers instead: per target, the plain best, the front (simplest "
+        "first), a pivot region and footprint kept, and the timed error, each at the budget "
+        "(default the synthesis default)",
     )
     synthesize_bench.add_argument(
         "--curve",
