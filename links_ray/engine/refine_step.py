@@ -124,6 +124,18 @@ def constrained_minimum(
     tolerance = 1e-12 * (1.0 + float(np.abs(c).max()))
     mu = np.zeros(len(rows))
     on = np.zeros(len(rows), dtype=bool)  # multipliers free to be positive
+    with np.errstate(invalid="ignore", over="ignore"):
+        # A nearly singular active set can overflow: `guarded_step` refuses a step that is
+        # not finite, and a shorter one is tried.
+        mu = _active_set(q, c, mu, on, tolerance)
+    return free + towards @ mu
+
+
+def _active_set(
+    q: np.ndarray, c: np.ndarray, mu: np.ndarray, on: np.ndarray, tolerance: float
+) -> np.ndarray:
+    """Lawson and Hanson's rounds for `constrained_minimum`'s multipliers, from `mu` and the
+    free set `on` (changed in place), at most GUARD_ROUNDS."""
     for _ in range(GUARD_ROUNDS):
         descent = c - q @ mu
         descent[on] = -np.inf
@@ -132,7 +144,7 @@ def constrained_minimum(
             break
         on[entering] = True
         while True:
-            trial = np.zeros(len(rows))
+            trial = np.zeros(len(c))
             index = np.flatnonzero(on)
             trial[index] = np.linalg.solve(q[np.ix_(index, index)], c[index])
             if np.all(trial[index] > 0.0):
@@ -146,7 +158,7 @@ def constrained_minimum(
             mu[~on] = 0.0
             if not on.any():
                 break
-    return free + towards @ mu
+    return mu
 
 
 def guarded_step(
