@@ -369,16 +369,18 @@ def refine_retrieved(
         reported: list[Any] = [(True, math.inf, math.inf), -math.inf]  # rank reported, when
 
         def report() -> None:
-            if progress is None or not candidates:
+            now = time.perf_counter()
+            if progress is None or not candidates or now - reported[1] < PROGRESS_INTERVAL_S:
                 return
             best = min(candidates, key=_Candidate.rank)
-            now = time.perf_counter()
-            if best.rank() < reported[0] and now - reported[1] >= PROGRESS_INTERVAL_S:
-                # Measured from the positions read now: a worker may have moved them on since
-                # `best.rank()`, and the reports must fall as the answer's measures do.
-                answer = _as_result(best, target, timed, trajectories=True, elapsed=now - started)
-                measured = answer["timed_error"] if timed is not None else answer["chamfer"]
-                reported[:] = [(not best.missed.kept, best.missed.total, measured), now]
+            # Measured from the positions read now (a worker may have moved them on since its
+            # rank), by the answer's own measure (the timed error once timing ranks): the
+            # reports must fall as the answer's measures do.
+            answer = _as_result(best, target, timed, trajectories=True, elapsed=now - started)
+            measured = answer["timed_error"] if timed is not None else answer["chamfer"]
+            rank = (not best.missed.kept, best.missed.total, measured)
+            if rank < reported[0]:
+                reported[:] = [rank, now]
                 progress(answer)
 
         report()
