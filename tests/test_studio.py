@@ -1094,3 +1094,75 @@ def test_open_curve_draws_the_files_curve(studio: Studio, tmp_path: Path) -> Non
     studio.wait("() => !document.querySelector('[data-testid=error]').hidden")
     assert "Cannot open the curve: drawing.svg: no element with id 'tail'" in studio.text("error")
     np.testing.assert_array_equal(studio.js("() => window.studio.retriever.points"), bean.points)
+
+
+# -- design constraints drawn on the canvas -------------------------------------------------------
+
+
+def drag_on_drawing(studio: Studio, start: list[float], end: list[float]) -> None:
+    """A mouse drag on the draw canvas between two world points."""
+    a, b = (
+        studio.screen("draw-canvas", studio.js("(p) => window.studio.drawToScreen(p)", p))
+        for p in (start, end)
+    )
+    studio.page.mouse.move(*a)
+    studio.page.mouse.down()
+    studio.page.mouse.move(*b, steps=5)
+    studio.page.mouse.up()
+
+
+def draw_box(studio: Studio, kind: str, corner: list[float], other: list[float]) -> None:
+    """Draw a `kind` box ("pivots" or "footprint") between two world corners, then go back to
+    drawing curves."""
+    studio.click(f"box-{kind}")
+    drag_on_drawing(studio, corner, other)
+    studio.click(f"box-{kind}")
+
+
+def test_constraint_boxes_are_drawn_in_the_drawings_frame(studio: Studio) -> None:
+    """A pivot and a footprint box dragged on the canvas are held in the frame the drawn points
+    are (to a pixel), a corner dragged moves only that corner, and what a synthesis would send
+    is those boxes and the link limits typed; Clear boxes removes them; the curve drawn
+    meanwhile is untouched."""
+    t = np.linspace(0, 2 * np.pi, 60)
+    draw(studio, np.stack([0.5 + 0.3 * np.cos(t), 0.5 + 0.2 * np.sin(t)], 1).tolist())
+    drawn = studio.js("() => window.studio.retriever.points")
+    pixel = 1.0 / studio.js("() => window.studio.retriever.view.scale")
+
+    draw_box(studio, "pivots", [0.15, 0.7], [0.45, 0.2])  # any two opposite corners
+    draw_box(studio, "footprint", [0.05, 0.05], [0.95, 0.9])
+    boxes = studio.js("() => window.studio.constraints.boxes")
+    np.testing.assert_allclose(boxes["pivots"], [0.15, 0.2, 0.45, 0.7], atol=1.5 * pixel)
+    np.testing.assert_allclose(boxes["footprint"], [0.05, 0.05, 0.95, 0.9], atol=1.5 * pixel)
+    assert studio.js("() => window.studio.retriever.points") == drawn  # boxes draw no curve
+
+    # A corner taken and moved: the opposite one stays where it was.
+    studio.click("box-pivots")
+    pivots = boxes["pivots"]
+    drag_on_drawing(studio, [pivots[2], pivots[3]], [0.6, 0.8])
+    studio.click("box-pivots")
+    moved = studio.js("() => window.studio.constraints.boxes.pivots")
+    assert moved[:2] == pivots[:2]
+    np.testing.assert_allclose(moved[2:], [0.6, 0.8], atol=1.5 * pixel)
+
+    studio.page.get_by_test_id("max-link-ratio").fill("6")
+    studio.page.get_by_test_id("min-link").fill("0.02")
+    studio.page.get_by_test_id("max-joints").fill("8")
+    studio.page.get_by_test_id("front").check()
+    studio.page.get_by_test_id("timed").check()
+    options = studio.js("() => window.studio.retriever.synthesisOptions()")
+    assert options == {
+        "max_joints": 8,
+        "front": True,
+        "timing": True,
+        "constraints": {
+            "pivots": moved,
+            "footprint": boxes["footprint"],
+            "max_link_ratio": 6,
+            "min_link": 0.02,
+        },
+    }
+    studio.click("clear-boxes")
+    assert studio.js("() => window.studio.constraints.boxes") == {"pivots": None, "footprint": None}
+    options = studio.js("() => window.studio.retriever.synthesisOptions()")
+    assert options["constraints"] == {"max_link_ratio": 6, "min_link": 0.02}
