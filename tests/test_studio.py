@@ -1166,3 +1166,148 @@ def test_constraint_boxes_are_drawn_in_the_drawings_frame(studio: Studio) -> Non
     assert studio.js("() => window.studio.constraints.boxes") == {"pivots": None, "footprint": None}
     options = studio.js("() => window.studio.retriever.synthesisOptions()")
     assert options["constraints"] == {"max_link_ratio": 6, "min_link": 0.02}
+
+
+# -- simplest first, constraints and timing, against the real synthesis --------------------------
+
+
+def fixed_synthesis_work(studio: Studio) -> list[dict[str, Any]]:
+    """Give the page's syntheses a fixed amount of work (a seed and an iteration count) instead
+    of its seconds, so that what they reach does not depend on the machine's load; returns the
+    bodies sent, as the server receives them."""
+    sent: list[dict[str, Any]] = []
+
+    def fixed(route: Any) -> None:
+        body = {**json.loads(route.request.post_data), "seed": 3, "iterations": 40}
+        sent.append(body)
+        route.continue_(post_data=json.dumps(body))
+
+    studio.page.route("**/api/synthesize", fixed)
+    return sent
+
+
+def streamed_answer(client: Client, body: dict[str, Any]) -> dict[str, Any]:
+    """The last line of a streamed /api/synthesize answer to `body`: what the page received."""
+    status, _, text = client.request("POST", "/api/synthesize", body)
+    assert status == 200, text
+    return json.loads(text.strip().splitlines()[-1])
+
+
+def bean(studio: Studio) -> list[list[float]]:
+    """A bean-shaped loop drawn across the drawing area; the points the page holds."""
+    t = np.linspace(0, 2 * np.pi, 90)
+    curve = np.stack([0.5 + 0.3 * np.cos(t), 0.5 + 0.2 * np.sin(t) + 0.06 * np.sin(2 * t)], 1)
+    draw(studio, curve.tolist())
+    return studio.js("() => window.studio.retriever.points")
+
+
+def test_simplest_first_front_table_and_timing(studio: Studio, client: Client) -> None:
+    """Simplest first and Timed: the answer is a table of joints against chamfer (and timed
+    error), the API's front row by row, joints rising and chamfer falling; a row's click
+    animates that row's mechanism."""
+    sent = fixed_synthesis_work(studio)
+    bean(studio)
+    studio.page.get_by_test_id("front").check()
+    studio.page.get_by_test_id("timed").check()
+    studio.click("synthesize-button")
+    table = studio.page.get_by_test_id("front-table")
+    table.wait_for(timeout=SYNTHESIS_WAIT_MS)
+    studio.wait("() => window.studio.retriever.chosen && window.studio.retriever.chosen.index >= 0")
+    assert len(sent) == 1 and sent[0]["front"] is True and sent[0]["timing"] is True
+    answer = streamed_answer(client, sent[0])  # equal requests, bit-equal answers
+    results = answer["results"]
+    rows = studio.page.get_by_test_id("front-row")
+    assert rows.count() == len(results) >= 2
+    shown = [
+        (
+            int(rows.nth(i).get_attribute("data-joints")),
+            float(rows.nth(i).get_attribute("data-chamfer")),
+        )
+        for i in range(rows.count())
+    ]
+    assert shown == [(r["n_joints"], r["chamfer"]) for r in results]
+    joints = [j for j, _ in shown]
+    chamfers = [c for _, c in shown]
+    assert joints == sorted(set(joints))  # one row per joint count, simplest first
+    assert chamfers == sorted(chamfers, reverse=True) and len(set(chamfers)) == len(chamfers)
+    for i, result in enumerate(results):
+        assert result["n_joints"] == len(result["mechanism"]["node_types"])
+        timed = float(rows.nth(i).get_attribute("data-timed-error"))
+        assert timed == result["timed_error"] > 0
+        assert f"{timed:.4g}"[:4] in rows.nth(i).inner_text()
+    assert not studio.page.get_by_test_id("results").is_visible()  # the table, not the list
+
+    # It ends on the most accurate row; a click on the simplest animates that one instead.
+    assert studio.js("() => window.studio.retriever.chosen.index") == len(results) - 1
+    rows.nth(0).click()
+    studio.wait(
+        "() => window.studio.retriever.chosen && window.studio.retriever.chosen.index === 0"
+    )
+    studio.wait(
+        "() => document.querySelector('[data-testid=draw-canvas]').dataset.animating === 'true'"
+    )
+    assert rows.nth(0).get_attribute("aria-selected") == "true"
+    assert rows.nth(len(results) - 1).get_attribute("aria-selected") == "false"
+    chosen = studio.js("() => window.studio.retriever.chosen")
+    simplest = results[0]
+    assert chosen["result"]["mechanism"] == simplest["mechanism"]
+    joint = simplest["mechanism_joint"]
+    traced = np.array(chosen["trajectories"])[joint]
+    np.testing.assert_array_equal(traced, simulate(simplest["mechanism"])[joint])
+    frames = {studio.page.get_by_test_id("draw-canvas").get_attribute("data-frame")}
+    for _ in range(20):
+        studio.js("() => new Promise((r) => setTimeout(r, 100))")
+        frames.add(studio.page.get_by_test_id("draw-canvas").get_attribute("data-frame"))
+        if len(frames) >= 3:
+            break
+    assert len(frames) >= 3, frames
+    assert f"{simplest['n_joints']} joints" in studio.text("retrieve-status")
+
+
+def test_a_pivot_box_drawn_on_the_canvas_is_kept(studio: Studio, client: Client) -> None:
+    """A pivot box drawn on the canvas goes to the synthesis in the drawing's frame, and every
+    fixed joint of every mechanism of the answer lies inside it; a box no candidate can reach
+    is answered with `unmet`, shown in words."""
+    sent = fixed_synthesis_work(studio)
+    drawn = np.array(bean(studio))
+    low, high = drawn.min(0), drawn.max(0)
+    box = [low[0], low[1] - 0.1, high[0], high[1]]  # the pivots under and within the curve
+    draw_box(studio, "pivots", [box[0], box[1]], [box[2], box[3]])
+    held = studio.js("() => window.studio.constraints.boxes.pivots")
+    studio.page.get_by_test_id("k").fill("3")
+    studio.click("synthesize-button")
+    studio.page.get_by_test_id("result").first.wait_for(timeout=SYNTHESIS_WAIT_MS)
+    studio.wait(
+        "() => window.studio.retriever.chosen && window.studio.retriever.chosen.index === 0"
+    )
+    assert sent[-1]["constraints"] == {"pivots": held}
+    results = studio.js("() => window.studio.retriever.results")
+    assert results == streamed_answer(client, sent[-1])["results"] and results
+    for result in results:
+        mechanism = result["mechanism"]
+        fixed = np.array(mechanism["positions"])[np.array(mechanism["node_types"]) == 0]
+        assert len(fixed) >= 2
+        assert np.all(fixed >= held[:2]) and np.all(fixed <= held[2:]), (fixed, held)
+        assert studio.page.get_by_test_id("result").nth(results.index(result)).get_attribute(
+            "data-joints"
+        ) == str(result["n_joints"])
+    # Without the box the same work places a pivot outside it: the box was kept, not lucky.
+    free = streamed_answer(client, {k: v for k, v in sent[-1].items() if k != "constraints"})
+    outside = [
+        np.array(r["mechanism"]["positions"])[np.array(r["mechanism"]["node_types"]) == 0]
+        for r in free["results"]
+    ]
+    assert any(np.any(f < held[:2]) or np.any(f > held[2:]) for f in outside)
+
+    # A box far from anything a mechanism of this curve can reach: unmet, said in words.
+    studio.click("clear-boxes")
+    draw_box(studio, "pivots", [0.02, 0.9], [0.04, 0.92])
+    studio.click("synthesize-button")
+    unmet = studio.page.get_by_test_id("unmet")
+    unmet.wait_for(timeout=SYNTHESIS_WAIT_MS)
+    answer = streamed_answer(client, sent[-1])
+    assert answer["results"] == [] and answer["unmet"]["constraint"] == "pivots"
+    assert unmet.get_attribute("data-constraint") == "pivots"
+    assert float(unmet.get_attribute("data-by")) == answer["unmet"]["by"] > 0
+    assert "pivots" in unmet.inner_text()
+    assert studio.page.get_by_test_id("result").count() == 0
