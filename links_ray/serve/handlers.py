@@ -269,7 +269,7 @@ class LinksApiRoutes:
 
     @api.post(
         "/api/curve",
-        response_model=models.CurveResponse,
+        response_model=models.CurveFileResponse,
         responses=models.error_responses(400, 413, 415),
         openapi_extra=request_body("/api/curve"),
     )

@@ -112,7 +112,7 @@ class SynthesizeRequest(RetrieveRequest):
     )
 
 
-class CurveRequest(Request):
+class CurveFileRequest(Request):
     """POST /api/curve: a drawing's file, its curve read as `links synthesize --curve` reads
     it (SVG, DXF, CSV or JSON; the body at most `max_body_bytes`)."""
 
@@ -130,7 +130,7 @@ class CurveRequest(Request):
     )
 
 
-class CurveResponse(BaseModel):
+class CurveFileResponse(BaseModel):
     """200 from /api/curve: the curve sampled evenly by arc length, in the drawing's units
     (an SVG's y negated, so that it reads as drawn)."""
 
@@ -292,5 +292,5 @@ REQUEST_MODELS: dict[str, type[BaseModel]] = {
     "/api/retrieve": RetrieveRequest,
     "/api/synthesize": SynthesizeRequest,
     "/api/export": ExportRequest,
-    "/api/curve": CurveRequest,
+    "/api/curve": CurveFileRequest,
 }

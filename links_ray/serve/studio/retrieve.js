@@ -167,13 +167,17 @@ export class Retriever {
     this.paint();
   }
 
+  /** A retrieval's options beyond the curve: the most joints. */
+  retrievalOptions() {
+    const joints = this.ui.maxJoints ? this.ui.maxJoints.valueAsNumber : NaN;
+    return Number.isFinite(joints) ? { max_joints: joints } : {};
+  }
+
   /** The synthesis's options as the page sets them: joints, front, timing, partial,
    * constraints. */
   synthesisOptions() {
-    const { maxJoints, front, timed, partial } = this.ui;
-    const options = {};
-    const joints = maxJoints ? maxJoints.valueAsNumber : NaN;
-    if (Number.isFinite(joints)) options.max_joints = joints;
+    const { front, timed, partial } = this.ui;
+    const options = this.retrievalOptions();
     if (front && front.checked) options.front = true;
     if (timed && timed.checked) options.timing = true;
     if (partial && partial.checked) options.partial = true;
@@ -197,7 +201,7 @@ export class Retriever {
       ...(Number.isFinite(k) ? { k } : {}),
       ...(Number.isFinite(floor) && floor > 0 ? { min_transmission: floor } : {}),
     };
-    const options = synthesize ? this.synthesisOptions() : {};
+    const options = synthesize ? this.synthesisOptions() : this.retrievalOptions();
     const what = synthesize ? "Synthesis" : "Retrieval";
     const buttons = [this.ui.retrieve, this.ui.synthesize].filter(Boolean);
     buttons.forEach((button) => (button.disabled = true));
@@ -209,7 +213,7 @@ export class Retriever {
         ? await postJsonLines("/api/synthesize", { ...body, ...options, stream: true }, (line) => {
             if (run === this.runs) this.showProgress(line);
           })
-        : await postJson("/api/retrieve", body);
+        : await postJson("/api/retrieve", { ...body, ...options });
       if (run !== this.runs) return;
       if (answer.data && answer.data.error && answer.status === 200) {
         this.say(`${what} failed: ${answer.data.error}`, true);
