@@ -1,43 +1,38 @@
-"""Reading back the fabrication files: a DXF by its group codes, independently of the writer."""
+"""Reading back the fabrication DXF with ezdxf, a reader independent of the writer's code."""
 
 from __future__ import annotations
 
+import io
 
-def dxf_pairs(text: str) -> list[tuple[int, str]]:
-    """(group code, value) pairs, one line each."""
-    lines = text.splitlines()
-    assert len(lines) % 2 == 0
-    return [(int(lines[k]), lines[k + 1]) for k in range(0, len(lines), 2)]
+from ezdxf import recover
+from ezdxf.document import Drawing
 
 
-def dxf_sections(text: str) -> dict[str, list[list[tuple[int, str]]]]:
-    """Each section's records: the pairs from one group code 0 to the next."""
-    pairs = dxf_pairs(text)
-    assert pairs[-1] == (0, "EOF")
-    sections: dict[str, list[list[tuple[int, str]]]] = {}
-    k = 0
-    while pairs[k] != (0, "EOF"):
-        assert pairs[k] == (0, "SECTION") and pairs[k + 1][0] == 2
-        name, k = pairs[k + 1][1], k + 2
-        records: list[list[tuple[int, str]]] = []
-        while pairs[k] != (0, "ENDSEC"):
-            if pairs[k][0] == 0 or not records:
-                records.append([])
-            records[-1].append(pairs[k])
-            k += 1
-        sections[name] = records
-        k += 1
-    return sections
+def read_dxf(data: str | bytes) -> Drawing:
+    """The DXF document in `data` (text is encoded as UTF-8, as R2007 and later files are),
+    read by ezdxf's recovering reader, which must have had nothing to recover from."""
+    raw = data.encode("utf-8") if isinstance(data, str) else data
+    doc, recovered = recover.read(io.BytesIO(raw))
+    assert (recovered.errors, recovered.fixes) == ([], [])
+    return doc
 
 
-def field(record: list[tuple[int, str]], code: int) -> str:
-    """The one value of group code `code` in a record."""
-    values = [value for c, value in record if c == code]
-    assert len(values) == 1, (code, record)
-    return values[0]
-
-
-def dxf_header(sections: dict[str, list[list[tuple[int, str]]]]) -> dict[str, str]:
-    """Each header variable (group code 9) and its first value."""
-    pairs = [pair for record in sections["HEADER"] for pair in record]
-    return {pairs[k][1]: pairs[k + 1][1] for k in range(len(pairs) - 1) if pairs[k][0] == 9}
+def dxf_parts(doc: Drawing) -> list[tuple]:
+    """Each modelspace entity as (type, layer, what it draws), in file order: a LINE's ends, a
+    CIRCLE's centre and radius, a TEXT's string, insertion point and height, an LWPOLYLINE's
+    closed flag and vertices."""
+    parts = []
+    for entity in doc.modelspace():
+        kind, dxf = entity.dxftype(), entity.dxf
+        if kind == "LINE":
+            drawn: tuple = (dxf.start.x, dxf.start.y, dxf.end.x, dxf.end.y)
+        elif kind == "CIRCLE":
+            drawn = (dxf.center.x, dxf.center.y, dxf.radius)
+        elif kind == "TEXT":
+            drawn = (dxf.text, dxf.insert.x, dxf.insert.y, dxf.height)
+        elif kind == "LWPOLYLINE":
+            drawn = (entity.closed, tuple(entity.get_points("xy")))
+        else:
+            raise AssertionError(f"an entity the drawing does not write: {kind}")
+        parts.append((kind, dxf.layer, drawn))
+    return parts

@@ -1,29 +1,34 @@
-"""Fabrication drawings (engine/fabrication.py): SVG, DXF and the link table in millimetres.
+"""Fabrication drawings (engine/fabrication.py, written by interop/drawings.py): SVG, DXF and
+the link table in millimetres.
 
-The files are read back independently of the writer (the SVG with `xml.etree`, the DXF by its
-group codes) and checked against the mechanism's own geometry, scaled here from the raw
-positions so that the crank is exactly the length asked for, and against a re-simulation for
-the traced path.
+The files are read back independently of the writer (the SVG with `xml.etree`, the DXF with
+ezdxf, the traced path of both with `read_curve`) and checked against the mechanism's own
+geometry, scaled here from the raw positions so that the crank is exactly the length asked
+for, and against a re-simulation for the traced path.
 """
 
 from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from drawings import dxf_header, dxf_sections, field
+from drawings import dxf_parts, read_dxf
 from serving import FOUR_BAR, LOCKING_FOUR_BAR
 
 import links_ray
-from links_ray.engine.fabrication import HOLE_MM, LAYERS, fabrication
+from links_ray.engine.fabrication import HOLE_MM, TEXT_MM, fabrication
 from links_ray.engine.inputs import InvalidMechanismError
 from links_ray.engine.mechanism import LockingError
+from links_ray.engine.paths import even_along
+from links_ray.interop.curve_files import read_curve
+from links_ray.interop.drawings import LAYERS, PATH_ID, dxf_drawing, svg_drawing
 
 SVG = "{http://www.w3.org/2000/svg}"
-TOL_MM = 2e-9  # the files hold coordinates to the nanometre
+TOL_MM = 2e-9  # the SVG holds coordinates to the nanometre, the DXF as they are
 
 
 def random_mechanism(seed: int) -> dict[str, Any]:
@@ -63,7 +68,7 @@ def floats(element: ET.Element, *names: str) -> list[float]:
 def test_svg_is_at_scale_in_millimetres(which: int, crank_mm: float) -> None:
     mech = MECHANISMS[which]
     joints, lengths, fixed = expected(mech, crank_mm)
-    root = ET.fromstring(fabrication(**mech, crank_mm=crank_mm).svg())
+    root = ET.fromstring(svg_drawing(fabrication(**mech, crank_mm=crank_mm)))
 
     # One user unit is one millimetre: the size in mm equals the viewBox's.
     _, _, box_w, box_h = map(float, root.get("viewBox").split())
@@ -112,7 +117,7 @@ def test_svg_path_is_the_simulated_path(which: int) -> None:
     mech = MECHANISMS[which]
     joint = len(mech["node_types"]) - 1
     crank_mm = 25.0
-    root = ET.fromstring(fabrication(**mech, crank_mm=crank_mm, path_joint=joint).svg())
+    root = ET.fromstring(svg_drawing(fabrication(**mech, crank_mm=crank_mm, path_joint=joint)))
     polygon = root.find(f".//{SVG}g[@id='PATH']/{SVG}polygon")
     assert int(polygon.get("data-joint")) == joint
     points = np.array([p.split(",") for p in polygon.get("points").split()], dtype=float)
@@ -129,58 +134,103 @@ def test_svg_path_is_the_simulated_path(which: int) -> None:
 # -- DXF ----------------------------------------------------------------------------------------
 
 
+def traced(mech: dict[str, Any], joint: int, crank_mm: float) -> np.ndarray:
+    """The path `joint` traces, re-simulated, in mm from joint 0 (y up)."""
+    pos = np.asarray(mech["positions"], dtype=float)
+    scale = crank_mm / math.dist(pos[0], pos[1])
+    return (links_ray.simulate(**mech)[joint] - pos[0]) * scale
+
+
+@pytest.mark.parametrize("with_path", [True, False])
+@pytest.mark.parametrize("which", range(len(MECHANISMS)))
+def test_dxf_declares_millimetres_and_passes_the_audit(which: int, with_path: bool) -> None:
+    mech = MECHANISMS[which]
+    joint = len(mech["node_types"]) - 1 if with_path else None
+    text = dxf_drawing(fabrication(**mech, crank_mm=20.0, path_joint=joint))
+    assert text.isascii()  # the same bytes in any encoding a reader assumes
+    doc = read_dxf(text)  # nothing to recover
+    audit = doc.audit()
+    assert (audit.errors, audit.fixes) == ([], [])
+    assert doc.dxfversion == "AC1024"  # R2010: R2000 and later hold $INSUNITS, R12 does not
+    assert doc.header["$INSUNITS"] == 4  # millimetres
+    assert doc.header["$MEASUREMENT"] == 1  # metric
+
+    colours = {layer.dxf.name: layer.dxf.color for layer in doc.layers}
+    assert {name: colours.get(name) for name in LAYERS} == LAYERS
+    used = {entity.dxf.layer for entity in doc.modelspace()}
+    assert used == set(LAYERS) - ({"PATH"} if joint is None else set())
+
+
 @pytest.mark.parametrize("crank_mm", [20.0, 3.0])
 @pytest.mark.parametrize("which", range(len(MECHANISMS)))
 def test_dxf_lines_are_the_links_in_millimetres(which: int, crank_mm: float) -> None:
     mech = MECHANISMS[which]
     joints, lengths, fixed = expected(mech, crank_mm)
     joint = len(joints) - 1
-    sections = dxf_sections(fabrication(**mech, crank_mm=crank_mm, path_joint=joint).dxf())
-    assert list(sections) == ["HEADER", "TABLES", "ENTITIES"]
+    doc = read_dxf(dxf_drawing(fabrication(**mech, crank_mm=crank_mm, path_joint=joint)))
+    parts = dxf_parts(doc)
+    assert {kind for kind, _, _ in parts} == {"LINE", "CIRCLE", "TEXT", "LWPOLYLINE"}
 
-    header = dxf_header(sections)
-    assert header["$INSUNITS"] == "4"  # millimetres
-    assert header["$ACADVER"] == "AC1009"
-
-    layers = {field(r, 2): int(field(r, 62)) for r in sections["TABLES"] if r[0] == (0, "LAYER")}
-    assert layers == LAYERS
-
-    entities = sections["ENTITIES"]
-    lines = [r for r in entities if r[0] == (0, "LINE")]
+    lines = [(layer, drawn) for kind, layer, drawn in parts if kind == "LINE"]
     assert len(lines) == len(lengths)
     found = []
-    for record in lines:
-        x1, y1, x2, y2 = (float(field(record, c)) for c in (10, 20, 11, 21))
+    for layer, (x1, y1, x2, y2) in lines:
         found.append(math.hypot(x2 - x1, y2 - y1))
         ends = [int(np.argmin(np.hypot(*(joints - p).T))) for p in ([x1, y1], [x2, y2])]
         i, j = sorted(ends)
         assert found[-1] == pytest.approx(lengths[i, j], abs=3 * TOL_MM)
-        assert field(record, 8) == ("CRANK" if (i, j) == (0, 1) else "LINKS")
+        assert layer == ("CRANK" if (i, j) == (0, 1) else "LINKS")
     assert sorted(found) == pytest.approx(sorted(lengths.values()), abs=3 * TOL_MM)
 
-    circles = [r for r in entities if r[0] == (0, "CIRCLE")]
-    ground = [r for r in circles if field(r, 8) == "GROUND"]
-    centres = np.array([[float(field(r, 10)), float(field(r, 20))] for r in ground])
+    circles = [(layer, drawn) for kind, layer, drawn in parts if kind == "CIRCLE"]
+    centres = np.array([[x, y] for layer, (x, y, _) in circles if layer == "GROUND"])
     np.testing.assert_allclose(centres, joints[fixed], atol=TOL_MM, rtol=0)
-    assert len(circles) == len(joints)
-    assert all(float(field(r, 40)) == HOLE_MM / 2 for r in circles)
-    texts = [field(r, 1) for r in entities if r[0] == (0, "TEXT")]
-    assert texts == [f"J{j}" for j in range(len(joints))]
+    moving = np.array([[x, y] for layer, (x, y, _) in circles if layer == "JOINTS"])
+    moved = [j for j in range(len(joints)) if j not in fixed]
+    np.testing.assert_allclose(moving, joints[moved], atol=TOL_MM, rtol=0)
+    assert all(r == HOLE_MM / 2 for _, (_, _, r) in circles)
+    texts = [(layer, drawn) for kind, layer, drawn in parts if kind == "TEXT"]
+    assert [(layer, text, height) for layer, (text, _, _, height) in texts] == [
+        ("LABELS", f"J{j}", TEXT_MM) for j in range(len(joints))
+    ]
 
-    # The path: a closed POLYLINE of VERTEX records, then SEQEND.
-    kinds = [r[0][1] for r in entities]
-    start = kinds.index("POLYLINE")
-    assert field(entities[start], 70) == "1" and field(entities[start], 66) == "1"
-    vertices = entities[start + 1 : kinds.index("SEQEND")]
-    assert {r[0][1] for r in vertices} == {"VERTEX"}
-    points = np.array([[float(field(r, 10)), float(field(r, 20))] for r in vertices])
-    pos = np.asarray(mech["positions"], dtype=float)
-    truth = links_ray.simulate(**mech)[joint]
-    np.testing.assert_allclose(
-        points, (truth - pos[0]) * crank_mm / math.dist(pos[0], pos[1]), atol=TOL_MM, rtol=0
-    )
-    extents = [float(header[k]) for k in ("$EXTMIN", "$EXTMAX")]  # x only (first value)
-    assert extents[0] <= points[:, 0].min() and points[:, 0].max() <= extents[1]
+    # The path: one closed LWPOLYLINE, the re-simulated path vertex for vertex.
+    [(layer, (closed, vertices))] = [(la, d) for kind, la, d in parts if kind == "LWPOLYLINE"]
+    assert layer == "PATH" and closed
+    points = np.array(vertices)
+    np.testing.assert_allclose(points, traced(mech, joint, crank_mm), atol=TOL_MM, rtol=0)
+    # The extents hold the path and every hole.
+    low, high = (np.asarray(doc.header[name])[:2] for name in ("$EXTMIN", "$EXTMAX"))
+    assert np.all(low <= points.min(axis=0)) and np.all(points.max(axis=0) <= high)
+    assert np.all(low <= joints.min(axis=0) - HOLE_MM / 2)
+    assert np.all(joints.max(axis=0) + HOLE_MM / 2 <= high)
+
+
+# -- the traced path, read back ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize("which", range(len(MECHANISMS)))
+def test_traced_path_reads_back_from_svg_and_dxf(which: int, tmp_path: Path) -> None:
+    """`read_curve` gives the path in the frame it was drawn in: mm, joint 0 at the origin, y
+    up. (The SVG draws it inside a group that flips y; read_curve applies that transform and
+    negates SVG's y-down, which brings it back.) It samples a curve evenly by arc length, so the
+    truth is the re-simulated path sampled so."""
+    mech = MECHANISMS[which]
+    joint, crank_mm, count = len(mech["node_types"]) - 1, 25.0, 400
+    drawing = fabrication(**mech, crank_mm=crank_mm, path_joint=joint)
+    (tmp_path / "m.dxf").write_text(dxf_drawing(drawing), encoding="utf-8")
+    (tmp_path / "m.svg").write_text(svg_drawing(drawing), encoding="utf-8")
+    truth = even_along(traced(mech, joint, crank_mm), count, closed=True)
+    # The DXF holds the path's coordinates as they are; the SVG to the nanometre.
+    for target, tolerance in [
+        ("m.dxf#PATH", 1e-9),
+        ("m.dxf", 1e-9),  # the only polyline: read without naming it
+        (f"m.svg#{PATH_ID}", 1e-6),
+        ("m.svg", 1e-6),  # the first shape
+    ]:
+        curve = read_curve(tmp_path / target, points=count)
+        assert curve.closed, target
+        np.testing.assert_allclose(curve.points, truth, atol=tolerance, rtol=0, err_msg=target)
 
 
 # -- the table --------------------------------------------------------------------------------

@@ -24,7 +24,7 @@ from links_ray.engine.paths import chamfer_to_many, normalize_paths
 from links_ray.engine.sampling import PositionSampler
 from links_ray.engine.solver import TopologySimulator, crank_table
 from links_ray.engine.topology import grow_topology
-from links_ray.search import kernels
+from links_ray.search import kernels, reduced
 
 STEPS = 40
 
@@ -115,6 +115,18 @@ def trace_args() -> dict[str, Any]:
         "joints": np.array([n - 1, 1]),
         "crank": args["crank"],
         "out": np.empty((2, STEPS, 2)),
+    }
+
+
+def reduced_args() -> dict[str, Any]:
+    args = trace_args()
+    return {
+        "orders": args["orders"],
+        "order_start": args["order_start"],
+        "joint_start": args["joint_start"],
+        "mechanisms": args["mechanisms"],
+        "joints": args["joints"],
+        "out": np.empty(2, dtype=np.int16),
     }
 
 
@@ -214,6 +226,9 @@ CASES: dict[str, Case] = {
     ),
     "trace_joints": Case(
         engine_solver.trace_joints, trace_args, ("out", "joints", "joint_start", "positions")
+    ),
+    "reduced_joints": Case(
+        reduced.reduced_joints, reduced_args, ("out", "joints", "joint_start", "orders")
     ),
     "turn_lock": Case(
         turning.turn_lock,
@@ -353,6 +368,9 @@ def test_a_misshapen_buffer_is_refused_by_name(entry: str, buffer: str) -> None:
         ("simulate_one", "fixed", (0,), "fixed"),
         ("trace_joints", "mechanisms", (1,), "mechanisms"),
         ("trace_joints", "joints", (0,), "joints"),
+        ("reduced_joints", "mechanisms", (1,), "mechanisms"),
+        ("reduced_joints", "joints", (0,), "joints"),
+        ("reduced_joints", "orders", (0, 1), "orders"),
         ("sketch_scan", "slots", (0,), "slots"),
         ("sketch_scan", "ends", (-1,), "sketches"),
         ("sketch_chamfer", "rows", (1,), "rows"),
@@ -392,7 +410,7 @@ def test_every_entry_point_has_a_case() -> None:
         "checked_input",
     }
     covered = {entry.split()[0].split(".")[-1] for entry in CASES} | {"simulate_one"}
-    for module in (engine_solver, turning, refine_kernels, transmission, kernels):
+    for module in (engine_solver, turning, refine_kernels, transmission, kernels, reduced):
         for name, value in vars(module).items():
             if name.startswith("_") or name in making_their_own:
                 continue

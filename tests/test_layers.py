@@ -1,6 +1,6 @@
 """The package's layers hold: a module imports only its own layer or lower ones.
 
-engine (numpy/numba) < data (pyarrow), interop (other linkage libraries) < search, cluster
+engine (numpy/numba) < data (pyarrow), interop (other libraries, drawing files) < search, cluster
 < serve < cli, where data and interop are peers, and so are search and cluster (neither of a
 pair imports the other). `links_ray/__init__.py` may import engine and data only, but for
 `links_ray.ray_dataset`, which it loads from the cluster layer when first asked for (so that

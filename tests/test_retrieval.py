@@ -15,8 +15,10 @@ import links_ray
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
 from links_ray.data.store import Store
-from links_ray.engine.inputs import validate_query
+from links_ray.engine.inputs import FIXED, as_max_joints, validate_query
+from links_ray.engine.mechanism import reduce_mechanism
 from links_ray.engine.paths import chamfer, chamfer_to_many, normalization, normalize_path
+from links_ray.engine.topology import grow_topology
 from links_ray.search import build as search_build
 from links_ray.search import cache as search_cache
 from links_ray.search import kernels as kernels
@@ -25,6 +27,7 @@ from links_ray.search.build import _nearest_centroid, distance_fields, sketch_pa
 from links_ray.search.held_out import held_out_queries
 from links_ray.search.index import RetrievalIndex, cache_folder
 from links_ray.search.query import _about_least, distance_table, query_variants, variant_map
+from links_ray.search.reduced import reduced_joints
 
 
 @pytest.fixture(scope="module")
@@ -149,6 +152,113 @@ def test_min_transmission_keeps_the_exact_best_of_the_paths_that_keep_it(
     assert index.ranked(normalization(queries()[0])[0], 3, min_transmission=above_all) == []
     with pytest.raises(ValueError, match="min_transmission must be from 0 to 45 degrees"):
         index.retrieve(queries()[0], k=3, min_transmission=60)
+
+
+def test_reduced_joint_counts_are_those_of_the_reduced_mechanisms(index: RetrievalIndex) -> None:
+    """Every path's count, from the packed solution paths, is the size of the mechanism
+    `reduce_mechanism` makes of its stored mechanism and joint."""
+    table = links_ray.load(index.store, "mechanisms", format="arrow")
+    by_id = {int(m): i for i, m in enumerate(table.column("mechanism_id").to_numpy())}
+    adjacency, node_types = table.column("adjacency"), table.column("node_types")
+    expected = []
+    for mechanism_id, joint in zip(index.mechanism_id, index.joint, strict=True):
+        i = by_id[int(mechanism_id)]
+        types = np.array(node_types[i].as_py())
+        graph = np.array(adjacency[i].as_py()).reshape(len(types), len(types))
+        reduced = reduce_mechanism(graph, types, np.zeros((len(types), 2)), int(joint))
+        expected.append(len(reduced[1]))
+    np.testing.assert_array_equal(index.n_joints, expected)
+    assert len(np.unique(expected)) >= 5  # simple and complex mechanisms alike
+
+
+def test_max_joints_keeps_the_exact_best_of_the_simple_paths(index: RetrievalIndex) -> None:
+    """With `max_joints` the answer is the plain brute force over only the paths whose
+    reduced mechanism has that many joints or fewer, with `min_transmission` too; each result
+    says its reduced mechanism's joints."""
+    counts = index.n_joints
+    most = int(np.median(counts))
+    keeps = counts <= most
+    assert 0.2 < keeps.mean() < 0.9
+    floor = float(np.quantile(index.transmission, 0.5))
+    stored = stored_points(index)
+    path_ids = index.path_id
+    for query in queries():
+        normalized = normalization(query)[0]
+        plain = np.stack([chamfer_to_many(v, stored) for v in query_variants(normalized)])
+        for allowed, options in [
+            (keeps, {"max_joints": most}),
+            (
+                keeps & (index.transmission >= floor),
+                {"max_joints": most, "min_transmission": floor},
+            ),
+        ]:
+            results = index.retrieve(query, k=5, **options)
+            best = np.where(allowed, plain.min(axis=0), np.inf)
+            expected = np.lexsort((path_ids, best))[:5]
+            assert [r["path_id"] for r in results] == path_ids[expected].tolist()
+            np.testing.assert_allclose([r["chamfer"] for r in results], best[expected], rtol=1e-9)
+            for result in results:
+                assert result["n_joints"] == len(result["mechanism"]["node_types"]) <= most
+        # Unrestricted, the best is a larger mechanism than allowed for some of the queries.
+    unrestricted = [index.retrieve(q, k=1)[0]["n_joints"] for q in queries()]
+    assert max(unrestricted) > most
+    # A limit below every path's count gives no results; a bad one a clear error.
+    assert index.ranked(normalization(queries()[0])[0], 3, max_joints=int(counts.min()) - 1) == []
+    with pytest.raises(ValueError, match="max_joints must be from 2 to 20, got 21"):
+        index.retrieve(queries()[0], k=3, max_joints=21)
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [
+        (1, "max_joints must be from 2 to 20, got 1"),
+        (21, "max_joints must be from 2 to 20, got 21"),
+        (True, "max_joints must be an integer from 2 to 20, got True"),
+        (6.0, "max_joints must be an integer from 2 to 20, got 6.0"),
+        ("6", "max_joints must be an integer from 2 to 20, got '6'"),
+    ],
+)
+def test_bad_max_joints_are_refused(value: object, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        as_max_joints(value)
+
+
+def test_max_joints_takes_none_and_the_dataset_range() -> None:
+    assert as_max_joints(None) is None
+    assert [as_max_joints(j) for j in (2, np.int64(8), 20)] == [2, 8, 20]
+
+
+def test_reduced_joints_of_grown_topologies_match_reduce_mechanism() -> None:
+    """The kernel over mechanisms of every dataset size, each joint of each, against
+    `reduce_mechanism`."""
+    rng = np.random.default_rng(4)
+    topologies = [grow_topology(rng, n) for n in range(5, 21) for _ in range(3)]
+    orders = [t.order.astype(np.uint8) for t in topologies]
+    order_start = np.cumsum([0] + [len(o) for o in orders])
+    joint_start = np.cumsum([0] + [t.n_joints for t in topologies])
+    mechanisms, joints, expected = [], [], []
+    for m, topology in enumerate(topologies):
+        for joint in np.flatnonzero(topology.node_types != FIXED):
+            reduced = reduce_mechanism(
+                topology.adjacency,
+                topology.node_types,
+                np.zeros((topology.n_joints, 2)),
+                int(joint),
+            )
+            mechanisms.append(m)
+            joints.append(joint)
+            expected.append(len(reduced[1]))
+    out = np.empty(len(joints), dtype=np.int16)
+    reduced_joints(
+        np.concatenate(orders),
+        order_start,
+        joint_start,
+        np.array(mechanisms),
+        np.array(joints),
+        out,
+    )
+    np.testing.assert_array_equal(out, expected)
+    assert min(expected) == 2 and max(expected) == 20
 
 
 def test_finalists_are_measured_as_if_every_variant_were(index: RetrievalIndex) -> None:
@@ -392,6 +502,27 @@ def test_offline_cli(index: RetrievalIndex, tmp_path: Path) -> None:
     result = links("retrieve", index.store.uri, "--points", str(bad))
     assert result.returncode == 2
     assert result.stderr == "links retrieve: error: points must hold 3 to 10000 pairs, got 2\n"
+    # Kept to simple mechanisms: the index's own answer, each result within the limit.
+    most = int(np.median(index.n_joints))
+    result = links(
+        "retrieve", index.store.uri, "--points", str(query), "-k", "3", "--max-joints", str(most)
+    )
+    assert result.returncode == 0, result.stderr
+    simple = json.loads(result.stdout)["results"]
+    drawn = hand_drawn(np.random.default_rng(1))
+    expected = index.retrieve(drawn, k=3, max_joints=most)
+    assert [r["path_id"] for r in simple] == [r["path_id"] for r in expected]
+    assert len(simple) == 3 and all(r["n_joints"] <= most for r in simple)
+    for value, message in [
+        ("1", "max_joints must be from 2 to 20, got 1"),
+        ("21", "max_joints must be from 2 to 20, got 21"),
+    ]:
+        result = links("retrieve", index.store.uri, "--points", str(query), "--max-joints", value)
+        assert result.returncode == 2
+        assert result.stderr == f"links retrieve: error: {message}\n"
+    result = links("retrieve", index.store.uri, "--points", str(query), "--max-joints", "six")
+    assert result.returncode == 2
+    assert len(result.stderr.splitlines()) == 1 and "--max-joints" in result.stderr
 
 
 def test_sketch_scan_is_the_mean_distance_of_its_points_in_the_best_variants() -> None:

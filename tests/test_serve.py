@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from drawings import dxf_parts, read_dxf
 from fourbars import stretched_four_bar, window_slack
 from serving import (
     FOUR_BAR,
@@ -41,11 +42,13 @@ import links_ray
 from links_ray.engine import inputs
 from links_ray.engine.fabrication import fabrication
 from links_ray.engine.inputs import validate_query
+from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve.app import bindable_port
 
 REPO = Path(__file__).resolve().parents[1]
 RESULT_FIELDS = {
     "path_id",
+    "n_joints",
     "mechanism_id",
     "joint",
     "chamfer",
@@ -124,6 +127,8 @@ def test_openapi_bodies_carry_the_engines_limits(client: Client) -> None:
             inputs.DEFAULT_K,
         )
         assert fields["min_transmission"]["maximum"] == inputs.MAX_TRANSMISSION_DEG
+    most = requests["/api/retrieve"]["max_joints"]["anyOf"][0]
+    assert (most["minimum"], most["maximum"]) == (inputs.MIN_JOINTS, inputs.MAX_DATASET_JOINTS)
     seconds = requests["/api/synthesize"]["seconds"]
     assert seconds["exclusiveMinimum"] == 0
     assert seconds["maximum"] == inputs.MAX_SYNTHESIS_SECONDS
@@ -259,7 +264,13 @@ def test_export_answers_the_file_as_an_attachment(
         f'attachment; filename="mechanism-4-joints-12.5mm.{suffix}"'
     )
     drawing = fabrication(**FOUR_BAR, crank_mm=12.5, path_joint=3)
-    assert text == {"svg": drawing.svg, "dxf": drawing.dxf, "table": drawing.table_text}[chosen]()
+    if chosen == "dxf":  # each file has its own time stamps and GUIDs: the same parts drawn
+        written = read_dxf(text)
+        assert written.header["$INSUNITS"] == 4
+        assert dxf_parts(written) == dxf_parts(read_dxf(dxf_drawing(drawing)))
+        assert [kind for kind, _, _ in dxf_parts(written)].count("LWPOLYLINE") == 1  # the path
+    else:
+        assert text == {"svg": svg_drawing, "table": type(drawing).table_text}[chosen](drawing)
     if chosen == "svg":  # at scale: the crank's line is 12.5 mm long in 1 mm user units
         crank = ET.fromstring(text).find(".//{http://www.w3.org/2000/svg}line[@data-joints='0 1']")
         x1, y1, x2, y2 = (float(crank.get(k)) for k in ("x1", "y1", "x2", "y2"))
@@ -269,7 +280,7 @@ def test_export_answers_the_file_as_an_attachment(
 def test_export_defaults_and_refusals(client: Client) -> None:
     status, headers, text = client.request("POST", "/api/export", FOUR_BAR)
     assert status == 200 and headers["content-type"].startswith("image/svg+xml")
-    assert text == fabrication(**FOUR_BAR, crank_mm=20).svg()  # SVG, crank 20 mm, no path
+    assert text == svg_drawing(fabrication(**FOUR_BAR, crank_mm=20))  # SVG, crank 20 mm, no path
     # A locking mechanism draws, but its path does not: 422 with where it locks.
     assert client.request("POST", "/api/export", LOCKING_FOUR_BAR)[0] == 200
     status, data = client.post("/api/export", {**LOCKING_FOUR_BAR, "path_joint": 3})
@@ -316,6 +327,7 @@ def _check_result(result: dict[str, Any]) -> None:
     assert np.array(mechanism["adjacency"]).shape == (n, n)
     assert np.array(mechanism["positions"]).shape == (n, 2)
     assert 0 <= result["mechanism_joint"] < n
+    assert result["n_joints"] == n
     assert np.array(result["points"]).shape == (200, 2)
     assert isinstance(result["chamfer"], float) and result["chamfer"] >= 0
 
@@ -359,6 +371,30 @@ def test_retrieve_finds_a_stored_path_and_a_mechanism_that_traces_it(
     path = np.array(traced["trajectories"])[best["mechanism_joint"]]
     size = np.ptp(query, axis=0).max()
     assert links_ray.chamfer(path, query) < 1e-4 * size
+
+
+def test_retrieve_keeps_to_mechanisms_of_at_most_max_joints(
+    client: Client, reference: Any, queries: list
+) -> None:
+    """`max_joints` reaches the index: one index's answer kept to paths whose reduced
+    mechanism has at most that many joints (tests/test_retrieval.py holds that against brute
+    force), each saying its count; null keeps none out; a limit below every path's, none."""
+    counts = reference.n_joints
+    most = int(np.median(counts))
+    for query in queries[:3]:
+        body = {"points": np.asarray(query).tolist(), "k": 5}
+        _, data = _post(client, "/api/retrieve", {**body, "max_joints": most})
+        expected = json.loads(json.dumps(reference.retrieve(query, 5, max_joints=most)))
+        assert len(expected) == 5 and data["results"] == expected
+        assert all(result["n_joints"] <= most for result in data["results"])
+        _, unrestricted = _post(client, "/api/retrieve", {**body, "max_joints": None})
+        assert unrestricted["results"] == json.loads(json.dumps(reference.retrieve(query, 5)))
+    smallest = int(counts.min())
+    if smallest > inputs.MIN_JOINTS:
+        _, data = _post(client, "/api/retrieve", {**body, "max_joints": smallest - 1})
+        assert data["results"] == []
+    _, data = _post(client, "/api/retrieve", {**body, "max_joints": smallest})
+    assert data["results"] and {r["n_joints"] for r in data["results"]} == {smallest}
 
 
 def test_retrieve_default_k_and_longest_query(client: Client, curated: Any) -> None:
@@ -641,6 +677,26 @@ BAD_REQUESTS = [
         points=POINTS,
         min_transmission="5",
     ),
+    ret("max_joints 1", "max_joints must be from 2 to 20, got 1", points=POINTS, max_joints=1),
+    ret("max_joints 21", "max_joints must be from 2 to 20, got 21", points=POINTS, max_joints=21),
+    ret(
+        "max_joints text",
+        "max_joints must be an integer from 2 to 20, got '6'",
+        points=POINTS,
+        max_joints="6",
+    ),
+    ret(
+        "max_joints float",
+        "max_joints must be an integer from 2 to 20, got 6.5",
+        points=POINTS,
+        max_joints=6.5,
+    ),
+    ret(
+        "max_joints true",
+        "max_joints must be an integer from 2 to 20, got True",
+        points=POINTS,
+        max_joints=True,
+    ),
     # Size limits and routes.
     ret("oversized body", OVER_LIMIT, 413, points=POINTS, pad=PAD),
     ret(
@@ -670,8 +726,45 @@ BAD_REQUESTS = [
     bad(
         "unknown field synthesize",
         "/api/synthesize",
-        {"points": POINTS, "constraints": {"pivots": [0, 0, 1, 1]}},
-        "unknown field 'constraints': /api/synthesize takes points, k, min_transmission, seconds",
+        {"points": POINTS, "max_joint": 6},
+        "unknown field 'max_joint': /api/synthesize takes points, k, min_transmission, seconds",
+    ),
+    bad(
+        "unknown constraint",
+        "/api/synthesize",
+        {"points": POINTS, "constraints": {"pivot": [0, 0, 1, 1]}},
+        "unknown constraint 'pivot': constraints are pivots, footprint, max_link_ratio",
+    ),
+    bad(
+        "bad pivot box",
+        "/api/synthesize",
+        {"points": POINTS, "constraints": {"pivots": [1, 0, 0, 1]}},
+        "pivots must have xmin < xmax and ymin < ymax",
+    ),
+    bad(
+        "min_link above max_link",
+        "/api/synthesize",
+        {"points": POINTS, "constraints": {"min_link": 2, "max_link": 1}},
+        "min_link (2) must not exceed max_link (1)",
+    ),
+    bad(
+        "timing count",
+        "/api/synthesize",
+        {"points": POINTS, "timing": [0, 10]},
+        f"timing must give one angle per point: {len(POINTS)}, got 2",
+    ),
+    bad(
+        "timing true on a stroke",
+        "/api/synthesize",
+        {"points": POINTS, "timing": True, "partial": True},
+        "timing=true spreads the points over a whole turn",
+    ),
+    bad("front not a flag", "/api/synthesize", {"points": POINTS, "front": 1}, "front must be"),
+    bad(
+        "max_joints too small",
+        "/api/synthesize",
+        {"points": POINTS, "max_joints": 1},
+        "max_joints must be from 2 to 20",
     ),
     bad("unknown route", "/api/nothing", None, "not found", 404, method="GET"),
     bad("GET simulate", "/api/simulate", None, "method not allowed", 405, method="GET"),

@@ -127,19 +127,25 @@ def test_each_shard_wrote_only_its_own_part(sharded: Any, shard_root: str) -> No
         assert current["rows"] == rows[part]
 
 
-def test_a_floor_on_the_transmission_angle_is_one_index_answer(
-    sharded: Any, reference: RetrievalIndex, queries: list[np.ndarray]
+@pytest.mark.parametrize("option", ["min_transmission", "max_joints"])
+def test_a_filter_is_one_index_answer(
+    sharded: Any, reference: RetrievalIndex, queries: list[np.ndarray], option: str
 ) -> None:
-    """`min_transmission` goes to every part: the merged answer is one index's."""
+    """`min_transmission` and `max_joints` go to every part: the merged answer is one
+    index's, every result within the filter."""
     _, client = sharded
     floor = float(np.quantile(reference.transmission, 0.5))
+    most = int(np.median(reference.n_joints))
+    value = floor if option == "min_transmission" else most
     for query in queries[:3]:
-        body = {"points": np.asarray(query).tolist(), "k": K, "min_transmission": floor}
+        body = {"points": np.asarray(query).tolist(), "k": K, option: value}
         status, data = client.post("/api/retrieve", body)
         assert status == 200, data
-        expected = as_served(reference.retrieve(query, K, min_transmission=floor))
+        expected = as_served(reference.retrieve(query, K, **{option: value}))
         assert len(expected) == K and data["results"] == expected
-        assert all(result["min_transmission_deg"] >= floor for result in expected)
+        for result in expected:
+            assert result["min_transmission_deg"] >= floor or option != "min_transmission"
+            assert result["n_joints"] <= most or option != "max_joints"
 
 
 def test_synthesis_refines_what_the_shards_retrieve(

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from drawings import dxf_header, dxf_sections, field
+from drawings import dxf_parts, read_dxf
 from needs import missing, need_module
 from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
 
@@ -715,19 +715,16 @@ def test_export_for_fabrication_in_millimetres(studio: Studio, tmp_path: Path) -
     with studio.page.expect_download() as download:
         studio.click("export-dxf")
     assert download.value.suggested_filename == "mechanism-4-joints-30mm.dxf"
-    sections = dxf_sections(Path(download.value.path()).read_text())
-    assert dxf_header(sections)["$INSUNITS"] == "4"
-    lines = [r for r in sections["ENTITIES"] if r[0] == (0, "LINE")]
-    lengths = sorted(
-        math.hypot(
-            float(field(r, 11)) - float(field(r, 10)), float(field(r, 21)) - float(field(r, 20))
-        )
-        for r in lines
-    )
+    doc = read_dxf(Path(download.value.path()).read_bytes())
+    assert doc.header["$INSUNITS"] == 4  # millimetres
+    parts = dxf_parts(doc)
+    ends = [drawn for kind, _, drawn in parts if kind == "LINE"]
+    lengths = sorted(math.hypot(x2 - x1, y2 - y1) for x1, y1, x2, y2 in ends)
     expected = sorted(math.dist(joints[i], joints[j]) for i, j in [(0, 1), (1, 3), (2, 3)])
     assert lengths == pytest.approx(expected, abs=1e-8)
-    vertices = [r for r in sections["ENTITIES"] if r[0] == (0, "VERTEX")]
-    assert len(vertices) == STEPS
+    [(closed, vertices)] = [drawn for kind, _, drawn in parts if kind == "LWPOLYLINE"]
+    assert closed
+    np.testing.assert_allclose(vertices, truth, atol=1e-8)
 
     # A crank length the server refuses is said in words, and nothing is downloaded.
     studio.allow("400")

@@ -3,8 +3,9 @@
 The mechanism comes from a JSON file (the API's `{"adjacency", "node_types", "positions"}`,
 or what `links retrieve` and `links synthesize --json` print, picking result N), from stdin
 (`-`), or from a dataset (`ROOT --mechanism-id ID`). It goes out in millimetres, its crank
-`--crank-mm` long (`engine.fabrication`): as SVG, DXF, a table of link lengths and ground
-pivots (`--json` for the table as JSON), or a Python script that builds it with pylinkage.
+`--crank-mm` long (`engine.fabrication`): as SVG or DXF (`interop.drawings`), a table of link
+lengths and ground pivots (`--json` for the table as JSON), or a Python script that builds it
+with pylinkage.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Any
 
 from links_ray.engine.fabrication import Fabrication, fabrication
 from links_ray.engine.inputs import DEFAULT_CRANK_MM, as_crank_mm, as_int
+from links_ray.interop.drawings import dxf_drawing, svg_drawing
 
 FORMATS = ("svg", "dxf", "table", "pylinkage")
 #: The format an output file's suffix implies when --format is not given.
@@ -101,7 +103,7 @@ def run(args: argparse.Namespace) -> None:
     if args.out is None:
         sys.stdout.write(text)
         return
-    Path(args.out).write_text(text)
+    Path(args.out).write_text(text, encoding="utf-8")
     print(
         f"wrote {args.out}: {chosen}, {len(drawing.node_types)} joints, "
         f"{len(drawing.links)} links, crank {drawing.crank_mm:g} mm"
@@ -111,9 +113,9 @@ def run(args: argparse.Namespace) -> None:
 def render(drawing: Fabrication, mechanism: dict[str, Any], chosen: str, as_json: bool) -> str:
     """The file's text in format `chosen`."""
     if chosen == "svg":
-        return drawing.svg()
+        return svg_drawing(drawing)
     if chosen == "dxf":
-        return drawing.dxf()
+        return dxf_drawing(drawing)
     if chosen == "pylinkage":
         from links_ray.interop.pylinkage import pylinkage_script  # text only: no pylinkage
 

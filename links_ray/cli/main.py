@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import math
 import sys
 import time
@@ -21,10 +22,16 @@ from links_ray.cli.warm import format_warm, note_compiling, warm
 from links_ray.engine.inputs import (
     DEFAULT_K,
     DEFAULT_SYNTHESIS_SECONDS,
+    MAX_CURVE_FILE_BYTES,
+    MAX_DATASET_JOINTS,
     MAX_K,
     MAX_SYNTHESIS_ITERATIONS,
     MAX_SYNTHESIS_SECONDS,
     MAX_TRANSMISSION_DEG,
+    MIN_JOINTS,
+    as_constraints,
+    as_max_joints,
+    as_timing,
     as_transmission_deg,
     validate_synthesis,
     validate_synthesis_work,
@@ -149,10 +156,13 @@ def _retrieve(args: argparse.Namespace) -> None:
     from links_ray.search.index import RetrievalIndex
 
     points, _ = _query_points(args)
+    as_max_joints(args.max_joints)  # before the index loads
     note_compiling("retrieve")
     index = RetrievalIndex.open(args.root)
     start = time.perf_counter()
-    results = index.retrieve(points, k=args.k, min_transmission=args.min_transmission)
+    results = index.retrieve(
+        points, k=args.k, min_transmission=args.min_transmission, max_joints=args.max_joints
+    )
     took_ms = (time.perf_counter() - start) * 1e3
     _report(args, {"results": results, "took_ms": took_ms}, report.format_retrieve)
 
@@ -167,6 +177,10 @@ def _synthesize(args: argparse.Namespace) -> None:
     validate_synthesis_work(args.seconds, args.seed, args.iterations)
     validate_synthesis(points, args.k, args.seconds, partial)
     as_transmission_deg(args.min_transmission, "min_transmission")
+    as_max_joints(args.max_joints)
+    constraints = as_constraints(_json_file(args.constraints, "--constraints"))
+    timing = args.timing if args.timing in (None, True) else _json_file(args.timing, "--timing")
+    as_timing(timing, len(points), partial)
     note_compiling("synthesize")
     index = RetrievalIndex.open(args.root)
     start = time.perf_counter()
@@ -177,11 +191,32 @@ def _synthesize(args: argparse.Namespace) -> None:
         seconds=args.seconds,
         partial=partial,
         min_transmission=args.min_transmission,
+        max_joints=args.max_joints,
+        front=args.front,
+        constraints=constraints,
+        timing=timing,
         seed=args.seed,
         iterations=args.iterations,
     )
     took_ms = (time.perf_counter() - start) * 1e3
-    _report(args, {"results": results, "took_ms": took_ms}, report.format_synthesize)
+    answer = {"results": list(results), "took_ms": took_ms}
+    if results.unmet is not None:
+        answer["unmet"] = results.unmet
+    _report(args, answer, report.format_synthesize)
+
+
+def _json_file(path: str | None, option: str) -> object:
+    """The JSON value in the file an option names (None without one); ValueError naming the
+    option and the file if it cannot be read."""
+    if path is None:
+        return None
+    try:
+        with open(path, "rb") as stream:
+            return json.loads(stream.read(MAX_CURVE_FILE_BYTES + 1))
+    except OSError as exc:
+        raise ValueError(f"{option} {path}: {exc.strerror or exc}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{option} {path}: not JSON ({exc})") from None
 
 
 def _bench_synthesize(args: argparse.Namespace) -> None:
@@ -264,6 +299,18 @@ def _query_points(args: argparse.Namespace) -> tuple[object, bool]:
         return read_points(args.points), True
     curve = read_curve(args.curve)
     return curve.points, curve.closed
+
+
+def _max_joints_option(command: argparse.ArgumentParser) -> None:
+    """`--max-joints J`, as retrieve and synthesize take it."""
+    command.add_argument(
+        "--max-joints",
+        type=int,
+        default=None,
+        metavar="J",
+        help="only mechanisms whose reduced mechanism (the joints the path needs) has at most "
+        f"J joints ({MIN_JOINTS}-{MAX_DATASET_JOINTS}, default: any)",
+    )
 
 
 def _query_arguments(command: argparse.ArgumentParser, curve_help: str = "") -> None:
@@ -513,6 +560,7 @@ def build_parser() -> argparse.ArgumentParser:
         "retrieve", help="find mechanisms whose path matches the points in FILE (offline)"
     )
     _query_arguments(retrieve)
+    _max_joints_option(retrieve)
     _json_option(retrieve, "the results (points and placed mechanisms included)", piped=True)
     retrieve.set_defaults(run=_retrieve)
 
@@ -546,6 +594,30 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="the points are an open stroke: match them to part of a crank turn (the default "
         "for an open --curve)",
+    )
+    _max_joints_option(synthesize)
+    synthesize.add_argument(
+        "--front",
+        action="store_true",
+        help="answer the best mechanism of each joint count that beats every simpler one, "
+        "simplest first, instead of the k best",
+    )
+    synthesize.add_argument(
+        "--constraints",
+        metavar="FILE",
+        help='JSON file of design constraints in the drawing\'s units: {"pivots": [xmin, ymin, '
+        'xmax, ymax], "footprint": [...], "max_link_ratio": R, "min_link": L, "max_link": L} '
+        "(any of them); every result keeps them",
+    )
+    synthesize.add_argument(
+        "--timing",
+        nargs="?",
+        const=True,
+        default=None,
+        metavar="FILE",
+        help="prescribed timing: the points are reached at equal crank steps over a turn, in "
+        "order, from a free start; or, with FILE, at the crank angles it lists (JSON, degrees, "
+        "one per point)",
     )
     _json_option(synthesize, "the results (mechanisms included)")
     synthesize.set_defaults(run=_synthesize)

@@ -283,6 +283,13 @@ def format_synthesize(answer: dict) -> str:
     """Each mechanism: its chamfer on the drawing, before and after refinement, and where on
     the crank's turn a partial stroke lies."""
     results = answer["results"]
+    if answer.get("unmet"):
+        unmet = answer["unmet"]
+        return (
+            f"no mechanism keeps the constraints: the nearest misses {unmet['constraint']} by "
+            f"{unmet['by']:.4g}"
+        )
+    timed = any("timed_error" in result for result in results)
     rows = []
     for rank, result in enumerate(results, 1):
         interval = result["interval"]
@@ -296,6 +303,7 @@ def format_synthesize(answer: dict) -> str:
                 rank,
                 f"{result['chamfer']:.4f}",
                 f"{result['retrieved_chamfer']:.4f}",
+                *([f"{result['timed_error']:.4f}"] if timed else []),
                 len(result["mechanism"]["node_types"]),
                 result["mechanism_joint"],
                 result["path_id"],
@@ -307,7 +315,16 @@ def format_synthesize(answer: dict) -> str:
             f"{len(results)} mechanisms in {duration(answer['took_ms'] / 1e3)} (chamfer / the "
             "drawing's longest chord, best first)",
             table(
-                ["rank", "chamfer", "retrieved", "joints", "joint", "from path", "crank deg"],
+                [
+                    "rank",
+                    "chamfer",
+                    "retrieved",
+                    *(["timed"] if timed else []),
+                    "joints",
+                    "joint",
+                    "from path",
+                    "crank deg",
+                ],
                 rows,
             ),
             "(--json for the mechanisms)",

@@ -12,6 +12,8 @@ too (`check_buffer`, `check_indices`).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -26,6 +28,8 @@ MAX_JOINTS = 1000
 MIN_JOINTS = 2
 DEFAULT_STEPS = 200
 MIN_STEPS, MAX_STEPS = 1, 100_000
+#: Joints of a mechanism of the dataset (docs/reference/contract.md, Mechanisms).
+MIN_DATASET_JOINTS, MAX_DATASET_JOINTS = 8, 20
 #: Coordinates and link lengths the solver handles without its squares overflowing and without
 #: its circles collapsing to points.
 MAX_COORDINATE = 1e12
@@ -314,6 +318,16 @@ def validate_query(points: object, k: object = DEFAULT_K) -> tuple[np.ndarray, i
     return as_drawn_points(points), k
 
 
+def as_max_joints(value: object, name: str = "max_joints") -> int | None:
+    """The most joints an answer's reduced mechanism may have: None (any), or an integer from
+    MIN_JOINTS (the crank alone, whose joint 1 traces a circle; 3 and 4 joints trace circles
+    and arcs too, a four-bar's coupler point needs 5) to MAX_DATASET_JOINTS; ValueError naming
+    `name` otherwise."""
+    if value is None:
+        return None
+    return as_int(name, value, MIN_JOINTS, MAX_DATASET_JOINTS)
+
+
 # -- refinement -------------------------------------------------------------------------------
 
 
@@ -397,6 +411,108 @@ def validate_synthesis_work(
             "give seconds or iterations, not both: iterations fix the work whatever the time"
         )
     return None, seed, iterations
+
+
+#: The design constraints a synthesis takes (`as_constraints`), in the drawing's units.
+CONSTRAINT_NAMES = ("pivots", "footprint", "max_link_ratio", "min_link", "max_link")
+
+
+@dataclass(frozen=True)
+class Constraints:
+    """What a designer fixes, in the drawing's own units and frame (None: not constrained).
+
+    `pivots` (xmin, ymin, xmax, ymax): every fixed joint inside this box. `footprint`: every
+    joint inside this box through the whole crank turn. `max_link_ratio`: the longest link at
+    most this many times the shortest. `min_link`, `max_link`: every link's length within.
+    """
+
+    pivots: tuple[float, float, float, float] | None = None
+    footprint: tuple[float, float, float, float] | None = None
+    max_link_ratio: float | None = None
+    min_link: float | None = None
+    max_link: float | None = None
+
+    def given(self) -> tuple[str, ...]:
+        """The names of the constraints set."""
+        return tuple(name for name in CONSTRAINT_NAMES if getattr(self, name) is not None)
+
+
+def _as_box(value: object, name: str) -> tuple[float, float, float, float]:
+    """[xmin, ymin, xmax, ymax] as four finite floats, each min below its max."""
+    if isinstance(value, str | bytes | dict) or not hasattr(value, "__len__"):
+        raise ValueError(f"{name} must be a box [xmin, ymin, xmax, ymax], got {shown(value)}")
+    try:
+        box = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be four numbers [xmin, ymin, xmax, ymax]") from None
+    if box.shape != (4,) or any(isinstance(v, bool) for v in value):  # type: ignore[union-attr]
+        raise ValueError(f"{name} must be four numbers [xmin, ymin, xmax, ymax]")
+    if not np.all(np.isfinite(box)) or np.any(np.abs(box) > MAX_COORDINATE):
+        raise ValueError(f"{name} must be finite numbers within +-{MAX_COORDINATE:g}")
+    if not (box[0] < box[2] and box[1] < box[3]):
+        raise ValueError(f"{name} must have xmin < xmax and ymin < ymax, got {box.tolist()}")
+    xmin, ymin, xmax, ymax = (float(v) for v in box)
+    return xmin, ymin, xmax, ymax
+
+
+def as_constraints(value: object) -> Constraints | None:
+    """Design constraints from a mapping of CONSTRAINT_NAMES (or a `Constraints`); None or an
+    empty mapping gives None. Raises ValueError naming an unknown or bad constraint."""
+    if value is None or isinstance(value, Constraints):
+        return value if value is None or value.given() else None
+    if not isinstance(value, dict):
+        raise ValueError(f"constraints must be an object of {', '.join(CONSTRAINT_NAMES)}")
+    for name in value:
+        if name not in CONSTRAINT_NAMES:
+            raise ValueError(
+                f"unknown constraint {shown(name)}: constraints are {', '.join(CONSTRAINT_NAMES)}"
+            )
+    given = {name: v for name, v in value.items() if v is not None}
+    boxes = {name: _as_box(given[name], name) for name in ("pivots", "footprint") if name in given}
+    lengths = {
+        name: _positive_at_most(given[name], name, MAX_COORDINATE, "a length", "")
+        for name in ("min_link", "max_link")
+        if name in given
+    }
+    ratio = None
+    if "max_link_ratio" in given:
+        ratio = _positive_at_most(given["max_link_ratio"], "max_link_ratio", 1e6, "a number", "")
+        if ratio < 1.0:
+            raise ValueError(f"max_link_ratio must be at least 1, got {ratio:g}")
+    low, high = lengths.get("min_link"), lengths.get("max_link")
+    if low is not None and high is not None and low > high:
+        raise ValueError(f"min_link ({low:g}) must not exceed max_link ({high:g})")
+    if not given:
+        return None
+    return Constraints(max_link_ratio=ratio, **boxes, **lengths)
+
+
+def as_timing(timing: object, count: int, partial: bool) -> np.ndarray | None:
+    """Crank angles in radians (count,) at which the drawn points are to be reached, relative
+    to the first: `True` is equal steps of a whole turn, a list gives them in degrees; None or
+    False is no timing. Raises ValueError naming the problem."""
+    if timing is None or timing is False:
+        return None
+    if timing is True:
+        if partial:
+            raise ValueError(
+                "timing=true spreads the points over a whole turn, which a partial stroke "
+                "does not make: give the stroke's crank angles as a list"
+            )
+        return 2.0 * np.pi * np.arange(count) / count
+    if isinstance(timing, str | bytes | dict) or not hasattr(timing, "__len__"):
+        raise ValueError(f"timing must be true or a list of angles in degrees, got {shown(timing)}")
+    if any(isinstance(v, bool) for v in timing):  # type: ignore[union-attr]
+        raise ValueError("timing must be true or a list of angles in degrees")
+    try:
+        degrees = np.asarray(timing, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("timing must be true or a list of angles in degrees") from None
+    if degrees.ndim != 1 or len(degrees) != count:
+        raise ValueError(f"timing must give one angle per point: {count}, got {degrees.size}")
+    if not np.all(np.isfinite(degrees)) or np.any(np.abs(degrees) > 1e6):
+        raise ValueError("timing must be finite angles in degrees within +-1e6")
+    return np.radians(degrees - degrees[0])
 
 
 def validate_synthesis(
@@ -493,3 +609,39 @@ def check_solution_path(
     if fixed is not None:
         check_buffer("fixed", fixed, (None,), "iu")
         check_indices("fixed", fixed, joints, of)  # type: ignore[arg-type]
+
+
+def check_packed_paths(
+    orders: np.ndarray,
+    order_start: np.ndarray,
+    joint_start: np.ndarray,
+    mechanisms: np.ndarray,
+    joints: np.ndarray,
+) -> None:
+    """Refuse packed mechanisms (`search.mechanisms.MechanismBank`: solution paths `orders`
+    (R, 3), `order_start` and `joint_start` (M + 1,)) and the (mechanisms[i], joints[i]) a
+    kernel is to follow in them, naming the first bad buffer: a mechanism outside the M held,
+    a joint outside its mechanism, or offsets that decrease."""
+    check_buffer("orders", orders, (None, 3), "iu")
+    check_buffer("order_start", order_start, (None,), "iu")
+    count = order_start.shape[0] - 1
+    check_buffer("joint_start", joint_start, (count + 1,), "iu")
+    check_buffer("mechanisms", mechanisms, (None,), "iu")
+    rows = mechanisms.shape[0]
+    check_buffer("joints", joints, (rows,), "iu")
+    if count < 0:
+        raise ValueError("order_start must hold at least one entry, got none")
+    check_indices("order_start", order_start, orders.shape[0] + 1, "the rows of orders")
+    check_indices("mechanisms", mechanisms, count, f"the {count} mechanisms held")
+    if rows:
+        sizes = joint_start[mechanisms + 1] - joint_start[mechanisms]
+        if (sizes < MIN_JOINTS).any() or (
+            order_start[mechanisms + 1] < order_start[mechanisms]
+        ).any():
+            raise ValueError("order_start and joint_start must not decrease")
+        if not ((joints >= 0) & (joints < sizes)).all():
+            i = int(np.flatnonzero((joints < 0) | (joints >= sizes))[0])
+            raise ValueError(
+                f"joints must index each mechanism's joints: joints[{i}] = {int(joints[i])}, "
+                f"mechanism {int(mechanisms[i])} has {int(sizes[i])}"
+            )

@@ -21,6 +21,8 @@ from numpy.typing import ArrayLike
 from links_ray.engine.inputs import (
     ACTUATED,
     FIXED,
+    MAX_DATASET_JOINTS,
+    MIN_DATASET_JOINTS,
     SIMPLE,
     InvalidMechanismError,
     as_graph,
@@ -30,7 +32,6 @@ from links_ray.engine.inputs import (
 
 CRANK_CENTER = (0.5, 0.5)
 CRANK_TIP = (0.55, 0.5)
-MIN_DATASET_JOINTS, MAX_DATASET_JOINTS = 8, 20
 
 
 class LockingError(ValueError):

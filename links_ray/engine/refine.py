@@ -57,6 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from links_ray.engine.constraints import KEPT, Violation, extent, guard_rows, violation
 from links_ray.engine.inputs import (
     DEFAULT_MARGIN_DEG,
     DEFAULT_REFINE_ITERATIONS,
@@ -65,6 +66,7 @@ from links_ray.engine.inputs import (
     MAX_REFINE_ITERATIONS,
     MIN_POINTS,
     REFINE_CHECK_STEPS,
+    Constraints,
     InvalidMechanismError,
     as_drawn_points,
     as_int,
@@ -72,6 +74,7 @@ from links_ray.engine.inputs import (
     as_transmission_deg,
     check_positions,
     check_refine_size,
+    link_pairs,
 )
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.paths import chamfer, longest_chord
@@ -80,6 +83,7 @@ from links_ray.engine.refine_step import (
     IRLS_FLOOR,
     guarded_step,
     normal_equations,
+    timed_equations,
     transmission_guards,
 )
 from links_ray.engine.solver import crank_turn
@@ -143,6 +147,7 @@ class Refinement:
     min_transmission_deg: float
     error: str | None = None
     damping: float = DAMPING_START
+    violation: Violation = KEPT
 
 
 @dataclass(frozen=True)
@@ -153,26 +158,33 @@ class Check:
     branch sign. `min_transmission_sine` (m,): each dyad's least transmission sine over the
     check steps (sine of the transmission angle, 0 to 1; not degrees). `rigid` (m,) bool: the
     dyads whose parents keep their distance, so the angle at the joint never changes (no dead
-    centre).
+    centre). `bounds` (4,): xmin, ymin, xmax, ymax of every joint over the check steps.
     """
 
     lock: tuple[int, int]
     sides: np.ndarray
     min_transmission_sine: np.ndarray
     rigid: np.ndarray
+    bounds: np.ndarray
 
 
 def _solve(
-    topology: Topology, positions: np.ndarray, steps: int, tangents: bool
+    topology: Topology,
+    positions: np.ndarray,
+    steps: int,
+    tangents: bool,
+    crank: np.ndarray | None = None,
 ) -> tuple[tuple[int, int], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(lock, traj, dtraj, trans, dtrans, geometry) of `solve_tangents` at `steps` steps.
+    """(lock, traj, dtraj, trans, dtrans, geometry) of `solve_tangents` at `steps` steps of a
+    turn, or at the crank angles of `crank` (steps, 2) cos and sin (a timed target's).
 
     The arrays are the calling thread's scratch for this shape: valid until its next `_solve`
     of the same shape (an iteration makes one of each of three shapes, and allocating and
-    paging in megabytes of derivatives anew each time would cost a share of every iteration)."""
+    paging in megabytes of derivatives anew each time would cost a share of every iteration).
+    A turn's and a timed target's arrays are kept apart, as one iteration needs both."""
     n, m = topology.n_joints, len(topology.order)
     cols = 2 * n if tangents else 0
-    key = (n, m, steps, cols)
+    key = (n, m, steps, cols, crank is not None)
     scratch = _SCRATCH.__dict__.setdefault("arrays", {})
     if key not in scratch:
         if len(scratch) >= SCRATCH_SHAPES:
@@ -189,7 +201,7 @@ def _solve(
         topology.order,
         topology.fixed_joints,
         positions,
-        crank_turn(steps),
+        crank_turn(steps) if crank is None else crank,
         traj,
         dtraj,
         trans,
@@ -211,7 +223,7 @@ def check_mechanism(
     if rigid is None:
         # A rigid dyad (a triangle of links) keeps its angle: no dead centre, no margin.
         rigid = rigid_dyads(topology.order, traj)
-    return Check(lock, geometry[:, 2].copy(), trans.min(axis=1), rigid)
+    return Check(lock, geometry[:, 2].copy(), trans.min(axis=1), rigid, extent(traj))
 
 
 def _least_deg(sines: np.ndarray) -> float:
@@ -225,12 +237,21 @@ class Target:
 
     `points` (T, 2) float64: the drawn points. `chord`: the drawing's longest chord, in the
     drawing's units; refinement's chamfers are divided by it. `partial`: the points are an open
-    stroke, matched to a run of a turn.
+    stroke, matched to a run of a turn. `crank` (T, 2): for a timed target, the cos and sin of
+    the crank angle (from the mechanism's start) at which each point is to be reached; its
+    measure is then the timed error, not the chamfer (`target_error`).
     """
 
     points: np.ndarray
     chord: float
     partial: bool
+    crank: np.ndarray | None = None
+
+    def timed(self, angles: np.ndarray) -> Target:
+        """This target with each point to be reached at `angles` (T,) radians of the crank
+        from the mechanism's start."""
+        crank = np.ascontiguousarray(np.stack([np.cos(angles), np.sin(angles)], axis=1))
+        return Target(self.points, self.chord, self.partial, crank)
 
 
 def as_target(points: object, partial: object) -> Target:
@@ -254,6 +275,24 @@ def target_chamfer(target: Target, path: np.ndarray) -> tuple[float, tuple[int, 
     rows = (start + np.arange(count)) % len(path)
     # The exact chamfer of the chosen run, so accepted steps compare like with like.
     return chamfer(target.points, path[rows]), (int(start), int(count))
+
+
+def timed_distances(target: Target, timed_path: np.ndarray) -> np.ndarray:
+    """(T,) distance of each drawn point from the path at its crank angle, `timed_path` (T, 2)
+    (the path solved at the target's `crank`), in the drawing's units."""
+    return np.hypot(*(timed_path - target.points).T)
+
+
+def target_error(
+    target: Target, topology: Topology, positions: np.ndarray, joint: int, path: np.ndarray
+) -> tuple[float, tuple[int, int] | None]:
+    """(value, interval) of the measure refinement lowers, in the drawing's units: for an
+    untimed target `target_chamfer` of `path` (steps, 2), `joint`'s path over the turn; for a
+    timed one the mean distance of each point from `joint`'s path at its crank angle."""
+    if target.crank is None:
+        return target_chamfer(target, path)
+    _, traj, _, _, _, _ = _solve(topology, positions, len(target.crank), False, target.crank)
+    return float(timed_distances(target, traj[joint]).mean()), None
 
 
 def _valid_trial(
@@ -306,6 +345,7 @@ def refine_validated(
     origin: np.ndarray | None = None,
     damping: float = DAMPING_START,
     irls_floor: float = IRLS_FLOOR,
+    constraints: Constraints | None = None,
 ) -> Refinement:
     """Refine a validated mechanism (`topology`, start positions (n, 2) float64, a moving
     `joint`) toward `target` at `steps` steps, for at most `iterations` iterations, keeping a
@@ -320,11 +360,16 @@ def refine_validated(
     `start` on other branches than `origin`, or below its floors, raises ValueError.
     `damping`: the damping to start at (a continued refinement's, which a fresh start at
     DAMPING_START would spend its first iterations shrinking again).
+
+    `constraints` (in the target's frame): steps slide along them as along the margin. A start
+    that misses them is first moved toward them, each step lowering the miss whatever it does
+    to the fit; once they are kept, no step leaves them. The `Refinement`'s `violation` says
+    what is still missed (nothing when kept).
     """
     lock, traj, _, _, _, _ = _solve(topology, start, steps, False)
     if lock[0] >= 0:
         raise LockingError(*lock)
-    value, interval = target_chamfer(target, traj[joint])  # before `traj` is scratch again
+    value, interval = target_error(target, topology, start, joint, traj[joint])
     check = check_mechanism(topology, start)
     if check.lock[0] >= 0:
         error = LockingError(*check.lock)
@@ -337,6 +382,12 @@ def refine_validated(
     def late() -> bool:
         return deadline is not None and time.perf_counter() > deadline
 
+    fixed, links = topology.fixed_joints, link_pairs(topology.adjacency)
+
+    def missed_by(positions: np.ndarray, bounds: np.ndarray) -> Violation:
+        return violation(constraints, positions, fixed, links, bounds, target.chord)
+
+    missed = missed_by(start, check.bounds)
     if late():  # the origin's check would be one more 2,000-step turn past the deadline
         least = _least_deg(check.min_transmission_sine[~check.rigid])
         return Refinement(
@@ -348,6 +399,7 @@ def refine_validated(
             0,
             least,
             damping=damping,
+            violation=missed,
         )
     margin = math.sin(math.radians(margin_deg))
     clearance = math.sin(math.radians(margin_deg + CLEARANCE_DEG)) - margin
@@ -385,15 +437,21 @@ def refine_validated(
     damping = min(max(damping, DAMPING_MIN), DAMPING_START)
     done = evaluations = stalled = 0
 
-    while done < iterations and value > CONVERGED * target.chord and stalled < STALL:
-        if late():
+    while done < iterations and stalled < STALL:
+        if late() or (missed.kept and value <= CONVERGED * target.chord):
             break
         done += 1
         _, traj, dtraj, trans, dtrans, _ = _solve(topology, pos, steps, True)
-        hessian, gradient = normal_equations(
-            target, traj[joint], dtraj[joint], interval, irls_floor
-        )
-        guards = transmission_guards(trans, dtrans, np.where(rigid, flat, floors), clearance)
+        if target.crank is None:
+            hessian, gradient = normal_equations(
+                target, traj[joint], dtraj[joint], interval, irls_floor
+            )
+        else:  # solved at the target's crank angles, in scratch of its own
+            _, timed, dtimed, _, _, _ = _solve(topology, pos, len(target.crank), True, target.crank)
+            hessian, gradient = timed_equations(target, timed[joint], dtimed[joint], irls_floor)
+        margins = transmission_guards(trans, dtrans, np.where(rigid, flat, floors), clearance)
+        kept = guard_rows(constraints, pos, fixed, links, traj, dtraj, target.chord)
+        guards = (np.concatenate([margins[0], kept[0]]), np.concatenate([margins[1], kept[1]]))
         diagonal = np.diag(hessian).copy()
         # A joint the path does not depend on has a zero column; this keeps the system regular.
         diagonal += 1e-9 * max(float(diagonal.max()), 1e-300)
@@ -414,21 +472,36 @@ def refine_validated(
             if trial is not None:
                 lock, trial_traj, _, _, _, _ = _solve(topology, trial, steps, False)
                 if lock[0] < 0:
-                    trial_value, trial_interval = target_chamfer(target, trial_traj[joint])
-                    # Cheap tests first: most rejected trials fail on the chamfer.
+                    trial_value, trial_interval = target_error(
+                        target, topology, trial, joint, trial_traj[joint]
+                    )
+                    # Cheap tests first: most rejected trials fail on the fit. While the
+                    # constraints are missed, a step need only miss them by less.
                     trial_check = (
                         _valid_trial(topology, trial, sides, floors, rigid)
-                        if trial_value < value and not late()
+                        if (trial_value < value or not missed.kept) and not late()
                         else None
                     )
+                    trial_missed = KEPT
                     if trial_check is not None:
-                        gain = value - trial_value
-                        stalled = stalled + 1 if gain < STALL_GAIN * target.chord else 0
-                        pos, value, interval, check = (
+                        trial_missed = missed_by(trial, trial_check.bounds)
+                        if missed.kept:
+                            gain = value - trial_value if trial_missed.kept else -1.0
+                        else:
+                            gain = (missed.total - trial_missed.total) * target.chord
+                        if not gain > 0.0:
+                            trial_check = None
+                    if trial_check is not None:
+                        restored = trial_missed.kept and not missed.kept
+                        stalled = (
+                            0 if restored or gain >= STALL_GAIN * target.chord else stalled + 1
+                        )
+                        pos, value, interval, check, missed = (
                             trial,
                             trial_value,
                             trial_interval,
                             trial_check,
+                            trial_missed,
                         )
                         gained = ~rigid & (check.min_transmission_sine >= margin)
                         floors = np.where(gained, margin, floors)
@@ -447,6 +520,7 @@ def refine_validated(
         evaluations=evaluations,
         min_transmission_deg=_least_deg(check.min_transmission_sine[~rigid]),
         damping=damping,
+        violation=missed,
     )
 
 

@@ -69,6 +69,23 @@ def normal_equations(
     return scaled.T @ scaled, residual.reshape(-1) @ j.reshape(-1, cols)
 
 
+def timed_equations(
+    target: Target, timed_path: np.ndarray, jac: np.ndarray, irls_floor: float = IRLS_FLOOR
+) -> tuple[np.ndarray, np.ndarray]:
+    """IRLS Gauss-Newton system (A, g) of the timed error: the mean distance of each drawn
+    point from `timed_path` (T, 2), the path at that point's crank angle, whose derivative is
+    jac (T, 2, P). The pairs are fixed by timing, so this is the error's exact linearization;
+    weights as `normal_equations`'s."""
+    gaps = timed_path - target.points
+    distances = np.hypot(gaps[:, 0], gaps[:, 1])
+    floor = max(irls_floor * target.chord, IRLS_RELATIVE * float(distances.mean()))
+    weight = 1.0 / (len(gaps) * np.maximum(distances, floor))
+    cols = jac.shape[2]
+    scaled = (jac * np.sqrt(weight)[:, None, None]).reshape(-1, cols)
+    residual = weight[:, None] * gaps
+    return scaled.T @ scaled, residual.reshape(-1) @ jac.reshape(-1, cols)
+
+
 def transmission_guards(
     trans: np.ndarray, dtrans: np.ndarray, floors: np.ndarray, clearance: float
 ) -> tuple[np.ndarray, np.ndarray]:

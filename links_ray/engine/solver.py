@@ -26,6 +26,7 @@ from links_ray.engine.inputs import (
     as_steps,
     check_buffer,
     check_indices,
+    check_packed_paths,
     check_positions,
     check_solution_path,
 )
@@ -409,31 +410,11 @@ def trace_joints(
     of mechanisms held packed (`_trace_joints` says how); NaN rows where a mechanism locks.
     The packed solution paths are the holder's (`search.mechanisms.MechanismBank`), checked
     when it was made; the rest is checked here."""
-    check_buffer("orders", orders, (None, 3), "iu")
-    check_buffer("order_start", order_start, (None,), "iu")
-    count = order_start.shape[0] - 1
+    check_packed_paths(orders, order_start, joint_start, mechanisms, joints)
     check_buffer("positions", positions, (None, 2))
-    check_buffer("joint_start", joint_start, (count + 1,), "iu")
-    check_buffer("mechanisms", mechanisms, (None,), "iu")
-    rows = mechanisms.shape[0]
-    check_buffer("joints", joints, (rows,), "iu")
     check_buffer("crank", crank, (None, 2))
-    check_buffer("out", out, (rows, crank.shape[0], 2))
-    if count < 0:
-        raise ValueError("order_start must hold at least one entry, got none")
-    check_indices("order_start", order_start, orders.shape[0] + 1, "the rows of orders")
+    check_buffer("out", out, (mechanisms.shape[0], crank.shape[0], 2))
     check_indices("joint_start", joint_start, positions.shape[0] + 1, "the rows of positions")
-    check_indices("mechanisms", mechanisms, count, f"the {count} mechanisms held")
-    if rows:
-        sizes = joint_start[mechanisms + 1] - joint_start[mechanisms]
-        if (sizes < 2).any() or (order_start[mechanisms + 1] < order_start[mechanisms]).any():
-            raise ValueError("order_start and joint_start must not decrease")
-        if not ((joints >= 0) & (joints < sizes)).all():
-            i = int(np.flatnonzero((joints < 0) | (joints >= sizes))[0])
-            raise ValueError(
-                f"joints must index each mechanism's joints: joints[{i}] = {int(joints[i])}, "
-                f"mechanism {int(mechanisms[i])} has {int(sizes[i])}"
-            )
     _trace_joints(orders, order_start, positions, joint_start, mechanisms, joints, crank, out)
 
 

@@ -53,13 +53,20 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from links_ray.engine.constraints import KEPT, Violation, violation
 from links_ray.engine.cpus import usable_cpus
 from links_ray.engine.inputs import (
     DEFAULT_K,
     DEFAULT_MARGIN_DEG,
     DEFAULT_STEPS,
+    Constraints,
+    as_constraints,
+    as_flag,
+    as_max_joints,
+    as_timing,
     as_transmission_deg,
     check_refine_size,
+    link_pairs,
     validate_synthesis,
     validate_synthesis_work,
 )
@@ -73,10 +80,20 @@ from links_ray.engine.refine import (
     check_mechanism,
     refine_validated,
     target_chamfer,
+    target_error,
 )
 from links_ray.engine.solver import simulate
+from links_ray.engine.timing import best_start
 
-__all__ = ["Retriever", "fit", "refine_retrieved", "synthesize"]
+__all__ = [
+    "Retriever",
+    "SynthesisResults",
+    "fit",
+    "pooled",
+    "refine_retrieved",
+    "retrievals",
+    "synthesize",
+]
 
 #: Retrieved candidates the short pass refines.
 CANDIDATES = 96
@@ -99,16 +116,36 @@ HOP_ITERATIONS = 300
 SHORT_IRLS_FLOOR = 0.15
 #: Least seconds between two progress reports (the best so far) of one synthesis.
 PROGRESS_INTERVAL_S = 0.2
+#: A front also retrieves FRONT_CANDIDATES paths of at most each of these joint counts, so
+#: that simple mechanisms are among the candidates even when complex ones match best.
+FRONT_JOINTS, FRONT_CANDIDATES = (5, 6, 8), 24
+#: With timing, the candidates the short pass leaves best go on, timed: choosing each one's
+#: start costs a fine turn.
+TIMED_CANDIDATES = 24
+
+
+class SynthesisResults(list):
+    """A synthesis's results (a list of result dicts, best first, or a front by joints), and
+    `unmet`: when constraints were given and no candidate keeps them, {"constraint", "by"} of
+    the candidate that came nearest (the most missed constraint, and by how much in its
+    units), else None."""
+
+    unmet: dict[str, Any] | None = None
 
 
 class Retriever(Protocol):
     """What synthesis needs of a retrieval index."""
 
     def retrieve(
-        self, points: object, k: int = DEFAULT_K, min_transmission: float = 0.0
+        self,
+        points: object,
+        k: int = DEFAULT_K,
+        min_transmission: float = 0.0,
+        max_joints: int | None = None,
     ) -> list[dict]:
         """The k best retrieval results for the drawn `points`, best first, among the paths
-        keeping `min_transmission` degrees, each with its mechanism in the drawing's frame."""
+        keeping `min_transmission` degrees whose reduced mechanisms have at most `max_joints`
+        joints, each with its mechanism in the drawing's frame."""
         ...
 
 
@@ -121,12 +158,18 @@ class _Candidate:
     joint: int
     origin: np.ndarray  # the retrieved positions
     positions: np.ndarray  # the best so far
-    chamfer: float  # of `positions`, divided by the chord
-    retrieved: float  # of `origin`, divided by the chord
+    error: float  # of `positions` against the pass's target (chamfer, or timed), in chords
+    retrieved: float  # the chamfer of `origin`, divided by the chord
     interval: tuple[int, int] | None
+    missed: Violation = KEPT  # of `positions`: the constraints they miss
     converged: bool = False
     damping: float = DAMPING_START  # where the last kept refinement of `positions` ended
     rounds: int = 0  # long-pass rounds it has had
+
+    def rank(self) -> tuple[bool, float, float]:
+        """Order of merit: keeping the constraints first, then missing them by less, then
+        the error."""
+        return (not self.missed.kept, self.missed.total, self.error)
 
 
 def fit(
@@ -146,16 +189,17 @@ def fit(
     return value / target.chord, interval
 
 
-def _candidate(result: dict, target: Target) -> _Candidate | None:
-    """A retrieval result ready to refine, or None if it cannot be (it locks between the
-    simulation's steps, or is too large to refine)."""
+def _candidate(result: dict, target: Target, constraints: Constraints | None) -> _Candidate | None:
+    """A retrieval result ready to refine, with the constraints it misses, or None if it
+    cannot be (it locks between the simulation's steps, or is too large to refine)."""
     mechanism = result["mechanism"]
     try:
         topology = analyze_topology(mechanism["adjacency"], mechanism["node_types"])
         positions = np.ascontiguousarray(mechanism["positions"], dtype=np.float64)
         joint = int(result["mechanism_joint"])
         check_refine_size(topology.n_joints, DEFAULT_STEPS)
-        if check_mechanism(topology, positions).lock[0] >= 0:
+        check = check_mechanism(topology, positions)
+        if check.lock[0] >= 0:
             return None
         path = _traced(topology, positions)
     except ValueError:
@@ -165,7 +209,17 @@ def _candidate(result: dict, target: Target) -> _Candidate | None:
     path = path[joint]
     value, interval = target_chamfer(target, path)
     chamfer = value / target.chord
-    return _Candidate(result, topology, joint, positions, positions, chamfer, chamfer, interval)
+    missed = violation(
+        constraints,
+        positions,
+        topology.fixed_joints,
+        link_pairs(topology.adjacency),
+        check.bounds,
+        target.chord,
+    )
+    return _Candidate(
+        result, topology, joint, positions, positions, chamfer, chamfer, interval, missed
+    )
 
 
 def _refined(
@@ -176,6 +230,7 @@ def _refined(
     deadline: float | None,
     margin_deg: float,
     irls_floor: float,
+    constraints: Constraints | None,
 ) -> Refinement | None:
     if deadline is not None and time.perf_counter() > deadline:
         return None  # not even its checks of the start: they are 2,000-step turns
@@ -192,6 +247,7 @@ def _refined(
             origin=candidate.origin,
             damping=candidate.damping if start is candidate.positions else DAMPING_START,
             irls_floor=irls_floor,
+            constraints=constraints,
         )
     except (LockingError, ValueError):  # a shaken start that locks or is degenerate
         return None
@@ -207,16 +263,21 @@ def _traced(topology: Topology, positions: np.ndarray) -> np.ndarray | None:
 
 
 def _keep(candidate: _Candidate, refinement: Refinement | None, iterations: int) -> bool:
-    """Take `refinement` if it is better and `simulate` traces it at DEFAULT_STEPS; True if
-    it did. Refinement checks its steps at REFINE_CHECK_STEPS: a dyad it leaves within a
-    hair of its dead centre (one retrieved so, whose margin is half its own) can turn there
-    and still be beyond what the check between 200 steps can prove."""
-    if refinement is None or not refinement.chamfer_after < candidate.chamfer:
+    """Take `refinement` if it ranks better (`_Candidate.rank`) and `simulate` traces it at
+    DEFAULT_STEPS; True if it did. Refinement checks its steps at REFINE_CHECK_STEPS: a dyad
+    it leaves within a hair of its dead centre (one retrieved so, whose margin is half its
+    own) can turn there and still be beyond what the check between 200 steps can prove."""
+    if refinement is None:
+        return False
+    missed = refinement.violation
+    rank = (not missed.kept, missed.total, refinement.chamfer_after)
+    if not rank < candidate.rank():
         return False
     if _traced(candidate.topology, refinement.positions) is None:
         return False
     candidate.positions = refinement.positions
-    candidate.chamfer = refinement.chamfer_after
+    candidate.error = refinement.chamfer_after
+    candidate.missed = missed
     candidate.interval = refinement.interval
     candidate.damping = refinement.damping
     candidate.converged = refinement.iterations < iterations
@@ -235,7 +296,10 @@ def refine_retrieved(
     margin_deg: float = DEFAULT_MARGIN_DEG,
     progress: Callable[[dict[str, Any]], None] | None = None,
     iterations: int | None = None,
-) -> list[dict]:
+    front: bool = False,
+    constraints: object = None,
+    timing: object = None,
+) -> SynthesisResults:
     """The k best synthesis results (best first) refined from retrieval results of `points`
     (`RetrievalIndex.retrieve`'s, in the drawing's frame), keeping a transmission margin of
     at least DEFAULT_MARGIN_DEG and `margin_deg`. The module docstring says how.
@@ -251,11 +315,24 @@ def refine_retrieved(
     `progress`, if given, is called with the best so far whenever it has improved, at most
     every PROGRESS_INTERVAL_S (first with the best retrieved start): a result as the answer
     has them, with `trajectories` (every joint's path at DEFAULT_STEPS steps, to animate) and
-    `elapsed_ms` besides. It runs in this thread, between rounds of refinement."""
+    `elapsed_ms` besides. It runs in this thread, between rounds of refinement.
+
+    `front`: the answer is, for each joint count among the candidates, the best result, and
+    only those better than every simpler one, by joints ascending (k does not limit it).
+    `constraints` (`inputs.as_constraints`): every result keeps them; if none can, the answer
+    is empty and its `unmet` says which the nearest candidate misses, and by how much.
+    `timing` (`inputs.as_timing`): the points are reached at those crank angles; the short
+    pass fits the shape, then the start of each candidate is chosen (`timing.best_start`) and
+    the rest refines and ranks by the timed error."""
     started = time.perf_counter() if started is None else started
     seconds, seed, iterations = validate_synthesis_work(seconds, seed, iterations)
-    _, k, seconds, partial = validate_synthesis(points, k, seconds, partial)
+    drawn, k, seconds, partial = validate_synthesis(points, k, seconds, partial)
+    front = as_flag(front, "front")
+    constraints = as_constraints(constraints)
+    angles = as_timing(timing, len(drawn), partial)
     target = as_target(points, partial)
+    timed = None if angles is None else target.timed(angles)
+    measure = target  # the passes' target: the shape first, the timing from the long pass
     margin = max(DEFAULT_MARGIN_DEG, as_transmission_deg(margin_deg))
     fixed = iterations is not None
     # Fixed work has no deadline; its passes count iterations instead.
@@ -282,32 +359,40 @@ def refine_retrieved(
 
         def prepared(item: tuple[int, dict]) -> _Candidate | None:
             # Retrieval's first k, whatever the time: an answer needs them.
-            rank, result = item
-            if rank >= k and time.perf_counter() > deadline:
+            place, result = item
+            if place >= k and time.perf_counter() > deadline:
                 return None
-            return _candidate(result, target)
+            return _candidate(result, target, constraints)
 
         found = pool.map(prepared, enumerate(retrieved))
         candidates = [c for c in found if c is not None]
-        reported = [math.inf, -math.inf]  # the chamfer last reported, and when
+        reported: list[Any] = [(True, math.inf, math.inf), -math.inf]  # rank reported, when
 
         def report() -> None:
             if progress is None or not candidates:
                 return
-            best = min(candidates, key=lambda c: c.chamfer)
+            best = min(candidates, key=_Candidate.rank)
             now = time.perf_counter()
-            if best.chamfer < reported[0] and now - reported[1] >= PROGRESS_INTERVAL_S:
+            if best.rank() < reported[0] and now - reported[1] >= PROGRESS_INTERVAL_S:
                 # Measured from the positions read now: a worker may have moved them on since
-                # `best.chamfer`, and the reports must fall as the answer's chamfers do.
-                answer = _as_result(best, target, trajectories=True, elapsed=now - started)
-                reported[:] = [answer["chamfer"], now]
+                # `best.rank()`, and the reports must fall as the answer's measures do.
+                answer = _as_result(best, target, timed, trajectories=True, elapsed=now - started)
+                measured = answer["timed_error"] if timed is not None else answer["chamfer"]
+                reported[:] = [(not best.missed.kept, best.missed.total, measured), now]
                 progress(answer)
 
         report()
 
         def short(c: _Candidate) -> None:
             refined = _refined(
-                c, target, c.positions, FIRST_ROUND, until(first_end), margin, SHORT_IRLS_FLOOR
+                c,
+                target,
+                c.positions,
+                FIRST_ROUND,
+                until(first_end),
+                margin,
+                SHORT_IRLS_FLOOR,
+                constraints,
             )
             if not _keep(c, charge(refined), FIRST_ROUND):  # no step helped: it will not move
                 c.converged = True
@@ -322,23 +407,46 @@ def refine_retrieved(
                 break
             list(pool.map(short, moving))
             report()
-        candidates.sort(key=lambda c: c.chamfer)
+        if timed is not None:
+            # The shape is near: the best TIMED_CANDIDATES (and a front's leaders) get their
+            # start, and from here on the timing ranks them; the rest are dropped.
+            candidates.sort(key=_Candidate.rank)
+            leaders = _front(candidates) if front else []
+            candidates = candidates[:TIMED_CANDIDATES] + [
+                c for c in leaders if c not in candidates[:TIMED_CANDIDATES]
+            ]
+            list(pool.map(lambda c: _start_timed(c, timed), candidates))
+            measure = timed
+        candidates.sort(key=_Candidate.rank)
         # The long pass refines LONG_PASS_CANDIDATES at a time; one that converges makes room
         # for the next best after the short pass (whose ranking is rough: the one that ends
         # best is often well down it).
         waiting = list(candidates)
+        quota = max(LONG_PASS_CANDIDATES, k)
+        if front:
+            # The front as the short pass leaves it goes first, all of it at once.
+            leaders = _front(candidates)
+            waiting = leaders + [c for c in candidates if c not in leaders]
+            quota = max(quota, len(leaders))
         finalists: list[_Candidate] = []
 
         def long(c: _Candidate) -> None:
             refined = _refined(
-                c, target, c.positions, LONG_ROUND, until(deadline), margin, IRLS_FLOOR
+                c,
+                measure,
+                c.positions,
+                LONG_ROUND,
+                until(deadline),
+                margin,
+                IRLS_FLOOR,
+                constraints,
             )
             if not _keep(c, charge(refined), LONG_ROUND):
                 c.converged = True
 
         def moving_finalists() -> list[_Candidate]:
             moving = [c for c in finalists if not c.converged]
-            while len(moving) < max(LONG_PASS_CANDIDATES, k) and waiting:
+            while len(moving) < quota and waiting:
                 c = waiting.pop(0)
                 c.converged = False  # a short round cut by its end is no sign of it
                 finalists.append(c)
@@ -379,8 +487,10 @@ def refine_retrieved(
         while not out_of(1.0, deadline) and finalists:
             # Each round shakes the current best ones: one per worker, or with fixed work as
             # many as the long pass refines (so the threads change nothing).
-            finalists.sort(key=lambda c: c.chamfer)
+            finalists.sort(key=_Candidate.rank)
             chosen = finalists[: max(LONG_PASS_CANDIDATES if fixed else workers, k)]
+            if front:
+                chosen += [c for c in _front(finalists) if c not in chosen]
             shakes = np.exp(rng.uniform(*np.log(SHAKE), len(chosen))) * target.chord
             starts = [
                 c.positions + rng.uniform(-1.0, 1.0, c.positions.shape) * shake
@@ -389,24 +499,92 @@ def refine_retrieved(
 
             def hop(c: _Candidate, start: np.ndarray) -> None:
                 refined = _refined(
-                    c, target, start, HOP_ITERATIONS, until(deadline), margin, IRLS_FLOOR
+                    c,
+                    measure,
+                    start,
+                    HOP_ITERATIONS,
+                    until(deadline),
+                    margin,
+                    IRLS_FLOOR,
+                    constraints,
                 )
                 _keep(c, charge(refined), 0)
 
             list(pool.map(hop, chosen, starts))
             report()
-    candidates.sort(key=lambda c: (c.chamfer, c.result["path_id"]))
-    return [_as_result(c, target) for c in candidates[:k]]
+    candidates.sort(key=lambda c: (*c.rank(), c.result["path_id"]))
+    kept = [c for c in candidates if c.missed.kept]
+    answer = SynthesisResults(
+        _as_result(c, target, timed) for c in (_front(kept) if front else kept[:k])
+    )
+    if candidates and not kept:
+        nearest = candidates[0].missed
+        answer.unmet = {"constraint": nearest.name, "by": nearest.by}
+    return answer
+
+
+def retrievals(k: int, max_joints: int | None, front: bool) -> list[tuple[int, int | None]]:
+    """The retrievals a synthesis asks for, as (count, max_joints): CANDIDATES (at least k) of
+    at most `max_joints` joints, and for a front FRONT_CANDIDATES more of each smaller count
+    of FRONT_JOINTS; `pooled` joins their answers."""
+    wanted: list[tuple[int, int | None]] = [(max(CANDIDATES, k), max_joints)]
+    if front:
+        wanted += [
+            (FRONT_CANDIDATES, joints)
+            for joints in FRONT_JOINTS
+            if max_joints is None or joints < max_joints
+        ]
+    return wanted
+
+
+def pooled(answers: Sequence[Sequence[dict]]) -> list[dict]:
+    """The results of several retrievals (`retrievals`), each path once, in their order."""
+    seen: set[int] = set()
+    results = []
+    for answer in answers:
+        for result in answer:
+            if result["path_id"] not in seen:
+                seen.add(result["path_id"])
+                results.append(result)
+    return results
+
+
+def _front(candidates: Sequence[_Candidate]) -> list[_Candidate]:
+    """The best candidate of each joint count that ranks better than every simpler one's, by
+    joints ascending."""
+    best: dict[int, _Candidate] = {}
+    for c in candidates:
+        n = c.topology.n_joints
+        if n not in best or c.rank() < best[n].rank():
+            best[n] = c
+    front: list[_Candidate] = []
+    for n in sorted(best):
+        if not front or best[n].rank() < front[-1].rank():
+            front.append(best[n])
+    return front
+
+
+def _start_timed(candidate: _Candidate, timed: Target) -> None:
+    """Move the candidate along its turn to the start that suits the timing best, and measure
+    it by the timed error from now on."""
+    topology, joint = candidate.topology, candidate.joint
+    candidate.positions = best_start(topology, candidate.positions, joint, timed)
+    path = simulate(topology.adjacency, topology.node_types, candidate.positions, DEFAULT_STEPS)
+    value, _ = target_error(timed, topology, candidate.positions, joint, path[joint])
+    candidate.error = value / timed.chord
+    candidate.converged = False
 
 
 def _as_result(
     candidate: _Candidate,
     target: Target,
+    timed: Target | None = None,
     trajectories: bool = False,
     elapsed: float | None = None,
 ) -> dict[str, Any]:
-    """A candidate as an answer (docs/reference/contract.md, HTTP API, describes it); a progress
-    report adds every joint's `trajectories` and the `elapsed_ms` since the synthesis began."""
+    """A candidate as an answer (docs/reference/contract.md, HTTP API, describes it), with its
+    `timed_error` against a `timed` target; a progress report adds every joint's
+    `trajectories` and the `elapsed_ms` since the synthesis began."""
     topology = candidate.topology
     positions = candidate.positions
     path = simulate(topology.adjacency, topology.node_types, positions, DEFAULT_STEPS)
@@ -423,9 +601,14 @@ def _as_result(
             "positions": positions.tolist(),
         },
         "mechanism_joint": candidate.joint,
+        "n_joints": topology.n_joints,
+        "n_links": int(np.count_nonzero(np.triu(topology.adjacency, 1))),
         "path": path[candidate.joint].tolist(),
         "interval": None,
     }
+    if timed is not None:
+        error, _ = target_error(timed, topology, positions, candidate.joint, path[candidate.joint])
+        answer["timed_error"] = error / timed.chord
     if interval is not None:
         start, count = interval
         answer["interval"] = {
@@ -450,9 +633,13 @@ def synthesize(
     min_transmission: float = 0.0,
     progress: Callable[[dict[str, Any]], None] | None = None,
     *,
+    max_joints: int | None = None,
+    front: bool = False,
+    constraints: object = None,
+    timing: object = None,
     seed: int | None = None,
     iterations: int | None = None,
-) -> list[dict]:
+) -> SynthesisResults:
     """The k best mechanisms found for a drawn curve, best first, each refined so that its
     `mechanism_joint` traces `points` in the drawing's own frame, within `seconds` (default
     DEFAULT_SYNTHESIS_SECONDS, at most MAX_SYNTHESIS_SECONDS), retrieval included.
@@ -462,12 +649,29 @@ def synthesize(
     (`refine_retrieved` says how). `iterations` (instead of `seconds`): a fixed amount of
     work, about that many refinement iterations, whose answer is the same bit for bit for
     equal inputs whatever the time and the cores; `seed` (default 0) seeds the restarts.
-    Raises ValueError naming bad input."""
+
+    Design: `max_joints`, only mechanisms of at most that many joints (each result's
+    `n_joints` counts its reduced mechanism's); `front`, the best of each joint count that
+    beats every simpler one instead of the k best; `constraints` (pivots, footprint,
+    max_link_ratio, min_link, max_link, in the drawing's units: `inputs.Constraints`), kept by
+    every result, the answer's `unmet` saying so when no candidate can; `timing` (True: equal
+    crank steps over a turn; or the crank angle of each point in degrees), the points reached
+    at those angles from a free start, each result's `timed_error` measuring it.
+    `refine_retrieved` says how. Raises ValueError naming bad input."""
     started = time.perf_counter()
     seconds, seed, iterations = validate_synthesis_work(seconds, seed, iterations)
     drawn, k, _, partial = validate_synthesis(points, k, seconds, partial)
     floor = as_transmission_deg(min_transmission, "min_transmission")
-    retrieved = index.retrieve(drawn, max(CANDIDATES, k), floor)
+    max_joints = as_max_joints(max_joints)
+    front = as_flag(front, "front")
+    constraints = as_constraints(constraints)
+    as_timing(timing, len(drawn), partial)  # refused before any retrieval
+    retrieved = pooled(
+        [
+            index.retrieve(drawn, count, floor, most)
+            for count, most in retrievals(k, max_joints, front)
+        ]
+    )
     return refine_retrieved(
         drawn,
         retrieved,
@@ -479,4 +683,7 @@ def synthesize(
         margin_deg=floor,
         progress=progress,
         iterations=iterations,
+        front=front,
+        constraints=constraints,
+        timing=timing,
     )

@@ -34,7 +34,13 @@ from numpy.typing import ArrayLike
 
 from links_ray.data.commit import committed_files, committed_shards
 from links_ray.data.store import Store
-from links_ray.engine.inputs import DEFAULT_K, as_transmission_deg, validate_query
+from links_ray.engine.inputs import (
+    DEFAULT_K,
+    MAX_DATASET_JOINTS,
+    as_max_joints,
+    as_transmission_deg,
+    validate_query,
+)
 from links_ray.engine.mechanism import reduce_mechanism
 from links_ray.engine.paths import normalization
 from links_ray.search import brute_force as _brute_force
@@ -72,6 +78,7 @@ from links_ray.search.query import (
     stage_sizes,
     variant_map,
 )
+from links_ray.search.reduced import reduced_joints
 
 __all__ = [
     "BUILD_SETTINGS",
@@ -123,6 +130,7 @@ class RetrievalIndex:
     fingerprint: str = ""  # of the curated shards indexed (changes when any is redone)
     _scores: np.ndarray | None = field(default=None, repr=False)  # the scan's, reused
     _likely: np.ndarray | None = field(default=None, repr=False)
+    _n_joints: np.ndarray | None = field(default=None, repr=False)  # see `n_joints`
 
     def __len__(self) -> int:
         return len(self.joint)
@@ -137,7 +145,27 @@ class RetrievalIndex:
         )
         basis = self.basis.mean.nbytes + self.basis.components.nbytes
         # The scan's scores (float32) and likely variants (int8), kept between queries.
-        return sum(a.nbytes for a in arrays) + basis + self.bank.nbytes + 5 * len(self)
+        held = 5 * len(self) + (0 if self._n_joints is None else self._n_joints.nbytes)
+        return sum(a.nbytes for a in arrays) + basis + self.bank.nbytes + held
+
+    @property
+    def n_joints(self) -> np.ndarray:
+        """(N,) int16: the joints of each path's reduced mechanism (`reduce_mechanism`),
+        counted from the packed mechanisms on first use (a fraction of a second a million
+        paths) and kept."""
+        if self._n_joints is None:
+            counts = np.empty(len(self), dtype=np.int16)
+            bank = self.bank
+            reduced_joints(
+                bank.orders,
+                bank.order_start,
+                bank.joint_start,
+                self.mechanism_row,
+                self.joint,
+                counts,
+            )
+            self._n_joints = counts
+        return self._n_joints
 
     @property
     def mechanism_id(self) -> np.ndarray:
@@ -240,12 +268,12 @@ class RetrievalIndex:
         levels: np.ndarray,
         count: int,
         pieces: tuple[np.ndarray, ...],
-        min_transmission: float = 0.0,
+        allowed: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """About `count` rows of the scanned `pieces` (`probe`) whose scan score is least, and
-        their likely variants, among the paths keeping `min_transmission` degrees: the scan
-        (`search.query.candidates` says exactly)."""
-        return _query.candidates(self, levels, count, pieces, min_transmission)
+        their likely variants, among the rows `allowed` (`search.query.allowed_rows`; None:
+        all): the scan (`search.query.candidates` says exactly)."""
+        return _query.candidates(self, levels, count, pieces, allowed)
 
     def ranked(
         self,
@@ -254,17 +282,21 @@ class RetrievalIndex:
         candidates: int | None = None,
         probed: int = PROBED_ROWS,
         min_transmission: float = 0.0,
+        max_joints: int | None = None,
     ) -> list[tuple[int, float, int]]:
         """The k best (row, chamfer, variant), best first, for a normalized query, among the
-        paths keeping `min_transmission` degrees (all, at 0); the scan of the lists nearest
-        it, `probed` rows, passes on `candidates` paths (by default as `stage_sizes` says)."""
-        return _query.ranked(self, normalized, k, candidates, probed, min_transmission)
+        paths keeping `min_transmission` degrees (all, at 0) whose reduced mechanism has at
+        most `max_joints` joints (any, at None); the scan of the lists nearest it, `probed`
+        rows, passes on `candidates` paths (by default as `stage_sizes` says)."""
+        return _query.ranked(self, normalized, k, candidates, probed, min_transmission, max_joints)
 
     def warm(self, seconds: float = 5.0, queries: int = 200) -> int:
         """Answer queries until `seconds` pass or `queries` are answered; return how many.
         Raises ValueError unless seconds >= 0 and queries >= 1.
 
-        The first (an ellipse) loads the compiled kernels. The rest are the index's own paths.
+        The first (an ellipse) loads the compiled kernels; asked with `max_joints`, it counts
+        the paths' reduced joints (`n_joints`) too, before a user's query would. The rest are
+        the index's own paths.
         On a small machine the first seconds of queries after a load run many times slower
         than later ones, and waiting instead of querying does not help; answering them before
         taking traffic keeps them from users.
@@ -274,7 +306,8 @@ class RetrievalIndex:
         if not len(self):
             return 0
         angle = np.linspace(0, 2 * np.pi, 100)
-        self.retrieve(np.column_stack([np.cos(angle), 0.5 * np.sin(angle)]))
+        ellipse = np.column_stack([np.cos(angle), 0.5 * np.sin(angle)])
+        self.retrieve(ellipse, max_joints=MAX_DATASET_JOINTS)
         rows = np.random.default_rng(0).integers(len(self), size=queries - 1)
         start = time.perf_counter()
         answered = 1
@@ -286,16 +319,22 @@ class RetrievalIndex:
         return answered
 
     def retrieve(
-        self, points: object, k: int = DEFAULT_K, min_transmission: object = 0.0
+        self,
+        points: object,
+        k: int = DEFAULT_K,
+        min_transmission: object = 0.0,
+        max_joints: object = None,
     ) -> list[dict]:
         """The k best results for a query, best first, each with its mechanism in the query's
         frame (docs/reference/contract.md, HTTP API, describes a result), among the paths
-        whose least transmission angle is at least `min_transmission` degrees (fewer than k if
-        fewer do). Raises ValueError naming a bad query, k or min_transmission."""
+        whose least transmission angle is at least `min_transmission` degrees and whose
+        reduced mechanism has at most `max_joints` joints (None: any) (fewer than k if fewer
+        do). Raises ValueError naming a bad query, k, min_transmission or max_joints."""
         query, k = validate_query(points, k)
         floor = as_transmission_deg(min_transmission, "min_transmission")
+        most = as_max_joints(max_joints)
         normalized, query_matrix, query_offset = normalization(query)
-        ranked = self.ranked(normalized, k, min_transmission=floor)
+        ranked = self.ranked(normalized, k, min_transmission=floor, max_joints=most)
         rows = np.array([row for row, _, _ in ranked], dtype=np.int64)
         paths = self.paths(rows)
         results = []
@@ -314,6 +353,7 @@ class RetrievalIndex:
                     "joint": joint,
                     "chamfer": distance,
                     "min_transmission_deg": degrees_or_none(self.transmission[row]),
+                    "n_joints": len(node_types),
                     "points": path.astype(float).tolist(),
                     "mechanism": {
                         "adjacency": adjacency.tolist(),

@@ -108,12 +108,19 @@ def stage_sizes(paths: int) -> tuple[int, int, int]:
 
 
 def probe(
-    index: RetrievalIndex, field_codes: np.ndarray, rows: int = PROBED_ROWS
+    index: RetrievalIndex,
+    field_codes: np.ndarray,
+    rows: int = PROBED_ROWS,
+    allowed: np.ndarray | None = None,
 ) -> tuple[np.ndarray, ...]:
     """The row ranges of `index` to scan for a query whose variants have these field codes:
-    the lists nearest any variant, nearest first, until they hold `rows` rows, in row order
-    (`kernels.scan_pieces`: starts, ends, at)."""
-    sizes = np.diff(index.list_start)
+    the lists nearest any variant, nearest first, until they hold `rows` rows (`rows` of the
+    `allowed` (N,) bool, when given), in row order (`kernels.scan_pieces`: starts, ends, at)."""
+    if allowed is None:
+        sizes = np.diff(index.list_start)
+    else:  # a query kept to a few paths scans as many of those as one kept to none
+        held = np.concatenate([[0], np.cumsum(allowed)])
+        sizes = np.diff(held[index.list_start])
     if len(sizes) == 1 or rows >= len(index):
         chosen = np.arange(len(sizes))
     else:
@@ -124,22 +131,35 @@ def probe(
     return kernels.scan_pieces(index.list_start[chosen], index.list_start[chosen + 1])
 
 
+def allowed_rows(
+    index: RetrievalIndex, min_transmission: float = 0.0, max_joints: int | None = None
+) -> np.ndarray | None:
+    """(N,) bool: which paths of `index` a query may answer with, those keeping
+    `min_transmission` degrees (when above 0) whose reduced mechanism has at most `max_joints`
+    joints (when given); None when every path may."""
+    allowed = None
+    if min_transmission > 0:
+        allowed = index.transmission >= min_transmission
+    if max_joints is not None:
+        simple = index.n_joints <= max_joints
+        allowed = simple if allowed is None else allowed & simple
+    return allowed
+
+
 def candidates(
     index: RetrievalIndex,
     levels: np.ndarray,
     count: int,
     pieces: tuple[np.ndarray, ...],
-    min_transmission: float = 0.0,
+    allowed: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """About `count` rows of the scanned `pieces` (`probe`) whose scan score (at their best
     variant) against the query's `levels` table is least (every row when `count` reaches the
     total); and for each, 4 * its likeliest variant + the second likeliest if nearly as likely
-    (`kernels.sketch_scan`), or -1 when every row is returned. Only rows whose path keeps
-    `min_transmission` degrees (when above 0) are passed on."""
-    if count >= len(index):
-        rows = np.arange(len(index))
-        if min_transmission > 0:
-            rows = np.flatnonzero(index.transmission >= min_transmission)
+    (`kernels.sketch_scan`), or -1 when every row is returned. Only rows `allowed` (N,) bool
+    (`allowed_rows`; None: all) are passed on."""
+    if count >= (len(index) if allowed is None else np.count_nonzero(allowed)):
+        rows = np.arange(len(index)) if allowed is None else np.flatnonzero(allowed)
         return rows, np.full(len(rows), -1, dtype=np.int8)
     starts, ends, at = pieces
     scanned = int(at[-1] + ends[-1] - starts[-1])
@@ -150,11 +170,9 @@ def candidates(
     kernels.sketch_scan(
         index.sketches, starts, ends, at, levels, SCAN_SLOTS, VARIANT_MARGIN, scores, likely
     )
-    if min_transmission > 0:
-        angles = np.concatenate(
-            [index.transmission[s:e] for s, e in zip(starts, ends, strict=True)]
-        )
-        scores[~(angles >= min_transmission)] = np.inf
+    if allowed is not None:
+        kept = np.concatenate([allowed[s:e] for s, e in zip(starts, ends, strict=True)])
+        scores[~kept] = np.inf
     positions = _about_least(scores, count)
     positions = positions[np.isfinite(scores[positions])]
     piece = np.searchsorted(at, positions, side="right") - 1
@@ -168,23 +186,25 @@ def ranked(
     candidates_count: int | None = None,
     probed: int = PROBED_ROWS,
     min_transmission: float = 0.0,
+    max_joints: int | None = None,
 ) -> list[tuple[int, float, int]]:
     """The k best (row, chamfer, variant) of `index`, best first, for a normalized query,
-    among the paths keeping `min_transmission` degrees (all, at 0); the scan of the lists
-    nearest it, `probed` rows, passes on `candidates_count` paths (by default as `stage_sizes`
-    says)."""
+    among the paths keeping `min_transmission` degrees (all, at 0) whose reduced mechanism has
+    at most `max_joints` joints (any, at None); the scan of the lists nearest it, `probed`
+    rows, passes on `candidates_count` paths (by default as `stage_sizes` says)."""
     default_candidates, refined, exact_count = stage_sizes(len(index))
     count = candidates_count or default_candidates
     variants = query_variants(normalized)
-    pieces = probe(index, index.basis.query(variants), probed)
+    allowed = allowed_rows(index, min_transmission, max_joints)
+    pieces = probe(index, index.basis.query(variants), probed, allowed)
     table, owners = distance_table(normalized)
     levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
     kernels.level_table(normalized, owners, levels)
-    rows, likely = candidates(index, levels, count, pieces, min_transmission)
+    rows, likely = candidates(index, levels, count, pieces, allowed)
     if len(rows) == 0:
         return []
     # Each candidate with its likely variants (every variant on the exhaustive path).
-    if count >= len(index):
+    if likely[0] < 0:
         pair_rows, pair_variants = np.repeat(rows, 4), np.tile(np.arange(4), len(rows))
     else:
         first, second = likely // 4, likely % 4

@@ -58,6 +58,7 @@ from ray.serve.handle import DeploymentHandle, DeploymentResponse
 
 from links_ray.engine.cpus import set_given_cpus
 from links_ray.engine.solver import simulate
+from links_ray.engine.synthesis import pooled
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.api import ApiError, api, logger
 from links_ray.serve.handlers import LinksApiRoutes, studio_files
@@ -172,13 +173,19 @@ class _Retrieving:
         )
         self.pool.submit(index.warm).result()
 
-    async def retrieve(self, points: np.ndarray, k: int, min_transmission: float) -> list[dict]:
+    async def retrieve(
+        self, points: np.ndarray, k: int, min_transmission: float, max_joints: int | None = None
+    ) -> list[dict]:
         return await asyncio.get_running_loop().run_in_executor(
-            self.pool, self.index.retrieve, points, k, min_transmission
+            self.pool, self.index.retrieve, points, k, min_transmission, max_joints
         )
 
     async def retrieve_waited(
-        self, points: np.ndarray, k: int, min_transmission: float
+        self,
+        points: np.ndarray,
+        k: int,
+        min_transmission: float,
+        max_joints: int | None = None,
     ) -> tuple[list[dict], float]:
         """`retrieve`'s answer, and the seconds it waited behind other retrievals."""
         asked = time.perf_counter()
@@ -186,7 +193,7 @@ class _Retrieving:
 
         def run() -> list[dict]:
             began.append(time.perf_counter())
-            return self.index.retrieve(points, k, min_transmission)
+            return self.index.retrieve(points, k, min_transmission, max_joints)
 
         results = await asyncio.get_running_loop().run_in_executor(self.pool, run)
         return results, began[0] - asked
@@ -231,10 +238,14 @@ class IndexShard:
         return {"part": self.part, "parts": self.parts, "paths": len(self._retrieving.index)}
 
     async def retrieve(
-        self, points: np.ndarray, k: int, min_transmission: float = 0.0
+        self,
+        points: np.ndarray,
+        k: int,
+        min_transmission: float = 0.0,
+        max_joints: int | None = None,
     ) -> list[dict]:
         """The k best results of this part, best first (`RetrievalIndex.retrieve`)."""
-        return await self._retrieving.retrieve(points, k, min_transmission)
+        return await self._retrieving.retrieve(points, k, min_transmission, max_joints)
 
     def __del__(self) -> None:
         if hasattr(self, "_retrieving"):
@@ -300,29 +311,40 @@ class LinksApi(LinksApiRoutes):
         if hasattr(self, "_refining"):
             self._refining.shutdown(wait=False, cancel_futures=True)
 
-    async def _retrieve(self, points: np.ndarray, k: int, floor: float) -> list[dict]:
+    async def _retrieve(
+        self, points: np.ndarray, k: int, floor: float, max_joints: int | None = None
+    ) -> list[dict]:
         """The k best results for a query: from this replica's index (a ValueError it raises
         answered 400), or the shards' answers merged."""
         if self._retrieving is not None:
             try:
-                return await self._retrieving.retrieve(points, k, floor)
+                return await self._retrieving.retrieve(points, k, floor, max_joints)
             except ValueError as exc:
                 raise ApiError(400, str(exc)) from None
-        answers = await self._ask_shards("retrieve", points, k, floor)
+        answers = await self._ask_shards("retrieve", points, k, floor, max_joints)
         return merge_results(answers, k)
 
     async def _synthesis_candidates(
-        self, points: np.ndarray, count: int, floor: float
+        self, points: np.ndarray, wanted: list[tuple[int, int | None]], floor: float
     ) -> tuple[list[dict], float]:
-        """A synthesis's retrieved candidates, counted against the retrieval limit as any
-        retrieval (503 beyond it), and the seconds they waited behind other retrievals (0
-        with shards: they wait in the shards' replicas)."""
+        """A synthesis's retrieved candidates (`synthesis.retrievals`: (count, max_joints)
+        each, `pooled`), counted against the retrieval limit as one retrieval (503 beyond
+        it), and the seconds they waited behind other retrievals (0 with shards: they wait in
+        the shards' replicas)."""
         self._claim_retrieval()
         try:
-            if self._retrieving is not None:
-                return await self._retrieving.retrieve_waited(points, count, floor)
-            answers = await self._ask_shards("retrieve", points, count, floor)
-            return merge_results(answers, count), 0.0
+            answers, waited = [], 0.0
+            for count, most in wanted:
+                if self._retrieving is not None:
+                    answer, wait = await self._retrieving.retrieve_waited(
+                        points, count, floor, most
+                    )
+                    answers.append(answer)
+                    waited += wait
+                else:
+                    shards = await self._ask_shards("retrieve", points, count, floor, most)
+                    answers.append(merge_results(shards, count))
+            return pooled(answers), waited
         finally:
             self._retrievals -= 1
 

@@ -32,7 +32,7 @@ from fastapi import Request
 from fastapi.responses import HTMLResponse, Response, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
-from links_ray.engine.fabrication import fabrication
+from links_ray.engine.fabrication import Fabrication, fabrication
 from links_ray.engine.inputs import DEFAULT_STEPS, MAX_SYNTHESIS_SECONDS, request_limits
 from links_ray.engine.mechanism import (
     InvalidMechanismError,
@@ -42,8 +42,9 @@ from links_ray.engine.mechanism import (
     mobility,
 )
 from links_ray.engine.solver import simulate, simulate_until_lock
-from links_ray.engine.synthesis import CANDIDATES, refine_retrieved
+from links_ray.engine.synthesis import SynthesisResults, refine_retrieved, retrievals
 from links_ray.interop.curve_files import read_curve_text
+from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve import models
 from links_ray.serve.api import (
     ApiError,
@@ -148,9 +149,11 @@ def export_file(
     crank_mm: float,
     path_joint: Any,
 ) -> Response:
-    """The mechanism as a file to download (engine.fabrication), or ValueError naming why not."""
+    """The mechanism as a file to download (engine.fabrication, written by interop.drawings),
+    or ValueError naming why not."""
     drawing = fabrication(adjacency, node_types, positions, crank_mm, path_joint)
-    text = {"svg": drawing.svg, "dxf": drawing.dxf, "table": drawing.table_text}[chosen]()
+    writers = {"svg": svg_drawing, "dxf": dxf_drawing, "table": Fabrication.table_text}
+    text = writers[chosen](drawing)
     media_type, suffix = EXPORT_FORMATS[chosen]
     name = f"mechanism-{len(node_types)}-joints-{crank_mm:g}mm.{suffix}"
     return Response(
@@ -163,9 +166,17 @@ def export_file(
     )
 
 
-def _synthesis_answer(results: list[dict], took_ms: float, queued_s: float) -> dict[str, Any]:
-    """A synthesis's answer: its results, and the milliseconds it took and waited in them."""
-    return {"results": results, "took_ms": round(took_ms, 3), "queued_ms": round(queued_s * 1e3, 3)}
+def _synthesis_answer(results: SynthesisResults, took_ms: float, queued_s: float) -> dict[str, Any]:
+    """A synthesis's answer: its results, the milliseconds it took and waited in them, and
+    `unmet` when no candidate kept the constraints."""
+    answer = {
+        "results": list(results),
+        "took_ms": round(took_ms, 3),
+        "queued_ms": round(queued_s * 1e3, 3),
+    }
+    if results.unmet is not None:
+        answer["unmet"] = results.unmet
+    return answer
 
 
 class LinksApiRoutes:
@@ -295,9 +306,10 @@ class LinksApiRoutes:
         503 with `Retry-After` when MAX_RETRIEVALS are already under way here."""
         self._claim_retrieval()  # refused before reading the body
         try:
-            points, k, floor = retrieve_args(await read_json_object(request, "/api/retrieve"))
+            body = await read_json_object(request, "/api/retrieve")
+            points, k, floor, most = retrieve_args(body)
             start = time.perf_counter()
-            results = await self._retrieve(points, k, floor)
+            results = await self._retrieve(points, k, floor, most)
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
             self._retrievals -= 1
@@ -322,10 +334,11 @@ class LinksApiRoutes:
         released = True  # until the refinement, once submitted, releases its place itself
         try:
             body = await read_json_object(request, "/api/synthesize")
-            points, k, seconds, partial, floor, seed, iterations = synthesize_args(body)
+            points, k, seconds, partial, floor, seed, iterations, design = synthesize_args(body)
             stream = stream_arg(body)
             start = time.perf_counter()
-            retrieved, waited = await self._synthesis_candidates(points, max(CANDIDATES, k), floor)
+            wanted = retrievals(k, design["max_joints"], design["front"])
+            retrieved, waited = await self._synthesis_candidates(points, wanted, floor)
             retrieved_at = time.perf_counter()
             retrieval_s = retrieved_at - start - waited
             budget = None if seconds is None else max(0.0, seconds - retrieval_s)
@@ -335,7 +348,7 @@ class LinksApiRoutes:
             loop = asyncio.get_running_loop()
             reports: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
 
-            def refine() -> tuple[list[dict], float]:
+            def refine() -> tuple[SynthesisResults, float]:
                 began = time.perf_counter()
                 results = refine_retrieved(
                     points,
@@ -352,6 +365,9 @@ class LinksApiRoutes:
                         else None
                     ),
                     iterations=iterations,
+                    front=design["front"],
+                    constraints=design["constraints"],
+                    timing=design["timing"],
                 )
                 return results, waited + began - retrieved_at
 
@@ -378,7 +394,7 @@ class LinksApiRoutes:
     async def _synthesis_lines(
         self,
         reports: asyncio.Queue[dict[str, Any]],
-        refining: asyncio.Future[tuple[list[dict], float]],
+        refining: asyncio.Future[tuple[SynthesisResults, float]],
         start: float,
     ) -> AsyncIterator[bytes]:
         """A streamed synthesis: `{"progress": best so far}` lines while it refines, then

@@ -19,6 +19,7 @@ from links_ray.engine.inputs import (
     MAX_COORDINATE,
     MAX_CRANK_MM,
     MAX_CURVE_NAME_CHARS,
+    MAX_DATASET_JOINTS,
     MAX_K,
     MAX_POINTS,
     MAX_REQUEST_JOINTS,
@@ -72,8 +73,8 @@ class AnalyzeRequest(Request):
     steps: int = Field(DEFAULT_STEPS, ge=MIN_STEPS, le=MAX_STEPS)
 
 
-class RetrieveRequest(Request):
-    """POST /api/retrieve: a drawn curve, not all one point."""
+class CurveRequest(Request):
+    """A drawn curve, not all one point, and the answers wanted for it."""
 
     points: Annotated[list[Point], Field(min_length=MIN_POINTS, max_length=MAX_POINTS)]
     k: int = Field(DEFAULT_K, ge=MIN_K, le=MAX_K, description="results wanted")
@@ -85,7 +86,37 @@ class RetrieveRequest(Request):
     )
 
 
-class SynthesizeRequest(RetrieveRequest):
+MaxJoints = Field(
+    None,
+    ge=MIN_JOINTS,
+    le=MAX_DATASET_JOINTS,
+    description="only paths whose reduced mechanism has at most this many joints",
+)
+#: [xmin, ymin, xmax, ymax], in the drawing's units and frame
+Box = Annotated[list[Coordinate], Field(min_length=4, max_length=4)]
+
+
+class RetrieveRequest(CurveRequest):
+    """POST /api/retrieve: a drawn curve, not all one point."""
+
+    max_joints: int | None = MaxJoints
+
+
+class DesignConstraints(Request):
+    """What every synthesis result keeps, in the drawing's own units and frame."""
+
+    pivots: Box | None = Field(None, description="every fixed joint inside this box")
+    footprint: Box | None = Field(
+        None, description="every joint inside this box through the whole crank turn"
+    )
+    max_link_ratio: float | None = Field(
+        None, ge=1.0, description="the longest link at most this many times the shortest"
+    )
+    min_link: float | None = Field(None, gt=0.0, description="every link at least this long")
+    max_link: float | None = Field(None, gt=0.0, description="every link at most this long")
+
+
+class SynthesizeRequest(CurveRequest):
     """POST /api/synthesize: retrieval, then refinement within `seconds`, or for a fixed
     number of `iterations`."""
 
@@ -103,6 +134,24 @@ class SynthesizeRequest(RetrieveRequest):
     )
     seed: int = Field(0, ge=0, le=MAX_SEED, description="seed of the random restarts")
     partial: bool = Field(False, description="the drawing is part of a curve: match a run")
+    max_joints: int | None = MaxJoints
+    front: bool = Field(
+        False,
+        description=(
+            "answer the best result of each joint count that beats every simpler one, by "
+            "joints ascending, instead of the k best"
+        ),
+    )
+    constraints: DesignConstraints | None = Field(
+        None, description="kept by every result; `unmet` in the answer when none can"
+    )
+    timing: bool | list[float] | None = Field(
+        None,
+        description=(
+            "true: the points are reached at equal crank steps over a turn, in order, from a "
+            "free start; or each point's crank angle in degrees (relative to a free start)"
+        ),
+    )
     stream: bool = Field(
         False,
         description=(
@@ -205,6 +254,7 @@ class RetrieveResult(BaseModel):
     joint: int = Field(description="the path's joint in the stored mechanism")
     chamfer: float = Field(description="between the normalized query and path")
     min_transmission_deg: float | None = None
+    n_joints: int = Field(description="joints of `mechanism`, the path's reduced mechanism")
     points: list[Point] = Field(description="the path, normalized")
     mechanism: Mechanism = Field(description="reduced to the joints the path needs")
     mechanism_joint: int = Field(description="the path's joint in `mechanism`")
@@ -237,14 +287,35 @@ class SynthesisResult(BaseModel):
     mechanism_joint: int
     path: list[Point] = Field(description="the joint's path, in the drawing's frame")
     interval: Interval | None = None
+    n_joints: int = Field(description="joints of `mechanism` (reduced to what the path needs)")
+    n_links: int = Field(description="links of `mechanism`, the crank included")
+    timed_error: float | None = Field(
+        None,
+        description=(
+            "with timing: mean distance of each point from the path at its crank angle, over "
+            "the drawing's longest chord"
+        ),
+    )
+
+
+class Unmet(BaseModel):
+    """The constraint the nearest candidate misses most, and by how much in its own units."""
+
+    constraint: Literal["pivots", "footprint", "max_link_ratio", "min_link", "max_link"]
+    by: float
 
 
 class SynthesizeResponse(BaseModel):
     """200 from /api/synthesize: refined mechanisms, and the milliseconds it took and waited."""
 
-    results: list[SynthesisResult] = Field(description="best first")
+    results: list[SynthesisResult] = Field(
+        description="best first; with `front`, by joints ascending; [] with `unmet`"
+    )
     took_ms: float
     queued_ms: float = Field(description="of took_ms, waited behind other work")
+    unmet: Unmet | None = Field(
+        None, description="when constraints were given and no candidate could keep them"
+    )
 
 
 class Lock(BaseModel):

@@ -31,9 +31,12 @@ from links_ray.engine.inputs import (
     MAX_REQUEST_JOINT_STEPS,
     MAX_REQUEST_JOINTS,
     MIN_BODY_BYTES_PER_S,
+    as_constraints,
     as_crank_mm,
     as_flag,
+    as_max_joints,
     as_steps,
+    as_timing,
     as_transmission_deg,
     validate_query,
     validate_synthesis,
@@ -241,21 +244,23 @@ def _pairs(name: str, value: object, count: int | None = None) -> list[list[floa
     return value
 
 
-def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float]:
-    """The query points (T, 2), k and min_transmission of a /api/retrieve body, or ApiError
-    naming the problem."""
+def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float, int | None]:
+    """The query points (T, 2), k, min_transmission and max_joints of a /api/retrieve body,
+    or ApiError naming the problem."""
     points = _pairs("points", _required(body, "points"))
     k = body.get("k")
     points, k = _checked(validate_query, points, DEFAULT_K if k is None else k)
-    return points, k, _min_transmission(body)
+    return points, k, _min_transmission(body), _checked(as_max_joints, body.get("max_joints"))
 
 
 def synthesize_args(
     body: dict[str, Any],
-) -> tuple[np.ndarray, int, float | None, bool, float, int, int | None]:
-    """(points (T, 2), k, seconds, partial, min_transmission, seed, iterations) of a
+) -> tuple[np.ndarray, int, float | None, bool, float, int, int | None, dict[str, Any]]:
+    """(points (T, 2), k, seconds, partial, min_transmission, seed, iterations, design) of a
     /api/synthesize body, or ApiError naming the problem: the points, k and min_transmission
-    as /api/retrieve takes them; seconds None when the work is fixed (iterations)."""
+    as /api/retrieve takes them; seconds None when the work is fixed (iterations); design
+    the validated `max_joints`, `front`, `constraints` and `timing`, as `synthesize` takes
+    them."""
     points = _pairs("points", _required(body, "points"))
     k = body.get("k")
     seconds, seed, iterations = _checked(
@@ -269,7 +274,14 @@ def synthesize_args(
         body.get("partial", False),
     )
     budget = None if iterations is not None else budget
-    return points, k, budget, partial, _min_transmission(body), seed, iterations
+    design = {
+        "max_joints": _checked(as_max_joints, body.get("max_joints")),
+        "front": _checked(as_flag, body.get("front", False), "front"),
+        "constraints": _checked(as_constraints, body.get("constraints")),
+        "timing": body.get("timing"),
+    }
+    _checked(as_timing, design["timing"], len(points), partial)
+    return points, k, budget, partial, _min_transmission(body), seed, iterations, design
 
 
 def stream_arg(body: dict[str, Any]) -> bool:

@@ -1,0 +1,204 @@
+"""Design constraints on a mechanism in the drawing's frame: how far positions are from keeping
+them, and the linearized rows that keep a refinement step inside them.
+
+The constraints themselves (`inputs.Constraints`, validated by `inputs.as_constraints`) are a
+pivot region (every fixed joint in a box), a footprint (every joint in a box over the whole
+turn) and link lengths (every link between `min_link` and `max_link`, the longest at most
+`max_link_ratio` times the shortest). A link is an edge of the mechanism's adjacency, the
+crank included.
+
+`violation` measures how far a mechanism is from keeping them: each constraint's miss in its
+own units (lengths in the drawing's units, the ratio as a ratio) and one merit that adds them
+up in chords, which refinement drives to zero before it may trade any of it for a better fit.
+`guard_rows` linearizes the constraints near their bounds as rows A d >= b of a step d of the
+positions, as `refine_step.transmission_guards` does for the transmission margin.
+
+Pure numpy: no numba, no Ray.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from links_ray.engine.inputs import Constraints
+
+__all__ = ["Violation", "extent", "guard_rows", "link_lengths", "violation"]
+
+#: Steps aim this share of the drawing's chord inside a bound (and a ratio this share of
+#: itself): the footprint is kept between the simulation's steps too, and a step lands near,
+#: not exactly on, its linearized bound.
+CLEARANCE = 1e-3
+#: Only bounds within this share of the chord (or of the ratio) of being reached give a row.
+BAND = 0.05
+
+
+@dataclass(frozen=True)
+class Violation:
+    """How far a mechanism is from its constraints: `total` adds every constraint's miss, in
+    chords (the ratio's in multiples of the ratio); `name` and `by` are the largest miss,
+    `by` in the constraint's own units; ("", 0.0) when every constraint is kept."""
+
+    total: float
+    name: str
+    by: float
+
+    @property
+    def kept(self) -> bool:
+        """Every constraint is kept."""
+        return self.total <= 0.0
+
+
+KEPT = Violation(0.0, "", 0.0)
+
+
+def link_lengths(positions: np.ndarray, links: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """(E,) the length of each link (i, j) of `links` (`inputs.link_pairs`)."""
+    i, j = links
+    return np.hypot(*(positions[i] - positions[j]).T)
+
+
+def extent(traj: np.ndarray) -> np.ndarray:
+    """(4,) xmin, ymin, xmax, ymax over every joint's path, traj (n, steps, 2)."""
+    return np.concatenate([traj.min(axis=(0, 1)), traj.max(axis=(0, 1))])
+
+
+def _box_miss(box: tuple[float, float, float, float], low: np.ndarray, high: np.ndarray) -> float:
+    """How far the range [low, high] (2,) of x and y reaches outside `box` (0 inside)."""
+    lo, hi = np.array(box[:2]), np.array(box[2:])
+    return float(max(0.0, (lo - low).max(), (high - hi).max()))
+
+
+def violation(
+    constraints: Constraints | None,
+    positions: np.ndarray,
+    fixed: np.ndarray,
+    links: tuple[np.ndarray, np.ndarray],
+    bounds: np.ndarray,
+    chord: float,
+) -> Violation:
+    """How far `positions` (n, 2) are from `constraints`; `fixed` are the fixed joints'
+    indices, `bounds` the `extent` of every joint over the turn, `chord` the drawing's."""
+    if constraints is None:
+        return KEPT
+    misses: list[tuple[float, str, float]] = []  # (in chords, name, in its units)
+    if constraints.pivots is not None:
+        ground = positions[fixed]
+        by = _box_miss(constraints.pivots, ground.min(axis=0), ground.max(axis=0))
+        misses.append((by / chord, "pivots", by))
+    if constraints.footprint is not None:
+        by = _box_miss(constraints.footprint, bounds[:2], bounds[2:])
+        misses.append((by / chord, "footprint", by))
+    lengths = link_lengths(positions, links)
+    if constraints.min_link is not None:
+        by = max(0.0, constraints.min_link - float(lengths.min()))
+        misses.append((by / chord, "min_link", by))
+    if constraints.max_link is not None:
+        by = max(0.0, float(lengths.max()) - constraints.max_link)
+        misses.append((by / chord, "max_link", by))
+    if constraints.max_link_ratio is not None:
+        by = max(0.0, float(lengths.max() / lengths.min()) - constraints.max_link_ratio)
+        misses.append((by / constraints.max_link_ratio, "max_link_ratio", by))
+    total = sum(miss for miss, _, _ in misses)
+    if total <= 0.0:
+        return KEPT
+    _, name, by = max(misses)
+    return Violation(total, name, by)
+
+
+def _box_rows(
+    box: tuple[float, float, float, float],
+    values: np.ndarray,
+    gradients: np.ndarray,
+    keep_low: np.ndarray,
+    keep_high: np.ndarray,
+    band: float,
+    clearance: float,
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Rows keeping `values` (K, 2) inside `box`, with gradients (K, 2, P): a point's row for a
+    side when it is within `band` of it and `keep_low`/`keep_high` (K, 2) say it may bind."""
+    rows: list[np.ndarray] = []
+    bounds: list[np.ndarray] = []
+    lo, hi = np.array(box[:2]), np.array(box[2:])
+    near_low = keep_low & (values < lo + band)
+    near_high = keep_high & (values > hi - band)
+    k, axis = np.nonzero(near_low)
+    rows.append(gradients[k, axis])
+    bounds.append(lo[axis] + clearance - values[k, axis])
+    k, axis = np.nonzero(near_high)
+    rows.append(-gradients[k, axis])
+    bounds.append(values[k, axis] - hi[axis] + clearance)
+    return rows, bounds
+
+
+def guard_rows(
+    constraints: Constraints | None,
+    positions: np.ndarray,
+    fixed: np.ndarray,
+    links: tuple[np.ndarray, np.ndarray],
+    traj: np.ndarray,
+    dtraj: np.ndarray,
+    chord: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Linearized constraints (A, b), A d >= b, for a step d (2n,) of `positions` (n, 2), from
+    the turn's traj (n, steps, 2) and its derivatives dtraj (n, steps, 2, 2n): the rows of the
+    bounds each constraint comes within BAND of (the missed ones among them), each aiming
+    CLEARANCE inside."""
+    cols = positions.size
+    rows: list[np.ndarray] = [np.empty((0, cols))]
+    bounds: list[np.ndarray] = [np.empty(0)]
+    if constraints is None:
+        return rows[0], bounds[0]
+    band, clearance = BAND * chord, CLEARANCE * chord
+    unit = np.eye(cols).reshape(-1, 2, cols)  # d position / d coordinates, per joint
+    if constraints.pivots is not None:
+        ground = np.ones((len(fixed), 2), dtype=bool)
+        more = _box_rows(
+            constraints.pivots, positions[fixed], unit[fixed], ground, ground, band, clearance
+        )
+        rows += more[0]
+        bounds += more[1]
+    if constraints.footprint is not None:
+        moving = np.ones(len(positions), dtype=bool)
+        moving[fixed] = False
+        path = traj[moving]  # (M, steps, 2): only a path's extremes can bind
+        before, after = np.roll(path, 1, axis=1), np.roll(path, -1, axis=1)
+        lows = (path <= before) & (path <= after)
+        highs = (path >= before) & (path >= after)
+        values = np.concatenate([positions[fixed], path.reshape(-1, 2)])
+        gradients = np.concatenate([unit[fixed], dtraj[moving].reshape(-1, 2, cols)])
+        ground = np.ones((len(fixed), 2), dtype=bool)
+        keep_low = np.concatenate([ground, lows.reshape(-1, 2)])
+        keep_high = np.concatenate([ground, highs.reshape(-1, 2)])
+        more = _box_rows(
+            constraints.footprint, values, gradients, keep_low, keep_high, band, clearance
+        )
+        rows += more[0]
+        bounds += more[1]
+    lengths_given = (constraints.min_link, constraints.max_link, constraints.max_link_ratio)
+    if any(value is not None for value in lengths_given):
+        i, j = links
+        lengths = link_lengths(positions, links)
+        units = (positions[i] - positions[j]) / lengths[:, None]
+        grads = np.zeros((len(lengths), cols))  # d length / d coordinates
+        edge = np.arange(len(lengths))
+        for c in range(2):
+            grads[edge, 2 * i + c] = units[:, c]
+            grads[edge, 2 * j + c] = -units[:, c]
+        if constraints.min_link is not None:
+            near = lengths < constraints.min_link + band
+            rows.append(grads[near])
+            bounds.append(constraints.min_link + clearance - lengths[near])
+        if constraints.max_link is not None:
+            near = lengths > constraints.max_link - band
+            rows.append(-grads[near])
+            bounds.append(lengths[near] - constraints.max_link + clearance)
+        ratio = constraints.max_link_ratio
+        if ratio is not None:
+            # ratio x shortest - longest >= 0, for every pair that comes near it.
+            slack = ratio * lengths[None, :] - lengths[:, None]  # [long, short]
+            long_, short = np.nonzero(slack < BAND * ratio * lengths.min())
+            rows.append(ratio * grads[short] - grads[long_])
+            bounds.append(CLEARANCE * ratio * lengths[short] - slack[long_, short])
+    return np.concatenate(rows), np.concatenate(bounds)
