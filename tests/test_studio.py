@@ -1198,7 +1198,7 @@ def bean(studio: Studio) -> list[list[float]]:
     return studio.js("() => window.studio.retriever.points")
 
 
-def test_simplest_first_front_table_and_timing(studio: Studio, client: Client) -> None:
+def test_simplest_first_front_table_and_timing(studio: Studio, client: Client, shots: Path) -> None:
     """Simplest first and Timed: the answer is a table of joints against chamfer (and timed
     error), the API's front row by row, joints rising and chamfer falling; a row's click
     animates that row's mechanism."""
@@ -1259,9 +1259,12 @@ def test_simplest_first_front_table_and_timing(studio: Studio, client: Client) -
             break
     assert len(frames) >= 3, frames
     assert f"{simplest['n_joints']} joints" in studio.text("retrieve-status")
+    studio.shot("studio-front.png", shots)
 
 
-def test_a_pivot_box_drawn_on_the_canvas_is_kept(studio: Studio, client: Client) -> None:
+def test_a_pivot_box_drawn_on_the_canvas_is_kept(
+    studio: Studio, client: Client, shots: Path
+) -> None:
     """A pivot box drawn on the canvas goes to the synthesis in the drawing's frame, and every
     fixed joint of every mechanism of the answer lies inside it; a box no candidate can reach
     is answered with `unmet`, shown in words."""
@@ -1295,6 +1298,7 @@ def test_a_pivot_box_drawn_on_the_canvas_is_kept(studio: Studio, client: Client)
         for r in free["results"]
     ]
     assert any(np.any(f < held[:2]) or np.any(f > held[2:]) for f in outside)
+    studio.shot("studio-pivots.png", shots)
 
     # A box far from anything a mechanism of this curve can reach: unmet, said in words.
     studio.click("clear-boxes")
