@@ -1198,12 +1198,17 @@ def bean(studio: Studio) -> list[list[float]]:
     return studio.js("() => window.studio.retriever.points")
 
 
+#: The most joints the front test allows: fewer than the unbounded front reaches on its curve.
+FRONT_MAX_JOINTS = 6
+
+
 def test_simplest_first_front_table_and_timing(studio: Studio, client: Client, shots: Path) -> None:
-    """Simplest first and Timed: the answer is a table of joints against chamfer (and timed
-    error), the API's front row by row, joints rising and chamfer falling; a row's click
-    animates that row's mechanism."""
+    """Simplest first, Timed and Max joints: the answer is a table of joints against chamfer
+    (and timed error), the API's front row by row, joints rising and chamfer falling, none
+    over the joints allowed; a row's click animates that row's mechanism."""
     sent = fixed_synthesis_work(studio)
     bean(studio)
+    studio.page.get_by_test_id("max-joints").fill(str(FRONT_MAX_JOINTS))
     studio.page.get_by_test_id("front").check()
     studio.page.get_by_test_id("timed").check()
     studio.click("synthesize-button")
@@ -1211,6 +1216,7 @@ def test_simplest_first_front_table_and_timing(studio: Studio, client: Client, s
     table.wait_for(timeout=SYNTHESIS_WAIT_MS)
     studio.wait("() => window.studio.retriever.chosen && window.studio.retriever.chosen.index >= 0")
     assert len(sent) == 1 and sent[0]["front"] is True and sent[0]["timing"] is True
+    assert sent[0]["max_joints"] == FRONT_MAX_JOINTS
     answer = streamed_answer(client, sent[0])  # equal requests, bit-equal answers
     results = answer["results"]
     rows = studio.page.get_by_test_id("front-row")
@@ -1226,6 +1232,10 @@ def test_simplest_first_front_table_and_timing(studio: Studio, client: Client, s
     joints = [j for j, _ in shown]
     chamfers = [c for _, c in shown]
     assert joints == sorted(set(joints))  # one row per joint count, simplest first
+    assert joints[-1] <= FRONT_MAX_JOINTS
+    # Any joints allowed, the same work's front goes further: the bound was kept, not idle.
+    free = streamed_answer(client, {k: v for k, v in sent[0].items() if k != "max_joints"})
+    assert max(r["n_joints"] for r in free["results"]) > FRONT_MAX_JOINTS
     assert chamfers == sorted(chamfers, reverse=True) and len(set(chamfers)) == len(chamfers)
     for i, result in enumerate(results):
         assert result["n_joints"] == len(result["mechanism"]["node_types"])
