@@ -44,6 +44,8 @@ DEFAULT_K, MIN_K, MAX_K = 3, 1, 100
 #: Largest drawing a target curve is read from (SVG, DXF, CSV, JSON), in bytes: refused before
 #: it is parsed, since a parser holds the whole document, several times its size, in memory.
 MAX_CURVE_FILE_BYTES = 32 * 1024 * 1024
+#: Longest file name or element id (SVG id, DXF layer) a curve file is named by over HTTP.
+MAX_CURVE_NAME_CHARS = 1000
 
 # -- refinement (engine.refine) ----------------------------------------------------------------
 

@@ -3,8 +3,9 @@
 `read_curve("drawing.svg#wing")` reads one curve, chosen by what follows `#` (an SVG element's
 id, a DXF layer's name) or else the first in the file, and samples it evenly by arc length to
 a fixed count of points, open or closed; the engine's validator (`as_drawn_points`) then holds
-it to the limits every drawn curve meets. `read_points` reads the JSON points `links retrieve`
-and `links synthesize --points` take, as they are.
+it to the limits every drawn curve meets; `read_curve_text` reads the same from a file's
+contents (what the HTTP API's `/api/curve` is sent). `read_points` reads the JSON points
+`links retrieve` and `links synthesize --points` take, as they are.
 
 - `.svg`: a `path`, `polyline`, `polygon`, `rect`, `circle`, `ellipse` or `line`, every transform
   applied (its own and its parents'), in the user units of the outer `svg`, y negated so the
@@ -40,7 +41,14 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.paths import even_along
 
-__all__ = ["CURVE_FILE_TYPES", "DEFAULT_CURVE_POINTS", "Curve", "read_curve", "read_points"]
+__all__ = [
+    "CURVE_FILE_TYPES",
+    "DEFAULT_CURVE_POINTS",
+    "Curve",
+    "read_curve",
+    "read_curve_text",
+    "read_points",
+]
 
 #: Points a curve read from a file is sampled to by default: as dense as the bench's targets.
 DEFAULT_CURVE_POINTS = 400
@@ -52,6 +60,7 @@ DXF_SAG = 1e-8
 #: The extensions read, lower case.
 CURVE_FILE_TYPES = (".csv", ".dxf", ".json", ".svg")
 
+_TOO_LARGE = f"larger than {MAX_CURVE_FILE_BYTES:,} bytes, the most a curve file may be"
 _SVG_SHAPES = "path, polyline, polygon, rect, circle, ellipse or line"
 _DXF_ENTITIES = "LWPOLYLINE, POLYLINE or SPLINE"
 
@@ -76,13 +85,38 @@ def read_curve(target: str | os.PathLike[str], points: int = DEFAULT_CURVE_POINT
     MAX_CURVE_FILE_BYTES, no such element or layer, a single point."""
     count = as_int("points", points, MIN_POINTS, MAX_POINTS)
     file, part = _split_target(os.fspath(target))
+    _reader(file)  # an unknown extension is named before the file is read
+    return _parse_curve(file, _read_bytes(file, file), part, count)
+
+
+def read_curve_text(
+    name: str, text: str | bytes, part: str | None = None, points: int = DEFAULT_CURVE_POINTS
+) -> Curve:
+    """The curve in a file's contents `text`, as `read_curve` reads the file: `name` (its
+    extension) says how to read it and names it in messages, `part` is what `#id` selects.
+    For callers that hold the file but not a path to it (the HTTP API's /api/curve)."""
+    count = as_int("points", points, MIN_POINTS, MAX_POINTS)
+    data = text.encode("utf-8") if isinstance(text, str) else text
+    if len(data) > MAX_CURVE_FILE_BYTES:
+        raise ValueError(f"{name}: {_TOO_LARGE}")
+    return _parse_curve(name, data, part, count)
+
+
+def _reader(file: str) -> Callable[[str, bytes, str | None], tuple[np.ndarray, bool, str]]:
+    """The reader of `file`'s extension, or ValueError naming the extensions read."""
     kind = Path(file).suffix.lower()
     reader = _READERS.get(kind)
     if reader is None:
         raise ValueError(
             f"{file}: unknown extension {kind or '(none)'!r} (read: {', '.join(CURVE_FILE_TYPES)})"
         )
-    data = _read_bytes(file, file)
+    return reader
+
+
+def _parse_curve(file: str, data: bytes, part: str | None, count: int) -> Curve:
+    """The curve in `data`, the contents of `file` (named so in messages), resampled."""
+    reader = _reader(file)
+    kind = Path(file).suffix.lower()
     if part is not None and kind in (".csv", ".json"):
         raise ValueError(f"{file}: a {kind[1:].upper()} file holds one curve, there is no #{part}")
     outline, closed, source = reader(file, data, part)
@@ -124,7 +158,7 @@ def _split_target(target: str) -> tuple[str, str | None]:
 
 def _read_bytes(file: str, label: str) -> bytes:
     """The file's bytes, refused before reading past MAX_CURVE_FILE_BYTES."""
-    too_large = f"{label}: larger than {MAX_CURVE_FILE_BYTES:,} bytes, the most a curve file may be"
+    too_large = f"{label}: {_TOO_LARGE}"
     try:
         if os.stat(file).st_size > MAX_CURVE_FILE_BYTES:
             raise ValueError(too_large)

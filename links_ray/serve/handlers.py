@@ -8,6 +8,7 @@
 | `POST /api/synthesize` | 200 `{"results", "took_ms", "queued_ms"}`, refined; 503 when busy |
 | `POST /api/analyze` | 200 the studio's analysis: mobility, dyadic solvability, where it locks |
 | `POST /api/export` | 200 the mechanism as an SVG, DXF or table file in mm (an attachment) |
+| `POST /api/curve` | 200 `{"points", "closed"}`: the curve in a drawing's file, sent as text |
 | `GET /api/limits` | the limits a request meets (`engine.inputs.request_limits`) |
 | `GET /openapi.json` | the API described, bodies and bounds included (`serve.api`) |
 | `GET /` | the web studio (`links_ray/serve/studio/index.html`) |
@@ -42,6 +43,7 @@ from links_ray.engine.mechanism import (
 )
 from links_ray.engine.solver import simulate, simulate_until_lock
 from links_ray.engine.synthesis import SynthesisResults, refine_retrieved, retrievals
+from links_ray.interop.curve_files import read_curve_text
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve import models
 from links_ray.serve.api import (
@@ -56,6 +58,7 @@ from links_ray.serve.api import (
 )
 from links_ray.serve.parsing import (
     EXPORT_FORMATS,
+    curve_args,
     export_args,
     read_json_object,
     retrieve_args,
@@ -274,6 +277,23 @@ class LinksApiRoutes:
             return _error(422, f"{exc}: it has no full path to draw", step=exc.step, node=exc.node)
         except ValueError as exc:  # the engine's message: the mechanism, the scale, path_joint
             raise ApiError(400, str(exc)) from None
+
+    @api.post(
+        "/api/curve",
+        response_model=models.CurveFileResponse,
+        responses=models.error_responses(400, 413, 415),
+        openapi_extra=request_body("/api/curve"),
+    )
+    async def api_curve(self, request: Request) -> Response:
+        """The curve of a drawing's file sent as text (SVG, DXF, CSV or JSON, as `links
+        synthesize --curve FILE#id` reads it): its points evenly spaced, and whether it is
+        closed; 400 naming what is wrong with the file."""
+        name, text, part = curve_args(await read_json_object(request, "/api/curve"))
+        try:
+            curve = await run_in_threadpool(read_curve_text, name, text, part)
+        except ValueError as exc:  # the file's problem, named with the file
+            raise ApiError(400, str(exc)) from None
+        return await json_answer({"points": curve.points, "closed": curve.closed})
 
     @api.post(
         "/api/retrieve",

@@ -18,6 +18,7 @@ from links_ray.engine.inputs import (
     DEFAULT_SYNTHESIS_SECONDS,
     MAX_COORDINATE,
     MAX_CRANK_MM,
+    MAX_CURVE_NAME_CHARS,
     MAX_DATASET_JOINTS,
     MAX_K,
     MAX_POINTS,
@@ -158,6 +159,32 @@ class SynthesizeRequest(CurveRequest):
             "trajectories and elapsed_ms) each time it improves, then {results, took_ms}"
         ),
     )
+
+
+class CurveFileRequest(Request):
+    """POST /api/curve: a drawing's file, its curve read as `links synthesize --curve` reads
+    it (SVG, DXF, CSV or JSON; the body at most `max_body_bytes`)."""
+
+    name: str = Field(
+        min_length=1,
+        max_length=MAX_CURVE_NAME_CHARS,
+        description="the file's name: its extension (.svg, .dxf, .csv, .json) says how to read it",
+    )
+    text: str = Field(description="the file's contents")
+    id: str | None = Field(
+        None,
+        min_length=1,
+        max_length=MAX_CURVE_NAME_CHARS,
+        description="an SVG element's id or a DXF layer's name (FILE#id); else the first curve",
+    )
+
+
+class CurveFileResponse(BaseModel):
+    """200 from /api/curve: the curve sampled evenly by arc length, in the drawing's units
+    (an SVG's y negated, so that it reads as drawn)."""
+
+    points: list[Point]
+    closed: bool = Field(description="a closed curve: its last point does not repeat its first")
 
 
 class ErrorResponse(BaseModel):
@@ -336,4 +363,5 @@ REQUEST_MODELS: dict[str, type[BaseModel]] = {
     "/api/retrieve": RetrieveRequest,
     "/api/synthesize": SynthesizeRequest,
     "/api/export": ExportRequest,
+    "/api/curve": CurveFileRequest,
 }

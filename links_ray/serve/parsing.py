@@ -27,6 +27,7 @@ from links_ray.engine.inputs import (
     DEFAULT_K,
     DEFAULT_STEPS,
     MAX_BODY_BYTES,
+    MAX_CURVE_NAME_CHARS,
     MAX_REQUEST_JOINT_STEPS,
     MAX_REQUEST_JOINTS,
     MIN_BODY_BYTES_PER_S,
@@ -352,3 +353,21 @@ def export_args(body: dict[str, Any]) -> tuple[list, list, list, str, float, Any
     crank_mm = DEFAULT_CRANK_MM if crank is None else _checked(as_crank_mm, crank)
     # The engine checks path_joint: an integer naming a moving joint.
     return adjacency, node_types, positions, chosen, crank_mm, body.get("path_joint")
+
+
+def curve_args(body: dict[str, Any]) -> tuple[str, str, str | None]:
+    """(name, text, id) of a /api/curve body, or ApiError naming the problem; the file itself
+    is read by `interop.curve_files`, whose ValueErrors name what is wrong with it."""
+    name = _string(body, "name", _required(body, "name"))
+    text = _string(body, "text", _required(body, "text"))
+    part = body.get("id")
+    return name, text, None if part is None else _string(body, "id", part)
+
+
+def _string(body: dict[str, Any], field: str, value: object) -> str:
+    """`value`, a string: 1 to MAX_CURVE_NAME_CHARS characters but for the file's `text`."""
+    if not isinstance(value, str):
+        raise ApiError(400, f"{field} must be a string, got {_kind(value)}")
+    if field != "text" and not 1 <= len(value) <= MAX_CURVE_NAME_CHARS:
+        raise ApiError(400, f"{field} must be 1 to {MAX_CURVE_NAME_CHARS} characters long")
+    return value

@@ -1,9 +1,11 @@
-// Draw to retrieve: the user draws a curve, POST /api/retrieve finds curated paths of that
-// shape (or POST /api/synthesize finds them and refines their mechanisms onto the curve), and
-// a chosen result's mechanism (already in the drawing's frame, placed by the server) is
-// simulated and animated over the curve.
+// Draw to retrieve: the user draws a curve (or opens one from a drawing's file), POST
+// /api/retrieve finds curated paths of that shape (or POST /api/synthesize finds them and
+// refines their mechanisms onto the curve, within the joints, constraints and timing asked
+// for), and a chosen result's mechanism (already in the drawing's frame, placed by the server)
+// is simulated and animated over the curve.
 
 import { explain, limits, postJson, postJsonLines } from "./api.js";
+import { markFront, renderFront } from "./front.js";
 import { parseMechanism } from "./mechanism.js";
 import {
   COLORS,
@@ -23,15 +25,19 @@ const MAX_DRAWN_POINTS = 5000; // a hand-drawn curve needs no more, unless the A
 const UNIT = { minX: 0, minY: 0, maxX: 1, maxY: 1 };
 
 export class Retriever {
-  /** `ui`: retrieve, synthesize, clear, open, k, status, list; `editor` receives "Open in
-   * editor". */
-  constructor({ canvas, ui, notify, editor }) {
+  /** `ui`: retrieve, synthesize, clear, open, k, status, list, and the synthesis's options
+   * maxJoints, front, timed, partial, with frontTable and unmet to show its answer;
+   * `constraints` (a Constraints) draws its boxes here; `editor` receives "Open in editor". */
+  constructor({ canvas, ui, notify, editor, constraints }) {
     this.canvas = canvas;
     this.ui = ui;
     this.notify = notify;
     this.editor = editor;
+    this.constraints = constraints;
     this.view = new View();
     this.points = []; // the drawn curve, world coordinates (the editor's frame)
+    this.frameBox = UNIT; // what the view shows while there is no result: a file's curve
+    this.boxing = null; // pointer id while a constraint box is drawn
     this.drawing = null; // pointer id while a stroke is under way
     this.results = [];
     this.chosen = null; // {index, result, trajectories}; index -1 while a synthesis runs
@@ -59,12 +65,20 @@ export class Retriever {
     this.ui.status.classList.toggle("bad", bad);
   }
 
-  /** The unit square while drawing; the curve and the chosen mechanism once there is one. */
+  /** The unit square (or an opened curve) while drawing; the curve and the chosen mechanism
+   * once there is one; the constraint boxes always. */
   fitView() {
+    const frame = this.frameBox;
+    const size = Math.max(frame.maxX - frame.minX, frame.maxY - frame.minY);
+    const boxes = this.constraints ? this.constraints.corners() : [];
     if (this.chosen) {
-      this.view.fit(bounds(this.points, ...this.chosen.trajectories), 0.2, 0.06);
+      this.view.fit(bounds(this.points, ...this.chosen.trajectories, ...boxes), 0.2 * size, 0.06);
     } else {
-      this.view.fit(UNIT, 1, 0.04);
+      const corners = [
+        [frame.minX, frame.minY],
+        [frame.maxX, frame.maxY],
+      ];
+      this.view.fit(bounds(corners, ...boxes), size, 0.04);
     }
   }
 
@@ -77,7 +91,13 @@ export class Retriever {
 
   pointerDown(e) {
     if (e.button !== undefined && e.button > 0) return;
-    if (this.drawing !== null) return; // one finger draws; a second is ignored
+    if (this.drawing !== null || this.boxing !== null) return; // one finger draws
+    const world = this.view.toWorld(...this.local(e));
+    if (this.constraints && this.constraints.press(world, this.view)) {
+      this.canvas.setPointerCapture(e.pointerId);
+      this.boxing = e.pointerId;
+      return;
+    }
     this.canvas.setPointerCapture(e.pointerId);
     this.drawing = e.pointerId;
     this.runs += 1;
@@ -93,6 +113,7 @@ export class Retriever {
   }
 
   pointerMove(e) {
+    if (e.pointerId === this.boxing) this.constraints.drag(this.view.toWorld(...this.local(e)));
     if (e.pointerId !== this.drawing) return;
     // Coalesced events carry the points a fast stroke would otherwise skip.
     const events = e.getCoalescedEvents ? e.getCoalescedEvents() : [];
@@ -108,6 +129,10 @@ export class Retriever {
   }
 
   pointerUp(e) {
+    if (e.pointerId === this.boxing) {
+      this.boxing = null;
+      this.constraints.release();
+    }
     if (e.pointerId !== this.drawing) return;
     this.drawing = null;
     this.say(`${this.points.length} points drawn: press “Find mechanisms”.`);
@@ -118,11 +143,47 @@ export class Retriever {
     this.runs += 1;
     this.stop();
     this.points = [];
+    this.frameBox = UNIT;
     this.results = [];
     this.renderResults();
     this.fitView();
     this.say("");
     this.paint();
+  }
+
+  /** A curve opened from a drawing's file (`points` in its own units): drawn, and shown
+   * whole; an open one is matched as part of a curve. */
+  openCurve(points, closed, name) {
+    this.runs += 1;
+    this.stop();
+    this.results = [];
+    this.renderResults();
+    this.points = points;
+    this.frameBox = bounds(points);
+    if (this.ui.partial) this.ui.partial.checked = !closed;
+    this.fitView();
+    const kind = closed ? "a closed curve" : "an open curve (matched as part of a path)";
+    this.say(`${name}: ${points.length} points of ${kind}; press “Find mechanisms” or “Synthesize”.`);
+    this.paint();
+  }
+
+  /** A retrieval's options beyond the curve: the most joints. */
+  retrievalOptions() {
+    const joints = this.ui.maxJoints ? this.ui.maxJoints.valueAsNumber : NaN;
+    return Number.isFinite(joints) ? { max_joints: joints } : {};
+  }
+
+  /** The synthesis's options as the page sets them: joints, front, timing, partial,
+   * constraints. */
+  synthesisOptions() {
+    const { front, timed, partial } = this.ui;
+    const options = this.retrievalOptions();
+    if (front && front.checked) options.front = true;
+    if (timed && timed.checked) options.timing = true;
+    if (partial && partial.checked) options.partial = true;
+    const constraints = this.constraints ? this.constraints.body() : null;
+    if (constraints) options.constraints = constraints;
+    return options;
   }
 
   // -- retrieval ----------------------------------------------------------------------------
@@ -140,6 +201,7 @@ export class Retriever {
       ...(Number.isFinite(k) ? { k } : {}),
       ...(Number.isFinite(floor) && floor > 0 ? { min_transmission: floor } : {}),
     };
+    const options = synthesize ? this.synthesisOptions() : this.retrievalOptions();
     const what = synthesize ? "Synthesis" : "Retrieval";
     const buttons = [this.ui.retrieve, this.ui.synthesize].filter(Boolean);
     buttons.forEach((button) => (button.disabled = true));
@@ -148,10 +210,10 @@ export class Retriever {
     const run = ++this.runs; // a new drawing or search makes this one's progress stale
     try {
       const answer = synthesize
-        ? await postJsonLines("/api/synthesize", { ...body, stream: true }, (line) => {
+        ? await postJsonLines("/api/synthesize", { ...body, ...options, stream: true }, (line) => {
             if (run === this.runs) this.showProgress(line);
           })
-        : await postJson("/api/retrieve", body);
+        : await postJson("/api/retrieve", { ...body, ...options });
       if (run !== this.runs) return;
       if (answer.data && answer.data.error && answer.status === 200) {
         this.say(`${what} failed: ${answer.data.error}`, true);
@@ -163,22 +225,29 @@ export class Retriever {
       }
       this.stop();
       this.results = answer.data.results;
+      this.front = synthesize && Boolean(this.ui.front && this.ui.front.checked);
       this.renderResults();
+      this.showUnmet(answer.data.unmet);
       const count = this.results.length;
       const took = `${synthesize ? "synthesis" : "search"} ${answer.data.took_ms.toFixed(0)} ms`;
       const trip = `round trip ${answer.ms.toFixed(0)} ms`;
-      const found = `${count} mechanisms, best first (${took}, ${trip}).`;
+      const found = this.front
+        ? `A front of ${count}, simplest first (${took}, ${trip}).`
+        : `${count} mechanisms, best first (${took}, ${trip}).`;
       if (synthesize && count) {
-        // A synthesis ends on its best mechanism, animating over the curve.
-        await this.choose(0, `${found} `);
+        // A synthesis ends on its best mechanism (the front's most accurate), animating.
+        await this.choose(bestOf(this.results), `${found} `);
         return;
       }
       this.say(
         count
           ? `${found} Choose one to watch it trace your curve.`
-          : body.min_transmission
-            ? `No curated path keeps a transmission angle of ${floor}°: lower it.`
-            : "No curated paths to compare with: the dataset is empty.",
+          : answer.data.unmet
+            ? "No mechanism meets the constraints: loosen the one named below."
+            : body.min_transmission
+              ? `No curated path keeps a transmission angle of ${floor}°: lower it.`
+              : "No curated paths to compare with: the dataset is empty.",
+        Boolean(answer.data.unmet),
       );
     } catch (err) {
       this.say(`${what} failed: ${err.message}`, true);
@@ -205,13 +274,35 @@ export class Retriever {
     this.start(!first);
   }
 
+  /** What the constraints' refusal says: which one, and by how much the best candidate
+   * misses it (nothing when `unmet` is absent). */
+  showUnmet(unmet) {
+    const shown = this.ui.unmet;
+    if (!shown) return;
+    shown.hidden = !unmet;
+    if (!unmet) return;
+    shown.dataset.constraint = String(unmet.constraint);
+    shown.dataset.by = String(unmet.by);
+    shown.textContent =
+      `No candidate meets the constraint “${unmet.constraint}”: the best misses it by ` +
+      `${Number(unmet.by).toPrecision(3)} (in the drawing's units, or the ratio for ` +
+      "max_link_ratio).";
+  }
+
   renderResults() {
     const list = this.ui.list;
     list.replaceChildren();
+    if (this.ui.frontTable) {
+      // A front is a table of joints against chamfer; anything else, the list.
+      renderFront(this.ui.frontTable, this.front ? this.results : [], (i) => this.choose(i));
+      list.hidden = Boolean(this.front && this.results.length);
+    }
+    if (this.ui.unmet) this.ui.unmet.hidden = true;
     this.results.forEach((result, i) => {
       const item = document.createElement("li");
       item.dataset.testid = "result";
       item.dataset.chamfer = String(result.chamfer);
+      if (typeof result.n_joints === "number") item.dataset.joints = String(result.n_joints);
       const angle = result.min_transmission_deg;
       if (typeof angle === "number") item.dataset.transmission = String(angle);
       const button = document.createElement("button");
@@ -225,15 +316,17 @@ export class Retriever {
       chamfer.textContent = `#${i + 1}  chamfer ${result.chamfer.toPrecision(4)}`;
       const meta = document.createElement("span");
       meta.className = "meta";
-      const n = result.mechanism.node_types.length;
+      const n = result.n_joints ?? result.mechanism.node_types.length;
+      const timed = typeof result.timed_error === "number";
       // A synthesis result has no stored joint: it says what refinement gained instead.
       meta.textContent =
         result.retrieved_chamfer === undefined
           ? ` · mechanism ${result.mechanism_id}, joint ${result.joint} ` +
             `(${n} joints after reduction)` +
             (typeof angle === "number" ? `, least transmission ${angle.toFixed(1)}°` : "")
-          : ` · refined from ${result.retrieved_chamfer.toPrecision(4)}, ` +
-            `from mechanism ${result.mechanism_id} (${n} joints)`;
+          : ` · ${n} joints, refined from ${result.retrieved_chamfer.toPrecision(4)}` +
+            (timed ? `, timed error ${result.timed_error.toPrecision(4)}` : "") +
+            `, from mechanism ${result.mechanism_id}`;
       text.append(chamfer, meta);
       button.append(thumb, text);
       button.addEventListener("click", () => this.choose(i));
@@ -251,6 +344,7 @@ export class Retriever {
     this.ui.list.querySelectorAll("button").forEach((button, j) => {
       button.setAttribute("aria-pressed", String(i === j));
     });
+    if (this.ui.frontTable) markFront(this.ui.frontTable, this.front ? i : -1);
     this.say(`Simulating result #${i + 1}…`);
     try {
       const answer = await postJson("/api/simulate", { ...result.mechanism, steps: STEPS });
@@ -266,9 +360,12 @@ export class Retriever {
     }
     this.ui.open.disabled = false;
     this.fitView();
+    const joints = typeof result.n_joints === "number" ? `, ${result.n_joints} joints` : "";
+    const error = result.timed_error;
+    const timed = typeof error === "number" ? `, timed error ${error.toPrecision(4)}` : "";
     this.say(
       `${lead}Result #${i + 1}: joint ${result.mechanism_joint} (thick) traces your curve ` +
-        `(grey) with chamfer ${result.chamfer.toPrecision(4)}.`,
+        `(grey) with chamfer ${result.chamfer.toPrecision(4)}${timed}${joints}.`,
     );
     this.start();
   }
@@ -317,6 +414,7 @@ export class Retriever {
     ctx.clearRect(0, 0, view.width, view.height);
     drawGrid(ctx, view);
     drawPolyline(ctx, view, this.points, COLORS.curve, 7);
+    if (this.constraints) this.constraints.paint(ctx, view);
     if (!this.chosen) return;
     const { result, trajectories } = this.chosen;
     const mech = result.mechanism;
@@ -325,6 +423,11 @@ export class Retriever {
     const pose = trajectories.map((path) => path[t]);
     drawMechanism(ctx, view, mech, pose, { selected: result.mechanism_joint, labels: false });
   }
+}
+
+/** The index of the result of least chamfer. */
+function bestOf(results) {
+  return results.reduce((best, r, i) => (r.chamfer < results[best].chamfer ? i : best), 0);
 }
 
 /** A result's path (normalized, or a synthesis result's in the drawing's frame) in a small

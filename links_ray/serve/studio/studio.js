@@ -2,6 +2,8 @@
 // and shows every failure in words in the error banner or next to what failed.
 
 import { explain, getJson, limits, loadLimits, postForFile } from "./api.js";
+import { Constraints } from "./constraints.js";
+import { readCurveFile } from "./curvefile.js";
 import { Editor } from "./editor.js";
 import { download, mechanismJson, mechanismSvg, readMechanismFile, sharedMechanism, shareUrl } from "./files.js";
 import { FIXED } from "./mechanism.js";
@@ -50,10 +52,24 @@ const editor = new Editor({
   },
 });
 
+// The boxes are drawn on the draw canvas, which repaints when they change.
+const constraints = new Constraints({
+  ui: {
+    pivots: $("box-pivots"),
+    footprint: $("box-footprint"),
+    clear: $("clear-boxes"),
+    maxLinkRatio: $("max-link-ratio"),
+    minLink: $("min-link"),
+    maxLink: $("max-link"),
+  },
+  onChange: () => retriever.paint(),
+});
+
 const retriever = new Retriever({
   canvas: $("draw-canvas"),
   notify,
   editor,
+  constraints,
   ui: {
     retrieve: $("retrieve"),
     synthesize: $("synthesize"),
@@ -63,6 +79,12 @@ const retriever = new Retriever({
     minTransmission: $("min-transmission"),
     status: $("retrieve-status"),
     list: $("results"),
+    maxJoints: $("max-joints"),
+    front: $("front"),
+    timed: $("timed"),
+    partial: $("partial"),
+    frontTable: $("front-table"),
+    unmet: $("unmet"),
   },
 });
 
@@ -137,6 +159,25 @@ $("import-file").addEventListener("change", async (e) => {
     importing -= 1;
   }
 });
+// A curve from a drawing's file: the server reads it (one parser for the CLI and the page).
+let openingCurve = 0;
+$("open-curve").addEventListener("click", () => $("curve-file").click());
+$("curve-file").addEventListener("change", async (e) => {
+  const file = e.target.files[0];
+  e.target.value = ""; // choosing the same file again still fires a change
+  if (!file) return;
+  openingCurve += 1;
+  try {
+    const id = $("curve-id").value.trim();
+    const curve = await readCurveFile(file, id);
+    retriever.openCurve(curve.points, curve.closed, id ? `${file.name}#${id}` : file.name);
+    notify("", "curve");
+  } catch (err) {
+    notify(`Cannot open the curve: ${err.message}`, "curve");
+  } finally {
+    openingCurve -= 1;
+  }
+});
 $("share").addEventListener("click", async () => {
   const url = shareUrl(editor.current());
   history.replaceState(null, "", url);
@@ -173,6 +214,7 @@ loadLimits()
     $("k").min = String(limits.min_k);
     $("k").max = String(limits.max_k);
     $("min-transmission").max = String(limits.max_transmission_deg);
+    $("max-joints").min = String(limits.min_joints);
   })
   .catch((err) => notify(`The API's limits could not be read: ${err.message}`, "limits"))
   .finally(() => (limitsSettled = true));
@@ -193,11 +235,13 @@ getJson("/api/health")
 window.studio = {
   editor,
   retriever,
+  constraints,
   limits,
   mechanism: () => editor.current(),
   trajectories: () => editor.trajectories(),
   toScreen: (p) => editor.view.toScreen(p),
   drawToScreen: (p) => retriever.view.toScreen(p),
   latencies: () => editor.latencies.slice(),
-  idle: () => limitsSettled && importing === 0 && exporting === 0 && editor.idle,
+  idle: () =>
+    limitsSettled && importing === 0 && exporting === 0 && openingCurve === 0 && editor.idle,
 };
