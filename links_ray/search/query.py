@@ -9,7 +9,9 @@ stages, each narrower and more exact than the last:
    scanned path's `SCAN_POINTS` sketch points are looked up in the query's table of distances
    (`kernels.sketch_scan`): their mean is the path-to-query half of the chamfer distance,
    sampled, in each variant. The least pass on as candidates (`stage_sizes`), each with its
-   likeliest variant (and the second, if within `VARIANT_MARGIN`).
+   likeliest variant (and the second, if within `VARIANT_MARGIN`). Only the rows a query
+   may answer with (`allowed_rows`: a transmission floor, a joint limit) pass; when they are
+   no more than the candidates, they all pass, in every variant, unscanned.
 2. Estimate (`estimate`). Each candidate pair gets nearest-point distances from a sample of
    query points, plus the path's distance to the query from the query's table of nearest
    points. Roughly for all, from the first half of the paths' sketches, then from the whole
@@ -108,19 +110,12 @@ def stage_sizes(paths: int) -> tuple[int, int, int]:
 
 
 def probe(
-    index: RetrievalIndex,
-    field_codes: np.ndarray,
-    rows: int = PROBED_ROWS,
-    allowed: np.ndarray | None = None,
+    index: RetrievalIndex, field_codes: np.ndarray, rows: int = PROBED_ROWS
 ) -> tuple[np.ndarray, ...]:
     """The row ranges of `index` to scan for a query whose variants have these field codes:
-    the lists nearest any variant, nearest first, until they hold `rows` rows (`rows` of the
-    `allowed` (N,) bool, when given), in row order (`kernels.scan_pieces`: starts, ends, at)."""
-    if allowed is None:
-        sizes = np.diff(index.list_start)
-    else:  # a query kept to a few paths scans as many of those as one kept to none
-        held = np.concatenate([[0], np.cumsum(allowed)])
-        sizes = np.diff(held[index.list_start])
+    the lists nearest any variant, nearest first, until they hold `rows` rows, in row order
+    (`kernels.scan_pieces`: starts, ends, at)."""
+    sizes = np.diff(index.list_start)
     if len(sizes) == 1 or rows >= len(index):
         chosen = np.arange(len(sizes))
     else:
@@ -154,10 +149,10 @@ def candidates(
     allowed: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """About `count` rows of the scanned `pieces` (`probe`) whose scan score (at their best
-    variant) against the query's `levels` table is least (every row when `count` reaches the
-    total); and for each, 4 * its likeliest variant + the second likeliest if nearly as likely
-    (`kernels.sketch_scan`), or -1 when every row is returned. Only rows `allowed` (N,) bool
-    (`allowed_rows`; None: all) are passed on."""
+    variant) against the query's `levels` table is least (every allowed row when `count`
+    reaches their number); and for each, 4 * its likeliest variant + the second likeliest if
+    nearly as likely (`kernels.sketch_scan`), or -1 when every allowed row is returned. Only
+    rows `allowed` (N,) bool (`allowed_rows`; None: all) are passed on."""
     if count >= (len(index) if allowed is None else np.count_nonzero(allowed)):
         rows = np.arange(len(index)) if allowed is None else np.flatnonzero(allowed)
         return rows, np.full(len(rows), -1, dtype=np.int8)
@@ -196,7 +191,7 @@ def ranked(
     count = candidates_count or default_candidates
     variants = query_variants(normalized)
     allowed = allowed_rows(index, min_transmission, max_joints)
-    pieces = probe(index, index.basis.query(variants), probed, allowed)
+    pieces = probe(index, index.basis.query(variants), probed)
     table, owners = distance_table(normalized)
     levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
     kernels.level_table(normalized, owners, levels)
