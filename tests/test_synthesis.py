@@ -582,7 +582,7 @@ def test_a_refinement_simulate_cannot_trace_at_200_steps_is_not_kept() -> None:
     candidate = synthesis._Candidate({}, topology, 11, before, before, 0.05, 0.05, None)
     refined = Refinement(positions, 0.05, 0.01, None, 10, 10, 0.016)
     assert not synthesis._keep(candidate, refined, 100)
-    assert candidate.positions is before and candidate.chamfer == 0.05
+    assert candidate.positions is before and candidate.error == 0.05
 
 
 def test_synthesis_figure_draws_each_curve(reference: RetrievalIndex, tmp_path: Path) -> None:
