@@ -436,7 +436,7 @@ def export_release_files(
     return summary
 
 
-@dataclass
+@dataclass(eq=False)
 class _ShardRows:
     """One shard's mechanisms in mechanism_id order, and its curated joints (None: choose)."""
 
