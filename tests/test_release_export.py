@@ -1,16 +1,15 @@
 """The release's curve rules (`data.release_format`) on hand-made curves with known answers, and
-`links export-dataset --format release` read back by a reader written from the release's
-published facts alone: it imports none of links-ray's release code, reads the files with a
-restricted unpickler, simulates `[A, x0, node_type]` by its own circle intersections and
-normalizes by its own reading of the release's rule."""
+`links export-dataset --format release` read back by `release_reader`, a reader written from
+the release's published facts alone (it imports numpy and pickle only)."""
 
 from __future__ import annotations
 
-import pickle
 from pathlib import Path
 
 import numpy as np
 import pytest
+from release_reader import ANGLES as T
+from release_reader import normalize, read_batches, simulate
 from test_cli import links
 from test_export_dataset import BARE_PLAN, _write
 
@@ -24,10 +23,11 @@ from links_ray.data.release_format import (
     release_circles,
     release_normalize,
     release_normalize_many,
+    release_trajectories,
+    release_trajectories_many,
 )
-from links_ray.engine.mechanism import FIXED
+from links_ray.engine.mechanism import ACTUATED, FIXED, SIMPLE
 
-T = np.linspace(0.0, 2.0 * np.pi, 200)
 NAMES = ("dataset", "simulation_dataset", "normalized_dataset", "curated_dataset")
 
 
@@ -39,10 +39,13 @@ def turned(curve: np.ndarray, angle: float, scale: float, shift: tuple[float, fl
 # -- the rules on hand-made curves ---------------------------------------------------------
 
 
-def test_an_ellipse_lies_along_x_in_the_unit_width() -> None:
+@pytest.mark.parametrize("first", [0, 13, 40])
+def test_an_ellipse_lies_along_x_in_the_unit_width(first: int) -> None:
     """An ellipse of semi-axes 2 and 1, sampled at both ends of its major axis, turned:
-    it becomes one of semi-axes 0.5 and 0.25 centred at (0.5, 0.25)."""
-    t = np.arange(200) * (2.0 * np.pi / 200)
+    it becomes one of semi-axes 0.5 and 0.25 centred at (0.5, 0.25). Its point 0 is at the
+    `first`-th of 200 even steps from the major axis: when not on it, the first hop does not
+    reach the longest chord and a further one must."""
+    t = (np.arange(200) + first) * (2.0 * np.pi / 200)
     ellipse = np.stack([2.0 * np.cos(t), np.sin(t)], axis=1)
     out = release_normalize(turned(ellipse, 0.9, 1.5, (1.0, 2.0)))
     assert out.min(axis=0) == pytest.approx([0.0, 0.0], abs=1e-12)
@@ -124,88 +127,31 @@ def test_arcs_first_then_circles() -> None:
     assert release_circle_variance(ellipse) > RELEASE_CIRCLE_VARIANCE
 
 
-# -- a reader written from the release's facts ---------------------------------------------
+# -- the files, read by a reader of the release's own (release_reader) -------------------
 
 
-class ReleaseUnpickler(pickle.Unpickler):
-    """What the release's files may name: numpy arrays, dtypes and scalars (numpy 1 and 2)."""
-
-    ALLOWED = {
-        (module, name)
-        for core in ("numpy.core.multiarray", "numpy._core.multiarray")
-        for module, name in ((core, "_reconstruct"), (core, "scalar"))
-    } | {("numpy", "ndarray"), ("numpy", "dtype")}
-
-    def find_class(self, module: str, name: str) -> object:
-        if (module, name) not in self.ALLOWED:
-            raise pickle.UnpicklingError(f"{module}.{name} is not allowed")
-        return super().find_class(module, name)
-
-
-def read_batches(path: Path) -> list[list]:
-    batches = []
-    with open(path, "rb") as stream:
-        while True:
-            try:
-                batches.append(ReleaseUnpickler(stream).load())
-            except EOFError:
-                return batches
-
-
-def simulate(a: np.ndarray, x0: np.ndarray, fixed: np.ndarray) -> np.ndarray | None:
-    """(n, 200, 2) positions with motor [0, 1] at the absolute angles linspace(0, 2 pi, 200);
-    None if some dyad cannot close."""
-    x0 = x0.astype(np.float64)
-    n = len(x0)
-    out = np.zeros((n, 200, 2))
-    known = fixed.copy()
-    out[fixed] = x0[fixed][:, None, :]
-    crank = np.linalg.norm(x0[1] - x0[0])
-    out[1] = x0[0] + crank * np.stack([np.cos(T), np.sin(T)], axis=1)
-    known[1] = True
-    while not known.all():
-        solvable = [j for j in np.flatnonzero(~known) if np.count_nonzero(a[j] & known) >= 2]
-        assert solvable, "no joint has two placed neighbours"
-        for j in solvable:
-            p, q = np.flatnonzero(a[j] & known)[:2]
-            r1, r2 = np.linalg.norm(x0[j] - x0[p]), np.linalg.norm(x0[j] - x0[q])
-            start = x0[q] - x0[p]
-            side = np.sign(start[0] * (x0[j] - x0[p])[1] - start[1] * (x0[j] - x0[p])[0])
-            between = out[q] - out[p]
-            d = np.linalg.norm(between, axis=1)
-            along = (r1**2 - r2**2 + d**2) / (2 * d)
-            h2 = r1**2 - along**2
-            if np.any(h2 < 0):
-                return None
-            u = between / d[:, None]
-            normal = np.stack([-u[:, 1], u[:, 0]], axis=1)
-            out[j] = out[p] + along[:, None] * u + side * np.sqrt(h2)[:, None] * normal
-            known[j] = True
-    return out
-
-
-def normalize(curve: np.ndarray) -> np.ndarray:
-    """The release's rule as its facts state it, one step at a time."""
-    curve = curve.astype(np.float64)
-    if not np.isfinite(curve).all():
-        return np.zeros_like(curve)
-    left, here = 0, int(np.argmax(np.sum((curve - curve[0]) ** 2, axis=1)))
-    for _ in range(len(curve)):
-        onward = int(np.argmax(np.sum((curve - curve[here]) ** 2, axis=1)))
-        if onward == left:
-            break
-        left, here = here, onward
-    dx, dy = curve[here] - curve[left]
-    best = None
-    for angle in (-np.arctan2(dy, dx), -np.arctan2(dy, dx) + np.pi):
-        c, s = np.cos(angle), np.sin(angle)
-        candidate = curve @ np.array([[c, s], [-s, c]])
-        candidate -= candidate.min(axis=0)
-        middle = np.argsort(np.abs(candidate[:, 0] - 0.5), kind="stable")[:5]
-        height = candidate[middle, 1].mean()
-        if best is None or height < best[0] - 1e-12:
-            best = (height, candidate)
-    return best[1] / best[1][:, 0].max()
+@pytest.mark.parametrize("crank_angle", [0.0, 1.0, -2.2])
+def test_the_release_angles_are_absolute_whatever_the_crank_starts_at(crank_angle: float) -> None:
+    """A crank-rocker four-bar (0 and 2 fixed, 1 the crank's tip, 3 on 1 and 2) turned by
+    `crank_angle` about joint 0: links-ray's solver at the release's angles places joint 1
+    along +x first, as the reader's own circle intersections do."""
+    adjacency = np.zeros((4, 4), dtype=np.uint8)
+    for a, b in [(0, 1), (1, 3), (2, 3)]:
+        adjacency[a, b] = adjacency[b, a] = 1
+    node_types = np.array([FIXED, ACTUATED, FIXED, SIMPLE], dtype=np.int8)
+    upright = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0], [2.5, 2.0]])
+    positions = turned(upright, -crank_angle, 1.0, (0.4, -0.3))
+    truth = simulate(adjacency.astype(bool), positions, node_types == FIXED)
+    assert truth is not None
+    np.testing.assert_allclose(truth[1, 0] - truth[0, 0], [1.0, 0.0], atol=1e-12)
+    one, lock = release_trajectories(adjacency, node_types, positions)
+    assert lock == (-1, -1)
+    np.testing.assert_allclose(one, truth, atol=1e-9)
+    many, locks = release_trajectories_many(
+        np.stack([adjacency] * 2), np.stack([node_types] * 2), np.stack([positions, upright])
+    )
+    assert locks.tolist() == [-1, -1]
+    np.testing.assert_array_equal(many[0], one)
 
 
 def read_export(out: Path) -> dict[str, list[list]]:
