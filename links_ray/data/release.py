@@ -62,6 +62,8 @@ EXPORT_FORMATS = ("numpy", "release")
 #: Protocol 4 pickles numpy arrays by `_reconstruct` (as the release's files hold them);
 #: protocol 5 would name `_frombuffer` instead.
 RELEASE_PICKLE_PROTOCOL = 4
+#: Curves normalized at once by the release export (float64 scratch of about 30 KB a curve).
+NORMALIZE_BLOCK = 8192
 RELEASE_FORMAT = "links-ray-release/1"
 MANIFEST = "manifest.json"
 #: The curve sets of a chunk, each with `<set>.npy` and its index arrays.
@@ -549,13 +551,25 @@ def _write_release_batch(
     """Pickle one batch into each of the four files; returns its counts."""
     dataset: list = []
     simulations: list = []
-    normalized: list = []
-    curated: list = []
-    first_id = last_id = -1
+    waiting: list[np.ndarray] = []  # moving joints' trajectories not yet normalized
+    blocks: list[np.ndarray] = []  # normalized curves, a block of runs at a time
+    owners: list[np.ndarray] = []  # per run: each curve's mechanism index in the batch
+    nodes: list[np.ndarray] = []
+    arcs: list[np.ndarray] = []
+    ids_of: list[np.ndarray] = []
+    chosen: list[np.ndarray | None] = []  # per run: the root's curated flags, or None
     locked = 0
+
+    def normalize_waiting() -> None:
+        # Normalized from x_sol as the file holds it, so that a reader normalizing it gets it;
+        # some runs at a time, so that no copy of the batch's curves is held.
+        if waiting:
+            block = np.concatenate(waiting)
+            waiting.clear()
+            blocks.append(release_normalize_many(block).astype(np.float32))
+
     for rows, start, stop in batch:
         run = slice(start, stop)
-        ids = rows.mechanism_id[run]
         fixed = rows.node_types[run] == FIXED
         adjacency = rows.adjacency[run].astype(bool)
         # Simulated from the positions as the file holds them, so that a reader simulating x0
@@ -567,42 +581,65 @@ def _write_release_batch(
         x_sol = trajectories.astype(np.float32)
         del trajectories
         base = len(dataset)
-        for k in range(len(ids)):
+        for k in range(stop - start):
             dataset.append([adjacency[k], x0[k], fixed[k]])
             if locks[k] < 0:
                 simulations.append([x_sol[k], base + k])
         locked += int(np.count_nonzero(locks >= 0))
         moving, joints = np.nonzero(~fixed & (locks < 0)[:, None])
-        # Normalized from x_sol as the file holds it, so that a reader normalizing it gets it.
-        curves = release_normalize_many(x_sol[moving, joints]).astype(np.float32)
-        if rows.curated is not None:
-            keep = rows.curated[run][moving, joints]
-        else:
-            is_arc = release_arcs(adjacency, fixed)[moving, joints]
-            choice = pa.table(
-                {
-                    "path_id": path_ids(ids[moving], joints),
-                    "is_arc": is_arc,
-                    "is_circle": release_circles(curves, is_arc),
-                }
-            )
-            keep = curated_mask(choice, seed)
-        for p in range(len(curves)):
-            entry = [curves[p], base + int(moving[p]), int(joints[p])]
-            normalized.append(entry)
-            if keep[p]:
-                curated.append(entry)
-        first_id = int(ids[0]) if first_id < 0 else first_id
-        last_id = int(ids[-1])
-    for name, values in zip(
-        RELEASE_FILES, (dataset, simulations, normalized, curated), strict=True
-    ):
+        waiting.append(x_sol[moving, joints])
+        if sum(map(len, waiting)) >= NORMALIZE_BLOCK:
+            normalize_waiting()
+        owners.append(base + moving)
+        nodes.append(joints)
+        arcs.append(release_arcs(adjacency, fixed)[moving, joints])
+        ids_of.append(rows.mechanism_id[run][moving])
+        chosen.append(None if rows.curated is None else rows.curated[run][moving, joints])
+    normalize_waiting()
+
+    owner, node, is_arc = (np.concatenate(part) for part in (owners, nodes, arcs))
+    curves = [curve for block in blocks for curve in block]
+    is_circle = np.empty(len(curves), dtype=bool)
+    done = 0
+    for block in blocks:
+        is_circle[done : done + len(block)] = release_circles(
+            block, is_arc[done : done + len(block)]
+        )
+        done += len(block)
+    keep = np.concatenate(
+        [
+            np.zeros(len(part), dtype=bool) if flags is None else flags
+            for part, flags in zip(nodes, chosen, strict=True)
+        ]
+    )
+    seeded = np.concatenate(
+        [np.full(len(part), flags is None) for part, flags in zip(nodes, chosen, strict=True)]
+    )
+    if seeded.any():
+        choice = pa.table(
+            {
+                "path_id": path_ids(np.concatenate(ids_of)[seeded], node[seeded]),
+                "is_arc": is_arc[seeded],
+                "is_circle": is_circle[seeded],
+            }
+        )
+        keep[seeded] = curated_mask(choice, seed)
+
+    normalized = [[curves[p], int(owner[p]), int(node[p])] for p in range(len(curves))]
+    curated = [normalized[p] for p in np.flatnonzero(keep)]
+    lists = (dataset, simulations, normalized, curated)
+    counts = [len(values) for values in lists]
+    for name, values in zip(RELEASE_FILES, lists, strict=True):
         pickle.dump(values, streams[name], protocol=RELEASE_PICKLE_PROTOCOL)
+        # Let each file's arrays go once written (the simulations are the largest).
+        values.clear()
+    first_rows, _, _ = batch[0]
+    last_rows, _, last_stop = batch[-1]
     return {
-        "mechanisms": len(dataset),
+        "mechanisms": counts[0],
         "locked": locked,
-        "normalized": len(normalized),
-        "curated": len(curated),
-        "first_mechanism_id": first_id,
-        "last_mechanism_id": last_id,
+        "normalized": counts[2],
+        "curated": counts[3],
+        "first_mechanism_id": int(first_rows.mechanism_id[batch[0][1]]),
+        "last_mechanism_id": int(last_rows.mechanism_id[last_stop - 1]),
     }

@@ -182,13 +182,15 @@ def _normalize_block(c: np.ndarray) -> np.ndarray:
     rows = np.arange(len(c))
     left = np.zeros(len(c), dtype=np.int64)
     here = _farthest(c, rows, left)
+    hopping = rows  # the curves whose last hop has not come back
     for _ in range(c.shape[1]):
-        onward = _farthest(c, rows, here)
-        moving = onward != left
+        onward = _farthest(c[hopping], np.arange(len(hopping)), here[hopping])
+        moving = onward != left[hopping]
         if not moving.any():
             break
-        left = np.where(moving, here, left)
-        here = np.where(moving, onward, here)
+        hopping = hopping[moving]
+        left[hopping] = here[hopping]
+        here[hopping] = onward[moving]
     chord = c[rows, here] - c[rows, left]
     angle = np.arctan2(chord[:, 1], chord[:, 0])
     cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
