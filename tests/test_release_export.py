@@ -4,9 +4,12 @@ the release's published facts alone (it imports numpy and pickle only)."""
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from release_reader import ANGLES as T
 from release_reader import normalize, read_batches, simulate
@@ -277,3 +280,35 @@ def test_a_bad_format_is_one_line(bare_root: str, tmp_path: Path) -> None:
     assert not (tmp_path / "o").exists()
     with pytest.raises(ValueError, match="format must be one of numpy, release"):
         export_release(bare_root, str(tmp_path / "o"), format="csv")
+
+
+def test_a_mechanism_that_locks_keeps_only_its_dataset_entry(
+    bare_root: str, tmp_path: Path
+) -> None:
+    """Mechanism 0's crank made five times longer (its shard's file rewritten): it cannot turn
+    (the reader's own solver says so), and, as in the release, it is in `dataset` with no
+    simulation and no curve; every other mechanism is whole."""
+    root = tmp_path / "root"
+    shutil.copytree(bare_root, root)
+    (path,) = [
+        p for p in root.rglob("*.parquet") if 0 in pq.read_table(p)["mechanism_id"].to_pylist()
+    ]
+    table = pq.read_table(path)
+    rows = table.to_pylist()
+    n = len(rows[0]["node_types"])
+    positions = np.asarray(rows[0]["positions"]).reshape(n, 2)
+    positions[1] = positions[0] + 5.0 * (positions[1] - positions[0])
+    rows[0]["positions"] = positions.ravel().tolist()
+    pq.write_table(pa.Table.from_pylist(rows, schema=table.schema), path)
+
+    out = tmp_path / "release"
+    summary = export_release(str(root), str(out), chunk_size=8, format="release")
+    assert summary["mechanisms"] == 45 and summary["locked"] == 1
+    files = read_export(out)
+    first = files["dataset"][0]
+    assert simulate(*first[0]) is None
+    assert np.array_equal(first[0][1], positions.astype(np.float32))
+    assert sorted(j for _, j in files["simulation_dataset"][0]) == list(range(1, len(first)))
+    for name in ("normalized_dataset", "curated_dataset"):
+        assert all(j != 0 for _, j, _ in files[name][0])
+    assert {j for _, j, _ in files["normalized_dataset"][0]} == set(range(1, len(first)))
