@@ -312,3 +312,15 @@ def test_a_mechanism_that_locks_keeps_only_its_dataset_entry(
     for name in ("normalized_dataset", "curated_dataset"):
         assert all(j != 0 for _, j, _ in files[name][0])
     assert {j for _, j, _ in files["normalized_dataset"][0]} == set(range(1, len(first)))
+
+
+def test_one_split(bare_root: str, tmp_path: Path) -> None:
+    out = tmp_path / "release"
+    summary = export_release(bare_root, str(out), chunk_size=4, split="train", format="release")
+    train = links_ray.load(bare_root, "mechanisms", split="train", reshape=True)
+    train = train.sort_values("mechanism_id")
+    exported = [entry for batch in read_export(out)["dataset"] for entry in batch]
+    assert 0 < len(exported) == len(train) == summary["mechanisms"] < 45
+    for (a, x0, _), (_, truth) in zip(exported, train.iterrows(), strict=True):
+        assert np.array_equal(x0, truth["positions"].astype(np.float32))
+        assert np.array_equal(a, truth["adjacency"].astype(bool))

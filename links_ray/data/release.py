@@ -401,8 +401,9 @@ def export_release_files(
     nearly locks between links-ray's steps (or from x0's float32 rounding): never in practice.
     The summary counts them.
 
-    Memory: the batch being written (about 3.2 KB a joint: its simulation and its normalized
-    curve) and the mechanisms of the shards it draws from (one a joint count in generated
+    Memory: the batch being written (its simulations and normalized curves, 1.6 KB a joint
+    each, and while a file's list is pickled a copy of its arrays: about 60 KB a 13-joint
+    mechanism) and the mechanisms of the shards it draws from (one a joint count in generated
     roots).
     """
     store, generated, curated, fractions = _open_export(
