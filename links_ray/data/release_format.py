@@ -152,7 +152,8 @@ def release_normalize_many(curves: ArrayLike) -> np.ndarray:
        comes before the choice, so that x = 0.5 means the same for every placement of a
        curve; there is no scaling yet, so x = 0.5 is in the curve's own units). Of the two,
        the kept one is that whose RELEASE_MIDDLE_POINTS points nearest x = 0.5 (ties to the
-       lower index) have the lower mean y; on equal means the first turn (chord towards +x).
+       lower index) reach lower, read as the lower mean y of those points (not their least
+       y); on equal means the first turn (chord towards +x).
     4. Both coordinates are divided by the x extent, so x spans [0, 1] and y starts at 0.
 
     A curve holding NaN or infinity, or with no x extent (one point repeated), becomes zeros.
