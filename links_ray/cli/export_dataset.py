@@ -1,5 +1,6 @@
-"""`links export-dataset ROOT --out DIR`: a dataset in the LINKS release layout, as numpy
-chunks (`links_ray.data.release`)."""
+"""`links export-dataset ROOT --out DIR [--format numpy|release]`: a dataset in the LINKS
+release layout, as numpy chunks or as the release's own pickled files
+(`links_ray.data.release`)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,12 @@ import argparse
 import json
 from collections.abc import Callable
 
-from links_ray.data.release import DEFAULT_CHUNK_MECHANISMS, export_release
+from links_ray.data.release import (
+    DEFAULT_CHUNK_MECHANISMS,
+    DEFAULT_RELEASE_BATCH,
+    EXPORT_FORMATS,
+    export_release,
+)
 from links_ray.data.splits import SPLITS
 
 
@@ -15,16 +21,25 @@ def add_command(commands: argparse._SubParsersAction, count: Callable[[str], int
     """Add `export-dataset` to the `links` subcommands; `count` parses a positive integer."""
     command = commands.add_parser(
         "export-dataset",
-        help="write a dataset as numpy arrays in the LINKS release layout, chunk by chunk",
+        help="write a dataset in the LINKS release layout: numpy chunks or the release's files",
     )
     command.add_argument("root", help="dataset root: a folder or s3://...")
     command.add_argument("--out", required=True, help="a new or empty local folder")
     command.add_argument(
+        "--format",
+        choices=EXPORT_FORMATS,
+        default="numpy",
+        help="numpy: chunks of numpy arrays of one joint count each, with a manifest; release: "
+        "the release's four pickled files (dataset, simulation_dataset, normalized_dataset, "
+        "curated_dataset) that code written for it reads unchanged",
+    )
+    command.add_argument(
         "--chunk-size",
         type=count,
-        default=DEFAULT_CHUNK_MECHANISMS,
+        default=None,
         metavar="N",
-        help="mechanisms per chunk, each chunk of one joint count",
+        help=f"mechanisms per chunk (default {DEFAULT_CHUNK_MECHANISMS:,}, each of one joint "
+        f"count) or per release batch (default {DEFAULT_RELEASE_BATCH:,}, joint counts mixed)",
     )
     command.add_argument(
         "--split",
@@ -37,11 +52,21 @@ def add_command(commands: argparse._SubParsersAction, count: Callable[[str], int
 
 
 def run(args: argparse.Namespace) -> None:
-    """`links export-dataset`: write the release and print its summary (or its manifest as
-    JSON with --json)."""
-    manifest = export_release(args.root, args.out, chunk_size=args.chunk_size, split=args.split)
+    """`links export-dataset`: write the export and print its summary (or its manifest, or the
+    release files' summary, as JSON with --json)."""
+    manifest = export_release(
+        args.root, args.out, chunk_size=args.chunk_size, split=args.split, format=args.format
+    )
     if args.json:
         print(json.dumps(manifest))
+        return
+    if args.format == "release":
+        locked = f", {manifest['locked']:,} locking at its angles" if manifest["locked"] else ""
+        print(
+            f"{manifest['mechanisms']:,} mechanisms{locked}, {manifest['normalized']:,} "
+            f"normalized and {manifest['curated']:,} curated curves in "
+            f"{len(manifest['batches'])} batches of the release's files: {args.out}"
+        )
         return
     made = f", {manifest['resimulated']:,} simulated again" if manifest["resimulated"] else ""
     print(

@@ -9,6 +9,10 @@ it has in x0, as links-ray's solver does; so `release_trajectories` is links-ray
 the release's angles (relative to the crank's initial angle), and equals the release's own
 trajectories up to rounding.
 
+The release normalizes curves its own way (`release_normalize`, not links-ray's
+`normalize_path`) and classifies them arc first (`release_arcs`, then `release_circles` for
+the others only, on `release_circle_variance`).
+
 Pure numpy: the solver is the engine's. No Ray, no files.
 """
 
@@ -18,12 +22,37 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from links_ray.engine.mechanism import analyze_topology
+from links_ray.engine.paths import CIRCLE_VARIANCE_THRESHOLD
 from links_ray.engine.solver import simulate_one
 
-__all__ = ["RELEASE_STEPS", "release_angles", "release_crank", "release_trajectories"]
+__all__ = [
+    "RELEASE_CIRCLE_VARIANCE",
+    "RELEASE_FILES",
+    "RELEASE_MIDDLE_POINTS",
+    "RELEASE_STEPS",
+    "release_angles",
+    "release_arcs",
+    "release_circle_variance",
+    "release_circles",
+    "release_crank",
+    "release_normalize",
+    "release_normalize_many",
+    "release_trajectories",
+    "release_trajectories_many",
+]
 
 #: Points of every curve the release holds.
 RELEASE_STEPS = 200
+#: The release's four files, in the names it was published under: mechanisms, simulations,
+#: normalized curves and curated curves.
+RELEASE_FILES = ("dataset", "simulation_dataset", "normalized_dataset", "curated_dataset")
+#: How many points nearest x = 0.5 decide between a turn and the turn 180 degrees more.
+RELEASE_MIDDLE_POINTS = 5
+#: The circle test's bound on `release_circle_variance`. The release's own bound is not known
+#: here, so it is links-ray's curation bound (`engine.paths.CIRCLE_VARIANCE_THRESHOLD`).
+RELEASE_CIRCLE_VARIANCE = CIRCLE_VARIANCE_THRESHOLD
+#: Curves normalized at once: bounds the float64 scratch (about 30 KB a curve).
+_NORMALIZE_BLOCK = 8192
 
 
 def release_angles() -> np.ndarray:
@@ -57,3 +86,162 @@ def release_trajectories(
         topology.order, topology.fixed_joints, pos, release_crank(pos), True, out, geometry
     )
     return out, (int(step), int(joint))
+
+
+def release_trajectories_many(
+    adjacency: ArrayLike, node_types: ArrayLike, positions: ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
+    """`release_trajectories` of M mechanisms of one joint count: adjacency (M, n, n),
+    node_types (M, n), positions (M, n, 2) -> (trajectories (M, n, RELEASE_STEPS, 2) float64,
+    lock_step (M,) int64, -1 where the mechanism turns through every one of the release's
+    angles). Consecutive rows of one topology share its analysis."""
+    adjacency = np.asarray(adjacency)
+    node_types = np.asarray(node_types)
+    pos = np.ascontiguousarray(positions, dtype=np.float64)
+    rows, n = node_types.shape
+    if adjacency.shape != (rows, n, n) or pos.shape != (rows, n, 2):
+        raise ValueError(
+            f"adjacency, node_types and positions must be (M, n, n), (M, n) and (M, n, 2), "
+            f"got {adjacency.shape}, {node_types.shape} and {pos.shape}"
+        )
+    out = np.empty((rows, n, RELEASE_STEPS, 2))
+    locks = np.full(rows, -1, dtype=np.int64)
+    topology = None
+    for row in range(rows):
+        if row == 0 or not (
+            np.array_equal(adjacency[row], adjacency[row - 1])
+            and np.array_equal(node_types[row], node_types[row - 1])
+        ):
+            topology = analyze_topology(adjacency[row], node_types[row])
+            geometry = np.empty((len(topology.order), 3))
+        step, _ = simulate_one(
+            topology.order,
+            topology.fixed_joints,
+            pos[row],
+            release_crank(pos[row]),
+            True,
+            out[row],
+            geometry,
+        )
+        locks[row] = step
+    return out, locks
+
+
+def release_normalize(curve: ArrayLike) -> np.ndarray:
+    """(RELEASE_STEPS, 2) float64: one curve (points, 2) normalized by the release's rule
+    (`release_normalize_many`)."""
+    points = np.asarray(curve, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 2 or len(points) < RELEASE_MIDDLE_POINTS:
+        raise ValueError(
+            f"curve must be (points, 2) with at least {RELEASE_MIDDLE_POINTS} points, "
+            f"got {points.shape}"
+        )
+    return release_normalize_many(points[None])[0]
+
+
+def release_normalize_many(curves: ArrayLike) -> np.ndarray:
+    """(P, points, 2) float64: curves (P, points, 2) normalized by the release's rule.
+
+    1. The longest chord, by farthest-point hops: from point 0 hop to the point farthest
+       from the current one, until the farthest point from the current one is the one just
+       left (a pair each farthest from the other), or after `points` hops; the chord runs
+       from the point left to the current one. Ties go to the lowest index.
+    2. The turn that makes this chord horizontal, pointing +x (a rotation; the centre does
+       not matter, step 3 translates), and that turn plus 180 degrees.
+    3. Each turned curve is translated so its least x and least y are 0 (the translation
+       comes before the choice, so that x = 0.5 means the same for every placement of a
+       curve; there is no scaling yet, so x = 0.5 is in the curve's own units). Of the two,
+       the kept one is that whose RELEASE_MIDDLE_POINTS points nearest x = 0.5 (ties to the
+       lower index) reach lower, read as the lower mean y of those points (not their least
+       y); on equal means the first turn (chord towards +x).
+    4. Both coordinates are divided by the x extent, so x spans [0, 1] and y starts at 0.
+
+    A curve holding NaN or infinity, or with no x extent (one point repeated), becomes zeros.
+    """
+    c = np.asarray(curves, dtype=np.float64)
+    if c.ndim != 3 or c.shape[2] != 2 or c.shape[1] < RELEASE_MIDDLE_POINTS:
+        raise ValueError(
+            f"curves must be (P, points, 2) with at least {RELEASE_MIDDLE_POINTS} points, "
+            f"got {c.shape}"
+        )
+    out = np.empty(c.shape)
+    for start in range(0, len(c), _NORMALIZE_BLOCK):
+        block = slice(start, start + _NORMALIZE_BLOCK)
+        out[block] = _normalize_block(c[block])
+    return out
+
+
+def _farthest(c: np.ndarray, rows: np.ndarray, frm: np.ndarray) -> np.ndarray:
+    """Per curve, the index of the point farthest from point `frm` (first on ties)."""
+    d = c - c[rows, frm][:, None, :]
+    return np.argmax(np.einsum("pki,pki->pk", d, d), axis=1)
+
+
+def _normalize_block(c: np.ndarray) -> np.ndarray:
+    bad = ~np.isfinite(c).all(axis=(1, 2))
+    c = np.where(bad[:, None, None], 0.0, c)
+    rows = np.arange(len(c))
+    left = np.zeros(len(c), dtype=np.int64)
+    here = _farthest(c, rows, left)
+    hopping = rows  # the curves whose last hop has not come back
+    for _ in range(c.shape[1]):
+        onward = _farthest(c[hopping], np.arange(len(hopping)), here[hopping])
+        moving = onward != left[hopping]
+        if not moving.any():
+            break
+        hopping = hopping[moving]
+        left[hopping] = here[hopping]
+        here[hopping] = onward[moving]
+    chord = c[rows, here] - c[rows, left]
+    angle = np.arctan2(chord[:, 1], chord[:, 0])
+    cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    x = cos * c[..., 0] + sin * c[..., 1]
+    y = cos * c[..., 1] - sin * c[..., 0]
+    # The turn 180 degrees more is (-x, -y); each translated so its least x and y are 0.
+    first = np.stack([x - x.min(axis=1)[:, None], y - y.min(axis=1)[:, None]], axis=2)
+    second = np.stack([x.max(axis=1)[:, None] - x, y.max(axis=1)[:, None] - y], axis=2)
+    keep_second = _middle_height(second) < _middle_height(first)
+    turned = np.where(keep_second[:, None, None], second, first)
+    extent = turned[..., 0].max(axis=1)
+    bad |= ~(extent > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        turned = turned / extent[:, None, None]
+    turned[bad] = 0.0
+    return turned
+
+
+def _middle_height(c: np.ndarray) -> np.ndarray:
+    """Per curve, the mean y of its RELEASE_MIDDLE_POINTS points nearest x = 0.5."""
+    nearest = np.argsort(np.abs(c[..., 0] - 0.5), axis=1, kind="stable")
+    nearest = nearest[:, :RELEASE_MIDDLE_POINTS]
+    return np.take_along_axis(c[..., 1], nearest, axis=1).mean(axis=1)
+
+
+def release_circle_variance(curves: ArrayLike) -> np.ndarray:
+    """The variance of the distances of a normalized curve's points (..., points, 2) from
+    (0.5, 0.5): a float for one curve, (P,) for P curves."""
+    c = np.asarray(curves, dtype=np.float64)
+    if c.ndim < 2 or c.shape[-1] != 2:
+        raise ValueError(f"curves must be (..., points, 2), got {c.shape}")
+    variance = np.linalg.norm(c - 0.5, axis=-1).var(axis=-1)
+    return float(variance) if variance.ndim == 0 else variance
+
+
+def release_arcs(adjacency: ArrayLike, fixed: ArrayLike) -> np.ndarray:
+    """(..., n) bool: the release's first test, the moving joints linked to a fixed joint
+    (the crank's tip among them), from adjacency (..., n, n) and fixed (..., n) bool (the
+    release's node_type)."""
+    fixed = np.asarray(fixed, dtype=bool)
+    linked = ((np.asarray(adjacency) != 0) & fixed[..., None, :]).any(axis=-1)
+    return linked & ~fixed
+
+
+def release_circles(curves: ArrayLike, is_arc: ArrayLike) -> np.ndarray:
+    """(P,) bool: the release's second test, for curves (P, points, 2) normalized by
+    `release_normalize_many` that are not arcs (`is_arc` (P,)): circle variance below
+    RELEASE_CIRCLE_VARIANCE. An arc is never a circle here: the release tests it first."""
+    is_arc = np.asarray(is_arc, dtype=bool)
+    variance = np.atleast_1d(release_circle_variance(curves))
+    if variance.shape != is_arc.shape:
+        raise ValueError(f"is_arc must be ({len(variance)},), got {is_arc.shape}")
+    return ~is_arc & (variance < RELEASE_CIRCLE_VARIANCE)
