@@ -42,7 +42,8 @@ def release_simulation(
             return None
         r1 = np.hypot(*(x0[joint] - x0[a]))
         r2 = np.hypot(*(x0[joint] - x0[b]))
-        start = np.cross(x0[b] - x0[a], x0[joint] - x0[a])
+        u, v = x0[b] - x0[a], x0[joint] - x0[a]
+        start = u[0] * v[1] - u[1] * v[0]
         pa, pb = out[a], out[b]
         gap = pb - pa
         d = np.hypot(gap[:, 0], gap[:, 1])
