@@ -63,7 +63,7 @@ def write_release(
     folder: Path,
     batches: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]],
     curated: list[list[tuple[int, int]]] | None = None,
-    generator_names: bool = False,
+    generator_name: str | None = None,
     protocol: int = pickle.HIGHEST_PROTOCOL,
 ) -> dict:
     """Write `batches` of (A, x0, node_type) as the release's dataset and simulation files, and
@@ -71,8 +71,8 @@ def write_release(
     membership only). Returns how many mechanisms each batch's simulation file holds."""
     folder.mkdir(parents=True, exist_ok=True)
     names = (
-        ("dataset", "Solutions_dataset", "Curated_Normalized_dataset")
-        if generator_names
+        (generator_name, f"Solutions_{generator_name}", f"Curated_Normalized_{generator_name}")
+        if generator_name
         else ("dataset", "simulation_dataset", "curated_dataset")
     )
     simulated = []

@@ -19,7 +19,7 @@ from release_files import as_release, release_simulation, write_release
 from links_ray.data.commit import committed_files
 from links_ray.data.pathset import path_table
 from links_ray.data.release_import import BATCH_STRIDE, import_release, release_location
-from links_ray.data.release_pickles import ReleaseFileError, read_batches, release_file
+from links_ray.data.release_pickles import ReleaseFileError, read_batches, release_files
 from links_ray.data.shards import NEGATIVE_ID_BASE
 from links_ray.data.store import Store
 from links_ray.engine.sampling import PositionSampler
@@ -122,13 +122,18 @@ def test_a_pickle_that_would_run_a_command_is_refused_and_never_runs(tmp_path: P
 def test_any_protocol_numpy_1_names_and_both_file_names_read_the_same(tmp_path: Path) -> None:
     batch = BATCHES[0][:6]
     reads = []
+    generator = {2: "dataset", 3: None, 4: "links_subset", 5: None}
     for protocol in (2, 3, 4, 5):
         folder = tmp_path / f"p{protocol}"
-        write_release(folder, [batch], generator_names=protocol % 2 == 0, protocol=protocol)
+        name = generator[protocol]
+        write_release(folder, [batch], generator_name=name, protocol=protocol)
         store = Store.open(str(folder), writable=False)
-        relative = release_file(store, "simulation_dataset")
-        assert relative == ("Solutions_dataset" if protocol % 2 == 0 else "simulation_dataset")
-        reads.append(next(read_batches(store, release_file(store, "dataset")))[2])
+        files = release_files(store)
+        assert files["dataset"] == (name or "dataset")
+        assert files["simulation_dataset"] == (
+            f"Solutions_{name}" if name else "simulation_dataset"
+        )
+        reads.append(next(read_batches(store, files["dataset"]))[2])
     numpy1 = tmp_path / "numpy1"
     numpy1.mkdir()
     data = pickle.dumps([list(entry) for entry in batch], protocol=2)

@@ -49,7 +49,7 @@ from links_ray.data.pathset import (
     trajectory_paths,
 )
 from links_ray.data.release_format import RELEASE_STEPS, release_crank
-from links_ray.data.release_pickles import ReleaseFileError, read_batches, release_file
+from links_ray.data.release_pickles import ReleaseFileError, read_batches, release_files
 from links_ray.data.schemas import SCHEMAS, TRAJECTORY_DTYPE, list_array
 from links_ray.data.shards import NEGATIVE_ID_BASE, VARIANTS
 from links_ray.data.store import META, Store
@@ -413,11 +413,12 @@ def import_release(
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     source = Store.open(src, writable=False)
-    data_file = release_file(source, "dataset")
-    if data_file is None:
-        raise ReleaseFileError(f"{source.uri} holds no dataset file (dataset)")
-    sims_file = release_file(source, "simulation_dataset")
-    curated_file = release_file(source, "curated_dataset")
+    files = release_files(source)
+    data_file = files["dataset"]
+    if data_file is None:  # release_files refuses a folder without one
+        raise ReleaseFileError(f"{source.uri} holds no release dataset")
+    sims_file = files["simulation_dataset"]
+    curated_file = files["curated_dataset"]
     curated_from = "release" if curated_file is not None else "seed"
     store = Store.open(out)
     start = time.perf_counter()

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.fs as pafs
 
 from links_ray.data.store import Store
 
@@ -29,12 +30,13 @@ except ImportError:  # pragma: no cover - numpy 1
     from numpy.core import multiarray as _multiarray  # type: ignore[no-redef]
     from numpy.core import numeric as _numeric  # type: ignore[no-redef]
 
-#: The release's four files, by released name, with the name the release's generator gives each.
+#: The release's four files by released name, and the prefix the release's generator puts
+#: before its dataset's name (NAME, Solutions_NAME, Normalized_NAME, Curated_Normalized_NAME).
 RELEASE_FILES = {
-    "dataset": "dataset",
-    "simulation_dataset": "Solutions_dataset",
-    "normalized_dataset": "Normalized_dataset",
-    "curated_dataset": "Curated_Normalized_dataset",
+    "dataset": "",
+    "simulation_dataset": "Solutions_",
+    "normalized_dataset": "Normalized_",
+    "curated_dataset": "Curated_Normalized_",
 }
 #: Bytes read from the store at once.
 READ_BUFFER = 8 * 1024 * 1024
@@ -107,22 +109,51 @@ class ReleaseUnpickler(pickle.Unpickler):
         raise RefusedName("a persistent id")
 
 
-def release_file(store: Store, name: str) -> str | None:
-    """The file of the release's `name` (a key of RELEASE_FILES) in `store`, relative to its
-    root, under its released name or its generator's; None if neither is there. Both there
-    is refused: the import would not know which to read."""
-    if name not in RELEASE_FILES:
-        raise ValueError(f"name must be one of {', '.join(RELEASE_FILES)}, got {name!r}")
-    found = [
-        candidate
-        for candidate in dict.fromkeys((name, RELEASE_FILES[name]))
-        if store.fs.get_file_info(store.path(candidate)).is_file
-    ]
-    if len(found) > 1:
-        raise ReleaseFileError(
-            f"{store.uri} holds both {found[0]} and {found[1]}: keep one of them"
+def release_files(store: Store) -> dict[str, str | None]:
+    """The release's files at the root of `store`, by released name (RELEASE_FILES), each
+    the path relative to the root or None if absent.
+
+    Either released names (`dataset`, `simulation_dataset`, ...) or the generator's (`NAME`,
+    `Solutions_NAME`, ...) are read: NAME is `dataset` when that file is there, else the one
+    NAME with both `NAME` and `Solutions_NAME`. Raises ReleaseFileError if there is no dataset,
+    several NAMEs, or one file under both its names.
+    """
+    selector = pafs.FileSelector(store.root, allow_not_found=True)
+    files = {
+        info.base_name
+        for info in store.fs.get_file_info(selector)
+        if info.type == pafs.FileType.File
+    }
+    if "dataset" in files:
+        base = "dataset"
+    else:
+        prefix = RELEASE_FILES["simulation_dataset"]
+        bases = sorted(
+            name[len(prefix) :]
+            for name in files
+            if name.startswith(prefix) and name[len(prefix) :] in files
         )
-    return found[0] if found else None
+        if not bases:
+            raise ReleaseFileError(
+                f"{store.uri} holds no release dataset: a file named dataset, or NAME beside "
+                "Solutions_NAME"
+            )
+        if len(bases) > 1:
+            raise ReleaseFileError(
+                f"{store.uri} holds several release datasets ({', '.join(bases)}): keep one"
+            )
+        base = bases[0]
+    found: dict[str, str | None] = {}
+    for name, prefix in RELEASE_FILES.items():
+        there = [
+            candidate
+            for candidate in dict.fromkeys((name if base == "dataset" else None, prefix + base))
+            if candidate in files
+        ]
+        if len(there) > 1:
+            raise ReleaseFileError(f"{store.uri} holds both {there[0]} and {there[1]}: keep one")
+        found[name] = there[0] if there else None
+    return found
 
 
 class _Source(io.RawIOBase):
