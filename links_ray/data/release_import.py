@@ -495,7 +495,7 @@ def import_release(
                 "tables": ["paths", "curated"],
                 "shards": summary["shards"],
                 "seconds": summary["seconds"],
-                "mechanisms_per_core_second": None,
+                "mechanisms_per_core_second": summary["mechanisms_per_second"],  # one process
                 **{key: summary[key] for key in ("paths", "curated", "arcs", "circles", "both")},
                 "shares": path_shares(
                     summary["paths"], summary["arcs"], summary["circles"], summary["both"]
