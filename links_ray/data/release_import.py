@@ -223,10 +223,16 @@ def _release_check(
 
 
 def _group_rows(
-    batch: _Batch, shown: str, indices: np.ndarray, n: int, seed: int
-) -> tuple[dict[str, list[pa.RecordBatch]], dict, dict]:
-    """The record batches of one joint count of a batch (`mechanisms`, `negatives`, `paths`,
-    `curated`), the generation stats and the curation stats."""
+    batch: _Batch,
+    shown: str,
+    indices: np.ndarray,
+    n: int,
+    seed: int,
+    write: Callable[[str, pa.RecordBatch], None],
+) -> tuple[dict, dict]:
+    """Hand the rows of one joint count of a batch to `write(table, record_batch)`
+    (`mechanisms`, `negatives`, `paths`, `curated`), MECHANISMS_PER_BATCH mechanisms at a time;
+    returns the generation stats and the curation stats."""
     start = time.perf_counter()
     stats: dict[str, Any] = {
         "release_batch": batch.batch,
@@ -249,9 +255,6 @@ def _group_rows(
         "circles": 0,
         "both": 0,
         "release_curated_unmatched": 0,
-    }
-    tables: dict[str, list[pa.RecordBatch]] = {
-        t: [] for t in ("mechanisms", "negatives", "paths", "curated")
     }
     ids_all = BATCH_STRIDE * batch.batch + indices
     released_curated = None
@@ -324,7 +327,7 @@ def _group_rows(
                 "mechanisms",
                 {"mechanism_id": ids[valid], "min_transmission_deg": min_deg[valid], **chosen},
             )
-            tables["mechanisms"].append(mechanisms)
+            write("mechanisms", mechanisms)
             paths = trajectory_paths(pa.Table.from_batches([mechanisms]), trajectories[valid], n)
             if released_curated is None:
                 keep = curated_mask(paths, seed)
@@ -332,8 +335,9 @@ def _group_rows(
                 keep = np.isin(paths.column("path_id").to_numpy(), released_curated)
                 matched += int(keep.sum())
             curated = paths.filter(keep)
-            tables["paths"].extend(paths.to_batches())
-            tables["curated"].extend(curated.to_batches())
+            for table, rows in (("paths", paths), ("curated", curated)):
+                for record_batch in rows.to_batches():
+                    write(table, record_batch)
             curation["mechanisms"] += int(valid.sum())
             curation["paths"] += len(paths)
             curation["curated"] += len(curated)
@@ -342,7 +346,8 @@ def _group_rows(
         if not valid.all():
             locked = ~valid
             chosen = {key: value[locked] for key, value in shared.items()}
-            tables["negatives"].append(
+            write(
+                "negatives",
                 _rows(
                     "negatives",
                     {
@@ -351,7 +356,7 @@ def _group_rows(
                         "locked_node": lock_node[locked].astype(np.int16),
                         **chosen,
                     },
-                )
+                ),
             )
         stats["mechanisms"] += int(valid.sum())
         stats["negatives"] += int((~valid).sum())
@@ -360,28 +365,42 @@ def _group_rows(
     seconds = time.perf_counter() - start
     stats["seconds"] = seconds
     curation["seconds"] = 0.0  # the group's time is counted once, in the generation stats
-    return tables, stats, curation
+    return stats, curation
 
 
-def _commit(
+def _import_shard(
     store: Store,
-    shard_id: int,
+    batch: _Batch,
+    shown: str,
     n: int,
-    stage: str,
-    tables: dict,
-    stats: dict,
+    seed: int,
+    shard_id: int,
+    generated: dict[int, dict],
     fence: Callable[[], None],
 ) -> dict:
-    writer = ShardWriter(store, shard_id, n, stage=stage)
+    """Import the mechanisms of `n` joints of `batch` as shard `shard_id`: its generation
+    shard (unless `generated` holds it already), then its curation shard; returns the
+    curation marker, after recording the generation marker in `generated`."""
+    writers = {"curation": ShardWriter(store, shard_id, n, stage="curation")}
+    if shard_id not in generated:
+        writers["shards"] = ShardWriter(store, shard_id, n, stage="shards")
+
+    def write(table: str, record_batch: pa.RecordBatch) -> None:
+        stage = "curation" if table in ("paths", "curated") else "shards"
+        if stage in writers and record_batch.num_rows:
+            writers[stage].write(table, record_batch)
+
     try:
-        for table, batches in tables.items():
-            for record_batch in batches:
-                if record_batch.num_rows:
-                    writer.write(table, record_batch)
+        indices = np.flatnonzero(batch.n_joints == n).astype(np.int64)
+        stats, curation = _group_rows(batch, shown, indices, n, seed, write)
+        if "shards" in writers:
+            fence()
+            generated[shard_id] = writers["shards"].commit(stats)
         fence()
-        return writer.commit(stats)
+        return writers["curation"].commit(curation)
     except BaseException:
-        writer.abort()
+        for writer in writers.values():
+            writer.abort()
         raise
 
 
@@ -469,16 +488,8 @@ def import_release(
                 shard_id = SHARDS_PER_BATCH * number + n
                 if shard_id in generated and shard_id in curated:
                     continue
-                indices = np.flatnonzero(batch.n_joints == n).astype(np.int64)
-                tables, stats, curation = _group_rows(batch, shown, indices, n, seed)
-                if shard_id not in generated:
-                    generation_tables = {t: tables[t] for t in ("mechanisms", "negatives")}
-                    generated[shard_id] = _commit(
-                        store, shard_id, n, "shards", generation_tables, stats, fence
-                    )
-                curation_tables = {t: tables[t] for t in ("paths", "curated")}
-                curated[shard_id] = _commit(
-                    store, shard_id, n, "curation", curation_tables, curation, fence
+                curated[shard_id] = _import_shard(
+                    store, batch, shown, n, seed, shard_id, generated, fence
                 )
             del batch, value
             if failpoint is not None:
