@@ -180,7 +180,9 @@ def read_batches(store: Store, relative: str) -> Iterator[tuple[int, int, Any]]:
     """(batch number, byte offset, object) of each pickle of a release file, one at a time.
 
     Raises ReleaseFileError naming the file, the batch and its offset for a refused name
-    (nothing it names is called), a batch cut short, or one that is not a pickle.
+    (nothing it names is called), a batch cut short, or one that is not a pickle. The
+    iterator keeps no reference to a batch it has handed out: a caller that drops one frees it
+    before the next is read.
     """
     shown = f"{store.uri}/{relative}"
     with store.fs.open_input_stream(store.path(relative)) as stream:
@@ -190,27 +192,24 @@ def read_batches(store: Store, relative: str) -> Iterator[tuple[int, int, Any]]:
             offset = source.tell()
             if not source.peek(1):
                 return
-            try:
-                value = ReleaseUnpickler(source).load()
-            except RefusedName as exc:
-                raise ReleaseFileError(
-                    f"{shown} batch {batch} names {exc.name}; only numpy arrays and lists are read"
-                ) from None
-            except (
-                EOFError,
-                pickle.UnpicklingError,
-                ValueError,
-                TypeError,
-                IndexError,
-                KeyError,
-            ) as exc:
-                if not source.peek(1):
-                    raise ReleaseFileError(
-                        f"{shown} batch {batch} at byte {offset} is cut short: the file ends "
-                        f"inside it, at byte {source.tell()}"
-                    ) from None
-                raise ReleaseFileError(
-                    f"{shown} batch {batch} at byte {offset} is not a readable pickle: {exc}"
-                ) from None
-            yield batch, offset, value
+            yield batch, offset, _load(source, f"{shown} batch {batch}", offset)
             batch += 1
+
+
+def _load(source: io.BufferedReader, shown: str, offset: int) -> Any:
+    """One batch's object, read at `offset`; ReleaseFileError saying why it cannot be."""
+    try:
+        return ReleaseUnpickler(source).load()
+    except RefusedName as exc:
+        raise ReleaseFileError(
+            f"{shown} names {exc.name}; only numpy arrays and lists are read"
+        ) from None
+    except (EOFError, pickle.UnpicklingError, ValueError, TypeError, IndexError, KeyError) as exc:
+        if not source.peek(1):
+            raise ReleaseFileError(
+                f"{shown} at byte {offset} is cut short: the file ends inside it, at byte "
+                f"{source.tell()}"
+            ) from None
+        raise ReleaseFileError(
+            f"{shown} at byte {offset} is not a readable pickle: {exc}"
+        ) from None
