@@ -17,6 +17,7 @@ from fourbars import stretched_four_bar
 from release_files import as_release, release_simulation, write_release
 
 from links_ray.data.commit import committed_files
+from links_ray.data.lease import Lease, LeaseHeld
 from links_ray.data.pathset import path_table
 from links_ray.data.release_import import BATCH_STRIDE, import_release, release_location
 from links_ray.data.release_pickles import ReleaseFileError, read_batches, release_files
@@ -320,6 +321,19 @@ def test_resume_after_a_failure_between_batches_gives_the_same_rows(
         assert read_table(root, table) == read_table(imported[0], table), table
     keys = ("mechanisms", "negatives", "agreeing", "paths", "curated", "worst_error")
     assert {k: summary[k] for k in keys} == {k: imported[1][k] for k in keys}
+    # Once finished, the same command commits nothing more: every shard exactly once.
+    files = sorted(str(path) for path in Path(root).rglob("*.parquet"))
+    again = import_release(str(release), root)
+    assert sorted(str(path) for path in Path(root).rglob("*.parquet")) == files
+    assert {k: again[k] for k in keys} == {k: summary[k] for k in keys}
+
+
+def test_an_import_beside_a_running_writer_is_refused(release: Path, tmp_path: Path) -> None:
+    store = Store.open(str(tmp_path / "root"))
+    with Lease.acquire(store, "writer", "links generate"):
+        with pytest.raises(LeaseHeld, match="is in use by links generate"):
+            import_release(str(release), str(tmp_path / "root"))
+    assert not read_table(str(tmp_path / "root"), "mechanisms")
 
 
 def test_import_from_s3_equals_the_folders(
