@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fourbars import stretched_four_bar
+from fourbars import stretched_four_bar, window_slack
 from release_files import as_release, release_simulation, write_release
 
 from links_ray.data.commit import committed_files
@@ -30,7 +30,7 @@ from links_ray.engine.topology import grow_topology
 
 def mechanisms(seed: int, batches: int, topologies: int) -> list[list[tuple]]:
     """Release batches of links-ray topologies (6 to 10 joints mixed), five variants each; the
-    last batch ends with a four-bar that cannot turn at the release's angles."""
+    last batch ends with two four-bars that lock in links-ray's turn."""
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(batches):
@@ -43,8 +43,11 @@ def mechanisms(seed: int, batches: int, topologies: int) -> list[list[tuple]]:
             for positions in found.positions[:5]:
                 batch.append(as_release(topology.adjacency, topology.node_types, positions))
         out.append(batch)
-    locked = stretched_four_bar(50, 200, -1e-4)
-    out[-1].append(as_release(locked["adjacency"], locked["node_types"], locked["positions"]))
+    # Assembles at every angle the release and links-ray sample but locks between links-ray's
+    # steps 1 and 2; then one that cannot turn at the release's angles either.
+    for step, slack in ((1, window_slack(200)), (50, -1e-4)):
+        locked = stretched_four_bar(step, 200, slack)
+        out[-1].append(as_release(locked["adjacency"], locked["node_types"], locked["positions"]))
     return out
 
 
@@ -232,12 +235,15 @@ def test_mechanisms_keep_their_release_positions_and_map_their_joints(
         np.testing.assert_array_equal(types == 0, fixed)
         assert set(types[2:].tolist()) <= {0, 1}
         assert row["topology_id"] == mechanism_id // 5 and row["variant"] == mechanism_id % 5
-    # The four-bar that locks between links-ray's steps is a negative, with its place.
-    assert len(negatives) == 1
-    (negative,) = negatives
-    assert negative >= NEGATIVE_ID_BASE
-    assert list(place(negative)) == [2, len(BATCHES[2]) - 1]
-    assert negatives[negative]["locked_step"] >= 0
+    # The four-bars that lock in links-ray's turn are negatives, with their places; the first
+    # only between the sampled steps 1 and 2, as generation's check finds.
+    assert sorted(negatives) == [
+        NEGATIVE_ID_BASE + BATCH_STRIDE * 2 + len(BATCHES[2]) - k for k in (2, 1)
+    ]
+    between, locked = (negatives[i] for i in sorted(negatives))
+    assert list(place(between["mechanism_id"])) == [2, len(BATCHES[2]) - 2]
+    assert between["locked_step"] == 2
+    assert locked["locked_step"] >= 0
 
 
 def test_summary_counts_the_check_against_the_release(imported: tuple[str, dict]) -> None:
@@ -246,6 +252,7 @@ def test_summary_counts_the_check_against_the_release(imported: tuple[str, dict]
     assert summary["agreeing"] == released == sum(map(len, BATCHES)) - 1
     assert summary["disagreeing"] == 0 and summary["unchecked"] == 0
     assert summary["locking_at_release_angles"] == 1
+    assert summary["negatives"] == 2
     assert 0 < summary["worst_error"] < 1e-5
     assert summary["curated_from"] == "release"
 
