@@ -16,10 +16,16 @@ import pytest
 from fourbars import stretched_four_bar, window_slack
 from release_files import as_release, release_simulation, write_release
 
-from links_ray.data.commit import committed_files
+from links_ray.data import release_import
+from links_ray.data.commit import ShardWriter, committed_files, committed_shards
 from links_ray.data.lease import Lease, LeaseHeld
 from links_ray.data.pathset import path_table
-from links_ray.data.release_import import BATCH_STRIDE, import_release, release_location
+from links_ray.data.release_import import (
+    BATCH_STRIDE,
+    SHARDS_PER_BATCH,
+    import_release,
+    release_location,
+)
 from links_ray.data.release_pickles import ReleaseFileError, read_batches, release_files
 from links_ray.data.shards import NEGATIVE_ID_BASE
 from links_ray.data.store import Store
@@ -333,6 +339,35 @@ def test_resume_after_a_failure_between_batches_gives_the_same_rows(
     again = import_release(str(release), root)
     assert sorted(str(path) for path in Path(root).rglob("*.parquet")) == files
     assert {k: again[k] for k in keys} == {k: summary[k] for k in keys}
+
+
+def test_resume_after_a_failure_inside_a_shard_gives_the_same_rows(
+    release: Path,
+    imported: tuple[str, dict],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Batch 1's first shard fails after its rows are written, before its paths commit: its
+    generation shard is committed, its curation shard not."""
+    root = str(tmp_path / "root")
+
+    class FailingWriter(ShardWriter):
+        def commit(self, stats: dict) -> dict:
+            if self.stage == "curation" and self.shard_id // SHARDS_PER_BATCH == 1:
+                raise OSError("the store went away")
+            return super().commit(stats)
+
+    monkeypatch.setattr(release_import, "ShardWriter", FailingWriter)
+    with pytest.raises(OSError, match="the store went away"):
+        import_release(str(release), root)
+    monkeypatch.undo()
+    store = Store.open(root, writable=False)
+    generated, curated = committed_shards(store, "shards"), committed_shards(store, "curation")
+    assert set(curated) < set(generated)
+    assert not list(Path(root).rglob("_shard-*"))  # the failed attempt left nothing
+    import_release(str(release), root)
+    for table in ("mechanisms", "negatives", "paths", "curated"):
+        assert read_table(root, table) == read_table(imported[0], table), table
 
 
 def test_an_import_beside_a_running_writer_is_refused(release: Path, tmp_path: Path) -> None:
