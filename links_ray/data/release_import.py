@@ -472,6 +472,7 @@ def import_release(
         sims = _following(source, sims_file)
         chosen = _following(source, curated_file)
         shown = f"{source.uri}/{data_file}"
+        imported_now = 0  # valid mechanisms whose shards this run committed
         for number, _, value in read_batches(source, data_file):
             batch = _Batch(shown, number, value)
             if sims is not None:
@@ -491,13 +492,15 @@ def import_release(
                 curated[shard_id] = _import_shard(
                     store, batch, shown, n, seed, shard_id, generated, fence
                 )
+                imported_now += curated[shard_id]["stats"]["mechanisms"]
             del batch, value
             if failpoint is not None:
                 failpoint(f"batch {number} committed")
         lease.confirm()
         remove_uncommitted(store, "shards", generated)
         remove_uncommitted(store, "curation", curated)
-        summary = summarize_import(store, source.uri, curated_from, time.perf_counter() - start)
+        seconds = time.perf_counter() - start
+        summary = summarize_import(store, source.uri, curated_from, seconds, imported_now)
         store.write_json(f"{META}/import_summary.json", summary)
         store.write_json(
             f"{META}/curation_summary.json",
@@ -516,9 +519,13 @@ def import_release(
     return summary
 
 
-def summarize_import(store: Store, release: str, curated_from: str, seconds: float) -> dict:
+def summarize_import(
+    store: Store, release: str, curated_from: str, seconds: float, imported_now: int
+) -> dict:
     """The import summary, from the committed shards' markers: rows, the check against the
-    release's trajectories, negatives, paths, and where the curated set came from."""
+    release's trajectories, negatives, paths, and where the curated set came from; `seconds`
+    and `mechanisms_per_second` are this run's, over the `imported_now` valid mechanisms it
+    committed."""
     generated = committed_shards(store, "shards")
     curated = committed_shards(store, "curation")
     counts = (
@@ -549,5 +556,6 @@ def summarize_import(store: Store, release: str, curated_from: str, seconds: flo
         **paths,
         "curated_from": curated_from,
         "seconds": seconds,
-        "mechanisms_per_second": imported / seconds if seconds else None,
+        "imported_this_run": imported_now,
+        "mechanisms_per_second": imported_now / seconds if imported_now and seconds else None,
     }
