@@ -5,6 +5,7 @@ root in use (stats, retrieval, synthesis)."""
 
 from __future__ import annotations
 
+import json
 import os
 import pickle
 import subprocess
@@ -448,3 +449,24 @@ def test_stats_cli_on_the_imported_root(imported: tuple[str, dict]) -> None:
         text=True,
     )
     assert result.returncode == 0, result.stderr
+
+
+def test_the_command_prints_its_summary(tmp_path: Path) -> None:
+    write_release(tmp_path / "release", BATCHES[:1])
+    command = [sys.executable, "-m", "links_ray.cli", "import-release", str(tmp_path / "release")]
+    line = subprocess.run(
+        [*command, "--out", str(tmp_path / "a")], capture_output=True, text=True, check=True
+    ).stdout
+    count = len(BATCHES[0])
+    assert line.startswith(f"{count} mechanisms and 0 negatives from 1 release batches; ")
+    assert f"{count} agree, 0 disagree, 0 lock, 0 unchecked; " in line
+    assert "(the seeded choice)" in line and line.count("\n") == 1
+    summary = json.loads(
+        subprocess.run(
+            [*command, "--out", str(tmp_path / "b"), "--json"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+    )
+    assert summary["mechanisms"] == count and summary["curated_from"] == "seed"
