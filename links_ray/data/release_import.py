@@ -1,5 +1,5 @@
-"""Import of the LINKS release's own files into a links-ray root (docs/guides/exports.md,
-Importing the LINKS release).
+"""Import of the LINKS release's own files into a links-ray root
+(docs/guides/importing-the-release.md).
 
 The release's files are read with the restricted unpickler of `release_pickles`, one batch at
 a time: a batch's mechanisms, its simulations and its curated (j, node) pairs are in memory,
