@@ -130,6 +130,25 @@ def test_a_pickle_that_would_run_a_command_is_refused_and_never_runs(tmp_path: P
     assert {int(b) for b in release_location(np.array(list(rows)))[0]} == {0, 1}
 
 
+class HugeArray:
+    """Unpickling it would ask numpy's reconstructor for a 10 TB array."""
+
+    def __reduce__(self) -> tuple:
+        return (np.ndarray.__reduce__(np.zeros(1))[0], (np.ndarray, (10**13,), b"b"))
+
+
+def test_an_array_larger_than_its_file_is_refused(tmp_path: Path) -> None:
+    with open(tmp_path / "dataset", "wb") as out:
+        pickle.dump([[np.zeros(3)]], out)
+        pickle.dump([HugeArray()], out)
+    batches = read_batches(Store.open(str(tmp_path), writable=False), "dataset")
+    assert next(batches)[0] == 0
+    with pytest.raises(
+        ReleaseFileError, match=r"dataset batch 1 at byte \d+ is not a readable pickle"
+    ):
+        next(batches)
+
+
 def test_any_protocol_numpy_1_names_and_both_file_names_read_the_same(tmp_path: Path) -> None:
     batch = BATCHES[0][:6]
     reads = []

@@ -64,8 +64,16 @@ def _dtype(spec: object, align: bool = False, copy: bool = False) -> np.dtype:
     return dtype
 
 
+def _reconstruct(subtype: object, shape: object, dtype: object) -> np.ndarray:
+    """numpy's array reconstructor as its pickles call it: a plain, empty array whose shape and
+    data the pickle then sets from bytes it holds, so an array is never larger than its file."""
+    if subtype is not np.ndarray or shape != (0,):
+        raise pickle.UnpicklingError("arrays are read only as numpy pickles them")
+    return _multiarray._reconstruct(np.ndarray, (0,), dtype)
+
+
 _NUMPY_NAMES: dict[str, Callable[..., Any] | type] = {
-    "_reconstruct": _multiarray._reconstruct,
+    "_reconstruct": _reconstruct,
     "scalar": _multiarray.scalar,
 }
 #: Every name a release file may hold, module by module.
