@@ -279,6 +279,7 @@ def test_summary_counts_the_check_against_the_release(imported: tuple[str, dict]
     assert summary["disagreeing"] == 0 and summary["unchecked"] == 0
     assert summary["locking_at_release_angles"] == 1
     assert summary["negatives"] == 2
+    assert summary["topologies"] == sum(-(-len(batch) // 5) for batch in BATCHES)
     assert 0 < summary["worst_error"] < 1e-5
     assert summary["curated_from"] == "release"
 

@@ -257,6 +257,7 @@ def _group_rows(
         "release_curated_unmatched": 0,
     }
     ids_all = BATCH_STRIDE * batch.batch + indices
+    stats["topologies"] = len(np.unique(ids_all // VARIANTS))
     released_curated = None
     if batch.curated is not None:
         wanted = [(j, node) for j, node in batch.curated if batch.n_joints[j] == n]
@@ -286,7 +287,6 @@ def _group_rows(
                 check_positions(topology.adjacency, group, topology.links)
             except InvalidMechanismError as exc:
                 raise ReleaseFileError(f"{where}: {exc}") from None
-            stats["topologies"] += 1
             for k in range(first, stop):
                 verdict, error = _release_check(
                     topology, positions[k], batch.solutions.get(int(part[k]))
