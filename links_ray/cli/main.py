@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
 from links_ray import __version__
-from links_ray.cli import bench, export, export_dataset, report
+from links_ray.cli import bench, export, export_dataset, import_release, report
 from links_ray.cli.bench_synthesis import BENCH_SECONDS
 from links_ray.cli.demo import run_demo
 from links_ray.cli.warm import format_warm, note_compiling, warm
@@ -640,6 +640,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     export.add_command(commands)  # links export: cli/export.py
     export_dataset.add_command(commands, _positive_int)  # links export-dataset
+    import_release.add_command(commands)  # links import-release
 
     bench_parser = commands.add_parser("bench", help="benchmarks")
     benches = bench_parser.add_subparsers(dest="bench", required=True)
