@@ -14,6 +14,9 @@ trajectories (`pathset.trajectory_paths`: the same rows bit for bit); curated cu
 `curated` or chosen from the normalized ones with the recorded curation seed
 (`pathset.curated_mask`, seed 0 when the root was never curated, as `links curate` would).
 
+Import, the other direction, is `links_ray.data.release_import.import_release`, also
+importable from here.
+
 Pure numpy/pyarrow: no Ray.
 """
 
@@ -48,6 +51,7 @@ from links_ray.data.release_format import (
     release_normalize_many,
     release_trajectories_many,
 )
+from links_ray.data.release_import import import_release as import_release
 from links_ray.data.splits import check_fractions, check_split, split_mask
 from links_ray.data.store import META, Store
 from links_ray.engine.inputs import DEFAULT_STEPS
