@@ -148,9 +148,9 @@ def test_no_time_left_returns_the_first_retrieved_unrefined(
     prepare = synthesis._candidate
     prepared: list[int] = []
 
-    def counted(result: dict, target: Any) -> Any:
+    def counted(result: dict, target: Any, constraints: Any) -> Any:
         prepared.append(result["path_id"])
-        return prepare(result, target)
+        return prepare(result, target, constraints)
 
     monkeypatch.setattr(synthesis, "_candidate", counted)
     query = queries[1]

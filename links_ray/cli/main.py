@@ -253,6 +253,16 @@ def _bench_synthesize(args: argparse.Namespace) -> None:
     )
 
 
+def _bench_import_release(args: argparse.Namespace) -> None:
+    from links_ray.cli import bench_release
+
+    _run_bench(
+        args,
+        lambda: bench_release.bench_import(batches=args.batches),
+        bench_release.format_import,
+    )
+
+
 def _bench_retrieve(args: argparse.Namespace) -> None:
     from links_ray.cli import bench_retrieve
 
@@ -736,6 +746,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME",
         help="run only this curve (repeat for several); with --iterations its row is the same "
         "bit for bit as in a run of them all",
+    )
+    _add_bench(
+        benches,
+        "import-release",
+        "the release's pickled files (exported from the bench set, batches of 100,000) "
+        "imported: mechanisms per second, peak memory",
+        _bench_import_release,
+        ("--batches", 2, "release batches of 100,000 mechanisms"),
     )
     serve_bench = benches.add_parser(
         "serve",

@@ -380,10 +380,12 @@ def export_release_files(
     chunk_size: int = DEFAULT_RELEASE_BATCH,
     split: str | None = None,
     split_fractions: Sequence[float] | None = None,
+    batches: int | None = None,
 ) -> dict:
     """Write the committed mechanisms at `root` into the local folder `out` (new or empty) as
     the release's four files, `RELEASE_FILES`, that code written for the release reads with
-    `pickle.load` until EOFError; returns a summary (mechanisms, locked, curves, batches).
+    `pickle.load` until EOFError (only the first `batches` batches, if given); returns a
+    summary (mechanisms, locked, curves, batches).
 
     Each file holds one pickled list a batch: up to `chunk_size` mechanisms in mechanism_id
     order, joint counts mixed. Per mechanism (j its index in the batch):
@@ -437,6 +439,8 @@ def export_release_files(
             summary["batches"].append(entry)
             for key in ("mechanisms", "locked", "normalized", "curated"):
                 summary[key] += entry[key]
+            if batches is not None and len(summary["batches"]) >= batches:
+                break
     # Named last: a folder holding the four names holds a finished export.
     for name, path in partial.items():
         os.replace(path, os.path.join(out, name))
