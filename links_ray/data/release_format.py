@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from links_ray.engine.mechanism import analyze_topology
+from links_ray.engine.mechanism import Topology, analyze_topology
 from links_ray.engine.paths import CIRCLE_VARIANCE_THRESHOLD
 from links_ray.engine.solver import simulate_one
 
@@ -39,6 +39,7 @@ __all__ = [
     "release_normalize_many",
     "release_trajectories",
     "release_trajectories_many",
+    "release_turn",
 ]
 
 #: Points of every curve the release holds.
@@ -68,6 +69,26 @@ def release_crank(positions: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.stack([np.cos(relative), np.sin(relative)], axis=1))
 
 
+def release_turn(
+    topology: Topology, positions: np.ndarray, out: np.ndarray | None = None
+) -> tuple[np.ndarray, tuple[int, int]]:
+    """`release_trajectories` of an analyzed topology and float64 positions (n, 2), into
+    `out` (n, RELEASE_STEPS, 2) if given: the one call of the solver at the release's angles."""
+    if out is None:
+        out = np.empty((topology.n_joints, RELEASE_STEPS, 2))
+    geometry = np.empty((len(topology.order), 3))
+    step, joint = simulate_one(
+        topology.order,
+        topology.fixed_joints,
+        positions,
+        release_crank(positions),
+        True,
+        out,
+        geometry,
+    )
+    return out, (int(step), int(joint))
+
+
 def release_trajectories(
     adjacency: ArrayLike, node_types: ArrayLike, positions: ArrayLike
 ) -> tuple[np.ndarray, tuple[int, int]]:
@@ -80,12 +101,7 @@ def release_trajectories(
     pos = np.ascontiguousarray(positions, dtype=np.float64)
     if pos.shape != (topology.n_joints, 2):
         raise ValueError(f"positions must be ({topology.n_joints}, 2), got {pos.shape}")
-    out = np.empty((topology.n_joints, RELEASE_STEPS, 2))
-    geometry = np.empty((len(topology.order), 3))
-    step, joint = simulate_one(
-        topology.order, topology.fixed_joints, pos, release_crank(pos), True, out, geometry
-    )
-    return out, (int(step), int(joint))
+    return release_turn(topology, pos)
 
 
 def release_trajectories_many(
@@ -113,17 +129,7 @@ def release_trajectories_many(
             and np.array_equal(node_types[row], node_types[row - 1])
         ):
             topology = analyze_topology(adjacency[row], node_types[row])
-            geometry = np.empty((len(topology.order), 3))
-        step, _ = simulate_one(
-            topology.order,
-            topology.fixed_joints,
-            pos[row],
-            release_crank(pos[row]),
-            True,
-            out[row],
-            geometry,
-        )
-        locks[row] = step
+        _, (locks[row], _) = release_turn(topology, pos[row], out[row])
     return out, locks
 
 

@@ -48,7 +48,7 @@ from links_ray.data.pathset import (
     path_shares,
     trajectory_paths,
 )
-from links_ray.data.release_format import RELEASE_STEPS, release_crank
+from links_ray.data.release_format import RELEASE_STEPS, release_turn
 from links_ray.data.release_pickles import ReleaseFileError, read_batches, release_files
 from links_ray.data.schemas import SCHEMAS, TRAJECTORY_DTYPE, list_array
 from links_ray.data.shards import NEGATIVE_ID_BASE, VARIANTS
@@ -63,7 +63,7 @@ from links_ray.engine.inputs import (
     check_positions,
 )
 from links_ray.engine.mechanism import MAX_DATASET_JOINTS, Topology, analyze_topology
-from links_ray.engine.solver import TopologySimulator, simulate_one
+from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.transmission import mechanism_transmission_deg
 
 __all__ = ["BATCH_STRIDE", "import_release", "release_location"]
@@ -200,17 +200,7 @@ def _release_check(
 ) -> tuple[str, float]:
     """("agree" | "disagree" | "locks" | "unchecked", error): links-ray's solver at the
     release's angles against the release's own trajectory."""
-    out = np.empty((topology.n_joints, RELEASE_STEPS, 2))
-    geometry = np.empty((len(topology.order), 3))
-    step, _ = simulate_one(
-        topology.order,
-        topology.fixed_joints,
-        positions,
-        release_crank(positions),
-        True,
-        out,
-        geometry,
-    )
+    out, (step, _) = release_turn(topology, positions)
     if step >= 0:
         return "locks", 0.0
     if solution is None:
