@@ -366,13 +366,17 @@ def refine_retrieved(
 
         found = pool.map(prepared, enumerate(retrieved))
         candidates = [c for c in found if c is not None]
-        reported: list[Any] = [(True, math.inf, math.inf), -math.inf]  # rank reported, when
+        # The measure reported, when, and the best candidate's rank last looked at.
+        reported: list[Any] = [(True, math.inf, math.inf), -math.inf, None]
 
         def report() -> None:
             now = time.perf_counter()
             if progress is None or not candidates or now - reported[1] < PROGRESS_INTERVAL_S:
                 return
             best = min(candidates, key=_Candidate.rank)
+            if best.rank() == reported[2]:  # nothing kept since: no answer to measure
+                return
+            reported[2] = best.rank()
             # Measured from the positions read now (a worker may have moved them on since its
             # rank), by the answer's own measure (the timed error once timing ranks): the
             # reports must fall as the answer's measures do.
@@ -380,7 +384,7 @@ def refine_retrieved(
             measured = answer["timed_error"] if timed is not None else answer["chamfer"]
             rank = (not best.missed.kept, best.missed.total, measured)
             if rank < reported[0]:
-                reported[:] = [rank, now]
+                reported[:2] = [rank, now]
                 progress(answer)
 
         report()
