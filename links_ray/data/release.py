@@ -587,6 +587,9 @@ def _write_release_batch(
         trajectories, locks = release_trajectories_many(
             rows.adjacency[run], rows.node_types[run], x0
         )
+        # A locked mechanism's turn past its lock is meaningless (and may overflow float32);
+        # the file holds none of it.
+        trajectories[locks >= 0] = 0.0
         x_sol = trajectories.astype(np.float32)
         del trajectories
         base = len(dataset)

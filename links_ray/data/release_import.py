@@ -2,10 +2,11 @@
 (docs/guides/importing-the-release.md).
 
 The release's files are read with the restricted unpickler of `release_pickles`, one batch at
-a time: a batch's mechanisms, its simulations and its curated (j, node) pairs are in memory,
-never two batches. Each batch is split by joint count into shards committed by the commit
-protocol (`data.commit`) under the root's writer lease, so an interrupted import resumes where
-it stopped and every shard is committed exactly once:
+a time, and one file's batch at a time: a batch's mechanisms stay in memory while its
+simulations are checked and dropped, then its curated (j, node) pairs are read. Each batch is
+split by joint count into shards committed by the commit protocol (`data.commit`) under the
+root's writer lease, so an interrupted import resumes where it stopped and every shard is
+committed exactly once:
 
     shard_id = SHARDS_PER_BATCH * release_batch + n_joints
     mechanism_id = BATCH_STRIDE * release_batch + release_index
@@ -79,6 +80,14 @@ AGREEMENT_TOLERANCE = 1e-4
 #: Disagreeing mechanisms named in the import summary (every shard's marker names all of its).
 SHOWN_DISAGREEING = 100
 IMPORT_FORMAT = 1
+#: A mechanism's check against the release (`_release_check`), and the summary's count of each.
+VERDICTS = ("agree", "disagree", "locks", "unchecked")
+VERDICT_STATS = {
+    "agree": "agreeing",
+    "disagree": "disagreeing",
+    "locks": "locking_at_release_angles",
+    "unchecked": "unchecked",
+}
 #: Called with "batch <b> committed" after each release batch's shards are all committed:
 #: the fault tests' way to stop an import between batches.
 Failpoint = Callable[[str], None]
@@ -149,15 +158,51 @@ class _Batch:
             self.adjacency.append(_array(a, where, "A", (n, n), np.bool_))
             self.x0.append(_array(x0, where, "x0", (n, 2), np.float32))
         self.n_joints = np.array([len(f) for f in self.fixed], dtype=np.int64)
-        self.solutions: dict[int, np.ndarray] = {}
+        #: Each mechanism's check against the release (an index of VERDICTS, -1 until checked)
+        #: and its error there.
+        self.verdicts = np.full(self.size, -1, dtype=np.int8)
+        self.errors = np.zeros(self.size)
         self.curated: set[tuple[int, int]] | None = None
+        self._shown = shown
+        self._topologies: dict[tuple[bytes, bytes], Topology] = {}
 
-    def add_solutions(self, shown: str, value: Any) -> None:
+    def topology(self, j: int) -> Topology:
+        """The analyzed topology of mechanism `j` (shared by every mechanism with the same
+        `A` and `node_type`); ReleaseFileError naming `j` for one links-ray cannot simulate."""
+        key = (self.adjacency[j].tobytes(), self.fixed[j].tobytes())
+        found = self._topologies.get(key)
+        if found is None:
+            try:
+                found = analyze_topology(self.adjacency[j], node_types_of(self.fixed[j]))
+            except InvalidMechanismError as exc:
+                raise ReleaseFileError(
+                    f"{self._shown} batch {self.batch} index {j}: {exc}"
+                ) from None
+            self._topologies[key] = found
+        return found
+
+    def check_solutions(self, shown: str, value: Any) -> None:
+        """Check every mechanism the release simulated against its trajectory in `value` (the
+        batch of `simulation_dataset`), keeping only the verdicts: a batch's trajectories are
+        its largest part, and are dropped with `value`."""
         for k, (x_sol, j) in enumerate(_entries(value, f"{shown} batch {self.batch}", 2)):
             where = f"{shown} batch {self.batch} index {k}"
             j = _index(j, where, self.size)
             n = int(self.n_joints[j])
-            self.solutions[j] = _array(x_sol, where, "x_sol", (n, RELEASE_STEPS, 2), np.float32)
+            _array(x_sol, where, "x_sol", (n, RELEASE_STEPS, 2), np.float32)
+            self._check(j, x_sol)
+
+    def verdict(self, j: int) -> tuple[str, float]:
+        """Mechanism `j`'s check (VERDICTS) and error; one the release has no trajectory of is
+        checked only for locking at the release's angles."""
+        if self.verdicts[j] < 0:
+            self._check(j, None)
+        return VERDICTS[self.verdicts[j]], float(self.errors[j])
+
+    def _check(self, j: int, solution: np.ndarray | None) -> None:
+        verdict, error = _release_check(self.topology(j), self.x0[j].astype(np.float64), solution)
+        self.verdicts[j] = VERDICTS.index(verdict)
+        self.errors[j] = error
 
     def add_curated(self, shown: str, value: Any) -> None:
         self.curated = set()
@@ -271,23 +316,15 @@ def _group_rows(
         starts = [0, *(np.flatnonzero(changes) + 1).tolist(), len(part)]
         for first, stop in itertools.pairwise(starts):
             where = f"{shown} batch {batch.batch} index {int(part[first])}"
+            topology = batch.topology(int(part[first]))
             try:
-                topology = analyze_topology(adjacency[first], node_types[first])
                 group = as_positions(positions[first:stop], n, batch=True)
                 check_positions(topology.adjacency, group, topology.links)
             except InvalidMechanismError as exc:
                 raise ReleaseFileError(f"{where}: {exc}") from None
             for k in range(first, stop):
-                verdict, error = _release_check(
-                    topology, positions[k], batch.solutions.get(int(part[k]))
-                )
-                key = {
-                    "agree": "agreeing",
-                    "disagree": "disagreeing",
-                    "locks": "locking_at_release_angles",
-                    "unchecked": "unchecked",
-                }[verdict]
-                stats[key] += 1
+                verdict, error = batch.verdict(int(part[k]))
+                stats[VERDICT_STATS[verdict]] += 1
                 if verdict in ("agree", "disagree"):
                     stats["worst_error"] = max(stats["worst_error"], error)
                 if verdict == "disagree":
@@ -465,25 +502,31 @@ def import_release(
         imported_now = 0  # valid mechanisms whose shards this run committed
         for number, _, value in read_batches(source, data_file):
             batch = _Batch(shown, number, value)
+            del value
+            shard_ids = {
+                n: SHARDS_PER_BATCH * number + n for n in np.unique(batch.n_joints).tolist()
+            }
+            pending = [n for n, i in shard_ids.items() if i not in generated or i not in curated]
+            # One file's batch in memory at a time: each is reduced to what the import keeps
+            # (verdicts, curated pairs) before the next is read. A batch an earlier run
+            # committed is read only to reach the next.
             if sims is not None:
-                batch.add_solutions(
-                    f"{source.uri}/{sims_file}",
-                    _next_batch(sims, f"{source.uri}/{sims_file}", number),
-                )
+                solutions = _next_batch(sims, f"{source.uri}/{sims_file}", number)
+                if pending:
+                    batch.check_solutions(f"{source.uri}/{sims_file}", solutions)
+                del solutions
             if chosen is not None:
                 batch.add_curated(
                     f"{source.uri}/{curated_file}",
                     _next_batch(chosen, f"{source.uri}/{curated_file}", number),
                 )
-            for n in np.unique(batch.n_joints).tolist():
+            for n in pending:
                 shard_id = SHARDS_PER_BATCH * number + n
-                if shard_id in generated and shard_id in curated:
-                    continue
                 curated[shard_id] = _import_shard(
                     store, batch, shown, n, seed, shard_id, generated, fence
                 )
                 imported_now += curated[shard_id]["stats"]["mechanisms"]
-            del batch, value
+            del batch
             if failpoint is not None:
                 failpoint(f"batch {number} committed")
         lease.confirm()
