@@ -26,8 +26,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from needs import missing, no_skip_under_ci
+from needs import missing, need_module, no_skip_under_ci
 from serving import Client, low_port
+from studio_page import CHROMIUM, CHROMIUM_ARGS
 
 S3_REGION = "us-east-1"
 STARTUP_TIMEOUT_S = 30.0
@@ -542,3 +543,21 @@ def reference(dataset: str) -> Any:
     from links_ray.search.index import RetrievalIndex
 
     return RetrievalIndex.open(dataset)
+
+
+# -- the browser (test_studio.py, test_release_import.py) --------------------------------------
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    """One headless Chromium for the module (never a downloaded browser)."""
+    sync_api = need_module("playwright.sync_api", "pip install playwright (the test extra)")
+    if not Path(CHROMIUM).is_file():
+        missing(f"no Chromium at {CHROMIUM}: apt-get install -y chromium (or set LINKS_CHROMIUM)")
+    sync_playwright = sync_api.sync_playwright
+    with sync_playwright() as playwright:
+        chromium = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            yield chromium
+        finally:
+            chromium.close()

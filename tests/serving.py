@@ -6,6 +6,10 @@ from __future__ import annotations
 import contextlib
 import http.client
 import json
+import os
+import signal
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -127,6 +131,41 @@ def hand_drawn() -> list[np.ndarray]:
         np.column_stack([np.cos(t[:50]), np.sin(t[:50])]) * 40,
         kidney,
     ]
+
+
+#: `links serve` starts its own Ray: of 2 CPUs, as the suite's.
+TWO_CPU_RAY = {"RAY_OVERRIDE_RESOURCES": json.dumps({"CPU": 2})}
+
+
+@contextlib.contextmanager
+def links_serve(root: str, port: int, log: Path) -> Iterator[Client]:
+    """`links serve ROOT --port PORT` in a child process, as a user runs it (its stderr to
+    `log`), until it says it is serving; Ctrl-C after, which must stop it cleanly."""
+    command = [sys.executable, "-m", "links_ray.cli", "serve", root, "--port", str(port)]
+    with log.open("w") as stderr:
+        server = subprocess.Popen(
+            command,
+            stdout=subprocess.PIPE,
+            stderr=stderr,
+            text=True,
+            env={**os.environ, **TWO_CPU_RAY},
+        )
+    try:
+        lines = []
+        for line in server.stdout:  # until it says it is serving (or exits)
+            lines.append(line)
+            if "links-ray: serving" in line:
+                break
+        said = "".join(lines[-20:]) + log.read_text()[-3000:]
+        assert lines and f"http://127.0.0.1:{port}/" in lines[-1], said
+        yield Client(port)
+        server.send_signal(signal.SIGINT)
+        rest, _ = server.communicate(timeout=120)
+        assert server.returncode == 0 and "Traceback" not in rest, rest
+    finally:
+        if server.poll() is None:
+            server.kill()
+            server.wait()
 
 
 def retrieved(client: Client, query: np.ndarray, k: int) -> list[dict]:

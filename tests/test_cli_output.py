@@ -25,6 +25,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
+from serving import TWO_CPU_RAY
 
 from links_ray.serve.app import bindable_port
 
@@ -56,10 +57,6 @@ ANSI_COLOUR = re.compile(r"\x1b\[[0-9;]*m")
 MECHANISMS = 20
 #: Seconds any one command may take, on a loaded machine, its kernels compiled on first use.
 COMMAND_TIMEOUT_S = 900
-#: The Ray each command starts has 2 CPUs, whatever the machine's count.
-TWO_CPU_RAY = {"RAY_OVERRIDE_RESOURCES": json.dumps({"CPU": 2})}
-
-
 #: Warnings of Ray's about real conditions a loaded machine can bring about on any run: they
 #: must show, and may.
 REAL_WARNINGS = (

@@ -1,7 +1,8 @@
 """Import of the LINKS release's own files: the restricted unpickler, the import into a root
 (bit-for-bit positions, the check against the release's trajectories, negatives, the release's
 curated set), its faults (a refused name, a batch cut short, a wrong shape), resume, and the
-root in use (stats, retrieval, synthesis)."""
+root in use (stats, retrieval, synthesis, `ray_dataset`, `links serve` and the studio), which
+only the import writes to."""
 
 from __future__ import annotations
 
@@ -11,12 +12,15 @@ import pickle
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 import pytest
 from fourbars import stretched_four_bar, window_slack
 from release_files import as_release, release_simulation, write_release
+from serving import links_serve
+from studio_page import draw, open_studio
 
 from links_ray.data import release_import
 from links_ray.data.commit import ShardWriter, committed_files, committed_shards
@@ -30,10 +34,11 @@ from links_ray.data.release_import import (
 )
 from links_ray.data.release_pickles import ReleaseFileError, read_batches, release_files
 from links_ray.data.shards import NEGATIVE_ID_BASE
-from links_ray.data.store import Store
+from links_ray.data.store import Store, StoreError
 from links_ray.engine.sampling import PositionSampler
 from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.topology import grow_topology
+from links_ray.serve.app import bindable_port
 
 
 def mechanisms(seed: int, batches: int, topologies: int) -> list[list[tuple]]:
@@ -61,7 +66,7 @@ def mechanisms(seed: int, batches: int, topologies: int) -> list[list[tuple]]:
 
 BATCHES = mechanisms(seed=5, batches=3, topologies=4)
 #: The release's curated (j, node) pairs per batch.
-CURATED = [[(0, 1), (0, 3), (7, 4)], [(12, 5)], [(3, 2), (19, 1)]]
+CURATED = [[(0, 1), (0, 3), (7, 4)], [(12, 5)], [(3, 2), (19, 1), (9, 7)]]
 
 
 def place(mechanism_id: int) -> tuple[int, int]:
@@ -470,6 +475,91 @@ def test_stats_cli_on_the_imported_root(imported: tuple[str, dict]) -> None:
         text=True,
     )
     assert result.returncode == 0, result.stderr
+
+
+def test_generating_or_curating_into_an_imported_root_is_refused(
+    imported: tuple[str, dict],
+) -> None:
+    """Its curated set is the release's: a seeded pass would mix another into it."""
+    from links_ray.cluster.curation import curate
+    from links_ray.cluster.generation import generate
+
+    root, summary = imported
+    said = "is an import of the LINKS release: only links import-release writes to it"
+    with pytest.raises(StoreError, match=said):
+        curate(root, progress=False)
+    with pytest.raises(StoreError, match=said):
+        generate(root, 10, progress=False)
+    assert len(read_table(root, "curated")) == summary["curated"]
+
+
+def test_ray_dataset_streams_the_imported_root(
+    imported: tuple[str, dict], ray_cluster: str
+) -> None:
+    from links_ray.cluster.datasets import ray_dataset
+
+    root, summary = imported
+    curated = read_table(root, "curated")
+    rows = ray_dataset(root, "curated", columns=["path_id", "mechanism_id", "joint"])
+    got = rows.take_all()
+    assert len(got) == summary["curated"] and sorted(r["path_id"] for r in got) == sorted(curated)
+    assert {(r["path_id"], r["mechanism_id"], r["joint"]) for r in got} == {
+        (i, row["mechanism_id"], row["joint"]) for i, row in curated.items()
+    }
+    mechanisms = ray_dataset(root, "mechanisms", n_joints=6, columns=["mechanism_id"])
+    six = [i for i, row in read_table(root, "mechanisms").items() if len(row["node_types"]) == 6]
+    assert sorted(r["mechanism_id"] for r in mechanisms.take_all()) == sorted(six) != []
+
+
+def test_links_serve_and_the_studio_work_on_the_imported_root(
+    imported: tuple[str, dict], browser: Any, tmp_path: Path
+) -> None:
+    """`links serve` on the imported root: retrieval finds an imported mechanism of the last
+    release batch by its own curve, synthesis refines to it, and the studio draws, retrieves
+    and opens it as the API answers."""
+    root, summary = imported
+    curated = read_table(root, "curated")
+    # Of the last batch, and no crank's circle (which every mechanism's joint 1 traces).
+    (target,) = [row for row in curated.values() if place(row["mechanism_id"]) == (2, 9)]
+    assert not target["is_circle"]
+    points = np.array(target["points"]).reshape(-1, 2)
+    # In the drawing area's middle (retrieval does not see where, or how large).
+    curve = 0.25 + 0.5 * (points - points.min(0)) / np.ptp(points, axis=0).max()
+    port = bindable_port("127.0.0.1", 0)
+    with links_serve(root, port, tmp_path / "stderr.txt") as client:
+        status, health = client.get("/api/health")
+        assert status == 200 and health["paths"] == summary["curated"]
+        status, found = client.post("/api/retrieve", {"points": curve.tolist(), "k": 3})
+        assert status == 200, found
+        best = found["results"][0]
+        assert best["mechanism_id"] == target["mechanism_id"] and best["chamfer"] < 1e-3
+        request = {"points": curve.tolist(), "k": 2, "seed": 0, "iterations": 20}
+        status, made = client.post("/api/synthesize", request)
+        assert status == 200, made
+        assert made["results"][0]["chamfer"] < 1e-4
+
+        with open_studio(browser, port) as studio:
+            draw(studio, curve.tolist())
+            drawn = studio.js("() => window.studio.retriever.points")
+            studio.page.get_by_test_id("k").fill("3")
+            studio.click("retrieve-button")
+            results = studio.page.get_by_test_id("result")
+            results.nth(2).wait_for()
+            _, expected = client.post("/api/retrieve", {"points": drawn, "k": 3})
+            chamfers = [float(results.nth(i).get_attribute("data-chamfer")) for i in range(3)]
+            assert chamfers == [r["chamfer"] for r in expected["results"]]
+            # Drawn by hand (a mouse), the curve still finds its mechanism first.
+            assert expected["results"][0]["mechanism_id"] == target["mechanism_id"]
+            results.nth(0).click()
+            studio.wait(
+                "() => document.querySelector('[data-testid=draw-canvas]')"
+                ".dataset.animating === 'true'"
+            )
+            chosen = studio.js("() => window.studio.retriever.chosen")
+            assert chosen["result"]["mechanism"] == expected["results"][0]["mechanism"]
+            studio.click("open-in-editor")
+            studio.wait_idle()
+            assert studio.mechanism() == expected["results"][0]["mechanism"]
 
 
 def test_the_command_prints_its_summary(tmp_path: Path) -> None:

@@ -32,6 +32,7 @@ from fourbars import stretched_four_bar, window_slack
 from serving import (
     FOUR_BAR,
     LOCKING_FOUR_BAR,
+    TWO_CPU_RAY,
     Client,
     command_line,
     descendants,
@@ -1161,9 +1162,6 @@ def test_the_replica_answers_http_itself(client: Client) -> None:
 
 #: The Ray a `links serve` of these tests starts has 2 CPUs, whatever the machine's count
 #: (Ray's own override of a node's resources): as on a 2-core laptop.
-TWO_CPU_RAY = {"RAY_OVERRIDE_RESOURCES": json.dumps({"CPU": 2})}
-
-
 @pytest.mark.parametrize("shards", [None, 2], ids=["one-index", "2-shards"])
 def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
     dataset: str, curated: Any, shards: int | None, tmp_path: Path

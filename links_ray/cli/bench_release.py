@@ -24,14 +24,17 @@ from links_ray.cli.bench import machine_info
 #: Mechanisms a batch, as in the release.
 BATCH = 100_000
 
-#: The child that imports and reports its own peak memory.
+#: The child that imports and reports its own peak memory: Linux's VmHWM, the high-water mark
+#: of its own address space. (`ru_maxrss` is no measure here: Linux carries it across the
+#: exec that starts the child, so it would report the exporting parent's peak.)
 _IMPORT = """
-import json, resource, sys, time
+import json, re, sys, time
+from pathlib import Path
 from links_ray.data.release_import import import_release
 start = time.perf_counter()
 summary = import_release(sys.argv[1], sys.argv[2])
 seconds = time.perf_counter() - start
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+peak = int(re.search(r"VmHWM:\\s+(\\d+) kB", Path("/proc/self/status").read_text())[1]) * 1024
 print(json.dumps({"seconds": seconds, "peak_bytes": peak, "summary": summary}))
 """
 

@@ -32,6 +32,7 @@ from links_ray.data.pathset import (
     path_batches,
     path_shares,
 )
+from links_ray.data.release_import import refuse_imported
 from links_ray.data.schemas import CURATION_TABLES, choose_tables
 from links_ray.data.store import META, Store, StoreError, diagnose
 from links_ray.engine.inputs import DEFAULT_STEPS
@@ -162,6 +163,8 @@ def _curate_holding(
     starting: Callable[[], None] | None = None,
 ) -> dict:
     """`curate`'s work, done while holding the root's writer lease."""
+    refuse_imported(store)
+    run = store.read_json(f"{META}/run.json") or {}
     generated = committed_shards(store, "shards")
     if not generated:
         raise StoreError(f"{store.uri} holds no generated shards: run links generate first")
@@ -173,7 +176,6 @@ def _curate_holding(
     }
     # A pass recorded before tables could be chosen wrote them both.
     store.claim(f"{META}/curation.json", settings, defaults={"tables": list(CURATION_TABLES)})
-    run = store.read_json(f"{META}/run.json") or {}
     steps = run.get("steps", DEFAULT_STEPS)  # of shards to simulate again
     curated = committed_shards(store, "curation")
     remove_uncommitted(store, "curation", curated)

@@ -24,6 +24,7 @@ from links_ray.cluster.connect import connect
 from links_ray.cluster.progress import Progress
 from links_ray.data.commit import committed_shards, remove_uncommitted
 from links_ray.data.lease import Lease, LeaseLost, holder_still
+from links_ray.data.release_import import refuse_imported
 from links_ray.data.schemas import GENERATION_TABLES
 from links_ray.data.shards import GenerationPlan, Shard, write_shard
 from links_ray.data.store import META, Store, StoreError
@@ -105,6 +106,7 @@ def generate(
             "topology_rules": "feasible",
             "min_transmission_deg": 0.0,
         }
+        refuse_imported(store)
         store.claim(f"{META}/run.json", plan.config(), defaults=before_options)
         committed = committed_shards(store, "shards")
         remove_uncommitted(store, "shards", committed)

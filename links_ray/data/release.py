@@ -14,8 +14,8 @@ trajectories (`pathset.trajectory_paths`: the same rows bit for bit); curated cu
 `curated` or chosen from the normalized ones with the recorded curation seed
 (`pathset.curated_mask`, seed 0 when the root was never curated, as `links curate` would).
 
-Import, the other direction, is `links_ray.data.release_import.import_release`, also
-importable from here.
+Import, the other direction, is `links_ray.data.release_import.import_release` (and
+`release_location`, a row's way back to the release), also importable from here.
 
 Pure numpy/pyarrow: no Ray.
 """
@@ -52,6 +52,7 @@ from links_ray.data.release_format import (
     release_trajectories_many,
 )
 from links_ray.data.release_import import import_release as import_release
+from links_ray.data.release_import import release_location as release_location
 from links_ray.data.splits import check_fractions, check_split, split_mask
 from links_ray.data.store import META, Store
 from links_ray.engine.inputs import DEFAULT_STEPS

@@ -53,7 +53,7 @@ from links_ray.data.release_format import RELEASE_STEPS, release_turn
 from links_ray.data.release_pickles import ReleaseFileError, read_batches, release_files
 from links_ray.data.schemas import SCHEMAS, TRAJECTORY_DTYPE, list_array
 from links_ray.data.shards import NEGATIVE_ID_BASE, VARIANTS
-from links_ray.data.store import META, Store
+from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.inputs import (
     ACTUATED,
     DEFAULT_STEPS,
@@ -67,7 +67,7 @@ from links_ray.engine.mechanism import MAX_DATASET_JOINTS, Topology, analyze_top
 from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.transmission import mechanism_transmission_deg
 
-__all__ = ["BATCH_STRIDE", "import_release", "release_location"]
+__all__ = ["BATCH_STRIDE", "import_release", "refuse_imported", "release_location"]
 
 #: Ids a release batch spans: a multiple of 5, so a batch's groups of five stay topologies.
 BATCH_STRIDE = VARIANTS * (1 << 22)
@@ -80,6 +80,8 @@ AGREEMENT_TOLERANCE = 1e-4
 #: Disagreeing mechanisms named in the import summary (every shard's marker names all of its).
 SHOWN_DISAGREEING = 100
 IMPORT_FORMAT = 1
+#: `run.json`'s source of an imported root.
+IMPORTED_SOURCE = "links-release"
 #: A mechanism's check against the release (`_release_check`), and the summary's count of each.
 VERDICTS = ("agree", "disagree", "locks", "unchecked")
 VERDICT_STATS = {
@@ -98,6 +100,16 @@ def release_location(mechanism_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     ids = np.asarray(mechanism_ids, dtype=np.int64)
     ids = np.where(ids >= NEGATIVE_ID_BASE, ids - NEGATIVE_ID_BASE, ids)
     return ids // BATCH_STRIDE, ids % BATCH_STRIDE
+
+
+def refuse_imported(store: Store) -> None:
+    """StoreError if `store` holds an import of the release: its curated set is the release's,
+    which generating or curating more would mix with a seeded one."""
+    if (store.read_json(f"{META}/run.json") or {}).get("source") == IMPORTED_SOURCE:
+        raise StoreError(
+            f"{store.uri} is an import of the LINKS release: only links import-release writes "
+            "to it (run it again to finish an interrupted import)"
+        )
 
 
 def _entries(value: Any, shown: str, width: int) -> list:
@@ -472,7 +484,7 @@ def import_release(
         store.claim(
             f"{META}/run.json",
             {
-                "source": "links-release",
+                "source": IMPORTED_SOURCE,
                 "release": source.uri,
                 "format": IMPORT_FORMAT,
                 "steps": DEFAULT_STEPS,
