@@ -28,6 +28,7 @@ from test_cli import links
 import links_ray
 from links_ray.engine.constraints import violation
 from links_ray.engine.inputs import (
+    MAX_CURVE_FILE_BYTES,
     REFINE_CHECK_STEPS,
     Constraints,
     as_constraints,
@@ -348,6 +349,20 @@ def test_links_synthesize_with_constraints_and_timing(dataset: str, tmp_path: Pa
     assert done.returncode == 2
     assert done.stderr.startswith("links synthesize: error: unknown constraint 'pivot'")
     assert done.stderr.count("\n") == 1
+    # A file that is no JSON, or too large to be a designer's, is named and refused.
+    for text, said in (
+        ("{pivots", "not JSON"),
+        (" " * MAX_CURVE_FILE_BYTES + "{}", f"larger than {MAX_CURVE_FILE_BYTES:,} bytes"),
+    ):
+        constraints.write_text(text)
+        done = links(
+            "synthesize", dataset, "--points", str(points), "--constraints", str(constraints)
+        )
+        assert done.returncode == 2
+        assert done.stderr.startswith(
+            f"links synthesize: error: --constraints {constraints}: {said}"
+        )
+        assert done.stderr.count("\n") == 1
 
 
 def test_http_synthesize_keeps_constraints_and_says_unmet(

@@ -6,13 +6,14 @@ first `batches` batches of BATCH mechanisms each, in mechanism_id order, joint c
 the release holds them. Then they are imported (`import_release`), timed, in a child process
 whose peak memory is the import's own (the export's batch is not counted in it).
 
-Reported: mechanisms, seconds and mechanisms a second of the import (and of the export),
-the import's peak resident memory, and its summary's check against the release's trajectories.
+Reported: mechanisms, seconds, mechanisms a second and peak resident memory of the import and
+of the export, and the import summary's check against the release's trajectories.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import tempfile
@@ -24,19 +25,24 @@ from links_ray.cli.bench import machine_info
 #: Mechanisms a batch, as in the release.
 BATCH = 100_000
 
-#: The child that imports and reports its own peak memory: Linux's VmHWM, the high-water mark
-#: of its own address space. (`ru_maxrss` is no measure here: Linux carries it across the
-#: exec that starts the child, so it would report the exporting parent's peak.)
+#: The child that imports and reports its own peak memory (`high_water_bytes`: `ru_maxrss` is
+#: no measure here, as Linux carries it across the exec that starts the child, so it would
+#: report the exporting parent's peak).
 _IMPORT = """
-import json, re, sys, time
-from pathlib import Path
+import json, sys, time
+from links_ray.cli.bench_release import high_water_bytes
 from links_ray.data.release_import import import_release
 start = time.perf_counter()
 summary = import_release(sys.argv[1], sys.argv[2])
 seconds = time.perf_counter() - start
-peak = int(re.search(r"VmHWM:\\s+(\\d+) kB", Path("/proc/self/status").read_text())[1]) * 1024
-print(json.dumps({"seconds": seconds, "peak_bytes": peak, "summary": summary}))
+print(json.dumps({"seconds": seconds, "peak_bytes": high_water_bytes(), "summary": summary}))
 """
+
+
+def high_water_bytes() -> int:
+    """This process's peak resident memory so far (Linux's VmHWM)."""
+    status = Path("/proc/self/status").read_text()
+    return int(re.search(r"VmHWM:\s+(\d+) kB", status)[1]) * 1024
 
 
 def bench_import(batches: int = 2, paths: int = 1_000_000) -> dict:
@@ -51,6 +57,7 @@ def bench_import(batches: int = 2, paths: int = 1_000_000) -> dict:
         start = time.perf_counter()
         exported = export_release_files(root, str(release), chunk_size=BATCH, batches=batches)
         export_s = time.perf_counter() - start
+        export_peak = high_water_bytes()  # the bench's own, the export's being the largest
         sizes = {file.name: file.stat().st_size for file in release.iterdir()}
         done = subprocess.run(
             [sys.executable, "-c", _IMPORT, str(release), str(imported)],
@@ -69,6 +76,7 @@ def bench_import(batches: int = 2, paths: int = 1_000_000) -> dict:
         "release_bytes": sizes,
         "export_s": export_s,
         "export_per_s": mechanisms / export_s,
+        "export_peak_bytes": export_peak,
         "import_s": measured["seconds"],
         "import_per_s": mechanisms / measured["seconds"],
         "import_peak_bytes": measured["peak_bytes"],
@@ -94,7 +102,8 @@ def format_import(result: dict) -> str:
             f"{result['batch_size']:,} ({files})",
             f"import: {result['import_s']:.0f} s, {result['import_per_s']:,.0f} mechanisms/s, "
             f"peak memory {gib:.2f} GiB",
-            f"export: {result['export_s']:.0f} s, {result['export_per_s']:,.0f} mechanisms/s",
+            f"export: {result['export_s']:.0f} s, {result['export_per_s']:,.0f} mechanisms/s, "
+            f"peak memory {result['export_peak_bytes'] / 2**30:.2f} GiB",
             f"check against the release's trajectories: {json.dumps(check)}, worst error "
             f"{summary['worst_error']:.2g}",
         ]

@@ -212,7 +212,10 @@ def _json_file(path: str | None, option: str) -> object:
         return None
     try:
         with open(path, "rb") as stream:
-            return json.loads(stream.read(MAX_CURVE_FILE_BYTES + 1))
+            data = stream.read(MAX_CURVE_FILE_BYTES + 1)
+        if len(data) > MAX_CURVE_FILE_BYTES:
+            raise ValueError(f"{option} {path}: larger than {MAX_CURVE_FILE_BYTES:,} bytes")
+        return json.loads(data)
     except OSError as exc:
         raise ValueError(f"{option} {path}: {exc.strerror or exc}") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

@@ -643,7 +643,12 @@ def _write_release_batch(
     lists = (dataset, simulations, normalized, curated)
     counts = [len(values) for values in lists]
     for name, values in zip(RELEASE_FILES, lists, strict=True):
-        pickle.dump(values, streams[name], protocol=RELEASE_PICKLE_PROTOCOL)
+        pickler = pickle.Pickler(streams[name], protocol=RELEASE_PICKLE_PROTOCOL)
+        # No memo: it would hold a copy of every array's bytes until the whole list is written
+        # (2.2 GB more for a batch's simulations), where the pickler otherwise streams it.
+        # Nothing in these lists is referenced twice, so a reader sees the same objects.
+        pickler.fast = True
+        pickler.dump(values)
         # Let each file's arrays go once written (the simulations are the largest).
         values.clear()
     first_rows, _, _ = batch[0]

@@ -83,13 +83,13 @@ IMPORT_FORMAT = 1
 #: `run.json`'s source of an imported root.
 IMPORTED_SOURCE = "links-release"
 #: A mechanism's check against the release (`_release_check`), and the summary's count of each.
-VERDICTS = ("agree", "disagree", "locks", "unchecked")
 VERDICT_STATS = {
     "agree": "agreeing",
     "disagree": "disagreeing",
     "locks": "locking_at_release_angles",
     "unchecked": "unchecked",
 }
+VERDICTS = tuple(VERDICT_STATS)
 #: Called with "batch <b> committed" after each release batch's shards are all committed:
 #: the fault tests' way to stop an import between batches.
 Failpoint = Callable[[str], None]
