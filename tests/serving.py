@@ -138,13 +138,16 @@ TWO_CPU_RAY = {"RAY_OVERRIDE_RESOURCES": json.dumps({"CPU": 2})}
 
 
 @contextlib.contextmanager
-def links_serve(root: str, port: int, log: Path) -> Iterator[Client]:
-    """`links serve ROOT --port PORT` in a child process, as a user runs it (its stderr to
-    `log`), until it says it is serving; Ctrl-C after, which must stop it cleanly."""
+def links_serve(
+    root: str, port: int, log: Path, options: tuple[str, ...] = (), stop: int = signal.SIGINT
+) -> Iterator[Client]:
+    """`links serve ROOT --port PORT OPTIONS` in a child process, as a user runs it (its stderr
+    to `log`), until it says it is serving; then the signal `stop` (Ctrl-C by default), which
+    must stop it cleanly, saying so."""
     command = [sys.executable, "-m", "links_ray.cli", "serve", root, "--port", str(port)]
     with log.open("w") as stderr:
         server = subprocess.Popen(
-            command,
+            [*command, *options],
             stdout=subprocess.PIPE,
             stderr=stderr,
             text=True,
@@ -159,9 +162,10 @@ def links_serve(root: str, port: int, log: Path) -> Iterator[Client]:
         said = "".join(lines[-20:]) + log.read_text()[-3000:]
         assert lines and f"http://127.0.0.1:{port}/" in lines[-1], said
         yield Client(port)
-        server.send_signal(signal.SIGINT)
+        server.send_signal(stop)
         rest, _ = server.communicate(timeout=120)
-        assert server.returncode == 0 and "Traceback" not in rest, rest
+        assert server.returncode == 0, rest
+        assert "links-ray: shutting down" in rest and "Traceback" not in rest, rest
     finally:
         if server.poll() is None:
             server.kill()

@@ -36,6 +36,7 @@ from serving import (
     Client,
     command_line,
     descendants,
+    links_serve,
     processes_mentioning,
 )
 
@@ -1171,26 +1172,10 @@ def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
     CPUs, `--shards 2` does not fit at 1 CPU a shard beside the front's 1: the shards share
     the CPU the front leaves, said in one line on stderr."""
     port = bindable_port("127.0.0.1", 0)
-    sharding = [] if shards is None else ["--shards", str(shards)]
+    sharding = () if shards is None else ("--shards", str(shards))
     errors = tmp_path / "stderr.txt"
-    command = [sys.executable, "-m", "links_ray.cli", "serve", dataset, "--port", str(port)]
-    with errors.open("w") as stderr:
-        server = subprocess.Popen(
-            [*command, *sharding],
-            stdout=subprocess.PIPE,
-            stderr=stderr,
-            text=True,
-            env={**os.environ, **TWO_CPU_RAY},
-        )
-    try:
-        lines = []
-        for line in server.stdout:  # until it says it is serving (or exits)
-            lines.append(line)
-            if "links-ray: serving" in line:
-                break
-        said = "".join(lines[-20:]) + errors.read_text()[-3000:]
-        assert lines and f"http://127.0.0.1:{port}/" in lines[-1], said
-        served = Client(port)
+    stop = signal.SIGINT if shards is None else signal.SIGTERM
+    with links_serve(dataset, port, errors, sharding, stop) as served:
         status, health = served.get("/api/health")
         assert status == 200 and health["paths"] == len(curated)
         assert len(health.get("shards", [])) == (shards or 0)
@@ -1206,15 +1191,7 @@ def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
         )
         assert taken.returncode == 2
         assert taken.stderr.strip().endswith(f"port {port}: Address already in use")
-        server.send_signal(signal.SIGINT if shards is None else signal.SIGTERM)
-        rest, _ = server.communicate(timeout=120)
-        assert server.returncode == 0, rest
-        assert "links-ray: shutting down" in rest and "Traceback" not in rest
-        assert listening_process(port) == ""
-    finally:
-        if server.poll() is None:
-            server.kill()
-            server.wait()
+    assert listening_process(port) == ""
     notices = [line for line in errors.read_text().splitlines() if "shard replicas" in line]
     if shards is None:
         assert notices == []
