@@ -458,23 +458,35 @@ def test_stats_retrieval_and_synthesis_work_on_the_imported_root(
     assert {r["path_id"] for r in found} <= {r["path_id"] for r in index.retrieve(query, k=50)}
 
 
-def test_stats_cli_on_the_imported_root(imported: tuple[str, dict]) -> None:
-    root, _ = imported
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "links_ray.cli",
-            "stats",
-            root,
-            "--sample-topologies",
-            "1",
-            "--json",
-        ],
-        capture_output=True,
-        text=True,
-    )
-    assert result.returncode == 0, result.stderr
+def test_stats_retrieve_and_synthesize_commands_on_the_imported_root(
+    imported: tuple[str, dict], tmp_path: Path
+) -> None:
+    """The commands as a user types them: stats counts the imported rows; retrieve and
+    synthesize find an imported mechanism of the second release batch by its own curve."""
+    root, summary = imported
+
+    def links(*args: str) -> dict:
+        done = subprocess.run(
+            [sys.executable, "-m", "links_ray.cli", *args, "--json"],
+            capture_output=True,
+            text=True,
+        )
+        assert done.returncode == 0, done.stderr
+        return json.loads(done.stdout)
+
+    stats = links("stats", root, "--sample-topologies", "1")
+    assert stats["counts"]["curated"]["rows"] == summary["curated"]
+    assert stats["counts"]["mechanisms"]["rows"] == summary["mechanisms"]
+    (target,) = [
+        row for row in read_table(root, "curated").values() if place(row["mechanism_id"]) == (1, 12)
+    ]
+    points = tmp_path / "curve.json"
+    points.write_text(json.dumps((np.array(target["points"]).reshape(-1, 2) * 2 - 1).tolist()))
+    found = links("retrieve", root, "--points", str(points))["results"]
+    assert found[0]["mechanism_id"] == target["mechanism_id"] and found[0]["chamfer"] < 1e-3
+    work = ("--iterations", "20", "--seed", "0")
+    made = links("synthesize", root, "--points", str(points), "-k", "2", *work)["results"]
+    assert made[0]["chamfer"] < 1e-4
 
 
 def test_generating_or_curating_into_an_imported_root_is_refused(
