@@ -139,8 +139,9 @@ def _array(value: Any, shown: str, name: str, shape: tuple[int, ...], dtype: typ
 
 
 class _Batch:
-    """One release batch, checked: its mechanisms by joint count, the release's simulations
-    and curated pairs of it."""
+    """One release batch, checked: its mechanisms, each one's check against the release's
+    simulation of it (the simulations themselves are not kept), and the release's curated
+    (j, node) pairs of it."""
 
     def __init__(self, shown: str, batch: int, value: Any) -> None:
         self.batch = batch
