@@ -21,6 +21,7 @@ from fourbars import stretched_four_bar, window_slack
 from release_files import as_release, release_simulation, write_release
 from serving import links_serve
 from studio_page import draw, open_studio
+from test_cli import links
 
 from links_ray.data import release_import
 from links_ray.data.commit import ShardWriter, committed_files, committed_shards
@@ -465,16 +466,12 @@ def test_stats_retrieve_and_synthesize_commands_on_the_imported_root(
     synthesize find an imported mechanism of the second release batch by its own curve."""
     root, summary = imported
 
-    def links(*args: str) -> dict:
-        done = subprocess.run(
-            [sys.executable, "-m", "links_ray.cli", *args, "--json"],
-            capture_output=True,
-            text=True,
-        )
+    def answer(*args: str) -> dict:
+        done = links(*args, "--json")
         assert done.returncode == 0, done.stderr
         return json.loads(done.stdout)
 
-    stats = links("stats", root, "--sample-topologies", "1")
+    stats = answer("stats", root, "--sample-topologies", "1")
     assert stats["counts"]["curated"]["rows"] == summary["curated"]
     assert stats["counts"]["mechanisms"]["rows"] == summary["mechanisms"]
     (target,) = [
@@ -482,10 +479,10 @@ def test_stats_retrieve_and_synthesize_commands_on_the_imported_root(
     ]
     points = tmp_path / "curve.json"
     points.write_text(json.dumps((np.array(target["points"]).reshape(-1, 2) * 2 - 1).tolist()))
-    found = links("retrieve", root, "--points", str(points))["results"]
+    found = answer("retrieve", root, "--points", str(points))["results"]
     assert found[0]["mechanism_id"] == target["mechanism_id"] and found[0]["chamfer"] < 1e-3
     work = ("--iterations", "20", "--seed", "0")
-    made = links("synthesize", root, "--points", str(points), "-k", "2", *work)["results"]
+    made = answer("synthesize", root, "--points", str(points), "-k", "2", *work)["results"]
     assert made[0]["chamfer"] < 1e-4
 
 

@@ -163,8 +163,7 @@ def _curate_holding(
     starting: Callable[[], None] | None = None,
 ) -> dict:
     """`curate`'s work, done while holding the root's writer lease."""
-    refuse_imported(store)
-    run = store.read_json(f"{META}/run.json") or {}
+    run = refuse_imported(store)
     generated = committed_shards(store, "shards")
     if not generated:
         raise StoreError(f"{store.uri} holds no generated shards: run links generate first")

@@ -102,14 +102,17 @@ def release_location(mechanism_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return ids // BATCH_STRIDE, ids % BATCH_STRIDE
 
 
-def refuse_imported(store: Store) -> None:
-    """StoreError if `store` holds an import of the release: its curated set is the release's,
-    which generating or curating more would mix with a seeded one."""
-    if (store.read_json(f"{META}/run.json") or {}).get("source") == IMPORTED_SOURCE:
+def refuse_imported(store: Store) -> dict:
+    """The root's run record (`run.json`, {} if none); StoreError if `store` holds an import of
+    the release: its curated set is the release's, which generating or curating more would mix
+    with a seeded one."""
+    run = store.read_json(f"{META}/run.json") or {}
+    if run.get("source") == IMPORTED_SOURCE:
         raise StoreError(
             f"{store.uri} is an import of the LINKS release: only links import-release writes "
             "to it (run it again to finish an interrupted import)"
         )
+    return run
 
 
 def _entries(value: Any, shown: str, width: int) -> list:
@@ -516,10 +519,10 @@ def import_release(
         for number, _, value in read_batches(source, data_file):
             batch = _Batch(shown, number, value)
             del value
-            shard_ids = {
-                n: SHARDS_PER_BATCH * number + n for n in np.unique(batch.n_joints).tolist()
-            }
-            pending = [n for n, i in shard_ids.items() if i not in generated or i not in curated]
+            shards = [
+                (n, SHARDS_PER_BATCH * number + n) for n in np.unique(batch.n_joints).tolist()
+            ]
+            pending = [(n, i) for n, i in shards if i not in generated or i not in curated]
             # One file's batch in memory at a time: each is reduced to what the import keeps
             # (verdicts, curated pairs) before the next is read. A batch an earlier run
             # committed is read only to reach the next.
@@ -533,8 +536,7 @@ def import_release(
                     f"{source.uri}/{curated_file}",
                     _next_batch(chosen, f"{source.uri}/{curated_file}", number),
                 )
-            for n in pending:
-                shard_id = SHARDS_PER_BATCH * number + n
+            for n, shard_id in pending:
                 curated[shard_id] = _import_shard(
                     store, batch, shown, n, seed, shard_id, generated, fence
                 )

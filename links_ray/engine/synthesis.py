@@ -367,24 +367,28 @@ def refine_retrieved(
         found = pool.map(prepared, enumerate(retrieved))
         candidates = [c for c in found if c is not None]
         # The measure reported, when, and the best candidate's rank last looked at.
-        reported: list[Any] = [(True, math.inf, math.inf), -math.inf, None]
+        reported_rank: tuple = (True, math.inf, math.inf)
+        reported_at = -math.inf
+        looked_at: tuple | None = None
 
         def report() -> None:
+            nonlocal reported_rank, reported_at, looked_at
             now = time.perf_counter()
-            if progress is None or not candidates or now - reported[1] < PROGRESS_INTERVAL_S:
+            if progress is None or not candidates or now - reported_at < PROGRESS_INTERVAL_S:
                 return
             best = min(candidates, key=_Candidate.rank)
-            if best.rank() == reported[2]:  # nothing kept since: no answer to measure
+            best_rank = best.rank()
+            if best_rank == looked_at:  # nothing kept since: no answer to measure
                 return
-            reported[2] = best.rank()
+            looked_at = best_rank
             # Measured from the positions read now (a worker may have moved them on since its
             # rank), by the answer's own measure (the timed error once timing ranks): the
             # reports must fall as the answer's measures do.
             answer = _as_result(best, target, timed, trajectories=True, elapsed=now - started)
             measured = answer["timed_error"] if timed is not None else answer["chamfer"]
             rank = (not best.missed.kept, best.missed.total, measured)
-            if rank < reported[0]:
-                reported[:2] = [rank, now]
+            if rank < reported_rank:
+                reported_rank, reported_at = rank, now
                 progress(answer)
 
         report()
