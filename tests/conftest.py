@@ -495,6 +495,10 @@ def scale_root(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> st
     return str(root)
 
 
+#: The one host name the `client` fixture's app answers to besides addresses and localhost.
+ALLOWED_HOST = "links.test"
+
+
 @pytest.fixture(scope="module")
 def client(dataset: str, serve_port: int) -> Iterator[Client]:
     """The links app for one test module, answering on `serve_port` from its replica as
@@ -511,7 +515,9 @@ def client(dataset: str, serve_port: int) -> Iterator[Client]:
         http_options={"host": "127.0.0.1", "port": proxy_port}, logging_config=no_access_log
     )
     try:
-        serve.run(build_app(dataset), name="links", route_prefix="/", logging_config=no_access_log)
+        # The name `allowed_host` is the one the host check's test sends besides addresses.
+        app = build_app(dataset, allowed_hosts=[ALLOWED_HOST])
+        serve.run(app, name="links", route_prefix="/", logging_config=no_access_log)
         print(f"\nServe app ready on 127.0.0.1:{serve_port} in {time.perf_counter() - start:.1f} s")
         yield Client(serve_port, proxy=Client(proxy_port))
     finally:

@@ -38,16 +38,18 @@ class Client:
         method: str,
         path: str,
         body: bytes | Any = None,
-        headers: dict[str, str] | None = None,
+        headers: dict[str, str | None] | None = None,
         connection: http.client.HTTPConnection | None = None,
         chunked: bool = False,
     ) -> tuple[int, dict[str, str], Any]:
-        """(status, headers, JSON body or text) of one request."""
+        """(status, headers, JSON body or text) of one request; a header given as None is
+        not sent (a body's Content-Type is application/json unless given)."""
         headers = dict(headers or {})
         if body is not None and not isinstance(body, bytes):
             body = json.dumps(body).encode()
         if body is not None:
             headers.setdefault("Content-Type", "application/json")
+        headers = {name: value for name, value in headers.items() if value is not None}
         conn = connection or http.client.HTTPConnection("127.0.0.1", self.port, timeout=60)
         try:
             if chunked:

@@ -451,9 +451,9 @@ def sim_raw(name: str, text: str, words: str) -> Any:
     return bad(name, "/api/simulate", FOUR_BAR_JSON.replace("0.8", text).encode(), words)
 
 
-def ret_raw(name: str, text: str, words: str, status: int = 400) -> Any:
-    """A retrieval body written out by hand."""
-    return bad(name, "/api/retrieve", text.encode(), words, status)
+def ret_raw(name: str, text: str, words: str, route: str = "/api/retrieve") -> Any:
+    """A body written out by hand (PTS stands for the points), posted to `route`."""
+    return bad(name, route, text.replace("PTS", json.dumps(POINTS)).encode(), words)
 
 
 NESTED = "[" * 50_000 + "]" * 50_000
@@ -476,7 +476,7 @@ BAD_REQUESTS = [
         "text/plain",
         "/api/retrieve",
         b"{}",
-        "the body must be JSON (Content-Type application/json), got 'text/plain'",
+        "the body must be JSON, sent as Content-Type application/json: got 'text/plain'",
         415,
         headers={"Content-Type": "text/plain"},
     ),
@@ -487,6 +487,42 @@ BAD_REQUESTS = [
         "got 'multipart/form-data'",
         415,
         headers={"Content-Type": "multipart/form-data"},
+    ),
+    # What a page of another site can post without a preflight: no type, or a plain one.
+    bad(
+        "no Content-Type",
+        "/api/curve",
+        json.dumps({"name": "a.json", "text": "[[0,0],[1,1],[2,0]]"}).encode(),
+        "sent as Content-Type application/json: none was given",
+        415,
+        headers={"Content-Type": None},
+    ),
+    bad(
+        "urlencoded",
+        "/api/synthesize",
+        json.dumps({"points": POINTS}).encode(),
+        "got 'application/x-www-form-urlencoded'",
+        415,
+        headers={"Content-Type": "application/x-www-form-urlencoded"},
+    ),
+    # Numbers past float64, in every field that takes a number; the lone surrogate once sent
+    # such a body to a second parser, which read them as exact integers.
+    *(
+        ret_raw(f"{digits}-digit {field}", text.replace("BIG", "1" + "0" * digits), words, route)
+        for digits in (310, 4300)
+        for field, text, route in (
+            ("seconds", '{"points": PTS, "seconds": BIG, "id": "\\ud800"}', "/api/synthesize"),
+            ("min_transmission", '{"points": PTS, "min_transmission": BIG}', "/api/retrieve"),
+            ("timing", '{"points": PTS, "timing": [0, BIG, 2, 3]}', "/api/synthesize"),
+            (
+                "box",
+                '{"points": PTS, "constraints": {"pivots": [0, 0, BIG, 1]}}',
+                "/api/synthesize",
+            ),
+            ("crank_mm", FOUR_BAR_JSON[:-1] + ', "crank_mm": BIG}', "/api/export"),
+            ("k", '{"points": PTS, "k": BIG}', "/api/retrieve"),
+        )
+        for words in ("number is infinity when parsed as double",)
     ),
     # /api/simulate: missing fields, wrong types, wrong shapes, limits.
     bad("missing all", "/api/simulate", {}, "missing field 'adjacency'"),
@@ -566,8 +602,8 @@ BAD_REQUESTS = [
     ),
     sim_raw("NaN literal", "NaN", f"{NOT_JSON}: NaN is not a JSON number"),
     sim_raw("Infinity literal", "Infinity", f"{NOT_JSON}: Infinity is not a JSON number"),
-    sim_raw("overflow to inf", "1e999", "positions[2] must hold finite numbers"),
-    sim_raw("integer beyond float", "9" * 400, "positions[2] must hold finite numbers"),
+    sim_raw("overflow to inf", "1e999", f"{NOT_JSON}: number is infinity when parsed as double"),
+    sim_raw("integer beyond float", "9" * 400, "number is infinity when parsed as double"),
     sim("steps string", "steps must be an integer from 1 to 100000, got '200'", steps="200"),
     sim("steps true", "steps must be an integer from 1 to 100000, got True", steps=True),
     sim("steps float", "steps must be an integer from 1 to 100000, got 200.5", steps=200.5),
@@ -643,12 +679,12 @@ BAD_REQUESTS = [
     ret_raw(
         "overflow to inf",
         '{"points": [[0, 0], [1, 1e999], [2, 0]]}',
-        "points[1] must hold finite numbers",
+        f"{NOT_JSON}: number is infinity when parsed as double",
     ),
     ret_raw(
         "integer beyond float",
         '{"points": [[0, 0], [1, ' + "9" * 400 + "], [2, 0]]}",
-        "points[1] must hold finite numbers",
+        f"{NOT_JSON}: number is infinity when parsed as double",
     ),
     ret(
         "coordinates huge",
@@ -977,6 +1013,38 @@ def test_a_body_that_stalls_or_trickles_is_cut_off_with_408(client: Client) -> N
     assert client.get("/api/health")[0] == 200
 
 
+def test_clients_that_send_only_headers_hold_no_place(client: Client, curated: Any) -> None:
+    """Ten clients that send a retrieval's headers and never its body each get 408 once
+    BODY_TIMEOUT_S have passed, and meanwhile an eleventh, real retrieval is answered 200:
+    a place among a replica's MAX_RETRIEVALS is claimed only once a body has been read."""
+    from links_ray.serve.deployments import MAX_RETRIEVALS
+
+    timeout = inputs.BODY_TIMEOUT_S
+    silent = MAX_RETRIEVALS + 2
+    found: list[dict[str, Any]] = []
+    lock = threading.Lock()
+
+    def headers_only() -> None:
+        answer = raw_post(client.port, 100, [])
+        with lock:
+            found.append(answer)
+
+    threads = [threading.Thread(target=headers_only) for _ in range(silent)]
+    for thread in threads:
+        thread.start()
+    time.sleep(1.0)  # every one of them has sent its headers and waits
+    status, data = client.post("/api/retrieve", {"points": curated.points.iloc[0].tolist()})
+    assert status == 200 and len(data["results"]) == 3, (status, data)
+    for thread in threads:
+        thread.join()
+    assert len(found) == silent
+    for answer in found:
+        assert answer["status"] == 408, answer
+        assert answer["body"]["error"].startswith("the body came too slowly (0 bytes"), answer
+        assert answer["closed"], answer
+        assert timeout - 0.5 <= answer["seconds"] < timeout + 20, answer
+
+
 def test_still_serving_after_bad_requests(client: Client, curated: Any) -> None:
     from ray import serve
 
@@ -1089,6 +1157,59 @@ def test_app_builder_args(dataset: str, tmp_path: Path) -> None:
         build_app(dataset, replicas=0)
     with pytest.raises(ValueError, match="shard_cpus must be a positive number, got 0"):
         build_app(dataset, shards=2, shard_cpus=0)
+
+
+def test_allowed_hosts_args(dataset: str) -> None:
+    from links_ray.serve.app import app_builder, build_app
+
+    app_builder({"root": dataset, "allowed_hosts": ["links.example.org", "*"]})
+    for bad, message in (
+        ("links.example.org", "allowed hosts must be a list of host names, got str"),
+        (["links example"], "'links example' is not a host name"),
+        ([""], "'' is not a host name"),
+        ([7], "7 is not a host name"),
+        (["a" * 254], "is not a host name"),
+    ):
+        with pytest.raises(ValueError, match=f"args.allowed_hosts: .*{message}"):
+            app_builder({"root": dataset, "allowed_hosts": bad})
+        with pytest.raises(ValueError, match=message):
+            build_app(dataset, allowed_hosts=bad)
+
+
+def test_a_host_it_was_not_told_of_gets_400(client: Client) -> None:
+    """A request for a DNS name the server was not given (how a web page reaches a loopback
+    server through a name it controls) is refused 400 before its body is read, through the
+    replica and through Serve's proxy; addresses, localhost and the allowed name are answered."""
+    from conftest import ALLOWED_HOST
+
+    port = client.port
+    for way in (client, client.proxy):
+        for host in ("attacker.example", f"attacker.example:{port}", "127.0.0.1.nip.io", "local"):
+            status, _, data = way.request("POST", "/api/simulate", FOUR_BAR, {"Host": host})
+            assert status == 400, (host, status, data)
+            assert data["error"].startswith(f"Host {host!r}: this server answers its addresses")
+            assert "--allow-host" in data["error"]
+        for host in (
+            f"127.0.0.1:{port}",
+            "127.0.0.1",
+            f"[::1]:{port}",
+            f"localhost:{port}",
+            "studio.localhost",
+            f"{ALLOWED_HOST}:{port}",
+            ALLOWED_HOST.upper(),
+        ):
+            status, _, data = way.request("POST", "/api/simulate", FOUR_BAR, {"Host": host})
+            assert status == 200, (host, status, data)
+    # HTTP/1.0 lets a request leave its host unsaid; one without is refused as well.
+    import socket
+
+    with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
+        sock.sendall(b"GET /api/health HTTP/1.0\r\n\r\n")
+        answer = b""
+        while chunk := sock.recv(65536):
+            answer += chunk
+    assert answer.startswith(b"HTTP/1.1 400"), answer[:200]
+    assert b"no Host header" in answer
 
 
 def _curated_shards(root: str) -> int:

@@ -149,6 +149,7 @@ def _serve(args: argparse.Namespace) -> None:
         shards=args.shards,
         shard_cpus=args.shard_cpus,
         shard_memory_gb=args.shard_memory_gb,
+        allowed_hosts=args.allow_host,
     )
 
 
@@ -582,6 +583,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=_positive_float,
         default=None,
         help="memory Ray reserves for each shard replica, in GB (default none)",
+    )
+    serve.add_argument(
+        "--allow-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a host name the server answers to besides its addresses and localhost (the name "
+        "a proxy or DNS gives it; repeatable; * for any): others get 400",
     )
     serve.set_defaults(run=_serve)
 

@@ -135,8 +135,36 @@ class InvalidMechanismError(ValueError):
 
 def shown(value: object) -> str:
     """`value` for a message: its repr, cut short (a request may send megabytes)."""
+    if isinstance(value, int | np.integer) and abs(int(value)).bit_length() > 128:
+        # Python refuses to write out integers of more than 4,300 digits; none is needed.
+        return f"an integer of {abs(int(value)).bit_length()} bits"
     text = str(int(value)) if isinstance(value, np.integer) else repr(value)
     return text if len(text) <= 40 else text[:37] + "..."
+
+
+def as_real(name: str, value: object, kind: str = "a number") -> float:
+    """`value`, a real number (bools are not), as a float; else ValueError naming `name` and
+    saying it must be `kind`. An integer beyond float64's range is refused too, where
+    `float()` would raise OverflowError: every numeric field of every input goes through here
+    (or `as_real_array`), so that no number can escape as anything but a ValueError."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"{name} must be {kind}, got {shown(value)}")
+    try:
+        return float(value)
+    except OverflowError:
+        raise ValueError(
+            f"{name} must be {kind} within +-{np.finfo(np.float64).max:.3g}, got {shown(value)}"
+        ) from None
+
+
+def as_real_array(name: str, value: object, wanted: str) -> np.ndarray:
+    """`value` (nested sequences of numbers) as a float64 array, or ValueError saying `name`
+    must be `wanted`: for ragged or non-numeric entries, integers beyond float64's range and
+    nesting too deep to walk. The caller checks the shape and finiteness."""
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError, RecursionError):
+        raise ValueError(f"{name} must be {wanted}") from None
 
 
 def as_int(
@@ -334,9 +362,7 @@ def as_max_joints(value: object, name: str = "max_joints") -> int | None:
 def as_transmission_deg(value: object, name: str = "margin_deg") -> float:
     """A least transmission angle in degrees, from 0 to MAX_TRANSMISSION_DEG, or ValueError
     naming the option `name`."""
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ValueError(f"{name} must be a number of degrees, got {shown(value)}")
-    degrees = float(value)
+    degrees = as_real(name, value, "a number of degrees")
     if not 0.0 <= degrees <= MAX_TRANSMISSION_DEG:
         raise ValueError(
             f"{name} must be from 0 to {MAX_TRANSMISSION_DEG:g} degrees, got {degrees:g}"
@@ -361,9 +387,7 @@ def check_refine_size(n_joints: int, steps: int) -> None:
 def _positive_at_most(value: object, name: str, maximum: float, kind: str, unit: str) -> float:
     """`value` as a float in (0, maximum], or ValueError naming `name`: "must be `kind`" when
     it is no number, its range in `unit` when out of it."""
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ValueError(f"{name} must be {kind}, got {shown(value)}")
-    number = float(value)
+    number = as_real(name, value, kind)
     if not 0.0 < number <= maximum:
         raise ValueError(
             f"{name} must be more than 0 and at most {maximum:g}{unit}, got {number:g}"
@@ -441,10 +465,7 @@ def _as_box(value: object, name: str) -> tuple[float, float, float, float]:
     """[xmin, ymin, xmax, ymax] as four finite floats, each min below its max."""
     if isinstance(value, str | bytes | dict) or not hasattr(value, "__len__"):
         raise ValueError(f"{name} must be a box [xmin, ymin, xmax, ymax], got {shown(value)}")
-    try:
-        box = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be four numbers [xmin, ymin, xmax, ymax]") from None
+    box = as_real_array(name, value, "four numbers [xmin, ymin, xmax, ymax]")
     if box.shape != (4,) or any(isinstance(v, bool) for v in value):  # type: ignore[union-attr]
         raise ValueError(f"{name} must be four numbers [xmin, ymin, xmax, ymax]")
     if not np.all(np.isfinite(box)) or np.any(np.abs(box) > MAX_COORDINATE):
@@ -504,10 +525,7 @@ def as_timing(timing: object, count: int, partial: bool) -> np.ndarray | None:
         raise ValueError(f"timing must be true or a list of angles in degrees, got {shown(timing)}")
     if any(isinstance(v, bool) for v in timing):  # type: ignore[union-attr]
         raise ValueError("timing must be true or a list of angles in degrees")
-    try:
-        degrees = np.asarray(timing, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError("timing must be true or a list of angles in degrees") from None
+    degrees = as_real_array("timing", timing, "true or a list of angles in degrees")
     if degrees.ndim != 1 or len(degrees) != count:
         raise ValueError(f"timing must give one angle per point: {count}, got {degrees.size}")
     if not np.all(np.isfinite(degrees)) or np.any(np.abs(degrees) > 1e6):

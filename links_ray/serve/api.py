@@ -15,8 +15,10 @@ health checks (`json_answer`); large request bodies are parsed there too (`serve
 """
 
 import asyncio
+import ipaddress
 import json
 import logging
+import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -195,6 +197,87 @@ class InternalErrorGuard:
             await _error(500, "internal error")(scope, receive, send)
 
 
+#: Longest host name (RFC 1035), and the characters one may hold.
+MAX_HOST_NAME_CHARS = 253
+_HOST_NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyz0123456789-.")
+
+
+def as_host_names(names: object) -> frozenset[str]:
+    """Host names a server answers to besides addresses and `localhost` (`HostGuard`), lower
+    case; `*` for any. ValueError naming a name that is not one."""
+    if isinstance(names, str) or not isinstance(names, list | tuple | set | frozenset):
+        raise ValueError(f"allowed hosts must be a list of host names, got {type(names).__name__}")
+    checked = set()
+    for name in names:
+        text = name.strip().lower().rstrip(".") if isinstance(name, str) else ""
+        if text != "*" and not (
+            0 < len(text) <= MAX_HOST_NAME_CHARS
+            and set(text) <= _HOST_NAME_CHARS
+            and not text.startswith(("-", "."))
+        ):
+            shown = repr(name)[:80]
+            raise ValueError(f"allowed hosts: {shown} is not a host name (or * for any)")
+        checked.add(text)
+    return frozenset(checked)
+
+
+def host_name(header: str) -> str:
+    """The host of a Host header, lower case, without its port or an IPv6 address's brackets."""
+    text = header.strip().lower()
+    if text.startswith("["):
+        return text[1 : text.find("]")] if "]" in text else text
+    return text.rsplit(":", 1)[0] if text.count(":") == 1 else text
+
+
+def host_allowed(header: str | None, names: frozenset[str]) -> bool:
+    """Whether a request that says it is for host `header` may be answered: an address (no
+    DNS answer can stand behind it), `localhost` or a name under it, or one of `names` (`*`
+    takes any). A DNS name the server was not told of is how a web page reaches a loopback
+    server through a name of its own (DNS rebinding), so it is refused."""
+    if header is None:
+        return False
+    host = host_name(header).rstrip(".")
+    if "*" in names or host in names or host == "localhost" or host.endswith(".localhost"):
+        return True
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    return True
+
+
+#: The variable of a replica's environment that names the hosts it answers to besides its
+#: addresses and localhost, separated by commas (`serve.app.build_app` sets it).
+ALLOWED_HOSTS_ENV = "LINKS_ALLOWED_HOSTS"
+
+
+class HostGuard:
+    """ASGI middleware: a request whose Host header `host_allowed` refuses gets 400 with a
+    JSON error saying how to let it in, before anything reads its body. The names allowed are
+    read from ALLOWED_HOSTS_ENV when the app is first built in the replica."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+        given = os.environ.get(ALLOWED_HOSTS_ENV, "")
+        self.names = as_host_names([name for name in given.split(",") if name])
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        """Refuse the request, or pass it on."""
+        if scope["type"] == "http":
+            headers = dict(scope.get("headers") or ())
+            raw = headers.get(b"host")
+            header = raw.decode("latin-1") if raw is not None else None
+            if not host_allowed(header, self.names):
+                said = "no Host header" if header is None else f"Host {header[:80]!r}"
+                message = (
+                    f"{said}: this server answers its addresses, localhost and the names it "
+                    "is given (links serve --allow-host NAME, or the app's allowed_hosts)"
+                )
+                await _error(400, message)(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
+
+
 # `/openapi.json` describes the routes; no interactive docs page, which would load its
 # scripts from a CDN.
 api = FastAPI(
@@ -206,6 +289,7 @@ api = FastAPI(
     default_response_class=JsonResponse,
 )
 api.add_middleware(InternalErrorGuard)
+api.add_middleware(HostGuard)  # added last, so it runs first
 
 
 def request_body(path: str) -> dict[str, Any]:

@@ -32,6 +32,7 @@ from ray.serve.deployment import Application
 from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
 from links_ray.data.store import Store
+from links_ray.serve.api import ALLOWED_HOSTS_ENV, as_host_names
 from links_ray.serve.deployments import (
     MAX_RETRIEVALS,
     REPLICA_ENV,
@@ -90,8 +91,10 @@ def build_app(
     shard_memory_gb: float | None = None,
     max_retrievals: int = MAX_RETRIEVALS,
     shard_timeout_s: float = SHARD_TIMEOUT_S,
+    allowed_hosts: tuple[str, ...] | list[str] = (),
 ) -> Application:
-    """The Serve application for dataset `root` (not yet running).
+    """The Serve application for dataset `root` (not yet running), answering requests for
+    its addresses, `localhost` and the host names `allowed_hosts` (`*`: any).
 
     Without `shards`, `replicas` replicas of `LinksApi`, each holding the whole index. With
     `shards` = N, N `IndexShard` deployments (`IndexShard-P-of-N`), each of `replicas`
@@ -102,9 +105,16 @@ def build_app(
     _positive("replicas", replicas)
     _positive("max_retrievals", max_retrievals)
     _positive("shard_timeout_s", shard_timeout_s, float)
-    front = LinksApi.options(num_replicas=replicas)
+    front_args = {"max_retrievals": max_retrievals, "shard_timeout_s": shard_timeout_s}
+    # The Host check (`serve.api.HostGuard`) reads the names in the replica's environment.
+    hosts = ",".join(sorted(as_host_names(allowed_hosts)))
+    front_env = {**REPLICA_ENV, ALLOWED_HOSTS_ENV: hosts}
+    front = LinksApi.options(
+        num_replicas=replicas,
+        ray_actor_options={"num_cpus": 1, "runtime_env": {"env_vars": front_env}},
+    )
     if shards is None:
-        return front.bind(root, max_retrievals=max_retrievals, shard_timeout_s=shard_timeout_s)
+        return front.bind(root, **front_args)
     _positive("shards", shards)
     options: dict[str, Any] = {
         "num_cpus": _positive("shard_cpus", shard_cpus, float),
@@ -120,7 +130,7 @@ def build_app(
         ).bind(root, part, shards)
         for part in range(shards)
     ]
-    return front.bind(root, parts, max_retrievals=max_retrievals, shard_timeout_s=shard_timeout_s)
+    return front.bind(root, parts, **front_args)
 
 
 #: The args of the Serve config application (`app_builder`), and how each is read.
@@ -131,6 +141,7 @@ APP_ARGS = {
     "shard_cpus": float,
     "shard_memory_gb": float,
     "max_retrievals": int,
+    "allowed_hosts": list,
 }
 
 
@@ -152,13 +163,19 @@ def _arg(args: dict[str, Any], name: str) -> Any:
 
 def app_builder(args: dict[str, Any]) -> Application:
     """Application builder for Serve config files: args `root` (required), `replicas`,
-    `shards`, `shard_cpus`, `shard_memory_gb` and `max_retrievals` (see `build_app`)."""
+    `shards`, `shard_cpus`, `shard_memory_gb`, `max_retrievals` and `allowed_hosts` (a list of
+    host names; see `build_app`)."""
     if "root" not in args or not str(args["root"]).strip():
         raise ValueError("the links application needs args.root: a dataset folder or s3://...")
     unknown = sorted(set(args) - set(APP_ARGS))
     if unknown:
         raise ValueError(f"unknown args for the links application: {unknown}")
-    given = {name: _arg(args, name) for name in args if name != "root"}
+    given = {name: _arg(args, name) for name in args if name not in ("root", "allowed_hosts")}
+    if "allowed_hosts" in args:
+        try:
+            given["allowed_hosts"] = tuple(sorted(as_host_names(args["allowed_hosts"])))
+        except ValueError as exc:
+            raise ValueError(f"args.allowed_hosts: {exc}") from None
     check_root(str(args["root"]), given.get("shards"))
     return build_app(str(args["root"]), **given)
 
@@ -245,6 +262,7 @@ def run_server(
     shards: int | None = None,
     shard_cpus: float | None = None,
     shard_memory_gb: float | None = None,
+    allowed_hosts: tuple[str, ...] | list[str] = (),
 ) -> None:
     """Serve `root` on http://host:port/ (Ray local unless RAY_ADDRESS) until Ctrl-C; with
     `shards`, split the index into that many `IndexShard` deployments (`build_app`), each
@@ -263,7 +281,8 @@ def run_server(
 
     check_root(root, shards)  # a wrong ROOT is one line here, not a replica failing to start
     cpus = SHARD_CPUS if shard_cpus is None else shard_cpus
-    app = build_app(root, replicas, shards, cpus, shard_memory_gb)  # checks the numbers first
+    hosts = {"allowed_hosts": allowed_hosts}
+    app = build_app(root, replicas, shards, cpus, shard_memory_gb, **hosts)  # checks them first
     local = not ray.is_initialized() and not os.environ.get("RAY_ADDRESS")
     direct = replicas == 1 and local
     proxy_port = port
@@ -292,7 +311,7 @@ def run_server(
                         file=sys.stderr,
                         flush=True,
                     )
-                    app = build_app(root, replicas, shards, cpus, shard_memory_gb)
+                    app = build_app(root, replicas, shards, cpus, shard_memory_gb, **hosts)
             check_fits(replicas, shards, cpus, shard_memory_gb, resources)
         # Serve's controller, proxy and replicas report each step of a start-up at INFO; the
         # command prints its own line when it serves, and Serve's warnings still show.

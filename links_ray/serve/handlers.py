@@ -304,10 +304,12 @@ class LinksApiRoutes:
     async def api_retrieve(self, request: Request) -> Response:
         """The k curated paths nearest to a drawn curve, best first, with their mechanisms;
         503 with `Retry-After` when MAX_RETRIEVALS are already under way here."""
-        self._claim_retrieval()  # refused before reading the body
+        body = await read_json_object(request, "/api/retrieve")
+        points, k, floor, most = retrieve_args(body)
+        # Claimed once the body is read and checked: a client that sends its body slowly, or
+        # never, holds a connection until the body timeout, never a place of the index.
+        self._claim_retrieval()
         try:
-            body = await read_json_object(request, "/api/retrieve")
-            points, k, floor, most = retrieve_args(body)
             start = time.perf_counter()
             results = await self._retrieve(points, k, floor, most)
             took_ms = (time.perf_counter() - start) * 1e3
@@ -329,13 +331,13 @@ class LinksApiRoutes:
         refinement does (its retrieval counted), and `queued_ms` says how long it waited.
         With `"stream": true` the answer is NDJSON: a `{"progress": ...}` line each time the
         best so far improves, then the answer's own line (`_synthesis_lines`)."""
-        self._claim_synthesis()  # refused before reading the body
+        body = await read_json_object(request, "/api/synthesize")
+        points, k, seconds, partial, floor, seed, iterations, design = synthesize_args(body)
+        stream = stream_arg(body)
+        self._claim_synthesis()  # once the body is read and checked, as a retrieval's place
         turn: _Turn | None = None
         released = True  # until the refinement, once submitted, releases its place itself
         try:
-            body = await read_json_object(request, "/api/synthesize")
-            points, k, seconds, partial, floor, seed, iterations, design = synthesize_args(body)
-            stream = stream_arg(body)
             start = time.perf_counter()
             wanted = retrievals(k, design["max_joints"], design["front"])
             retrieved, waited = await self._synthesis_candidates(points, wanted, floor)

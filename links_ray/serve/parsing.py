@@ -3,7 +3,8 @@
 A body is read within the engine's limits (`links_ray.engine.inputs`): 408 for a body that
 pauses `BODY_TIMEOUT_S` or falls behind `MIN_BODY_BYTES_PER_S` (`read_body`), 413 for a body
 over `MAX_BODY_BYTES`, a mechanism over `MAX_REQUEST_JOINTS` or a simulation over
-`MAX_REQUEST_JOINT_STEPS`, 415 for a body declared as something other than JSON. This module
+`MAX_REQUEST_JOINT_STEPS`, 415 for a body not declared as JSON (`Content-Type:
+application/json`). This module
 checks only what JSON alone can get wrong (types, booleans for numbers, array lengths) first;
 the values are checked by the engine's own validators, whose ValueErrors become 400s. Each
 refusal is an `ApiError` naming the problem. `serve.models` describes the same bodies for
@@ -74,8 +75,12 @@ def _is_finite(value: int | float) -> bool:
         return False
 
 
+class _NotANumber(ValueError):
+    """NaN, Infinity or -Infinity in a body: words JavaScript's JSON.stringify never writes."""
+
+
 def _refuse_constant(name: str) -> float:
-    raise ValueError(f"{name} is not a JSON number (numbers must be finite)")
+    raise _NotANumber(f"{name} is not a JSON number (numbers must be finite)")
 
 
 async def read_json_object(request: Request, route: str) -> dict[str, Any]:
@@ -83,13 +88,12 @@ async def read_json_object(request: Request, route: str) -> dict[str, Any]:
     naming the problem: a field the route's model (`models.REQUEST_MODELS`) does not name is
     refused, so that a misspelled option is never silently dropped. A large body is parsed in
     JSON_POOL, off the event loop."""
-    content_type = request.headers.get("content-type")
-    if content_type is not None:
-        media = content_type.split(";", 1)[0].strip().lower()
-        if media and media != "application/json" and not media.endswith("+json"):
-            raise ApiError(
-                415, f"the body must be JSON (Content-Type application/json), got {media[:80]!r}"
-            )
+    # A body of another type, or of none, is refused unread: it is what a page of another
+    # site can send without the browser asking this server first (a CORS preflight).
+    media = (request.headers.get("content-type") or "").split(";", 1)[0].strip().lower()
+    if media != "application/json" and not media.endswith("+json"):
+        got = f"got {media[:80]!r}" if media else "none was given"
+        raise ApiError(415, f"the body must be JSON, sent as Content-Type application/json: {got}")
     declared = request.headers.get("content-length")
     if declared is not None:
         if not declared.strip().isdigit():
@@ -122,7 +126,9 @@ async def read_body(request: Request) -> bytes:
     chunks: list[bytes] = []
     size = 0
     try:
-        async with asyncio.timeout(start + BODY_TIMEOUT_S) as deadline:
+        # A point in the loop's time, from the start: a client that sends the headers and
+        # nothing more is cut off as surely as one that stops halfway.
+        async with asyncio.timeout_at(start + BODY_TIMEOUT_S) as deadline:
             async for chunk in request.stream():
                 size += len(chunk)
                 if size > MAX_BODY_BYTES:
@@ -145,36 +151,48 @@ async def read_body(request: Request) -> bytes:
 
 
 def parse_json_object(body: bytes) -> dict[str, Any]:
-    """`body` parsed as a JSON object, or ApiError 400 naming the problem."""
+    """`body` parsed as a JSON object, or ApiError 400 naming the problem.
+
+    orjson is the one parser of request bodies: it holds the GIL for its whole call too, but
+    for several times less than json on a large body of numbers, and it bounds what a body can
+    ask of it (nesting 1024 deep at most; every number a float64 or a 64-bit integer, larger
+    integers read as floats, infinite ones refused). json reads a refused body again only to
+    word the refusal better (NaN, a line and column), and its answer is never used: a body
+    one parser refuses is refused."""
     if not body.strip():
         raise ApiError(400, "the body is empty: expected a JSON object")
     try:
-        # orjson holds the GIL for its whole call too, but for several times less than json
-        # on a large body of numbers: so much shorter is the stall it can cause the event
-        # loop. It refuses what json's messages name (NaN, integers past 64 bits, encodings
-        # other than UTF-8), so a body it refuses is parsed again by json, for the message.
         data = orjson.loads(body)
-    except orjson.JSONDecodeError:
-        data = _parse_json_slowly(body)
+    except orjson.JSONDecodeError as exc:
+        raise ApiError(400, _refusal(body, exc)) from None
     if not isinstance(data, dict):
         raise ApiError(400, f"the body must be a JSON object, got {_kind(data)}")
     return data
 
 
-def _parse_json_slowly(body: bytes) -> Any:
-    """`body` parsed by json, for its messages: ApiError 400 naming the problem."""
+#: How deep orjson reads nested arrays and objects.
+MAX_JSON_DEPTH = 1024
+
+
+def _refusal(body: bytes, refused: orjson.JSONDecodeError) -> str:
+    """Why orjson refused `body`, in json's words where they say more (NaN and Infinity, a
+    line and column), else in orjson's."""
+    not_json = "the body is not valid JSON"
+    if refused.msg == "depth limit exceeded":
+        return f"{not_json}: nested too deeply (more than {MAX_JSON_DEPTH} levels)"
     try:
-        return json.loads(body, parse_constant=_refuse_constant)
+        json.loads(body, parse_constant=_refuse_constant)
     except UnicodeDecodeError:
-        raise ApiError(400, "the body is not UTF-8 text") from None
+        return "the body is not UTF-8 text"
     except json.JSONDecodeError as exc:
-        raise ApiError(
-            400, f"the body is not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})"
-        ) from None
-    except ValueError as exc:  # NaN / Infinity, or an integer with too many digits
-        raise ApiError(400, f"the body is not valid JSON: {exc}") from None
+        return f"{not_json}: {exc.msg} (line {exc.lineno}, column {exc.colno})"
+    except _NotANumber as exc:
+        return f"{not_json}: {exc}"
     except RecursionError:
-        raise ApiError(400, "the body is not valid JSON: nested too deeply") from None
+        return f"{not_json}: nested too deeply (more than {MAX_JSON_DEPTH} levels)"
+    except ValueError:  # an integer of too many digits, which orjson's words say
+        pass
+    return f"{not_json}: {refused.msg} (line {refused.lineno}, column {refused.colno})"
 
 
 def _required(body: dict[str, Any], name: str) -> Any:
