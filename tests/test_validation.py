@@ -19,6 +19,7 @@ from links_ray import (
     simulate,
     simulate_batch,
 )
+from links_ray.engine import inputs
 
 # A valid crank-rocker with a coupler point: O2, A (crank tip), B, O4, C on the coupler.
 LINKS = [(0, 1), (1, 2), (2, 3), (1, 4), (2, 4)]
@@ -510,3 +511,40 @@ def test_inputs_not_modified() -> None:
     simulate(adjacency, node_types, positions[0])
     for before, after in zip(copies, (adjacency, node_types, positions), strict=True):
         np.testing.assert_array_equal(before, after)
+
+
+# -- numbers past float64 ----------------------------------------------------------------------
+
+#: An integer no float64 holds, as json.loads reads a long run of digits.
+HUGE = 10**400
+
+
+@pytest.mark.parametrize(
+    ("check", "match"),
+    [
+        (lambda v: inputs.as_seconds(v), "seconds must be a number within"),
+        (lambda v: inputs.as_transmission_deg(v, "min_transmission"), "min_transmission must be"),
+        (lambda v: inputs.as_crank_mm(v), "crank_mm must be a number of millimetres within"),
+        (lambda v: inputs.as_constraints({"min_link": v}), "min_link must be a length within"),
+        (lambda v: inputs.as_constraints({"max_link_ratio": v}), "max_link_ratio must be"),
+        (lambda v: inputs.as_constraints({"pivots": [0, 0, v, 1]}), "pivots must be four"),
+        (lambda v: inputs.as_constraints({"footprint": [-v, 0, 1, 1]}), "footprint must be"),
+        (lambda v: inputs.as_timing([0, v, 2], 3, False), "timing must be true or a list"),
+        (lambda v: inputs.as_timing([0, [[v]], 2], 3, False), "timing must be true or a list"),
+        (lambda v: inputs.validate_query([[0, 0], [1, 1], [v, 2]]), "points must be a list"),
+        (lambda v: inputs.validate_query([[0, 0], [1, 1]], v), "k must be from 1 to 100"),
+        (lambda v: inputs.validate_synthesis_work(seed=v), "seed must be from 0 to"),
+        (lambda v: inputs.validate_synthesis_work(iterations=v), "iterations must be from 1"),
+        (lambda v: inputs.as_max_joints(v), "max_joints must be from 2 to 20"),
+    ],
+)
+@pytest.mark.parametrize("value", [HUGE, -HUGE, 10**5000], ids=["10^400", "-10^400", "10^5000"])
+def test_every_numeric_field_refuses_numbers_past_float64(
+    check: Callable[[object], object], match: str, value: int
+) -> None:
+    """Every validator answers an integer beyond float64 with a ValueError naming its field,
+    never OverflowError (which a server would answer 500); and the message never writes the
+    number out (Python refuses to, past 4,300 digits)."""
+    with pytest.raises(ValueError, match=match) as refused:
+        check(value)
+    assert len(str(refused.value)) < 300
