@@ -294,6 +294,16 @@ def _bench_serve(args: argparse.Namespace) -> None:
     )
 
 
+def _bench_hostile(args: argparse.Namespace) -> None:
+    from links_ray.cli import bench_hostile
+
+    _run_bench(
+        args,
+        lambda: bench_hostile.bench_hostile(paths=args.paths, root=args.root),
+        bench_hostile.format_hostile,
+    )
+
+
 def _demo(args: argparse.Namespace) -> None:
     note_compiling("demo")
     summary = run_demo(args.out, mechanisms=args.mechanisms, seed=args.seed, sampler=args.sampler)
@@ -803,6 +813,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="curated paths of the cached dataset (default 60,000)",
     )
     serve_bench.set_defaults(run=_bench_serve)
+    hostile_bench = _add_bench(
+        benches,
+        "hostile",
+        "links serve under the worst small drawings and clients that send only headers, health "
+        "checked every 0.2 s: each answer, health's worst latency, the server's memory growth",
+        _bench_hostile,
+        ("--paths", 60_000, "curated paths of the dataset served, made once and cached"),
+    )
+    hostile_bench.add_argument(
+        "--root", default=None, help="a curated dataset to serve (default: the cached one)"
+    )
     return parser
 
 
