@@ -18,7 +18,6 @@ import asyncio
 import ipaddress
 import json
 import logging
-import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -246,20 +245,24 @@ def host_allowed(header: str | None, names: frozenset[str]) -> bool:
     return True
 
 
-#: The variable of a replica's environment that names the hosts it answers to besides its
-#: addresses and localhost, separated by commas (`serve.app.build_app` sets it).
-ALLOWED_HOSTS_ENV = "LINKS_ALLOWED_HOSTS"
+#: The host names this process's app answers to besides addresses and localhost: set by the
+#: front replica's constructor (`allow_host_names`), read by `HostGuard` on every request.
+_allowed_host_names: frozenset[str] = frozenset()
+
+
+def allow_host_names(names: object) -> None:
+    """Have this process's app answer requests for `names` too (`as_host_names`); the front
+    replica calls it with its `allowed_hosts` when it starts."""
+    global _allowed_host_names
+    _allowed_host_names = as_host_names(names)
 
 
 class HostGuard:
     """ASGI middleware: a request whose Host header `host_allowed` refuses gets 400 with a
-    JSON error saying how to let it in, before anything reads its body. The names allowed are
-    read from ALLOWED_HOSTS_ENV when the app is first built in the replica."""
+    JSON error saying how to let it in, before anything reads its body."""
 
     def __init__(self, app: ASGIApp) -> None:
         self.app = app
-        given = os.environ.get(ALLOWED_HOSTS_ENV, "")
-        self.names = as_host_names([name for name in given.split(",") if name])
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         """Refuse the request, or pass it on."""
@@ -267,7 +270,7 @@ class HostGuard:
             headers = dict(scope.get("headers") or ())
             raw = headers.get(b"host")
             header = raw.decode("latin-1") if raw is not None else None
-            if not host_allowed(header, self.names):
+            if not host_allowed(header, _allowed_host_names):
                 said = "no Host header" if header is None else f"Host {header[:80]!r}"
                 message = (
                     f"{said}: this server answers its addresses, localhost and the names it "

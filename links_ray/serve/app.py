@@ -32,7 +32,7 @@ from ray.serve.deployment import Application
 from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
 from links_ray.data.store import Store
-from links_ray.serve.api import ALLOWED_HOSTS_ENV, as_host_names
+from links_ray.serve.api import as_host_names
 from links_ray.serve.deployments import (
     MAX_RETRIEVALS,
     REPLICA_ENV,
@@ -105,14 +105,12 @@ def build_app(
     _positive("replicas", replicas)
     _positive("max_retrievals", max_retrievals)
     _positive("shard_timeout_s", shard_timeout_s, float)
-    front_args = {"max_retrievals": max_retrievals, "shard_timeout_s": shard_timeout_s}
-    # The Host check (`serve.api.HostGuard`) reads the names in the replica's environment.
-    hosts = ",".join(sorted(as_host_names(allowed_hosts)))
-    front_env = {**REPLICA_ENV, ALLOWED_HOSTS_ENV: hosts}
-    front = LinksApi.options(
-        num_replicas=replicas,
-        ray_actor_options={"num_cpus": 1, "runtime_env": {"env_vars": front_env}},
-    )
+    front_args = {
+        "max_retrievals": max_retrievals,
+        "shard_timeout_s": shard_timeout_s,
+        "allowed_hosts": tuple(sorted(as_host_names(allowed_hosts))),
+    }
+    front = LinksApi.options(num_replicas=replicas)
     if shards is None:
         return front.bind(root, **front_args)
     _positive("shards", shards)

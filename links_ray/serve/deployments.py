@@ -60,7 +60,7 @@ from links_ray.engine.cpus import set_given_cpus
 from links_ray.engine.solver import simulate
 from links_ray.engine.synthesis import pooled
 from links_ray.search.index import RetrievalIndex
-from links_ray.serve.api import ApiError, api, logger
+from links_ray.serve.api import ApiError, allow_host_names, api, logger
 from links_ray.serve.handlers import LinksApiRoutes, studio_files
 
 #: Ray starts worker processes at niceness 15, below its own control plane (GCS, raylet,
@@ -265,7 +265,8 @@ class IndexShard:
 class LinksApi(LinksApiRoutes):
     """The HTTP API of one replica: the retrieval index of `root`, opened once; or, given
     `shards` (deployment handles of `IndexShard` parts 0..N-1, in order), the front that asks
-    them all and merges their answers, holding no index itself."""
+    them all and merges their answers, holding no index itself. It answers requests for its
+    addresses, localhost and `allowed_hosts` (`serve.api.HostGuard`)."""
 
     def __init__(
         self,
@@ -273,8 +274,10 @@ class LinksApi(LinksApiRoutes):
         shards: list[DeploymentHandle] | None = None,
         max_retrievals: int = MAX_RETRIEVALS,
         shard_timeout_s: float = SHARD_TIMEOUT_S,
+        allowed_hosts: tuple[str, ...] = (),
     ) -> None:
         use_replica_cpus()
+        allow_host_names(allowed_hosts)  # for `serve.api.HostGuard`, from the first request on
         self.root = root
         self.shards = list(shards or [])
         self.max_retrievals = max_retrievals
