@@ -136,7 +136,9 @@ def _index(args: argparse.Namespace) -> None:
     check_root(args.root, args.shards)  # what `links serve --shards` would refuse, at once
     # Opened for writing: a root whose keys cannot save the index fails here, not after the
     # builds (`RetrievalIndex.open` on a read-only root builds in memory and saves nothing).
-    store = Store.open(args.root)
+    # Its requests are tried as often as curation's, to ride out a store's brief refusals
+    # over a long build.
+    store = Store.open(args.root, attempts=10)
     start = time.perf_counter()
     made = []
     for part in range(parts):
