@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 from collections import Counter
@@ -163,6 +164,57 @@ def test_bad_arguments_fail_with_one_line(tmp_path: Path) -> None:
     assert result.stderr == (
         "links generate: error: unsupported scheme 'ftp' in ftp://host/x: use a folder or s3://\n"
     )
+
+
+def test_index_saves_every_part_for_a_later_open_to_load(dataset: str, tmp_path: Path) -> None:
+    """`links index ROOT --shards 2` builds and saves both parts, which a later open (a Serve
+    replica's) loads without building; run again it builds nothing, `--rebuild` builds both
+    again, without `--shards` it saves the one index, and a split with an empty part is
+    refused in one line."""
+    from links_ray.search.index import INDEX_FOLDER, RetrievalIndex
+
+    root = tmp_path / "data"
+    shutil.copytree(dataset, root)
+    shutil.rmtree(root / INDEX_FOLDER, ignore_errors=True)  # the fixture's own saved index
+    curated = len(links_ray.load(str(root), "curated", columns=["path_id"]))
+    assert curated > 0
+
+    made = links("index", str(root), "--shards", "2", "--json")
+    assert made.returncode == 0, made.stderr
+    summary = json.loads(made.stdout)
+    assert (summary["parts"], summary["built"], summary["paths"]) == (2, 2, curated)
+    assert summary["folder"] == f"{root}/{INDEX_FOLDER}"
+    assert [entry["part"] for entry in summary["by_part"]] == [0, 1]
+    for entry in summary["by_part"]:
+        loaded = RetrievalIndex.open(str(root), part=entry["part"], parts=2)
+        assert entry["built"] and loaded.build_s == 0 and len(loaded) == entry["paths"] > 0
+
+    again = links("index", str(root), "--shards", "2")
+    assert again.returncode == 0, again.stderr
+    (line,) = again.stdout.splitlines()
+    assert line.startswith(
+        f"{root}: {curated:,} paths indexed in 2 parts (0 built, 2 already saved) "
+        f"under {root}/{INDEX_FOLDER}/ in "
+    )
+
+    rebuilt = links("index", str(root), "--shards", "2", "--rebuild", "--json")
+    assert rebuilt.returncode == 0, rebuilt.stderr
+    assert json.loads(rebuilt.stdout)["built"] == 2
+
+    whole = links("index", str(root), "--json")
+    assert whole.returncode == 0, whole.stderr
+    assert {k: json.loads(whole.stdout)[k] for k in ("parts", "built", "paths")} == {
+        "parts": 1,
+        "built": 1,
+        "paths": curated,
+    }
+    assert RetrievalIndex.open(str(root)).build_s == 0
+
+    refused = links("index", str(root), "--shards", "1000")
+    assert refused.returncode == 2
+    assert refused.stderr.count("\n") == 1 and "Traceback" not in refused.stderr
+    assert refused.stderr.startswith(f"links index: error: {root} has ")
+    assert refused.stderr.rstrip().endswith("would have none; use fewer shards")
 
 
 def count_valid_by_reference(workload: bench.Workload, steps: int) -> int:

@@ -170,6 +170,22 @@ def format_curate(summary: dict) -> str:
     return "\n".join(lines)
 
 
+# -- links index ----------------------------------------------------------------------------
+
+
+def format_index(summary: dict) -> str:
+    """One line: the paths indexed, in how many parts, how many built (the rest were saved
+    already), where, and how long it took."""
+    parts = summary["parts"]
+    built = summary["built"]
+    saved = "" if built == parts else f", {parts - built} already saved"
+    return (
+        f"{summary['root']}: {count(summary['paths'])} paths indexed in {parts} "
+        f"part{'s' if parts != 1 else ''} ({built} built{saved}) under {summary['folder']}/ "
+        f"in {duration(summary['seconds'])}"
+    )
+
+
 # -- links stats ----------------------------------------------------------------------------
 
 
