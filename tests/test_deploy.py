@@ -26,6 +26,7 @@ import pytest
 import yaml
 
 from links_ray.engine.inputs import MAX_BODY_BYTES, MAX_SYNTHESIS_SECONDS
+from links_ray.serve.api import as_host_names
 from links_ray.serve.app import APP_ARGS, SHARD_CPUS, _arg
 from links_ray.serve.deployments import (
     REPLICA_ENV,
@@ -41,9 +42,6 @@ DEPLOY = REPO / "deploy"
 Manifests = dict[str, list[Any]]
 
 APP_BUILDER = "links_ray.serve.app:app_builder"
-#: The app's args. `allowed_hosts` (the Host allow-list) is being added to APP_ARGS on another
-#: branch; until that merge it is known here by name, after it this union changes nothing.
-KNOWN_ARGS = set(APP_ARGS) | {"allowed_hosts"}
 #: The Secrets of S3 keys: the writer's (generation, curation, the index) and the reader's
 #: (the pods of a public RayService).
 WRITER_SECRET, READER_SECRET = "links-s3-credentials", "links-s3-reader"
@@ -331,16 +329,18 @@ def serve_config_problems(manifests: Manifests) -> list[str]:
         args = app.get("args", {})
         if not str(args.get("root", "")).strip():
             problems.append(f"{where}: no args.root")
-        for name in sorted(set(args) - KNOWN_ARGS):
+        for name in sorted(set(args) - set(APP_ARGS)):
             problems.append(f"{where}: args.{name} is not an arg of the app ({sorted(APP_ARGS)})")
         for name in sorted(set(args) & set(APP_ARGS) - {"root", "allowed_hosts"}):
             try:
                 _arg(args, name)
             except ValueError as exc:
                 problems.append(f"{where}: {exc}")
-        hosts = args.get("allowed_hosts", ["*"])
-        if not isinstance(hosts, list) or not all(isinstance(h, str) and h for h in hosts):
-            problems.append(f"{where}: args.allowed_hosts must be a list of host names")
+        if "allowed_hosts" in args:
+            try:
+                as_host_names(args["allowed_hosts"])
+            except ValueError as exc:
+                problems.append(f"{where}: args.allowed_hosts: {exc}")
         deployments = {LinksApi.name}
         with contextlib.suppress(KeyError, ValueError):  # no shards, or reported above
             shards = _arg(args, "shards")
