@@ -20,8 +20,9 @@ Pure numpy: no Ray.
 from __future__ import annotations
 
 import codecs
+import functools
+import gc
 import io
-import math
 import pickle
 import re
 from collections.abc import Callable, Iterator
@@ -67,20 +68,41 @@ def _refuse(why: str) -> pickle.UnpicklingError:
     return pickle.UnpicklingError(why)
 
 
+@functools.lru_cache(maxsize=256)
+def _dtype_states(spec: str) -> tuple[tuple[tuple, np.dtype, np.dtype], ...]:
+    """numpy's BUILD states of the plain dtype `spec` (versions 3 and 4, each byte order numpy
+    writes for it), each with the dtype it gives and that dtype in native byte order;
+    UnpicklingError for a spec not of PLAIN_DTYPES."""
+    # A list, a tuple or another string would ask numpy for a structured, object or subarray
+    # dtype.
+    if not PLAIN_DTYPES.fullmatch(spec):
+        raise _refuse(f"dtype {spec[:40]!r} is not read; only {PLAIN_DTYPES.pattern}")
+    dtype = np.dtype(spec)
+    size, alignment = (dtype.itemsize, 1) if dtype.kind == "S" else (-1, -1)
+    orders = "|" if dtype.kind == "S" or dtype.itemsize == 1 else "<>"
+    return tuple(
+        (state, ordered, ordered.newbyteorder("="))
+        for order in orders
+        for ordered in (dtype if order == "|" else dtype.newbyteorder(order),)
+        for state in (
+            (3, order, None, None, None, size, alignment, 0),
+            (4, order, None, None, None, size, alignment, 0, None),
+        )
+    )
+
+
 class _StandIn:
     """What the unpickler hands a pickle in place of a numpy object: `value` is the object once
     made (None until then). A BUILD of it is refused unless a subclass takes one."""
 
     __slots__ = ("value",)
+    what = "value"
 
     def __init__(self, value: Any = None) -> None:
         self.value = value
 
     def __setstate__(self, state: object) -> None:
-        raise _refuse(f"a {self._what()} takes no BUILD")
-
-    def _what(self) -> str:
-        return type(self.value).__name__
+        raise _refuse(f"a {self.what} made by a name takes no BUILD")
 
 
 class _Made(_StandIn):
@@ -90,35 +112,44 @@ class _Made(_StandIn):
 
 
 class _DtypeStandIn(_StandIn):
-    """`numpy.dtype(spec)`, made when its one BUILD gives numpy's state of a plain dtype."""
+    """`numpy.dtype(spec)`, made when its one BUILD gives one of numpy's `states` of it;
+    `native` is the dtype in native byte order."""
 
-    __slots__ = ("spec",)
+    __slots__ = ("native", "spec", "states")
+    what = "dtype"
 
     def __init__(self, spec: str) -> None:
-        super().__init__()
+        self.value: np.dtype | None = None
+        self.native: np.dtype | None = None
         self.spec = spec
-
-    def _what(self) -> str:
-        return "dtype"
+        self.states = _dtype_states(spec)
 
     def __setstate__(self, state: object) -> None:
         if self.value is not None:
             raise _refuse("a dtype is built twice")
-        self.value = _plain_dtype(self.spec, state)
+        # Equality with numpy's own states: those are tuples of ints, strings and None, so
+        # comparing one with the file's never descends into the file's data.
+        for known, dtype, native in self.states:
+            if state == known:
+                self.value = dtype
+                self.native = native
+                return
+        raise _refuse(
+            f"a {self.spec} dtype's state is not numpy's for a plain dtype (no fields, "
+            "subarray, metadata or flags; numpy's item size, alignment and byte order)"
+        )
 
 
 class _ArrayStandIn(_StandIn):
     """numpy's `_reconstruct` result: an array made when its one BUILD gives numpy's state of
-    it, `(1, shape, dtype, is_fortran, data)`, within the unpickler's byte budget."""
+    it, `(1, shape, dtype, is_fortran, data)`."""
 
-    __slots__ = ("_unpickler",)
+    __slots__ = ("_maker",)
+    what = "array"
 
-    def __init__(self, unpickler: ReleaseUnpickler) -> None:
-        super().__init__()
-        self._unpickler = unpickler
-
-    def _what(self) -> str:
-        return "array"
+    def __init__(self, maker: _Maker) -> None:
+        self.value = None
+        self._maker = maker
 
     def __setstate__(self, state: object) -> None:
         if self.value is not None:
@@ -126,16 +157,13 @@ class _ArrayStandIn(_StandIn):
         if type(state) is not tuple or len(state) != 5:
             raise _refuse("an array's state is not numpy's (version, shape, dtype, order, data)")
         version, shape, dtype, is_fortran, data = state
-        if type(version) is not int or version != 1:
-            raise _refuse("an array's state is not numpy's version 1")
-        if type(is_fortran) not in (bool, int) or is_fortran not in (0, 1):
-            raise _refuse("an array's order is not a bool")
+        if version != 1 or is_fortran not in (False, True):
+            raise _refuse("an array's state is not numpy's version 1 with a bool order")
         if type(data) is str:  # a Python 2 pickle's bytes, as numpy reads them
             data = data.encode("latin1")
         # numpy's own BUILD swaps a non-native array's bytes into native order.
-        self.value = self._unpickler._array(
-            data, dtype, shape, "F" if is_fortran else "C", native=True
-        )
+        order = "F" if is_fortran else "C"
+        self.value = self._maker.array(data, dtype, shape, order, native=True)
 
 
 class _Marker:
@@ -171,45 +199,6 @@ class _Name:
 
     def __repr__(self) -> str:
         return self._name
-
-
-def _plain_dtype(spec: str, state: object) -> np.dtype:
-    """The dtype `spec` with the byte order `state` gives, if `state` is numpy's own for it
-    (versions 3 and 4: no subarray, names, fields or metadata, numpy's item size and
-    alignment, no flags)."""
-    if type(state) is not tuple or len(state) not in (8, 9):
-        raise _refuse("a dtype's state is not numpy's")
-    version, order, subarray, names, fields, size, alignment, flags, *metadata = state
-    if type(version) is not int or version != len(state) - 5:
-        raise _refuse("a dtype's state is not numpy's version 3 or 4")
-    if not (subarray is names is fields is None) or (metadata and metadata[0] is not None):
-        raise _refuse("a dtype has fields, a subarray or metadata; only plain dtypes are read")
-    if type(flags) is not int or flags != 0:
-        raise _refuse("a dtype has flags; only plain dtypes have none")
-    dtype = np.dtype(spec)
-    wanted = (dtype.itemsize, 1) if dtype.kind == "S" else (-1, -1)
-    if type(size) is not int or type(alignment) is not int or (size, alignment) != wanted:
-        raise _refuse(f"a {spec} dtype's item size or alignment is not numpy's")
-    orders = ("|",) if dtype.kind == "S" or dtype.itemsize == 1 else ("<", ">")
-    if type(order) is not str or order not in orders:
-        raise _refuse(f"a {spec} dtype's byte order is not one numpy writes")
-    return dtype if order == "|" else dtype.newbyteorder(order)
-
-
-def _built_dtype(dtype: object) -> np.dtype:
-    if type(dtype) is not _DtypeStandIn or dtype.value is None:
-        raise _refuse("an array's dtype is not a dtype the pickle has built")
-    return dtype.value
-
-
-def _shape(shape: object) -> tuple[int, ...]:
-    if (
-        type(shape) is not tuple
-        or len(shape) > MAX_DIMENSIONS
-        or not all(type(n) is int and n >= 0 for n in shape)
-    ):
-        raise _refuse("an array's shape is not a tuple of non-negative ints")
-    return shape
 
 
 def _latin1(text: object, encoding: object = "latin1") -> bytes:
@@ -250,7 +239,75 @@ ALLOWED_GLOBALS: dict[tuple[str, str], str] = {
 }
 #: What a loaded batch may hold besides lists, tuples and the arrays and scalars made.
 _PLAIN_VALUES = frozenset({int, float, bool, str, bytes, bytearray, type(None)})
-_FILLED = frozenset({_Made, _ArrayStandIn, _DtypeStandIn})
+_STAND_INS = frozenset({_Made, _ArrayStandIn, _DtypeStandIn})
+#: The largest extent of an array's dimension.
+_MAX_EXTENT = np.iinfo(np.intp).max
+
+
+class _Maker:
+    """The arrays, dtypes and scalars of one pickle, made from checked state: at most `budget`
+    bytes of arrays and scalars together."""
+
+    __slots__ = ("budget",)
+
+    def __init__(self, budget: int) -> None:
+        self.budget = budget
+
+    def array(
+        self, data: object, dtype: object, shape: object, order: str, native: bool
+    ) -> np.ndarray:
+        """The array of `shape` and `dtype` (a built dtype stand-in) whose bytes, in `order`,
+        are exactly `data`: a copy owning its memory, in native byte order if `native`."""
+        if type(dtype) is not _DtypeStandIn or dtype.native is None:
+            raise _refuse("an array's dtype is not one the pickle has built")
+        made = dtype.native if native else dtype.value
+        if type(shape) is not tuple or len(shape) > MAX_DIMENSIONS:
+            raise _refuse(f"an array's shape is not a tuple of at most {MAX_DIMENSIONS} ints")
+        count = 1
+        for extent in shape:
+            if type(extent) is not int or not 0 <= extent <= _MAX_EXTENT:
+                raise _refuse("an array's shape holds something other than a size")
+            count *= extent
+        if type(data) is not bytes and type(data) is not bytearray:
+            raise _refuse("an array's data is not bytes")
+        size = count * made.itemsize
+        if size != len(data):
+            raise _refuse(
+                f"an array's data is {len(data)} bytes; a {shape} {made} array has {size}"
+            )
+        # Each array is a copy, and a pickle may hand the same bytes to many: their total is
+        # what the budget bounds.
+        self.budget -= size
+        if self.budget < 0:
+            raise _refuse("its arrays hold more bytes than the file does from the batch on")
+        return np.ndarray(shape, dtype.value, buffer=data, order=order).astype(made, order="K")
+
+    def dtype(self, spec: object, align: object = False, copy: object = True) -> _DtypeStandIn:
+        """`numpy.dtype` as numpy's pickles call it, for a spec of PLAIN_DTYPES."""
+        if type(spec) is not str:
+            raise _refuse(f"a dtype is given a {type(spec).__name__}, not numpy's spec")
+        if align not in (False, True) or copy not in (False, True):
+            raise _refuse("a dtype is read only as numpy pickles it")
+        return _DtypeStandIn(spec)
+
+    def reconstruct(self, subtype: object, shape: object, typecode: object) -> _ArrayStandIn:
+        """numpy's `_reconstruct` as its pickles call it: an array its BUILD then makes."""
+        # Any other call would ask for memory the file does not hold.
+        if subtype is not _NDARRAY or shape != (0,) or typecode not in (b"b", "b"):
+            raise _refuse("arrays are read only as numpy pickles them")
+        return _ArrayStandIn(self)
+
+    def scalar(self, dtype: object, data: object) -> _Made:
+        """numpy's `scalar(dtype, data)`: the scalar of a dtype stand-in from its bytes."""
+        if type(data) is str:  # a Python 2 pickle's bytes, as numpy reads them
+            data = data.encode("latin1")
+        return _Made(self.array(data, dtype, (), "C", native=True)[()])
+
+    def frombuffer(self, data: object, dtype: object, shape: object, order: object) -> _Made:
+        """numpy's `_frombuffer` (protocol 5): the array of `shape` in `data`."""
+        if order not in ("C", "F"):
+            raise _refuse("an array's order is not C or F")
+        return _Made(self.array(data, dtype, shape, "F" if order == "F" else "C", native=False))
 
 
 class ReleaseUnpickler(pickle.Unpickler):
@@ -260,23 +317,26 @@ class ReleaseUnpickler(pickle.Unpickler):
 
     def __init__(self, file: Any, budget: int) -> None:
         super().__init__(file)
-        self._budget = budget
-        self._names: dict[str, _Name | _Marker] = {
+        # Nothing the names reach refers back to the unpickler: a cycle would keep its memo,
+        # and every array's bytes in it, until the garbage collector ran.
+        maker = _Maker(budget)
+        stands_for: dict[str, _Name | _Marker] = {
             "ndarray": _NDARRAY,
-            "dtype": _Name(self._dtype, "numpy.dtype"),
+            "dtype": _Name(maker.dtype, "numpy.dtype"),
             "encode": _Name(_latin1, "_codecs.encode"),
             "bytes": _Name(_empty_bytes, "bytes"),
-            "reconstruct": _Name(self._reconstruct, "numpy's _reconstruct"),
-            "scalar": _Name(self._scalar, "numpy's scalar"),
-            "frombuffer": _Name(self._frombuffer, "numpy's _frombuffer"),
+            "reconstruct": _Name(maker.reconstruct, "numpy's _reconstruct"),
+            "scalar": _Name(maker.scalar, "numpy's scalar"),
+            "frombuffer": _Name(maker.frombuffer, "numpy's _frombuffer"),
         }
+        self._globals = {name: stands_for[role] for name, role in ALLOWED_GLOBALS.items()}
 
     def find_class(self, module: str, name: str) -> Any:
         """What the allowed `module.name` stands for; RefusedName for any other."""
-        found = ALLOWED_GLOBALS.get((module, name))
+        found = self._globals.get((module, name))
         if found is None:
             raise RefusedName(f"{module}.{name}")
-        return self._names[found]
+        return found
 
     def persistent_load(self, pid: Any) -> Any:
         """Always RefusedName: the release's files hold no persistent ids."""
@@ -285,66 +345,17 @@ class ReleaseUnpickler(pickle.Unpickler):
     def load(self) -> Any:
         """The next pickle's object, each stand-in replaced by the array, dtype or scalar it
         made; UnpicklingError for a stand-in its pickle never built."""
-        return _made(super().load())
-
-    def _dtype(self, spec: object, align: object = False, copy: object = True) -> _DtypeStandIn:
-        # numpy's pickles spell a dtype by kind and size; a list, tuple or other string would
-        # ask numpy for a structured, object or subarray dtype.
-        if type(spec) is not str or not PLAIN_DTYPES.fullmatch(spec):
-            shown = repr(spec[:40]) if type(spec) is str else f"given a {type(spec).__name__}"
-            raise _refuse(f"dtype {shown} is not read; only {PLAIN_DTYPES.pattern}")
-        if type(align) not in (bool, int) or type(copy) not in (bool, int):
-            raise _refuse("a dtype is read only as numpy pickles it")
-        return _DtypeStandIn(spec)
-
-    def _reconstruct(self, subtype: object, shape: object, typecode: object) -> _ArrayStandIn:
-        # numpy's pickles reconstruct an empty int8 array and then BUILD it: any other call
-        # would ask for memory the file does not hold.
-        if (
-            subtype is not _NDARRAY
-            or type(shape) is not tuple
-            or len(shape) != 1
-            or type(shape[0]) is not int
-            or shape[0] != 0
-            or typecode not in (b"b", "b")
-        ):
-            raise _refuse("arrays are read only as numpy pickles them")
-        return _ArrayStandIn(self)
-
-    def _scalar(self, dtype: object, data: object) -> _Made:
-        if type(data) is str:  # a Python 2 pickle's bytes, as numpy reads them
-            data = data.encode("latin1")
-        return _Made(self._array(data, dtype, (), "C", native=True)[()])
-
-    def _frombuffer(self, data: object, dtype: object, shape: object, order: object) -> _Made:
-        if type(order) is not str or order not in ("C", "F"):
-            raise _refuse("an array's order is not C or F")
-        return _Made(self._array(data, dtype, shape, order, native=False))
-
-    def _array(
-        self, data: object, dtype: object, shape: object, order: str, native: bool
-    ) -> np.ndarray:
-        """The array of `shape` and `dtype` whose bytes, in `order`, are exactly `data`: a
-        copy, owning its memory (in native byte order if `native`)."""
-        dtype = _built_dtype(dtype)
-        shape = _shape(shape)
-        if type(data) not in (bytes, bytearray):
-            raise _refuse("an array's data is not bytes")
-        count = math.prod(shape)
-        if count * dtype.itemsize != len(data):
-            raise _refuse(
-                f"an array's data is {len(data)} bytes; a {shape} {dtype} array has "
-                f"{count * dtype.itemsize}"
-            )
-        # A pickle may hand the same bytes to many arrays; each is a copy, so their total is
-        # what is bounded.
-        self._budget -= len(data)
-        if self._budget < 0:
-            raise _refuse("its arrays hold more bytes than the file does from the batch on")
-        wanted = dtype.newbyteorder("=") if native else dtype
-        return (
-            np.frombuffer(data, dtype, count).reshape(shape, order=order).astype(wanted, order="K")
-        )
+        # A batch is hundreds of thousands of objects that all live until it is loaded: the
+        # garbage collector's passes over them would find nothing, and take longer than the
+        # load. Nothing the unpickler makes refers to itself, so none of it waits for one.
+        collecting = gc.isenabled()
+        gc.disable()
+        try:
+            loaded = super().load()
+        finally:
+            if collecting:
+                gc.enable()
+        return _made(loaded)
 
 
 def _made(loaded: Any) -> Any:
@@ -352,13 +363,12 @@ def _made(loaded: Any) -> Any:
     cycles) replaced by what it made. Lists are changed in place; a tuple holding a stand-in,
     or such a tuple, is replaced by a new one."""
     kind = type(loaded)
-    if kind in _FILLED:
+    if kind in _STAND_INS:
         return _value(loaded)
     if kind is not list and kind is not tuple:
-        if kind not in _PLAIN_VALUES:
-            raise _refuse(f"a batch holds a {kind.__name__}")
-        return loaded
-    # Every list and tuple is kept here until the end, so no id is reused while ids are keys.
+        return _plain(loaded)
+    # Every list and tuple stays referenced here until the end, so no id is reused while ids
+    # are keys.
     seen: dict[int, list | tuple] = {id(loaded): loaded}
     tuples: list[tuple] = []
     lists_with_tuples: list[list] = []
@@ -371,7 +381,7 @@ def _made(loaded: Any) -> Any:
         holds_tuples = False
         for index, item in enumerate(container):
             kind = type(item)
-            if kind in _FILLED:
+            if kind in _STAND_INS:
                 if is_list:
                     container[index] = _value(item)
                 else:
@@ -382,7 +392,7 @@ def _made(loaded: Any) -> Any:
                     seen[id(item)] = item
                     waiting.append(item)
             elif kind not in _PLAIN_VALUES:
-                raise _refuse(f"a batch holds a {kind.__name__}")
+                _plain(item)
         if is_list and holds_tuples:
             lists_with_tuples.append(container)
     if not tuples:
@@ -397,7 +407,7 @@ def _made(loaded: Any) -> Any:
 
 def _replaced_tuples(tuples: list[tuple]) -> dict[int, tuple]:
     """Each of `tuples` by id: itself, or a new tuple if it holds a stand-in or a tuple that
-    is replaced. Tuples only hold tuples made before them, so tuples within tuples are settled
+    is replaced. A tuple holds only tuples made before it, so tuples within tuples are settled
     innermost first."""
     replaced: dict[int, tuple] = {}
     for outer in tuples:
@@ -413,7 +423,7 @@ def _replaced_tuples(tuples: list[tuple]) -> dict[int, tuple]:
                 continue
             unsettled.pop()
             items = tuple(
-                _value(x) if type(x) in _FILLED else replaced[id(x)] if type(x) is tuple else x
+                _value(x) if type(x) in _STAND_INS else replaced[id(x)] if type(x) is tuple else x
                 for x in top
             )
             changed = any(new is not old for new, old in zip(items, top, strict=True))
@@ -423,8 +433,16 @@ def _replaced_tuples(tuples: list[tuple]) -> dict[int, tuple]:
 
 def _value(stand_in: _StandIn) -> Any:
     if stand_in.value is None:
-        raise _refuse(f"a {stand_in._what()} is named but never built")
+        raise _refuse(f"a {stand_in.what} is named but never built")
     return stand_in.value
+
+
+def _plain(value: Any) -> Any:
+    # Dicts and sets, and bare names, are no part of a release file.
+    if type(value) not in _PLAIN_VALUES:
+        shown = repr(value) if type(value) in (_Name, _Marker) else type(value).__name__
+        raise _refuse(f"a batch holds a {shown}; only lists, tuples, numbers, strings and arrays")
+    return value
 
 
 def release_files(store: Store) -> dict[str, str | None]:
