@@ -96,19 +96,20 @@ class _StandIn:
     made (None until then). A BUILD of it is refused unless a subclass takes one."""
 
     __slots__ = ("value",)
-    what = "value"
+    what = "a value"
 
     def __init__(self, value: Any = None) -> None:
         self.value = value
 
     def __setstate__(self, state: object) -> None:
-        raise _refuse(f"a {self.what} made by a name takes no BUILD")
+        raise _refuse(f"{self.what} made by a name takes no BUILD")
 
 
 class _Made(_StandIn):
     """An array (protocol 5's `_frombuffer`) or a scalar, made and checked when named."""
 
     __slots__ = ()
+    what = "an array or scalar"
 
 
 class _DtypeStandIn(_StandIn):
@@ -116,7 +117,7 @@ class _DtypeStandIn(_StandIn):
     `native` is the dtype in native byte order."""
 
     __slots__ = ("native", "spec", "states")
-    what = "dtype"
+    what = "a dtype"
 
     def __init__(self, spec: str) -> None:
         self.value: np.dtype | None = None
@@ -145,7 +146,7 @@ class _ArrayStandIn(_StandIn):
     it, `(1, shape, dtype, is_fortran, data)`."""
 
     __slots__ = ("_maker",)
-    what = "array"
+    what = "an array"
 
     def __init__(self, maker: _Maker) -> None:
         self.value = None
@@ -171,6 +172,9 @@ class _Marker:
     `_reconstruct` is given."""
 
     __slots__ = ()
+
+    def __call__(self, *args: object) -> None:
+        raise _refuse("numpy.ndarray is never called; arrays are read only as numpy pickles them")
 
     def __setstate__(self, state: object) -> None:
         raise _refuse("numpy.ndarray takes no BUILD")
@@ -237,9 +241,10 @@ ALLOWED_GLOBALS: dict[tuple[str, str], str] = {
         )
     },
 }
-#: What a loaded batch may hold besides lists, tuples and the arrays and scalars made.
+#: What a loaded batch may hold besides lists, tuples and the arrays and scalars made (not a
+#: dtype on its own).
 _PLAIN_VALUES = frozenset({int, float, bool, str, bytes, bytearray, type(None)})
-_STAND_INS = frozenset({_Made, _ArrayStandIn, _DtypeStandIn})
+_STAND_INS = frozenset({_Made, _ArrayStandIn})
 #: The largest extent of an array's dimension.
 _MAX_EXTENT = np.iinfo(np.intp).max
 
@@ -335,7 +340,11 @@ class ReleaseUnpickler(pickle.Unpickler):
         """What the allowed `module.name` stands for; RefusedName for any other."""
         found = self._globals.get((module, name))
         if found is None:
-            raise RefusedName(f"{module}.{name}")
+            shown = f"{module}.{name}"
+            # A name is any string a pickle holds: shown on one line, and not all of it.
+            raise RefusedName(
+                shown if shown.isprintable() and len(shown) <= 100 else repr(shown[:100])
+            )
         return found
 
     def persistent_load(self, pid: Any) -> Any:
@@ -343,8 +352,9 @@ class ReleaseUnpickler(pickle.Unpickler):
         raise RefusedName("a persistent id")
 
     def load(self) -> Any:
-        """The next pickle's object, each stand-in replaced by the array, dtype or scalar it
-        made; UnpicklingError for a stand-in its pickle never built."""
+        """The next pickle's object, each stand-in replaced by the array or scalar it made;
+        UnpicklingError for an array its pickle never built, or a batch holding anything but
+        lists, tuples, arrays, scalars and plain values (a dict, a set, a dtype, a name)."""
         # A batch is hundreds of thousands of objects that all live until it is loaded: the
         # garbage collector's passes over them would find nothing, and take longer than the
         # load. Nothing the unpickler makes refers to itself, so none of it waits for one.
@@ -433,14 +443,21 @@ def _replaced_tuples(tuples: list[tuple]) -> dict[int, tuple]:
 
 def _value(stand_in: _StandIn) -> Any:
     if stand_in.value is None:
-        raise _refuse(f"a {stand_in.what} is named but never built")
+        raise _refuse(f"{stand_in.what} is named but never built")
     return stand_in.value
 
 
 def _plain(value: Any) -> Any:
-    # Dicts and sets, and bare names, are no part of a release file.
+    # Dicts and sets, bare names and dtypes are no part of a release file.
     if type(value) not in _PLAIN_VALUES:
-        shown = repr(value) if type(value) in (_Name, _Marker) else type(value).__name__
+        kind = type(value)
+        shown = (
+            repr(value)
+            if kind in (_Name, _Marker)
+            else "dtype"
+            if kind is _DtypeStandIn
+            else kind.__name__
+        )
         raise _refuse(f"a batch holds a {shown}; only lists, tuples, numbers, strings and arrays")
     return value
 
@@ -555,9 +572,9 @@ def _load(source: io.BufferedReader, shown: str, offset: int, budget: int) -> An
     except OSError:
         raise  # the store failed, not the file
     except Exception as exc:
-        # A damaged or crafted batch can fail anywhere in the unpickler or numpy, in any
-        # exception; each is the file's fault and ends the import in one line.
-        if not source.peek(1):
+        # A damaged or crafted batch can fail anywhere in the unpickler, in any exception;
+        # each is the file's fault and ends the import in one line.
+        if _ran_out(exc) and not source.peek(1):
             raise ReleaseFileError(
                 f"{shown} at byte {offset} is cut short: the file ends inside it, at byte "
                 f"{source.tell()}"
@@ -565,6 +582,13 @@ def _load(source: io.BufferedReader, shown: str, offset: int, budget: int) -> An
         raise ReleaseFileError(
             f"{shown} at byte {offset} is not a readable pickle: {_reason(exc)}"
         ) from None
+
+
+def _ran_out(exc: Exception) -> bool:
+    """Whether the unpickler failed for want of the pickle's next bytes."""
+    return isinstance(exc, EOFError) or (
+        type(exc) is pickle.UnpicklingError and str(exc) == "pickle data was truncated"
+    )
 
 
 def _reason(exc: Exception) -> str:
