@@ -10,9 +10,9 @@ Nor does a pickle reach numpy's own constructors: what it names stands in for co
 A pickle's BUILD step hands state from the file to the object's `__setstate__`, and numpy's
 (of an array or a dtype) trusts that state, so the objects the unpickler makes are stand-ins
 whose `__setstate__` accepts only the state numpy writes for a plain array: a dtype of the
-kinds in `PLAIN_DTYPES`, then a shape and exactly the bytes that shape holds. The array is made
-from those bytes by `np.frombuffer` and copied; once the pickle is loaded, each stand-in is
-replaced by what it made.
+kinds in `PLAIN_DTYPES`, then a shape and exactly the bytes that shape holds. The array is a
+copy of those bytes, made by numpy's buffer constructor; once the pickle is loaded, each
+stand-in is replaced by what it made.
 
 Pure numpy: no Ray.
 """
@@ -285,7 +285,9 @@ class _Maker:
         self.budget -= size
         if self.budget < 0:
             raise _refuse("its arrays hold more bytes than the file does from the batch on")
-        return np.ndarray(shape, dtype.value, buffer=data, order=order).astype(made, order="K")
+        # Positional (shape, dtype, buffer, offset, strides, order): numpy's keyword parsing
+        # takes longer than copying a small array.
+        return np.ndarray(shape, dtype.value, data, 0, None, order).astype(made, "K")
 
     def dtype(self, spec: object, align: object = False, copy: object = True) -> _DtypeStandIn:
         """`numpy.dtype` as numpy's pickles call it, for a spec of PLAIN_DTYPES."""
