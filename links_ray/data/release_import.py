@@ -126,8 +126,17 @@ def _entries(value: Any, shown: str, width: int) -> list:
 
 def _index(value: Any, shown: str, limit: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or not 0 <= value < limit:
-        raise ReleaseFileError(f"{shown}: j must be an index of the batch's {limit}, got {value!r}")
+        raise ReleaseFileError(
+            f"{shown}: j must be an index of the batch's {limit}, got {_shown_number(value)}"
+        )
     return int(value)
+
+
+def _shown_number(value: Any) -> str:
+    # Only a number is shown: a file's list could be deeply nested or huge.
+    return (
+        repr(value) if isinstance(value, int | float | np.number) else f"a {type(value).__name__}"
+    )
 
 
 def _array(value: Any, shown: str, name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
@@ -227,7 +236,7 @@ class _Batch:
             _array(curve, where, "curve", (RELEASE_STEPS, 2), np.float32)
             j = _index(j, where, self.size)
             if isinstance(node, bool) or not isinstance(node, int | np.integer):
-                raise ReleaseFileError(f"{where}: node must be an int, got {node!r}")
+                raise ReleaseFileError(f"{where}: node must be an int, got {_shown_number(node)}")
             if not 0 <= node < self.n_joints[j]:
                 raise ReleaseFileError(
                     f"{where}: node {node} is not a joint of mechanism {j} "
