@@ -29,7 +29,6 @@ svgelements and ezdxf are imported only when an SVG or a DXF file is read.
 from __future__ import annotations
 
 import io
-import itertools
 import json
 import math
 import os
@@ -626,14 +625,55 @@ def _read_svg(file: str, data: bytes, part: str | None) -> tuple[np.ndarray, boo
     return outline * [1.0, -1.0], closed, f"{file}{name}"
 
 
-def _svg_along(segments: list) -> Along:
-    """svgelements' segments as `_flatten` takes them: each evaluated at its own t's at once."""
+def _svg_along(segments: list[Any]) -> Along:
+    """svgelements' segments as `_flatten` takes them, evaluated all at once: lines and
+    quadratic Béziers raised to the cubics they are, arcs on their ellipses (svgelements' own
+    evaluation costs a Python call a segment, a few times over)."""
+    import svgelements as se
+
+    count = len(segments)
+    cubic = np.zeros((count, 4, 2))  # control points; an arc's start and end in 0 and 3
+    arc = np.zeros(count, dtype=bool)
+    ellipse = np.zeros((count, 7))  # an arc's centre x, y, radii, rotation, start, sweep
+    for k, segment in enumerate(segments):
+        start, end = np.array(segment.start, dtype=float), np.array(segment.end, dtype=float)
+        if isinstance(segment, se.CubicBezier):
+            cubic[k] = [start, segment.control1, segment.control2, end]
+        elif isinstance(segment, se.QuadraticBezier):
+            control = np.array(segment.control, dtype=float)
+            cubic[k] = [
+                start,
+                start + 2 / 3 * (control - start),
+                end + 2 / 3 * (control - end),
+                end,
+            ]
+        elif isinstance(segment, se.Arc) and not (
+            segment.start == segment.end and not segment.sweep
+        ):
+            cubic[k, 0], cubic[k, 3], arc[k] = start, end, True
+            centre = segment.center
+            ellipse[k] = (centre.x, centre.y, segment.rx, segment.ry, segment.get_rotation(),
+                          segment.get_start_t(), segment.sweep)  # fmt: skip
+        elif isinstance(segment, se.Linear | se.Arc):  # a line, or an arc that stays put
+            cubic[k] = [start, (2 * start + end) / 3, (start + 2 * end) / 3, end]
+        else:
+            raise ValueError(f"a path segment of an unknown kind: {type(segment).__name__}")
 
     def along(index: np.ndarray, t: np.ndarray) -> np.ndarray:
-        points = np.empty((len(index), 2))
-        cuts = [0, *(np.flatnonzero(np.diff(index)) + 1).tolist(), len(index)]
-        for begin, end in itertools.pairwise(cuts):
-            points[begin:end] = np.asarray(segments[index[begin]].npoint(t[begin:end]))
+        c, u, s = cubic[index], 1 - t[:, None], t[:, None]
+        points = u**3 * c[:, 0] + 3 * u * u * s * c[:, 1] + 3 * u * s * s * c[:, 2] + s**3 * c[:, 3]
+        x, y, a, b, rotation, begin, sweep = ellipse[index].T
+        turn = begin + t * sweep
+        along_a, along_b = a * np.cos(turn), b * np.sin(turn)
+        on_arc = np.column_stack(
+            [
+                x + along_a * np.cos(rotation) - along_b * np.sin(rotation),
+                y + along_a * np.sin(rotation) + along_b * np.cos(rotation),
+            ]
+        )
+        points = np.where(arc[index, None], on_arc, points)
+        points[t == 0] = c[t == 0, 0]  # an arc's ends exact, as svgelements keeps them
+        points[t == 1] = c[t == 1, 3]
         return points
 
     return along
