@@ -129,10 +129,15 @@ def read_curve_text(
     extension) says how to read it and names it in messages, `part` is what `#id` selects.
     For callers that hold the file but not a path to it (the HTTP API's /api/curve)."""
     count = as_int("points", points, MIN_POINTS, MAX_POINTS)
-    data = text.encode("utf-8") if isinstance(text, str) else text
+    return _parse_curve(name, _sized(name, text), part, count)
+
+
+def _sized(name: str, text: str | bytes) -> bytes:
+    """A file's contents `text` as bytes, or CurveFileTooLarge past MAX_CURVE_FILE_BYTES."""
+    data = text.encode("utf-8") if isinstance(text, str) else bytes(text)
     if len(data) > MAX_CURVE_FILE_BYTES:
         raise CurveFileTooLarge(f"{name}: {_TOO_LARGE}", "MAX_CURVE_FILE_BYTES")
-    return _parse_curve(name, data, part, count)
+    return data
 
 
 def _reader(file: str) -> Callable[[str, bytes, str | None], tuple[np.ndarray, bool, str]]:
@@ -234,7 +239,12 @@ def _load_json(data: bytes) -> object:
     numbers past float64, where the json module would recurse past Python's limit or hand
     over an integer no float holds."""
     text = data.decode(json.detect_encoding(data))  # UTF-8 (a BOM dropped), -16 or -32
-    return orjson.loads(text)
+    try:
+        return orjson.loads(text)
+    except orjson.JSONDecodeError as exc:
+        if str(exc).startswith("Not enough memory"):  # how orjson says an allocation failed
+            raise MemoryError(str(exc)) from None
+        raise
 
 
 def _json_points(value: object) -> object:
@@ -382,6 +392,8 @@ class _SvgScan:
         try:
             parser.Parse(data, True)
         except expat.ExpatError as exc:  # named as ElementTree, svgelements' parser, names it
+            if exc.code == expat.errors.codes[expat.errors.XML_ERROR_NO_MEMORY]:
+                raise MemoryError(str(exc)) from None
             raise ValueError(f"{self.file}: not a readable SVG (ParseError: {exc})") from None
 
     def entity(self, name: str, *_: object) -> None:
