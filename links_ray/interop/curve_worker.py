@@ -163,7 +163,7 @@ class CurveReaders:
             healthy = header.get("error") != "memory"
             try:
                 return _answer(name, header, body, count, self.memory_bytes)
-            except RuntimeError:  # nonsense: it is not to be trusted with another file
+            except RuntimeError:  # a bug's answer, or nonsense: the next file gets a new one
                 healthy = False
                 raise
             finally:
@@ -177,7 +177,11 @@ class CurveReaders:
         for _ in range(self.readers):
             if not self._slots.acquire(timeout=self.wait_s):
                 break
-            started.append(self._take())
+            try:
+                started.append(self._take())
+            except BaseException:
+                self._slots.release()
+                raise
         for reader in started:
             self._give_back(reader)
             self._slots.release()
@@ -307,7 +311,7 @@ class _Reader:
             self.connection.send_bytes(data)
             if not self.connection.poll(self.seconds):
                 raise _Lost(timed_out=True)
-            answer = self.connection.recv_bytes(64 * 1024)
+            answer = self.connection.recv_bytes(4 * _HEADER_BYTES)  # a message names the file
             body = self.connection.recv_bytes(16 * MAX_POINTS)
         except (EOFError, OSError):  # it died, or stalled mid-message
             self.process.kill()
@@ -389,8 +393,8 @@ def _serve(handle: int, memory_bytes: int, seconds: float) -> None:
     import ezdxf  # noqa: F401 - loaded before the limit, as every file needs
     import svgelements  # noqa: F401
 
-    resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
-    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # a crash leaves no core file behind
+    _limit(resource.RLIMIT_AS, memory_bytes)
+    _limit(resource.RLIMIT_CORE, 0)  # a crash leaves no core file behind
     connection = Connection(handle)
     connection.send_bytes(_READY)
     while True:
@@ -400,14 +404,20 @@ def _serve(handle: int, memory_bytes: int, seconds: float) -> None:
         except EOFError:
             return
         usage = resource.getrusage(resource.RUSAGE_SELF)
-        spent = usage.ru_utime + usage.ru_stime
-        _, hard = resource.getrlimit(resource.RLIMIT_CPU)
-        resource.setrlimit(resource.RLIMIT_CPU, (int(spent + 2 * seconds) + 2, hard))
+        _limit(resource.RLIMIT_CPU, int(usage.ru_utime + usage.ru_stime + 2 * seconds) + 2)
         header, body = _read(request, data)
         connection.send_bytes(orjson.dumps(header))
         connection.send_bytes(body)
         if header.get("error") == "memory":
             return
+
+
+def _limit(which: int, soft: int) -> None:
+    """Set the soft limit `which` to `soft`, or to the hard limit if that is lower."""
+    _, hard = resource.getrlimit(which)
+    if hard != resource.RLIM_INFINITY:
+        soft = min(soft, hard)
+    resource.setrlimit(which, (soft, hard))
 
 
 def _read(request: dict, data: bytes) -> tuple[dict, bytes]:
@@ -426,15 +436,17 @@ def _read(request: dict, data: bytes) -> tuple[dict, bytes]:
     return header, np.ascontiguousarray(curve.points, dtype=np.float64).tobytes()
 
 
-_shared_readers: CurveReaders | None = None
+_shared_readers: tuple[int, CurveReaders] | None = None
 _shared_lock = threading.Lock()
 
 
 def _shared() -> CurveReaders:
-    """The process's own readers, made on first use and closed at exit."""
+    """The process's own readers, made on first use and closed at exit (a forked copy of the
+    process makes its own: the readers answer the process that started them)."""
     global _shared_readers
     with _shared_lock:
-        if _shared_readers is None:
-            _shared_readers = CurveReaders()
-            atexit.register(_shared_readers.close)
-        return _shared_readers
+        if _shared_readers is None or _shared_readers[0] != os.getpid():
+            readers = CurveReaders()
+            atexit.register(readers.close)
+            _shared_readers = (os.getpid(), readers)
+        return _shared_readers[1]
