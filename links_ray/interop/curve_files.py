@@ -18,10 +18,11 @@ contents (what the HTTP API's `/api/curve` is sent). `read_points` reads the JSO
   so or the last point repeats the first.
 
 Every file is bounded before its parser expands it (engine/inputs.py, drawing files): an SVG is
-scanned first (elements, nesting, numbers and transforms counted with its `<use>` copies made)
-and handed to svgelements with its geometry alone, no CSS, text or styling; a DXF's entities
-are counted before ezdxf loads it; the curve read has at most MAX_CURVE_SEGMENTS segments and
-is flattened to a fixed budget of points. A file past a limit raises `CurveFileTooLarge`.
+scanned first (its elements, nesting, numbers and transforms counted as svgelements would make
+them, `<use>` copies included) and handed to svgelements with its geometry alone, no CSS, text
+or styling; a DXF's entities are counted before ezdxf loads it; the curve read has at most
+MAX_CURVE_SEGMENTS segments and is flattened to a fixed budget of points. A file past a limit
+raises `CurveFileTooLarge`.
 
 svgelements and ezdxf are imported only when an SVG or a DXF file is read.
 """
