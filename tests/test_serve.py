@@ -1013,6 +1013,34 @@ def test_a_body_that_stalls_or_trickles_is_cut_off_with_408(client: Client) -> N
     assert client.get("/api/health")[0] == 200
 
 
+def test_the_worst_small_drawings_are_answered_and_health_stays_up(client: Client) -> None:
+    """The drawings that once froze a replica for minutes or filled its memory (`links bench
+    hostile` sends the same) are each answered: read, or refused 413 naming the limit they
+    pass; health is answered between them, and the replica's readers are ready for more."""
+    from links_ray.cli.hostile_inputs import hostile_drawings
+
+    expected = {
+        "style 40,000 chars": 200,
+        "style 300,000 chars": 200,
+        "uses 5 levels": 413,
+        "uses 6 levels": 413,
+        "bulges 1,000 vertices": 200,
+        "spline 1,000 fit points": 200,
+    }
+    drawings = hostile_drawings()
+    assert set(drawings) == set(expected)
+    for what, (name, text) in drawings.items():
+        status, data = client.post("/api/curve", {"name": name, "text": text})
+        assert status == expected[what], (what, status, data)
+        if status == 413:
+            assert "MAX_SVG_ELEMENTS" in data["error"] or "10,000" in data["error"], data
+        else:
+            assert len(data["points"]) == 400 and np.isfinite(data["points"]).all()
+        assert client.get("/api/health")[0] == 200
+    status, data = client.post("/api/curve", {"name": "a.csv", "text": "0,0\n1,1\n2,0\n"})
+    assert status == 200 and len(data["points"]) == 400
+
+
 def test_clients_that_send_only_headers_hold_no_place(client: Client, curated: Any) -> None:
     """Ten clients that send a retrieval's headers and never its body each get 408 once
     BODY_TIMEOUT_S have passed, and meanwhile an eleventh, real retrieval is answered 200:

@@ -63,6 +63,7 @@ __all__ = [
     "CurveReaders",
     "CurveReadersBusy",
     "read_curve_isolated",
+    "warm_curve_readers",
 ]
 
 #: Seconds a reader is given to start (import numpy, numba, svgelements and ezdxf): generous,
@@ -106,6 +107,12 @@ def read_curve_isolated(
     reads it, read in a reader process of the process's own `CurveReaders` (started on first
     use, closed at exit). Raises what the module's docstring lists."""
     return _shared().read(name, data, part, points)
+
+
+def warm_curve_readers() -> None:
+    """Start the process's own readers now (`CurveReaders.warm`): a server calls it when it
+    starts, so that its first drawings wait for no reader to start."""
+    _shared().warm()
 
 
 class CurveReaders:

@@ -59,6 +59,7 @@ from ray.serve.handle import DeploymentHandle, DeploymentResponse
 from links_ray.engine.cpus import set_given_cpus
 from links_ray.engine.solver import simulate
 from links_ray.engine.synthesis import pooled
+from links_ray.interop.curve_worker import warm_curve_readers
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.api import ApiError, allow_host_names, api, logger
 from links_ray.serve.handlers import LinksApiRoutes, studio_files
@@ -297,6 +298,7 @@ class LinksApi(LinksApiRoutes):
         else:  # warming the index also loads the solver /api/simulate uses
             self._retrieving = _Retrieving(RetrievalIndex.open(root))
         studio_files()  # a package without the studio fails here, not on a user's first visit
+        warm_curve_readers()  # the processes /api/curve reads drawings in
         # What the replica holds from here on (the index, the compiled kernels, the libraries'
         # objects) is not garbage: out of the collector's sight, a full collection (which the
         # objects of large bodies and answers set off) walks only what requests made, not

@@ -8,7 +8,7 @@
 | `POST /api/synthesize` | 200 `{"results", "took_ms", "queued_ms"}`, refined; 503 when busy |
 | `POST /api/analyze` | 200 the studio's analysis: mobility, dyadic solvability, where it locks |
 | `POST /api/export` | 200 the mechanism as an SVG, DXF or table file in mm (an attachment) |
-| `POST /api/curve` | 200 `{"points", "closed"}`: the curve in a drawing's file, sent as text |
+| `POST /api/curve` | 200 `{"points", "closed"}`: a drawing's curve, read in a reader process |
 | `GET /api/limits` | the limits a request meets (`engine.inputs.request_limits`) |
 | `GET /openapi.json` | the API described, bodies and bounds included (`serve.api`) |
 | `GET /` | the web studio (`links_ray/serve/studio/index.html`) |
@@ -43,7 +43,7 @@ from links_ray.engine.mechanism import (
 )
 from links_ray.engine.solver import simulate, simulate_until_lock
 from links_ray.engine.synthesis import SynthesisResults, refine_retrieved, retrievals
-from links_ray.interop.curve_files import read_curve_text
+from links_ray.interop.curve_worker import CurveReadersBusy, read_curve_isolated
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve import models
 from links_ray.serve.api import (
@@ -281,18 +281,23 @@ class LinksApiRoutes:
     @api.post(
         "/api/curve",
         response_model=models.CurveFileResponse,
-        responses=models.error_responses(400, 413, 415),
+        responses=models.error_responses(400, 413, 415, 422, 503),
         openapi_extra=request_body("/api/curve"),
     )
     async def api_curve(self, request: Request) -> Response:
         """The curve of a drawing's file sent as text (SVG, DXF, CSV or JSON, as `links
         synthesize --curve FILE#id` reads it): its points evenly spaced, and whether it is
-        closed; 400 naming what is wrong with the file."""
+        closed; 400 naming what is wrong with the file, 413 naming a limit on what it holds,
+        422 when reading it overran a reader's time or memory, 503 when every reader is busy
+        (`interop.curve_worker`)."""
         name, text, part = curve_args(await read_json_object(request, "/api/curve"))
         try:
-            curve = await run_in_threadpool(read_curve_text, name, text, part)
-        except ValueError as exc:  # the file's problem, named with the file
-            raise ApiError(400, str(exc)) from None
+            # In a reader process: no drawing can hold this replica's GIL, memory or time.
+            curve = await run_in_threadpool(read_curve_isolated, name, text, part)
+        except CurveReadersBusy as exc:
+            raise ApiError(exc.status, str(exc), headers={"Retry-After": "1"}) from None
+        except ValueError as exc:  # the file's problem, or the limit it passed, named
+            raise ApiError(getattr(exc, "status", 400), str(exc)) from None
         return await json_answer({"points": curve.points, "closed": curve.closed})
 
     @api.post(
