@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 import links_ray
+from links_ray.data import release_pickles
 from links_ray.data.release_pickles import ReleaseFileError, read_batches
 from links_ray.data.store import Store
 
@@ -434,3 +435,70 @@ def test_a_dict_keyed_by_a_deeply_nested_tuple_is_refused(tmp_path: Path) -> Non
     as_set = b"\x80\x04\x8f(" + b")" + b"\x85" * depth + b"\x90."  # {((((),),),...)}
     printed = read_in_child(tmp_path / "set", as_set, 0)
     assert "opcode EMPTY_SET (b'\\x8f') at byte 2" in printed
+
+
+def test_a_memo_index_near_2_30_is_refused_without_allocating_its_table(tmp_path: Path) -> None:
+    # The unpickler sized its memo table by the index, 16 GiB for one near 2**30: the child
+    # may map only 256 MiB more than it has.
+    long_binput = b"\x80\x02]r\x00\x00\x00\x40."
+    printed = read_in_child(tmp_path / "binary", long_binput, 256 * 2**20)
+    assert printed.count("\n") == 1
+    assert (
+        "batch 0 at byte 0 is not a readable pickle: opcode LONG_BINPUT (b'r') at byte 3 puts a "
+        "memo index other than the next, 0"
+    ) in printed
+    put = b"(lp1073741823\n."
+    printed = read_in_child(tmp_path / "text", put, 256 * 2**20)
+    assert "opcode PUT (b'p') at byte 2 puts a memo index other than the next, 0" in printed
+
+
+def test_memo_indices_out_of_order_are_refused(tmp_path: Path) -> None:
+    crafted = {
+        "put": (b"\x80\x02]q\x00]q\x02e.", "opcode BINPUT (b'q') at byte 6 puts a memo index"),
+        "get": (b"\x80\x02]q\x00h\x01a.", "opcode BINGET (b'h') at byte 5 gets a memo index"),
+    }
+    for name, (data, refused) in crafted.items():
+        assert refused in refusal(tmp_path / name, data)
+
+
+def test_a_refusal_in_a_later_batch_names_that_batch(tmp_path: Path) -> None:
+    first = pickle.dumps([np.arange(3.0)], 4)
+    second = pickle.dumps([np.arange(2)], 4)
+    for name, data, batch, at in (
+        ("in it", first + second[:-2] + b"}" + second[-2:], 1, len(first) + len(second) - 2),
+        ("where it begins", first + b"}.", 1, len(first)),
+        ("after two", first + second + b"\x8f.", 2, len(first) + len(second)),
+    ):
+        folder = tmp_path / name.replace(" ", "_")
+        (folder / "release").mkdir(parents=True)
+        (folder / "release" / "dataset").write_bytes(data)
+        read = []
+        with pytest.raises(ReleaseFileError) as refused:
+            for _, _, value in read_batches(Store.open(str(folder / "release")), "dataset"):
+                read.append(value)
+        assert len(read) == batch
+        offset = len(first) if batch == 1 else len(first) + len(second)
+        assert str(refused.value).startswith(
+            f"{folder}/release/dataset batch {batch} at byte {offset} is not a readable pickle: "
+            f"opcode "
+        )
+        assert f" at byte {at} is not read" in str(refused.value)
+
+
+@pytest.mark.parametrize("buffer", [1, 2, 3, 7, 64, 1000])
+def test_reads_of_any_size_give_the_same_batches_and_refusals(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, buffer: int
+) -> None:
+    # The filter sees the file in the reads the buffered reader makes, as small as these.
+    monkeypatch.setattr(release_pickles, "READ_BUFFER", buffer)
+    values = real_values()
+    for protocol in range(6):
+        batches = [pickle.dumps(values, protocol), pickle.dumps(values[:3], protocol)]
+        got = read(tmp_path / f"p{protocol}", b"".join(batches))
+        assert_same(got, [pickle.loads(batch) for batch in batches])
+        refused = batches[0] + batches[1][:-1] + b"h\x7f."
+        with pytest.raises(ReleaseFileError) as raised:
+            read(tmp_path / f"refused{protocol}", refused)
+        message = str(raised.value)
+        assert message.startswith(f"{tmp_path}/refused{protocol}/dataset batch 1 ")
+        assert f"opcode BINGET (b'h') at byte {len(refused) - 3} gets a memo index" in message
