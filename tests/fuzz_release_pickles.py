@@ -335,10 +335,7 @@ def outcome(data: bytes, seed: Seed) -> tuple[str, str]:
     """(kind, detail) of reading `data`: loaded_same, loaded_different, refused_name,
     refused_cut_short, refused_content, or violation."""
     try:
-        batches = [
-            value
-            for _, _, value in read_pickles(io.BufferedReader(io.BytesIO(data)), "fuzz", len(data))
-        ]
+        batches = [value for _, _, value in read_pickles(io.BytesIO(data), "fuzz", len(data))]
     except ReleaseFileError as exc:
         message = str(exc)
         if "\n" in message:

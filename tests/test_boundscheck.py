@@ -45,6 +45,7 @@ KERNEL_TESTS = (
     "tests/test_refine.py",
     "tests/test_synthesis.py",
     "tests/test_retrieval.py",
+    "tests/test_release_scan.py",
 )
 #: Fewer passing tests than this means the pass ran far less than it should.
 MIN_PASSED = 400

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 import links_ray
+from links_ray.data import release_pickles
 from links_ray.data.release_pickles import ReleaseFileError, read_batches
 from links_ray.data.store import Store
 
@@ -167,20 +168,31 @@ def test_a_shape_of_2_27_is_refused_without_allocating_it(tmp_path: Path) -> Non
     assert "is not a readable pickle: a f8 dtype's state is not numpy's" in printed
 
 
+#: The opcode filter's refusal of a dict, before the unpickler reads it.
+NO_DICT = "(b'}') at byte"
+
+
 @pytest.mark.parametrize(
-    "state",
+    ("state", "refused"),
     [
-        pytest.param((3, "|", None, ("a",), {"a": (dtype(), 0)}, 8, 1, 16), id="fields"),
-        pytest.param((3, "<", (dtype(), (2**20,)), None, None, -1, -1, 0), id="subarray"),
-        pytest.param((4, "<", None, None, None, -1, -1, 0, {"unit": "m"}), id="metadata"),
-        pytest.param((3, "<", None, None, None, -1, -1, 2**70), id="flags"),
+        # Fields and metadata are dicts: the filter refuses them before a dtype sees them.
+        pytest.param((3, "|", None, ("a",), {"a": (dtype(), 0)}, 8, 1, 16), NO_DICT, id="fields"),
+        pytest.param(
+            (3, "<", (dtype(), (2**20,)), None, None, -1, -1, 0),
+            "not numpy's for a plain dtype",
+            id="subarray",
+        ),
+        pytest.param((4, "<", None, None, None, -1, -1, 0, {"unit": "m"}), NO_DICT, id="metadata"),
+        pytest.param(
+            (3, "<", None, None, None, -1, -1, 2**70), "not numpy's for a plain dtype", id="flags"
+        ),
     ],
 )
 def test_a_dtype_state_with_fields_a_subarray_metadata_or_flags_is_refused(
-    tmp_path: Path, state: tuple
+    tmp_path: Path, state: tuple, refused: str
 ) -> None:
     data = pickle.dumps([array((1,), dtype(state=state), bytes(8))], protocol=2)
-    assert "not numpy's for a plain dtype" in refusal(tmp_path, data)
+    assert refused in refusal(tmp_path, data)
 
 
 def test_data_that_is_not_exactly_the_shape_s_bytes_is_refused(tmp_path: Path) -> None:
@@ -202,10 +214,10 @@ def test_data_that_is_not_exactly_the_shape_s_bytes_is_refused(tmp_path: Path) -
 def test_numpy_ndarray_is_never_called(tmp_path: Path) -> None:
     called = pickle.dumps([Call(np.ndarray, ((3,), "f8"))], protocol=2)
     assert "numpy.ndarray is never called" in refusal(tmp_path / "reduce", called)
-    # NEWOBJ calls the class's __new__: numpy.ndarray stands for no class.
+    # NEWOBJ would call the class's __new__: the filter refuses it before the unpickler reads it.
     newobj = b"\x80\x02cnumpy\nndarray\nK\x03\x85\x85\x81."  # ndarray.__new__(ndarray, (3,))
-    assert "NEWOBJ class argument must be a type" in refusal(tmp_path / "newobj", newobj)
-    built = b"\x80\x02cnumpy\nndarray\n}b."
+    assert "opcode NEWOBJ (b'\\x81') at byte 21 is not read" in refusal(tmp_path / "newobj", newobj)
+    built = b"\x80\x02cnumpy\nndarray\nNb."
     assert "numpy.ndarray takes no BUILD" in refusal(tmp_path / "build", built)
 
 
@@ -328,14 +340,19 @@ def test_an_array_its_pickle_never_builds_is_refused(tmp_path: Path) -> None:
 
 def test_a_build_of_a_name_or_of_a_made_value_is_refused(tmp_path: Path) -> None:
     # A BUILD on the name itself would have set attributes of the function it stood for.
-    of_name = b"\x80\x02cnumpy\ndtype\nN}X\x0c\x00\x00\x00__defaults__K\x01\x85s\x86b."
+    of_name = b"\x80\x02cnumpy\ndtype\nK\x01b."
     assert "numpy.dtype takes no BUILD" in refusal(tmp_path / "name", of_name)
     of_scalar = pickle.dumps(Call(multiarray.scalar, (dtype(), bytes(8))), protocol=2)
     of_scalar = of_scalar[:-1] + b"Nb."
     assert "an array or scalar made by a name takes no BUILD" in refusal(
         tmp_path / "scalar", of_scalar
     )
-    once = pickle.dumps(array((1,), dtype(), bytes(8)), protocol=2)
+    # Without a memo: a memo's PUTs repeated are out of order, refused by the filter.
+    written = io.BytesIO()
+    pickler = pickle.Pickler(written, protocol=2)
+    pickler.fast = True
+    pickler.dump(array((1,), dtype(), bytes(8)))
+    once = written.getvalue()
     state = once[once.index(b"(K\x01K\x01\x85") : once.rindex(b"b.")]  # MARK ... TUPLE
     twice = once[:-1] + state + b"b."
     assert "an array is built twice" in refusal(tmp_path / "twice", twice)
@@ -350,8 +367,18 @@ def test_arrays_may_not_hold_more_bytes_than_the_file(tmp_path: Path) -> None:
 
 
 def test_dicts_sets_and_bare_names_in_a_batch_are_refused(tmp_path: Path) -> None:
-    for name, value in (("dict", {"a": 1}), ("set", {1}), ("frozenset", frozenset({1}))):
-        assert f"a batch holds a {name}" in refusal(tmp_path / name, pickle.dumps([value], 4))
+    dicts_and_sets = {
+        "EMPTY_DICT": pickle.dumps([{}], 4),
+        "SETITEM": b"\x80\x02]K\x01K\x02s.",
+        "DICT": pickle.dumps([{"a": 1}], 0),
+        "SETITEMS": b"\x80\x04]\x94(K\x01K\x02u.",
+        "EMPTY_SET": pickle.dumps([{1}], 4),
+        "ADDITEMS": b"\x80\x04](K\x01\x90.",
+        "FROZENSET": pickle.dumps([frozenset({1})], 4),
+    }
+    for name, data in dicts_and_sets.items():
+        message = refusal(tmp_path / name, data)
+        assert f"opcode {name} " in message and "hold no dict or set" in message, message
     assert "a batch holds a numpy.ndarray" in refusal(
         tmp_path / "name", pickle.dumps([np.ndarray], 2)
     )
@@ -394,15 +421,84 @@ def test_mutated_release_batches_load_or_are_refused_in_one_line() -> None:
     assert all(report[kind] > 0 for kind in outcomes)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="CPython 3.11's C unpickler hashes a dict key or set item as SETITEM or ADDITEMS "
-    "meets it, and a tuple's hash recurses without a depth check: a key nested a million deep "
-    "overflows the C stack before anything of links-ray runs. Not fixed here: it needs the "
-    "opcodes filtered before the C unpickler sees them.",
-)
 def test_a_dict_keyed_by_a_deeply_nested_tuple_is_refused(tmp_path: Path) -> None:
+    # CPython's C unpickler hashes a dict key at SETITEM (a set item at ADDITEMS), and a
+    # tuple's hash recurses with no depth check: a key nested a million deep overflowed the C
+    # stack. The filter refuses the dict before the unpickler reads it.
     depth = 1_000_000
     data = b"\x80\x02}" + b")" + b"\x85" * depth + b"Ns."  # {((((),),),...): None}
-    assert "a batch holds a dict" in read_in_child(tmp_path, data, 0)
+    printed = read_in_child(tmp_path, data, 0)
+    assert printed.count("\n") == 1
+    assert (
+        "batch 0 at byte 0 is not a readable pickle: opcode EMPTY_DICT (b'}') at byte 2" in printed
+    )
+    as_set = b"\x80\x04\x8f(" + b")" + b"\x85" * depth + b"\x90."  # {((((),),),...)}
+    printed = read_in_child(tmp_path / "set", as_set, 0)
+    assert "opcode EMPTY_SET (b'\\x8f') at byte 2" in printed
+
+
+def test_a_memo_index_near_2_30_is_refused_without_allocating_its_table(tmp_path: Path) -> None:
+    # The unpickler sized its memo table by the index, 16 GiB for one near 2**30: the child
+    # may map only 256 MiB more than it has.
+    long_binput = b"\x80\x02]r\x00\x00\x00\x40."
+    printed = read_in_child(tmp_path / "binary", long_binput, 256 * 2**20)
+    assert printed.count("\n") == 1
+    assert (
+        "batch 0 at byte 0 is not a readable pickle: opcode LONG_BINPUT (b'r') at byte 3 puts a "
+        "memo index other than the next, 0"
+    ) in printed
+    put = b"(lp1073741823\n."
+    printed = read_in_child(tmp_path / "text", put, 256 * 2**20)
+    assert "opcode PUT (b'p') at byte 2 puts a memo index other than the next, 0" in printed
+
+
+def test_memo_indices_out_of_order_are_refused(tmp_path: Path) -> None:
+    crafted = {
+        "put": (b"\x80\x02]q\x00]q\x02e.", "opcode BINPUT (b'q') at byte 6 puts a memo index"),
+        "get": (b"\x80\x02]q\x00h\x01a.", "opcode BINGET (b'h') at byte 5 gets a memo index"),
+    }
+    for name, (data, refused) in crafted.items():
+        assert refused in refusal(tmp_path / name, data)
+
+
+def test_a_refusal_in_a_later_batch_names_that_batch(tmp_path: Path) -> None:
+    first = pickle.dumps([np.arange(3.0)], 4)
+    second = pickle.dumps([np.arange(2)], 4)
+    for name, data, batch, at in (
+        ("in it", first + second[:-2] + b"}" + second[-2:], 1, len(first) + len(second) - 2),
+        ("where it begins", first + b"}.", 1, len(first)),
+        ("after two", first + second + b"\x8f.", 2, len(first) + len(second)),
+    ):
+        folder = tmp_path / name.replace(" ", "_")
+        (folder / "release").mkdir(parents=True)
+        (folder / "release" / "dataset").write_bytes(data)
+        read = []
+        with pytest.raises(ReleaseFileError) as refused:
+            for _, _, value in read_batches(Store.open(str(folder / "release")), "dataset"):
+                read.append(value)
+        assert len(read) == batch
+        offset = len(first) if batch == 1 else len(first) + len(second)
+        assert str(refused.value).startswith(
+            f"{folder}/release/dataset batch {batch} at byte {offset} is not a readable pickle: "
+            f"opcode "
+        )
+        assert f" at byte {at} is not read" in str(refused.value)
+
+
+@pytest.mark.parametrize("buffer", [1, 2, 3, 7, 64, 1000])
+def test_reads_of_any_size_give_the_same_batches_and_refusals(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, buffer: int
+) -> None:
+    # The filter sees the file in the reads the buffered reader makes, as small as these.
+    monkeypatch.setattr(release_pickles, "READ_BUFFER", buffer)
+    values = real_values()
+    for protocol in range(6):
+        batches = [pickle.dumps(values, protocol), pickle.dumps(values[:3], protocol)]
+        got = read(tmp_path / f"p{protocol}", b"".join(batches))
+        assert_same(got, [pickle.loads(batch) for batch in batches])
+        refused = batches[0] + batches[1][:-1] + b"h\x7f."
+        with pytest.raises(ReleaseFileError) as raised:
+            read(tmp_path / f"refused{protocol}", refused)
+        message = str(raised.value)
+        assert message.startswith(f"{tmp_path}/refused{protocol}/dataset batch 1 ")
+        assert f"opcode BINGET (b'h') at byte {len(refused) - 3} gets a memo index" in message

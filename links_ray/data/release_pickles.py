@@ -4,7 +4,9 @@ A release file is a sequence of pickles, one `pickle.dump` per batch. Unpickling
 callable a pickle names, so `read_batches` unpickles with `ReleaseUnpickler`, which resolves
 only the names a plain `pickle.dump` of lists of numpy arrays and scalars uses (protocols 0 to
 5, numpy 1 and numpy 2 module names) and refuses any other before anything is called. Lists,
-tuples, ints, floats, bools and strings need no name at all.
+tuples, ints, floats, bools and strings need no name at all. Before the unpickler reads a byte,
+the opcode filter of `release_scan` has passed it: no dict or set, no opcode such pickles never
+hold, memo indices only in the order a pickler writes them.
 
 Nor does a pickle reach numpy's own constructors: what it names stands in for code of ours.
 A pickle's BUILD step hands state from the file to the object's `__setstate__`, and numpy's
@@ -29,9 +31,9 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
-import pyarrow as pa
 import pyarrow.fs as pafs
 
+from links_ray.data import release_scan
 from links_ray.data.store import Store
 
 #: The release's four files by released name, and the prefix the release's generator puts
@@ -512,11 +514,15 @@ def release_files(store: Store) -> dict[str, str | None]:
 
 
 class _Source(io.RawIOBase):
-    """A store's input stream as a raw file, for io.BufferedReader."""
+    """A stream as a raw file for io.BufferedReader, its bytes passed through the opcode filter
+    (`release_scan`): it ends just before the first opcode the filter refuses, and `refused`
+    then says which and why."""
 
-    def __init__(self, stream: pa.NativeFile) -> None:
+    def __init__(self, stream: Any) -> None:
         self._stream = stream
         self._position = 0
+        self._scan = release_scan.new_state()
+        self.refused: str | None = None
 
     def readable(self) -> bool:
         return True
@@ -525,45 +531,58 @@ class _Source(io.RawIOBase):
         return self._position
 
     def readinto(self, buffer: Any) -> int:
+        if self.refused is not None:
+            return 0
         data = self._stream.read(len(buffer))
-        buffer[: len(data)] = data
-        self._position += len(data)
-        return len(data)
+        # The unpickler reads ahead of the opcode it runs: bytes past a refused opcode must
+        # never reach it, so they are held back here, where it reads them from.
+        handed = release_scan.scan(np.frombuffer(data, np.uint8), self._scan)
+        buffer[:handed] = data[:handed]
+        self._position += handed
+        if handed < len(data):
+            self.refused = release_scan.refusal(self._scan)
+        return handed
 
 
 def read_batches(store: Store, relative: str) -> Iterator[tuple[int, int, Any]]:
     """(batch number, byte offset, object) of each pickle of a release file, one at a time.
 
     Raises ReleaseFileError naming the file, the batch and its offset for a refused name
-    (nothing it names is called), a batch cut short, or one that is not a pickle of the
-    release's kind. The iterator keeps no reference to a batch it has handed out: a caller that
-    drops one frees it before the next is read.
+    (nothing it names is called), an opcode the release's files never hold (refused before the
+    unpickler reads it), a batch cut short, or one that is not a pickle of the release's kind.
+    The iterator keeps no reference to a batch it has handed out: a caller that drops one frees
+    it before the next is read.
     """
     path = store.path(relative)
     with store.fs.open_input_stream(path) as stream:
         size = store.fs.get_file_info(path).size
-        source = io.BufferedReader(_Source(stream), READ_BUFFER)
-        yield from read_pickles(source, f"{store.uri}/{relative}", size)
+        yield from read_pickles(stream, f"{store.uri}/{relative}", size)
 
 
-def read_pickles(
-    source: io.BufferedReader, shown: str, size: int
-) -> Iterator[tuple[int, int, Any]]:
-    """`read_batches` of a stream of `size` bytes, open at its start, named `shown` in errors.
+def read_pickles(stream: Any, shown: str, size: int) -> Iterator[tuple[int, int, Any]]:
+    """`read_batches` of a binary `stream` (anything with `read(n)`) of `size` bytes, open at
+    its start, named `shown` in errors.
 
     A batch's arrays and scalars together hold at most the bytes from the batch's offset to
     the end of the file: a pickle may hand the same bytes to many arrays, and each is a copy.
     """
+    raw = _Source(stream)
+    source = io.BufferedReader(raw, READ_BUFFER)
     batch = 0
     while True:
         offset = source.tell()
         if not source.peek(1):
+            if raw.refused is not None:  # refused where a batch would begin
+                raise ReleaseFileError(
+                    f"{shown} batch {batch} at byte {offset} is not a readable pickle: "
+                    f"{raw.refused}"
+                )
             return
-        yield batch, offset, _load(source, f"{shown} batch {batch}", offset, size - offset)
+        yield batch, offset, _load(source, raw, f"{shown} batch {batch}", offset, size - offset)
         batch += 1
 
 
-def _load(source: io.BufferedReader, shown: str, offset: int, budget: int) -> Any:
+def _load(source: io.BufferedReader, raw: _Source, shown: str, offset: int, budget: int) -> Any:
     """One batch's object, read at `offset`; ReleaseFileError saying why it cannot be."""
     try:
         return ReleaseUnpickler(source, budget).load()
@@ -575,8 +594,13 @@ def _load(source: io.BufferedReader, shown: str, offset: int, budget: int) -> An
         raise  # the store failed, not the file
     except Exception as exc:
         # A damaged or crafted batch can fail anywhere in the unpickler, in any exception;
-        # each is the file's fault and ends the import in one line.
+        # each is the file's fault and ends the import in one line. The stream ends early at
+        # an opcode the filter refused: running out there is that refusal, not the file's end.
         if _ran_out(exc) and not source.peek(1):
+            if raw.refused is not None:
+                raise ReleaseFileError(
+                    f"{shown} at byte {offset} is not a readable pickle: {raw.refused}"
+                ) from None
             raise ReleaseFileError(
                 f"{shown} at byte {offset} is cut short: the file ends inside it, at byte "
                 f"{source.tell()}"
