@@ -51,6 +51,9 @@ COMMAND_KERNELS: dict[str, tuple[KernelGroup, ...]] = {
 }
 
 
+#: Refinement iterations each warming synthesis runs: enough to reach every refinement kernel.
+WARM_ITERATIONS = 20
+
 def is_cached(dispatcher: Dispatcher) -> bool | None:
     """Whether numba's on-disk cache holds code of `dispatcher` that this process can load (its
     source unchanged, this CPU); None when the cache cannot be read (a numba this does not
@@ -143,10 +146,10 @@ def warm(folder: str | None = None) -> dict[str, float]:
     index.warm(seconds=0, queries=1)
     angle = np.linspace(0, 2 * np.pi, 60)
     curve = np.column_stack([np.cos(angle), 0.6 * np.sin(angle) + 0.2 * np.sin(2 * angle)])
-    # Twice: a first call may spend its budget compiling before it reaches the refinement.
-    for _ in range(2):
-        synthesize(index, curve, k=2, seconds=0.5)
-        synthesize(index, curve[:30], k=2, seconds=0.5, partial=True)
+    # A fixed amount of work, not a time budget: on a busy machine a budget can be spent
+    # compiling before the refinement is reached, and its kernels left cold.
+    synthesize(index, curve, k=2, iterations=WARM_ITERATIONS)
+    synthesize(index, curve[:30], k=2, partial=True, iterations=WARM_ITERATIONS)
     seconds["search and synthesis"] = time.perf_counter() - start
     return seconds
 
