@@ -1201,22 +1201,19 @@ ATTACK_PAGE = b"""<!doctype html><meta charset="utf-8"><title>another site</titl
 
 
 @pytest.fixture
-def named_browser(client: Client) -> Iterator[Any]:
+def named_browser(browser: Any) -> Iterator[Any]:
     """A Chromium that resolves the allowed name (conftest.ALLOWED_HOST) and attacker.test to
-    127.0.0.1, as DNS would for a server's own name and for a name rebound to loopback."""
+    127.0.0.1, as DNS would for a server's own name and for a name rebound to loopback;
+    launched by the module's own Playwright (one Playwright runs in a process at a time)."""
     from conftest import ALLOWED_HOST
     from studio_page import CHROMIUM, CHROMIUM_ARGS
 
-    sync_api = need_module("playwright.sync_api", "pip install playwright (the test extra)")
     rules = f"--host-resolver-rules=MAP {ALLOWED_HOST} 127.0.0.1, MAP attacker.test 127.0.0.1"
-    with sync_api.sync_playwright() as playwright:
-        chromium = playwright.chromium.launch(
-            executable_path=CHROMIUM, args=[*CHROMIUM_ARGS, rules]
-        )
-        try:
-            yield chromium
-        finally:
-            chromium.close()
+    chromium = browser.browser_type.launch(executable_path=CHROMIUM, args=[*CHROMIUM_ARGS, rules])
+    try:
+        yield chromium
+    finally:
+        chromium.close()
 
 
 @pytest.fixture
