@@ -477,7 +477,8 @@ def scale_root(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> st
     test of it fails if the index's thresholds move above the data."""
     from scale_data import SPLITS, scale_dataset
 
-    from links_ray.search.index import RetrievalIndex, stage_sizes
+    from links_ray.search.index import RetrievalIndex
+    from links_ray.search.query import stage_sizes
 
     root = tmp_path_factory.mktemp("scale") / "links"
     scale_dataset(root)
@@ -544,7 +545,7 @@ def queries() -> list:
 
 
 @pytest.fixture(scope="module")
-def reference(dataset: str) -> Any:
+def dataset_index(dataset: str) -> Any:
     """One index over every curated path of the Serve tests' dataset."""
     from links_ray.search.index import RetrievalIndex
 

@@ -171,7 +171,8 @@ def test_index_saves_every_part_for_a_later_open_to_load(dataset: str, tmp_path:
     replica's) loads without building; run again it builds nothing, `--rebuild` builds both
     again, without `--shards` it saves the one index, and a split with an empty part is
     refused in one line."""
-    from links_ray.search.index import INDEX_FOLDER, RetrievalIndex
+    from links_ray.search.cache import INDEX_FOLDER
+    from links_ray.search.index import RetrievalIndex
 
     root = tmp_path / "data"
     shutil.copytree(dataset, root)

@@ -230,9 +230,9 @@ def test_refinement_moves_a_start_into_a_pivot_region_and_keeps_it_there() -> No
 # -- synthesis keeps them -----------------------------------------------------------------------
 
 
-def test_constrained_synthesis_keeps_every_constraint(reference: RetrievalIndex) -> None:
+def test_constrained_synthesis_keeps_every_constraint(dataset_index: RetrievalIndex) -> None:
     drawn = hand_drawn()[0]
-    free = synthesize(reference, drawn, k=3, seed=0, iterations=ITERATIONS)
+    free = synthesize(dataset_index, drawn, k=3, seed=0, iterations=ITERATIONS)
     low, high = drawn.min(axis=0), drawn.max(axis=0)
     span = float((high - low).max())
     given = {
@@ -242,7 +242,9 @@ def test_constrained_synthesis_keeps_every_constraint(reference: RetrievalIndex)
     }
     # The answer without them misses them: keeping them is work.
     assert max(misses(free[0], given).values()) > 0
-    results = synthesize(reference, drawn, k=3, seed=0, iterations=ITERATIONS, constraints=given)
+    results = synthesize(
+        dataset_index, drawn, k=3, seed=0, iterations=ITERATIONS, constraints=given
+    )
     assert results.unmet is None and len(results) >= 1
     for result in results:
         assert max(misses(result, given).values()) == 0.0, misses(result, given)
@@ -252,10 +254,10 @@ def test_constrained_synthesis_keeps_every_constraint(reference: RetrievalIndex)
     assert chamfers == sorted(chamfers)
 
 
-def test_constraints_no_candidate_can_keep_are_unmet(reference: RetrievalIndex) -> None:
+def test_constraints_no_candidate_can_keep_are_unmet(dataset_index: RetrievalIndex) -> None:
     drawn = hand_drawn()[0]
     far = [1e4, 1e4, 1e4 + 1, 1e4 + 1]
-    results = synthesize(reference, drawn, seed=0, iterations=100, constraints={"pivots": far})
+    results = synthesize(dataset_index, drawn, seed=0, iterations=100, constraints={"pivots": far})
     assert list(results) == []
     assert results.unmet["constraint"] == "pivots" and results.unmet["by"] > 1e3
 
@@ -302,9 +304,9 @@ def test_timing_recovers_a_closed_form_four_bar(stroke: bool) -> None:
 # -- the simplest first -------------------------------------------------------------------------
 
 
-def test_a_front_rises_in_joints_as_it_falls_in_chamfer(reference: RetrievalIndex) -> None:
+def test_a_front_rises_in_joints_as_it_falls_in_chamfer(dataset_index: RetrievalIndex) -> None:
     drawn = hand_drawn()[1]
-    front = synthesize(reference, drawn, seed=0, iterations=ITERATIONS, front=True)
+    front = synthesize(dataset_index, drawn, seed=0, iterations=ITERATIONS, front=True)
     assert len(front) >= 2
     joints = [r["n_joints"] for r in front]
     chamfers = [r["chamfer"] for r in front]
@@ -314,9 +316,9 @@ def test_a_front_rises_in_joints_as_it_falls_in_chamfer(reference: RetrievalInde
         assert result["n_joints"] == len(result["mechanism"]["node_types"])
         assert result["n_links"] == int(np.triu(np.array(result["mechanism"]["adjacency"])).sum())
     # The k best are no better than the front's best.
-    best = synthesize(reference, drawn, k=1, seed=0, iterations=ITERATIONS)
+    best = synthesize(dataset_index, drawn, k=1, seed=0, iterations=ITERATIONS)
     assert front[-1]["chamfer"] <= best[0]["chamfer"] * 1.5
-    simple = synthesize(reference, drawn, k=3, seed=0, iterations=300, max_joints=joints[0])
+    simple = synthesize(dataset_index, drawn, k=3, seed=0, iterations=300, max_joints=joints[0])
     assert simple and all(r["n_joints"] <= joints[0] for r in simple)
 
 
@@ -366,7 +368,7 @@ def test_links_synthesize_with_constraints_and_timing(dataset: str, tmp_path: Pa
 
 
 def test_http_synthesize_keeps_constraints_and_says_unmet(
-    client: Client, reference: RetrievalIndex
+    client: Client, dataset_index: RetrievalIndex
 ) -> None:
     drawn = hand_drawn()[0]
     low, high = drawn.min(axis=0), drawn.max(axis=0)
@@ -377,7 +379,7 @@ def test_http_synthesize_keeps_constraints_and_says_unmet(
     assert status == 200, data
     assert data["results"] and "unmet" not in data
     expected = synthesize(
-        reference, drawn, seed=1, iterations=300, constraints=given, front=True, timing=True
+        dataset_index, drawn, seed=1, iterations=300, constraints=given, front=True, timing=True
     )
     assert data["results"] == json.loads(json.dumps(list(expected)))
     for result in data["results"]:

@@ -21,7 +21,8 @@ import links_ray
 from links_ray.data.commit import committed_shards, marker_file
 from links_ray.data.lease import Lease, LeaseHeld
 from links_ray.data.store import Store
-from links_ray.search.index import INDEX_FOLDER, RetrievalIndex, cache_folder
+from links_ray.search.cache import INDEX_FOLDER, cache_folder
+from links_ray.search.index import RetrievalIndex
 
 QUERY = np.column_stack([np.cos(np.linspace(0, 6, 50)), np.sin(np.linspace(0, 3, 50))])
 

@@ -203,24 +203,13 @@ def test_the_rule_catches_what_breaks_it(broken_package: Path) -> None:
 
 
 #: A package's face (the module its callers import) and the package of the rooms behind it:
-#: a room imports its face only for type hints (under `if TYPE_CHECKING:`), so that the face
-#: can import every room without a cycle.
+#: a room never imports its face, not even for type hints (`if TYPE_CHECKING:`), so that
+#: imports run one way, face to rooms (the face passes the rooms plain arrays).
 FACES = {"links_ray.search.index": "links_ray.search"}
 
 
-def hint_lines(path: Path) -> set[int]:
-    """The lines of `path` inside `if TYPE_CHECKING:` blocks."""
-    tree = ast.parse(path.read_text(), filename=str(path))
-    return {
-        line
-        for node in ast.walk(tree)
-        if isinstance(node, ast.If) and ast.unparse(node.test).endswith("TYPE_CHECKING")
-        for line in range(node.lineno, (node.end_lineno or node.lineno) + 1)
-    }
-
-
 def face_violations(package_dir: Path) -> list[str]:
-    """Every import of a face by one of its rooms that is not a type hint's."""
+    """Every import of a face by one of its rooms, type hints' included."""
     modules = module_names(package_dir)
     known = set(modules)
     found = []
@@ -228,9 +217,8 @@ def face_violations(package_dir: Path) -> list[str]:
         for module, path in modules.items():
             if module == face or not module.startswith(f"{package}."):
                 continue
-            hinted = hint_lines(path)
             for line, name in imported(path, module, known):
-                if name == face and line not in hinted:
+                if name == face:
                     where = path.relative_to(package_dir.parent).as_posix()
                     found.append(f"{where}:{line}: {module} imports its face {face}")
     return sorted(found)
@@ -257,5 +245,88 @@ def test_the_face_rule_catches_a_room_importing_its_face(tmp_path: Path) -> None
         path.write_text(text)
     assert face_violations(tmp_path / PACKAGE) == [
         "links_ray/search/build.py:2: links_ray.search.build imports its face "
-        "links_ray.search.index"
+        "links_ray.search.index",
+        "links_ray/search/query.py:4: links_ray.search.query imports its face "
+        "links_ray.search.index",
+    ]
+
+
+def import_cycles(package_dir: Path, within: str) -> list[list[str]]:
+    """The import circles among our modules that pass through a module under `within`
+    (each sorted), counting every import: top-level, type-only and inside functions."""
+    modules = module_names(package_dir)
+    known = set(modules)
+    graph = {
+        module: {name for _, name in imported(path, module, known) if name in known} - {module}
+        for module, path in modules.items()
+    }
+    # Tarjan's strongly connected components, iteratively (no recursion limit to meet).
+    order: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles = []
+    for root in sorted(graph):
+        if root in order:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        order[root] = low[root] = len(order)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is None:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[node])
+                if low[node] == order[node]:
+                    component = []
+                    while True:
+                        member = stack.pop()
+                        on_stack.discard(member)
+                        component.append(member)
+                        if member == node:
+                            break
+                    if len(component) > 1 and any(
+                        m == within or m.startswith(f"{within}.") for m in component
+                    ):
+                        cycles.append(sorted(component))
+            elif child not in order:
+                order[child] = low[child] = len(order)
+                stack.append(child)
+                on_stack.add(child)
+                work.append((child, iter(sorted(graph[child]))))
+            elif child in on_stack:
+                low[node] = min(low[node], order[child])
+    return sorted(cycles)
+
+
+def test_search_imports_run_one_way() -> None:
+    assert import_cycles(REPO / PACKAGE, "links_ray.search") == []
+
+
+def test_the_cycle_check_catches_a_planted_circle(tmp_path: Path) -> None:
+    sources = {
+        "__init__.py": "",
+        "search/__init__.py": "",
+        "search/index.py": "from links_ray.search import query\nfrom . import build\n",
+        "search/query.py": "def f():\n    from links_ray.search.placement import g\n",
+        "search/placement.py": (
+            "from typing import TYPE_CHECKING\n\nif TYPE_CHECKING:\n"
+            "    from links_ray.search.index import RetrievalIndex\n"
+        ),
+        "search/build.py": "import numpy\n",
+        "serve/__init__.py": "",
+        "serve/api.py": "def f():\n    from links_ray.serve import handlers\n",
+        "serve/handlers.py": "from links_ray.serve.api import app\n",
+    }
+    for name, text in sources.items():
+        path = tmp_path / PACKAGE / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    circle = ["links_ray.search.index", "links_ray.search.placement", "links_ray.search.query"]
+    assert import_cycles(tmp_path / PACKAGE, "links_ray.search") == [circle]
+    assert import_cycles(tmp_path / PACKAGE, "links_ray.serve") == [
+        ["links_ray.serve.api", "links_ray.serve.handlers"]
     ]

@@ -24,8 +24,9 @@ from links_ray.search import cache as search_cache
 from links_ray.search import kernels as kernels
 from links_ray.search import query as search_query
 from links_ray.search.build import _nearest_centroid, distance_fields, sketch_paths
+from links_ray.search.cache import cache_folder
 from links_ray.search.held_out import held_out_queries
-from links_ray.search.index import RetrievalIndex, cache_folder
+from links_ray.search.index import RetrievalIndex
 from links_ray.search.query import _about_least, distance_table, query_variants, variant_map
 from links_ray.search.reduced import reduced_joints
 
@@ -276,7 +277,7 @@ def test_finalists_are_measured_as_if_every_variant_were(index: RetrievalIndex) 
         # The likeliest variant given right, at random, and as the worst of the four.
         for likely in (plain.argmin(axis=0), rng.integers(0, 4, 40), plain.argmax(axis=0)):
             found = search_query.exact_finalists(
-                index, variants, distance_table(normalized)[0], rows, likely, k=5
+                index.arrays, variants, distance_table(normalized)[0], rows, likely, k=5
             )
             assert [row for row, _, _ in found] == rows[expected].tolist()
             np.testing.assert_allclose([c for _, c, _ in found], best[expected], rtol=1e-12)

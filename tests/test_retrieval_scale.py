@@ -22,7 +22,8 @@ from serving import hand_drawn, retrieved, serving
 
 from links_ray.engine.paths import normalize_path
 from links_ray.search.held_out import held_out_queries
-from links_ray.search.index import RetrievalIndex, query_variants
+from links_ray.search.index import RetrievalIndex
+from links_ray.search.query import query_variants
 from links_ray.serve.app import build_app, fit_shard_cpus
 
 #: Results per query, and the least recall@K of one index against the exact brute force.

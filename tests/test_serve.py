@@ -376,21 +376,21 @@ def test_retrieve_finds_a_stored_path_and_a_mechanism_that_traces_it(
 
 
 def test_retrieve_keeps_to_mechanisms_of_at_most_max_joints(
-    client: Client, reference: Any, queries: list
+    client: Client, dataset_index: Any, queries: list
 ) -> None:
     """`max_joints` reaches the index: one index's answer kept to paths whose reduced
     mechanism has at most that many joints (tests/test_retrieval.py holds that against brute
     force), each saying its count; null keeps none out; a limit below every path's, none."""
-    counts = reference.n_joints
+    counts = dataset_index.n_joints
     most = int(np.median(counts))
     for query in queries[:3]:
         body = {"points": np.asarray(query).tolist(), "k": 5}
         _, data = _post(client, "/api/retrieve", {**body, "max_joints": most})
-        expected = json.loads(json.dumps(reference.retrieve(query, 5, max_joints=most)))
+        expected = json.loads(json.dumps(dataset_index.retrieve(query, 5, max_joints=most)))
         assert len(expected) == 5 and data["results"] == expected
         assert all(result["n_joints"] <= most for result in data["results"])
         _, unrestricted = _post(client, "/api/retrieve", {**body, "max_joints": None})
-        assert unrestricted["results"] == json.loads(json.dumps(reference.retrieve(query, 5)))
+        assert unrestricted["results"] == json.loads(json.dumps(dataset_index.retrieve(query, 5)))
     smallest = int(counts.min())
     if smallest > inputs.MIN_JOINTS:
         _, data = _post(client, "/api/retrieve", {**body, "max_joints": smallest - 1})

@@ -55,13 +55,13 @@ def _kill_replicas(deployment: str) -> int:
 
 
 def test_a_lost_shard_is_503_until_serve_replaces_it(
-    dataset: str, serve_port: int, reference: RetrievalIndex, queries: list[np.ndarray]
+    dataset: str, serve_port: int, dataset_index: RetrievalIndex, queries: list[np.ndarray]
 ) -> None:
     """Retrievals while a part is gone are 503 with Retry-After and a JSON error, never a
     500 or a dropped connection; health keeps answering; then answers come back as before."""
     app = build_app(dataset, shards=2, shard_cpus=SHARD_CPUS, shard_timeout_s=2.0)
     query = queries[0]
-    expected = as_served(reference.retrieve(query, K))
+    expected = as_served(dataset_index.retrieve(query, K))
     with serving(app, serve_port) as client:
         assert client.get("/api/health")[0] == 200
         assert retrieved(client, query, K) == expected
@@ -93,7 +93,7 @@ def test_under_load(
     shards: int | None,
     dataset: str,
     serve_port: int,
-    reference: RetrievalIndex,
+    dataset_index: RetrievalIndex,
     queries: list[np.ndarray],
 ) -> None:
     """LOAD_CLIENTS clients retrieve for LOAD_SECONDS while another checks health and
@@ -136,10 +136,10 @@ def test_under_load(
                 )
         # Afterwards: answers as before.
         status, data = client.get("/api/health")
-        assert status == 200 and data["paths"] == len(reference)
+        assert status == 200 and data["paths"] == len(dataset_index)
         status, data = client.post("/api/simulate", FOUR_BAR)
         assert status == 200 and data["trajectories"] == links_ray.simulate(**FOUR_BAR).tolist()
-        assert retrieved(client, queries[1], K) == as_served(reference.retrieve(queries[1], K))
+        assert retrieved(client, queries[1], K) == as_served(dataset_index.retrieve(queries[1], K))
 
 
 #: Clients posting the largest bodies and simulations at once, and for how long (seconds).

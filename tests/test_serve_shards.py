@@ -63,7 +63,7 @@ def sharded(request: pytest.FixtureRequest, shard_root: str, serve_port: int) ->
 
 
 def test_health_reports_the_shards(
-    sharded: Any, reference: RetrievalIndex, shard_root: str
+    sharded: Any, dataset_index: RetrievalIndex, shard_root: str
 ) -> None:
     shards, client = sharded
     rows = part_rows(shard_root, shards)
@@ -72,30 +72,30 @@ def test_health_reports_the_shards(
     assert status == 200
     assert data == {
         "status": "ok",
-        "paths": len(reference),
+        "paths": len(dataset_index),
         "shards": [{"part": part, "paths": rows[part]} for part in range(shards)],
     }
 
 
 def test_answers_are_one_index_answers(
-    sharded: Any, reference: RetrievalIndex, queries: list[np.ndarray]
+    sharded: Any, dataset_index: RetrievalIndex, queries: list[np.ndarray]
 ) -> None:
     """Same results as one index over every path, to the bit, and as the exact brute force."""
     _, client = sharded
     for number, query in enumerate(queries):
         got = retrieved(client, query, K)
-        expected = as_served(reference.retrieve(query, K))
+        expected = as_served(dataset_index.retrieve(query, K))
         assert [r["path_id"] for r in got] == [r["path_id"] for r in expected], number
         assert [r["chamfer"] for r in got] == [r["chamfer"] for r in expected], number
         assert got == expected, number  # points and mechanisms too
-        exact = reference.brute_force(query, K)
+        exact = dataset_index.brute_force(query, K)
         rows = np.array([row for row, _, _ in exact])
-        assert [r["path_id"] for r in got] == reference.path_ids(rows).tolist(), number
+        assert [r["path_id"] for r in got] == dataset_index.path_ids(rows).tolist(), number
         assert [r["chamfer"] for r in got] == [distance for _, distance, _ in exact], number
 
 
 def test_k_beyond_a_part_and_stored_paths(
-    sharded: Any, reference: RetrievalIndex, dataset: str
+    sharded: Any, dataset_index: RetrievalIndex, dataset: str
 ) -> None:
     """k = 100, more than the finalists a part measures exactly beyond the first few: 100
     distinct results, best first, led by the dataset's own path (at distance 0) and one
@@ -109,7 +109,7 @@ def test_k_beyond_a_part_and_stored_paths(
         chamfers = [result["chamfer"] for result in got]
         assert len({result["path_id"] for result in got}) == 100
         assert chamfers == sorted(chamfers) and chamfers[0] < 1e-6
-        assert got[:K] == as_served(reference.retrieve(query, K))
+        assert got[:K] == as_served(dataset_index.retrieve(query, K))
 
 
 def test_each_shard_wrote_only_its_own_part(sharded: Any, shard_root: str) -> None:
@@ -129,19 +129,19 @@ def test_each_shard_wrote_only_its_own_part(sharded: Any, shard_root: str) -> No
 
 @pytest.mark.parametrize("option", ["min_transmission", "max_joints"])
 def test_a_filter_is_one_index_answer(
-    sharded: Any, reference: RetrievalIndex, queries: list[np.ndarray], option: str
+    sharded: Any, dataset_index: RetrievalIndex, queries: list[np.ndarray], option: str
 ) -> None:
     """`min_transmission` and `max_joints` go to every part: the merged answer is one
     index's, every result within the filter."""
     _, client = sharded
-    floor = float(np.quantile(reference.transmission, 0.5))
-    most = int(np.median(reference.n_joints))
+    floor = float(np.quantile(dataset_index.transmission, 0.5))
+    most = int(np.median(dataset_index.n_joints))
     value = floor if option == "min_transmission" else most
     for query in queries[:3]:
         body = {"points": np.asarray(query).tolist(), "k": K, option: value}
         status, data = client.post("/api/retrieve", body)
         assert status == 200, data
-        expected = as_served(reference.retrieve(query, K, **{option: value}))
+        expected = as_served(dataset_index.retrieve(query, K, **{option: value}))
         assert len(expected) == K and data["results"] == expected
         for result in expected:
             assert result["min_transmission_deg"] >= floor or option != "min_transmission"
@@ -149,7 +149,7 @@ def test_a_filter_is_one_index_answer(
 
 
 def test_synthesis_refines_what_the_shards_retrieve(
-    sharded: Any, reference: RetrievalIndex, queries: list[np.ndarray]
+    sharded: Any, dataset_index: RetrievalIndex, queries: list[np.ndarray]
 ) -> None:
     """/api/synthesize on a sharded app starts from the merged retrieval's candidates and
     refines them: each result no worse than its retrieved path, which is among the
@@ -161,7 +161,7 @@ def test_synthesis_refines_what_the_shards_retrieve(
     assert status == 200, data
     results = data["results"]
     assert len(results) == 2
-    candidates = {r["path_id"]: r for r in reference.retrieve(query, CANDIDATES)}
+    candidates = {r["path_id"]: r for r in dataset_index.retrieve(query, CANDIDATES)}
     for result in results:
         start = candidates[result["path_id"]]
         assert result["retrieved_chamfer"] == pytest.approx(start["chamfer"], abs=5e-7)

@@ -58,11 +58,11 @@ def traced(result: dict, steps: int = 200) -> np.ndarray:
 
 
 def test_an_unrefined_retrieval_measures_the_retrievals_chamfer(
-    reference: RetrievalIndex, queries: list
+    dataset_index: RetrievalIndex, queries: list
 ) -> None:
     assert len(queries) > 0
     for query in queries:
-        retrieved = reference.retrieve(query, k=3)
+        retrieved = dataset_index.retrieve(query, k=3)
         assert len(retrieved) == 3
         for result in retrieved:
             mechanism = result["mechanism"]
@@ -80,16 +80,16 @@ def test_an_unrefined_retrieval_measures_the_retrievals_chamfer(
 
 
 def test_synthesis_refines_and_reports_what_it_traces(
-    reference: RetrievalIndex, queries: list
+    dataset_index: RetrievalIndex, queries: list
 ) -> None:
     improved = 0
     for query in [queries[0], *hand_drawn()[:2]]:
-        results = synthesize(reference, query, k=3, seed=0, iterations=ITERATIONS)
+        results = synthesize(dataset_index, query, k=3, seed=0, iterations=ITERATIONS)
         assert len(results) == 3
         chamfers = [r["chamfer"] for r in results]
         assert chamfers == sorted(chamfers)
         assert len({r["path_id"] for r in results}) == 3
-        retrieved = {r["path_id"]: r for r in reference.retrieve(query, CANDIDATES)}
+        retrieved = {r["path_id"]: r for r in dataset_index.retrieve(query, CANDIDATES)}
         for result in results:
             path = traced(result)
             assert result["chamfer"] == pytest.approx(
@@ -118,11 +118,13 @@ def test_synthesis_refines_and_reports_what_it_traces(
     assert improved >= 6
 
 
-def test_a_partial_stroke_gets_its_crank_interval(reference: RetrievalIndex, curated: Any) -> None:
+def test_a_partial_stroke_gets_its_crank_interval(
+    dataset_index: RetrievalIndex, curated: Any
+) -> None:
     """A third of a stored path, turned and moved: some run of steps traces it."""
     path = curated.points.iloc[7].astype(np.float64)
     stroke = path[40:107] @ np.array([[0.6, -0.8], [0.8, 0.6]]) * 3.0 + [5.0, -2.0]
-    results = synthesize(reference, stroke, k=2, partial=True, seed=0, iterations=ITERATIONS)
+    results = synthesize(dataset_index, stroke, k=2, partial=True, seed=0, iterations=ITERATIONS)
     assert len(results) == 2
     for result in results:
         interval = result["interval"]
@@ -138,7 +140,7 @@ def test_a_partial_stroke_gets_its_crank_interval(reference: RetrievalIndex, cur
 
 
 def test_no_time_left_returns_the_first_retrieved_unrefined(
-    reference: RetrievalIndex, queries: list, monkeypatch: pytest.MonkeyPatch
+    dataset_index: RetrievalIndex, queries: list, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """With the budget spent before refinement starts, nothing more is prepared (each of
     the 96 candidates is simulated at 2,000 steps to be) or refined: the answer is
@@ -154,7 +156,7 @@ def test_no_time_left_returns_the_first_retrieved_unrefined(
 
     monkeypatch.setattr(synthesis, "_candidate", counted)
     query = queries[1]
-    retrieved = reference.retrieve(query, CANDIDATES)
+    retrieved = dataset_index.retrieve(query, CANDIDATES)
     first = [r["path_id"] for r in retrieved[:3]]
     results = refine_retrieved(query, retrieved, 3, 0.001, started=time.perf_counter() - 1.0)
     assert sorted(prepared) == sorted(first)
@@ -167,21 +169,21 @@ def test_no_time_left_returns_the_first_retrieved_unrefined(
         )
 
 
-def test_a_synthesis_ends_within_its_budget(reference: RetrievalIndex, queries: list) -> None:
+def test_a_synthesis_ends_within_its_budget(dataset_index: RetrievalIndex, queries: list) -> None:
     """The deadline test: every piece of work checks the deadline, so the answer comes within
     a damping trial and the answer's own simulations of the budget. The margin holds on a
     loaded 2-core machine (the bench measures the overrun itself: under 50 ms here)."""
-    synthesize(reference, queries[0], k=3, seconds=0.2)  # compiled and loaded before timing
+    synthesize(dataset_index, queries[0], k=3, seconds=0.2)  # compiled and loaded before timing
     for query, partial in ((queries[0], False), (hand_drawn()[3], True)):
         start = time.perf_counter()
-        results = synthesize(reference, query, k=3, seconds=1.0, partial=partial)
+        results = synthesize(dataset_index, query, k=3, seconds=1.0, partial=partial)
         took = time.perf_counter() - start
         assert len(results) == 3
         assert took < 1.0 + 0.5, took
 
 
 def synthesis_threads(
-    reference: RetrievalIndex, query: np.ndarray, given: float | None
+    dataset_index: RetrievalIndex, query: np.ndarray, given: float | None
 ) -> tuple[list[dict], int]:
     """A synthesis of fixed work with the process given `given` CPUs, and the most threads
     it ran refinements in (counted from its progress reports, which run between rounds)."""
@@ -194,7 +196,7 @@ def synthesis_threads(
     cpus.set_given_cpus(given)
     try:
         results = synthesize(
-            reference, query, k=3, seed=7, iterations=ITERATIONS, progress=progress
+            dataset_index, query, k=3, seed=7, iterations=ITERATIONS, progress=progress
         )
     finally:
         cpus.set_given_cpus(None)
@@ -203,17 +205,17 @@ def synthesis_threads(
 
 
 def test_fixed_work_is_bit_equal_whatever_the_threads(
-    reference: RetrievalIndex, queries: list
+    dataset_index: RetrievalIndex, queries: list
 ) -> None:
     """seed + iterations: the same answer, bit for bit, in one thread or two, and again."""
     query = hand_drawn()[4]
-    one, threads_one = synthesis_threads(reference, query, 1)
-    two, threads_two = synthesis_threads(reference, query, None)
+    one, threads_one = synthesis_threads(dataset_index, query, 1)
+    two, threads_two = synthesis_threads(dataset_index, query, None)
     assert (threads_one, threads_two) == (1, min(2, cpus.usable_cpus()))
     assert len(one) == 3
     assert one == two  # floats compared exactly
     assert one[0]["chamfer"] < one[0]["retrieved_chamfer"]  # it did refine
-    again = synthesize(reference, query, k=3, seed=7, iterations=ITERATIONS)
+    again = synthesize(dataset_index, query, k=3, seed=7, iterations=ITERATIONS)
     assert again == one
 
 
@@ -296,10 +298,12 @@ def test_the_indexs_exact_pairs_use_the_cpus_given(monkeypatch: pytest.MonkeyPat
         ({"seconds": 1, "iterations": 10}, "give seconds or iterations, not both"),
     ],
 )
-def test_bad_input_raises_value_error(reference: RetrievalIndex, args: dict, words: str) -> None:
+def test_bad_input_raises_value_error(
+    dataset_index: RetrievalIndex, args: dict, words: str
+) -> None:
     call = {"points": hand_drawn()[0], **args}
     with pytest.raises(ValueError, match=words):
-        synthesize(reference, **call)
+        synthesize(dataset_index, **call)
 
 
 # -- the command line ------------------------------------------------------------------------
@@ -346,7 +350,7 @@ def test_links_synthesize(dataset: str, tmp_path: Path) -> None:
 # -- the HTTP API ----------------------------------------------------------------------------
 
 
-def test_http_synthesize(client: Client, reference: RetrievalIndex) -> None:
+def test_http_synthesize(client: Client, dataset_index: RetrievalIndex) -> None:
     """Fixed work over HTTP is the Python API's answer, bit for bit (the replica runs one
     thread, this process two); the answer says how long it waited."""
     curve = hand_drawn()[0].tolist()
@@ -355,7 +359,7 @@ def test_http_synthesize(client: Client, reference: RetrievalIndex) -> None:
     assert status == 200, data
     assert len(data["results"]) == 2
     assert 0 <= data["queued_ms"] <= data["took_ms"]
-    expected = synthesize(reference, np.array(curve), k=2, seed=3, iterations=ITERATIONS)
+    expected = synthesize(dataset_index, np.array(curve), k=2, seed=3, iterations=ITERATIONS)
     assert data["results"] == json.loads(json.dumps(expected))
     for result in data["results"]:
         assert result["chamfer"] <= result["retrieved_chamfer"] + 1e-12
@@ -585,7 +589,7 @@ def test_a_refinement_simulate_cannot_trace_at_200_steps_is_not_kept() -> None:
     assert candidate.positions is before and candidate.error == 0.05
 
 
-def test_synthesis_figure_draws_each_curve(reference: RetrievalIndex, tmp_path: Path) -> None:
+def test_synthesis_figure_draws_each_curve(dataset_index: RetrievalIndex, tmp_path: Path) -> None:
     """`links bench synthesize --figure`'s picture: a panel per curve, written as a PNG."""
     import matplotlib.pyplot as pyplot
 
@@ -593,8 +597,8 @@ def test_synthesis_figure_draws_each_curve(reference: RetrievalIndex, tmp_path: 
 
     entries = []
     for name, points in (("ellipse", hand_drawn()[0]), ("kidney", hand_drawn()[4])):
-        best = synthesize(reference, points, k=1, seconds=0.3)[0]
-        first = reference.retrieve(points, 1)[0]
+        best = synthesize(dataset_index, points, k=1, seconds=0.3)[0]
+        first = dataset_index.retrieve(points, 1)[0]
         entries.append(
             {
                 "curve": name,

@@ -51,7 +51,8 @@ def bench_retrieve(
     Without `rebuild`, a saved index is loaded and its recorded build time reported.
     """
     from links_ray.data.store import Store
-    from links_ray.search.index import RetrievalIndex, cache_folder
+    from links_ray.search.cache import cache_folder
+    from links_ray.search.index import RetrievalIndex
 
     start = time.perf_counter()
     root = retrieval_dataset(paths)
@@ -191,7 +192,7 @@ def exact_truth(index: object, queries: list[np.ndarray]) -> tuple[list[list], f
 def _probing(index: object, queries: list[np.ndarray], truth: list[list]) -> list[dict]:
     """Recall@3 and the in-process search time (`ranked`) at a few scan sizes: how the
     coarse lists trade recall for time. One entry, every row, for an index of one list."""
-    from links_ray.search.index import PROBED_ROWS
+    from links_ray.search.query import PROBED_ROWS
 
     sizes = (PROBED_ROWS // 4, PROBED_ROWS // 2, PROBED_ROWS, 2 * PROBED_ROWS)
     sizes = [size for size in sizes if size < len(index)] + [len(index)]

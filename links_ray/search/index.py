@@ -1,8 +1,12 @@
 """Retrieval: find curated paths whose shape matches a drawn curve, and the mechanisms that
 trace them where the curve was drawn (the paper's case study, as an index).
 
-`RetrievalIndex` is the face of the search layer; its rooms are:
+`RetrievalIndex` is the face of the search layer. Its rooms never import it: it passes them
+its arrays (`search.arrays.IndexArrays`) and the scan's buffers (`search.query.ScanBuffers`),
+as pynndescent's `NNDescent` passes plain arrays into its kernels. Each name is imported from
+the room that defines it (this module re-exports none). The rooms are:
 
+- `search.arrays`: `IndexArrays`, what a query reads;
 - `search.query`: the query pipeline (scan, estimates, exact) and the stages' sizes;
 - `search.build`: the build, streamed from the curated table;
 - `search.cache`: the on-disk cache of built indexes and the lease that lets one process
@@ -43,23 +47,12 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.mechanism import reduce_mechanism
 from links_ray.engine.paths import normalization
-from links_ray.search import brute_force as _brute_force
-from links_ray.search import query as _query
-from links_ray.search.build import (
-    BUILD_BLOCK,
-    DIMENSIONS,
-    FIELD_STRIDE,
-    Basis,
-    batch_points,
-    build_arrays,
-    curated_batches,
-    distance_fields,
-    sketch_paths,
-)
+from links_ray.search import query as search_query
+from links_ray.search.arrays import IndexArrays
+from links_ray.search.brute_force import brute_force_many
+from links_ray.search.build import BUILD_BLOCK, Basis, batch_points, build_arrays, curated_batches
 from links_ray.search.cache import (
-    BUILD_SETTINGS,
     BUILD_WAIT_S,
-    INDEX_FOLDER,
     ROW_ARRAYS,
     build_lease,
     cache_folder,
@@ -70,36 +63,9 @@ from links_ray.search.cache import (
 )
 from links_ray.search.mechanisms import MechanismBank
 from links_ray.search.placement import degrees_or_none, into_query_frame
-from links_ray.search.query import (
-    PROBED_ROWS,
-    QUERY_SAMPLE,
-    distance_table,
-    query_variants,
-    stage_sizes,
-    variant_map,
-)
-from links_ray.search.reduced import reduced_joints
+from links_ray.search.query import PROBED_ROWS, ScanBuffers, allowed_rows
 
-__all__ = [
-    "BUILD_SETTINGS",
-    "BUILD_WAIT_S",
-    "DIMENSIONS",
-    "FIELD_STRIDE",
-    "INDEX_FOLDER",
-    "PROBED_ROWS",
-    "QUERY_SAMPLE",
-    "ROW_ARRAYS",
-    "Basis",
-    "RetrievalIndex",
-    "cache_folder",
-    "check_part",
-    "distance_fields",
-    "distance_table",
-    "query_variants",
-    "sketch_paths",
-    "stage_sizes",
-    "variant_map",
-]
+__all__ = ["RetrievalIndex"]
 
 
 @dataclass
@@ -107,7 +73,8 @@ class RetrievalIndex:
     """Curated paths, their codes and sketches, and the mechanisms that trace them.
 
     One query at a time: the scan writes into buffers the index keeps (callers that serve
-    concurrent requests hold a lock, as the Serve app does).
+    concurrent requests hold a lock, as the Serve app does). The query functions read the
+    index's `arrays`, not the index.
     """
 
     store: Store
@@ -128,12 +95,30 @@ class RetrievalIndex:
     parts: int = 1
     build_s: float = 0.0
     fingerprint: str = ""  # of the curated shards indexed (changes when any is redone)
-    _scores: np.ndarray | None = field(default=None, repr=False)  # the scan's, reused
-    _likely: np.ndarray | None = field(default=None, repr=False)
-    _n_joints: np.ndarray | None = field(default=None, repr=False)  # see `n_joints`
+    _scan: ScanBuffers = field(init=False, repr=False)  # the scan's, kept between queries
+    _n_joints: np.ndarray | None = field(default=None, init=False, repr=False)  # `n_joints`
+
+    def __post_init__(self) -> None:
+        self._scan = ScanBuffers(len(self))
 
     def __len__(self) -> int:
         return len(self.joint)
+
+    @property
+    def arrays(self) -> IndexArrays:
+        """The index's arrays, as the query functions read them (the same arrays, no copy)."""
+        return IndexArrays(
+            steps=self.steps,
+            mechanism_row=self.mechanism_row,
+            joint=self.joint,
+            sketches=self.sketches,
+            transmission=self.transmission,
+            list_start=self.list_start,
+            centroids=self.centroids,
+            file_row=self.file_row,
+            basis=self.basis,
+            bank=self.bank,
+        )
 
     @property
     def nbytes(self) -> int:
@@ -144,7 +129,8 @@ class RetrievalIndex:
             self.centroids,
         )
         basis = self.basis.mean.nbytes + self.basis.components.nbytes
-        # The scan's scores (float32) and likely variants (int8), kept between queries.
+        # The scan's scores (float32) and likely variants (int8), kept between queries
+        # (counted before the first scan allocates them).
         held = 5 * len(self) + (0 if self._n_joints is None else self._n_joints.nbytes)
         return sum(a.nbytes for a in arrays) + basis + self.bank.nbytes + held
 
@@ -154,17 +140,7 @@ class RetrievalIndex:
         counted from the packed mechanisms on first use (a fraction of a second a million
         paths) and kept."""
         if self._n_joints is None:
-            counts = np.empty(len(self), dtype=np.int16)
-            bank = self.bank
-            reduced_joints(
-                bank.orders,
-                bank.order_start,
-                bank.joint_start,
-                self.mechanism_row,
-                self.joint,
-                counts,
-            )
-            self._n_joints = counts
+            self._n_joints = self.arrays.count_joints()
         return self._n_joints
 
     @property
@@ -179,12 +155,11 @@ class RetrievalIndex:
 
     def path_ids(self, rows: np.ndarray) -> np.ndarray:
         """(len(rows),) int64: the path ids of these rows, 32 * mechanism_id + joint."""
-        return (self.bank.ids[self.mechanism_row[rows]] << 5) | self.joint[rows].astype(np.int64)
+        return self.arrays.path_ids(rows)
 
     def paths(self, rows: np.ndarray) -> np.ndarray:
         """(len(rows), steps, 2) float32: the curated points of these rows, traced again."""
-        rows = np.asarray(rows, dtype=np.int64)
-        return self.bank.paths(self.mechanism_row[rows], self.joint[rows], self.steps)
+        return self.arrays.paths(rows)
 
     @classmethod
     def open(
@@ -261,7 +236,7 @@ class RetrievalIndex:
         """The row ranges to scan for a query whose variants have these field codes: the
         lists nearest any variant, nearest first, until they hold `rows` rows, in row order
         (`scan_pieces`: starts, ends, at)."""
-        return _query.probe(self, field_codes, rows)
+        return search_query.probe(self.arrays, field_codes, rows)
 
     def candidates(
         self,
@@ -273,7 +248,7 @@ class RetrievalIndex:
         """About `count` rows of the scanned `pieces` (`probe`) whose scan score is least, and
         their likely variants, among the rows `allowed` (`search.query.allowed_rows`; None:
         all): the scan (`search.query.candidates` says exactly)."""
-        return _query.candidates(self, levels, count, pieces, allowed)
+        return search_query.candidates(self.arrays, levels, count, pieces, allowed, self._scan)
 
     def ranked(
         self,
@@ -288,7 +263,12 @@ class RetrievalIndex:
         paths keeping `min_transmission` degrees (all, at 0) whose reduced mechanism has at
         most `max_joints` joints (any, at None); the scan of the lists nearest it, `probed`
         rows, passes on `candidates` paths (by default as `stage_sizes` says)."""
-        return _query.ranked(self, normalized, k, candidates, probed, min_transmission, max_joints)
+        # The joints are counted (once) only when a query limits them.
+        counts = None if max_joints is None else self.n_joints
+        allowed = allowed_rows(self.transmission, counts, min_transmission, max_joints)
+        return search_query.ranked(
+            self.arrays, normalized, k, candidates, probed, allowed, self._scan
+        )
 
     def warm(self, seconds: float = 5.0, queries: int = 200) -> int:
         """Answer queries until `seconds` pass or `queries` are answered; return how many.
@@ -374,4 +354,4 @@ class RetrievalIndex:
     ) -> list[list[tuple[int, float, int]]]:
         """`brute_force` of each query, in one pass over the curated points
         (`search.brute_force` says how). Raises ValueError naming a bad query."""
-        return _brute_force.brute_force_many(self, queries, k)
+        return brute_force_many(self.arrays, self.iter_points, queries, k, self._scan)

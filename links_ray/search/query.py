@@ -1,5 +1,8 @@
 """The query pipeline of a retrieval index: scan, estimates, exact.
 
+Its functions read an index's arrays (`IndexArrays`) and write only the scan's buffers they are
+given (`ScanBuffers`); `RetrievalIndex` passes both in.
+
 The distance is the bidirectional chamfer distance between normalized paths, least over the
 query's four variants (as drawn, turned 180 degrees, mirrored, both). A query passes three
 stages, each narrower and more exact than the last:
@@ -27,16 +30,14 @@ No Ray.
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import numpy as np
 
 from links_ray.engine.cpus import usable_cpus
 from links_ray.engine.paths import chamfer_to_many
 from links_ray.search import kernels
-
-if TYPE_CHECKING:
-    from links_ray.search.index import RetrievalIndex
+from links_ray.search.arrays import IndexArrays
 
 #: Paths passed from the scan to the estimate: this share of the index's paths, and at least
 #: MIN_CANDIDATES (every path, in every variant, when there are no more than that); past
@@ -71,6 +72,27 @@ ROUNDING = 1e-9
 SELECTION_STRIDE = 16
 
 _NO_MIDPOINTS = np.empty(0, dtype=np.int32)
+
+
+@dataclass
+class ScanBuffers:
+    """The scan's output for up to `rows` rows: each scanned row's score and likely variants.
+
+    An index keeps one between queries, so that a scan allocates nothing of the index's size
+    (one query at a time uses it); its arrays are allocated on the first scan, as an index
+    small enough to pass every row on never scans.
+    """
+
+    rows: int
+    scores: np.ndarray | None = None  # (rows,) float32
+    likely: np.ndarray | None = None  # (rows,) int8
+
+    def take(self, scanned: int) -> tuple[np.ndarray, np.ndarray]:
+        """(scores, likely) for the first `scanned` rows (at most `rows`)."""
+        if self.scores is None or self.likely is None:
+            self.scores = np.empty(self.rows, dtype=np.float32)
+            self.likely = np.empty(self.rows, dtype=np.int8)
+        return self.scores[:scanned], self.likely[:scanned]
 
 
 def variant_map(variant: int) -> tuple[np.ndarray, np.ndarray]:
@@ -110,60 +132,65 @@ def stage_sizes(paths: int) -> tuple[int, int, int]:
 
 
 def probe(
-    index: RetrievalIndex, field_codes: np.ndarray, rows: int = PROBED_ROWS
+    arrays: IndexArrays, field_codes: np.ndarray, rows: int = PROBED_ROWS
 ) -> tuple[np.ndarray, ...]:
-    """The row ranges of `index` to scan for a query whose variants have these field codes:
+    """The row ranges of an index to scan for a query whose variants have these field codes:
     the lists nearest any variant, nearest first, until they hold `rows` rows, in row order
     (`kernels.scan_pieces`: starts, ends, at)."""
-    sizes = np.diff(index.list_start)
-    if len(sizes) == 1 or rows >= len(index):
+    sizes = np.diff(arrays.list_start)
+    if len(sizes) == 1 or rows >= len(arrays):
         chosen = np.arange(len(sizes))
     else:
-        gaps = (index.centroids**2).sum(axis=1) - 2 * field_codes @ index.centroids.T
+        gaps = (arrays.centroids**2).sum(axis=1) - 2 * field_codes @ arrays.centroids.T
         order = np.argsort(gaps.min(axis=0), kind="stable")
         enough = np.searchsorted(np.cumsum(sizes[order]), rows) + 1
         chosen = np.sort(order[:enough])
-    return kernels.scan_pieces(index.list_start[chosen], index.list_start[chosen + 1])
+    return kernels.scan_pieces(arrays.list_start[chosen], arrays.list_start[chosen + 1])
 
 
 def allowed_rows(
-    index: RetrievalIndex, min_transmission: float = 0.0, max_joints: int | None = None
+    transmission: np.ndarray,
+    n_joints: np.ndarray | None,
+    min_transmission: float = 0.0,
+    max_joints: int | None = None,
 ) -> np.ndarray | None:
-    """(N,) bool: which paths of `index` a query may answer with, those keeping
-    `min_transmission` degrees (when above 0) whose reduced mechanism has at most `max_joints`
-    joints (when given); None when every path may."""
+    """(N,) bool: which paths a query may answer with, those whose `transmission` keeps
+    `min_transmission` degrees (when above 0) and whose reduced mechanism has at most
+    `max_joints` joints (when given; `n_joints` counts them and is read only then); None when
+    every path may."""
     allowed = None
     if min_transmission > 0:
-        allowed = index.transmission >= min_transmission
+        allowed = transmission >= min_transmission
     if max_joints is not None:
-        simple = index.n_joints <= max_joints
+        if n_joints is None:
+            raise ValueError("max_joints needs the paths' joint counts (n_joints)")
+        simple = n_joints <= max_joints
         allowed = simple if allowed is None else allowed & simple
     return allowed
 
 
 def candidates(
-    index: RetrievalIndex,
+    arrays: IndexArrays,
     levels: np.ndarray,
     count: int,
     pieces: tuple[np.ndarray, ...],
     allowed: np.ndarray | None = None,
+    buffers: ScanBuffers | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """About `count` rows of the scanned `pieces` (`probe`) whose scan score (at their best
     variant) against the query's `levels` table is least (every allowed row when `count`
     reaches their number); and for each, 4 * its likeliest variant + the second likeliest if
     nearly as likely (`kernels.sketch_scan`), or -1 when every allowed row is returned. Only
-    rows `allowed` (N,) bool (`allowed_rows`; None: all) are passed on."""
-    if count >= (len(index) if allowed is None else np.count_nonzero(allowed)):
-        rows = np.arange(len(index)) if allowed is None else np.flatnonzero(allowed)
+    rows `allowed` (N,) bool (`allowed_rows`; None: all) are passed on. The scan writes into
+    `buffers` (None: new ones, for this call only)."""
+    if count >= (len(arrays) if allowed is None else np.count_nonzero(allowed)):
+        rows = np.arange(len(arrays)) if allowed is None else np.flatnonzero(allowed)
         return rows, np.full(len(rows), -1, dtype=np.int8)
     starts, ends, at = pieces
     scanned = int(at[-1] + ends[-1] - starts[-1])
-    if index._scores is None:
-        index._scores = np.empty(len(index), dtype=np.float32)
-        index._likely = np.empty(len(index), dtype=np.int8)
-    scores, likely = index._scores[:scanned], index._likely[:scanned]
+    scores, likely = (buffers or ScanBuffers(len(arrays))).take(scanned)
     kernels.sketch_scan(
-        index.sketches, starts, ends, at, levels, SCAN_SLOTS, VARIANT_MARGIN, scores, likely
+        arrays.sketches, starts, ends, at, levels, SCAN_SLOTS, VARIANT_MARGIN, scores, likely
     )
     if allowed is not None:
         kept = np.concatenate([allowed[s:e] for s, e in zip(starts, ends, strict=True)])
@@ -175,27 +202,26 @@ def candidates(
 
 
 def ranked(
-    index: RetrievalIndex,
+    arrays: IndexArrays,
     normalized: np.ndarray,
     k: int,
     candidates_count: int | None = None,
     probed: int = PROBED_ROWS,
-    min_transmission: float = 0.0,
-    max_joints: int | None = None,
+    allowed: np.ndarray | None = None,
+    buffers: ScanBuffers | None = None,
 ) -> list[tuple[int, float, int]]:
-    """The k best (row, chamfer, variant) of `index`, best first, for a normalized query,
-    among the paths keeping `min_transmission` degrees (all, at 0) whose reduced mechanism has
-    at most `max_joints` joints (any, at None); the scan of the lists nearest it, `probed`
-    rows, passes on `candidates_count` paths (by default as `stage_sizes` says)."""
-    default_candidates, refined, exact_count = stage_sizes(len(index))
+    """The k best (row, chamfer, variant) of an index's `arrays`, best first, for a
+    normalized query, among the rows `allowed` (`allowed_rows`; None: all); the scan of the
+    lists nearest it, `probed` rows, passes on `candidates_count` paths (by default as
+    `stage_sizes` says), writing into `buffers` (None: new ones)."""
+    default_candidates, refined, exact_count = stage_sizes(len(arrays))
     count = candidates_count or default_candidates
     variants = query_variants(normalized)
-    allowed = allowed_rows(index, min_transmission, max_joints)
-    pieces = probe(index, index.basis.query(variants), probed)
+    pieces = probe(arrays, arrays.basis.query(variants), probed)
     table, owners = distance_table(normalized)
     levels = np.empty((kernels.SKETCH_LEVELS + 1,) * 2, dtype=np.float32)
     kernels.level_table(normalized, owners, levels)
-    rows, likely = candidates(index, levels, count, pieces, allowed)
+    rows, likely = candidates(arrays, levels, count, pieces, allowed, buffers)
     if len(rows) == 0:
         return []
     # Each candidate with its likely variants (every variant on the exhaustive path).
@@ -208,20 +234,20 @@ def ranked(
         pair_variants = np.concatenate([first, second[both]]).astype(np.int64)
     if len(pair_rows) > refined:  # a rough estimate of every pair first
         rough = estimate(
-            index, normalized, levels, pair_rows, pair_variants, kernels.ROUGH_SAMPLE, rough=True
+            arrays, normalized, levels, pair_rows, pair_variants, kernels.ROUGH_SAMPLE, rough=True
         )
         best = np.argpartition(rough, refined)[:refined]
         pair_rows, pair_variants = pair_rows[best], pair_variants[best]
-    fine = estimate(index, normalized, levels, pair_rows, pair_variants, QUERY_SAMPLE)
+    fine = estimate(arrays, normalized, levels, pair_rows, pair_variants, QUERY_SAMPLE)
     # Rows by their best estimate (a row may come twice, once per variant).
     order = np.argsort(fine, kind="stable")
     _, first = np.unique(pair_rows[order], return_index=True)
     chosen = order[np.sort(first)][: max(exact_count, k)]
-    return exact_finalists(index, variants, table, pair_rows[chosen], pair_variants[chosen], k)
+    return exact_finalists(arrays, variants, table, pair_rows[chosen], pair_variants[chosen], k)
 
 
 def estimate(
-    index: RetrievalIndex,
+    arrays: IndexArrays,
     normalized: np.ndarray,
     levels: np.ndarray,
     rows: np.ndarray,
@@ -234,14 +260,14 @@ def estimate(
     picked = normalized[spread_indices(len(normalized), sample_size)]
     sample = np.rint(picked * kernels.SKETCH_LEVELS).astype(np.int32)
     used = kernels.ROUGH_POINTS if rough else kernels.SKETCH_POINTS
-    midpoints = _NO_MIDPOINTS if rough else kernels.sketch_midpoints(index.steps)
+    midpoints = _NO_MIDPOINTS if rough else kernels.sketch_midpoints(arrays.steps)
     out = np.empty(len(rows))
-    kernels.sketch_chamfer(sample, levels, index.sketches, rows, variants, used, midpoints, out)
+    kernels.sketch_chamfer(sample, levels, arrays.sketches, rows, variants, used, midpoints, out)
     return out
 
 
 def exact_finalists(
-    index: RetrievalIndex,
+    arrays: IndexArrays,
     variants: np.ndarray,
     table: np.ndarray,
     rows: np.ndarray,
@@ -258,7 +284,7 @@ def exact_finalists(
     the k-th best so far: no other pair can change the answer.
     """
     if points is None:
-        points = index.paths(rows)
+        points = arrays.paths(rows)
     local = np.arange(len(rows))
     distances = exact_pairs(variants, points, local, likely)
     bounds = np.empty((len(rows), 4))
@@ -275,7 +301,7 @@ def exact_finalists(
         likely = np.concatenate([likely, more_variants])
         distances = np.concatenate([distances, measured])
     rows = np.asarray(rows)[local]
-    return best_rows(rows, index.path_ids(rows), likely, distances, k)
+    return best_rows(rows, arrays.path_ids(rows), likely, distances, k)
 
 
 def exact_pairs(
