@@ -53,10 +53,10 @@ from links_ray.engine.inputs import (
 from links_ray.interop.curve_files import (
     DEFAULT_CURVE_POINTS,
     Curve,
-    CurveFileTooLarge,
     _sized,
     read_curve_text,
 )
+from links_ray.interop.outlines import CurveFileTooLarge
 
 __all__ = [
     "CurveFileTooCostly",
