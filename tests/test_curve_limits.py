@@ -23,12 +23,6 @@ import ezdxf
 import numpy as np
 import pytest
 
-from links_ray.engine.inputs import (
-    MAX_CURVE_SEGMENTS,
-    MAX_DXF_ENTITIES,
-    MAX_SPLINE_FIT_POINTS,
-    MAX_SVG_ELEMENTS,
-)
 from links_ray.interop import curve_files
 from links_ray.interop.curve_files import (
     FLAT_POINTS,
@@ -36,6 +30,12 @@ from links_ray.interop.curve_files import (
     read_curve,
     read_curve_text,
     read_points,
+)
+from links_ray.interop.curve_limits import (
+    MAX_CURVE_SEGMENTS,
+    MAX_DXF_ENTITIES,
+    MAX_SPLINE_FIT_POINTS,
+    MAX_SVG_ELEMENTS,
 )
 from links_ray.interop.curve_worker import (
     CurveFileTooCostly,

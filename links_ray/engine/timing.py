@@ -18,8 +18,8 @@ import numpy as np
 
 from links_ray.engine.inputs import REFINE_CHECK_STEPS
 from links_ray.engine.mechanism import Topology
-from links_ray.engine.refine import Target
 from links_ray.engine.solver import simulate
+from links_ray.engine.target import Target
 
 __all__ = ["best_start"]
 

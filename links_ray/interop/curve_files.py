@@ -46,22 +46,24 @@ import orjson
 
 from links_ray.engine.inputs import (
     MAX_COORDINATE,
-    MAX_CURVE_FILE_BYTES,
-    MAX_CURVE_SEGMENTS,
-    MAX_DXF_ENTITIES,
     MAX_POINTS,
-    MAX_SPLINE_FIT_POINTS,
-    MAX_SVG_ATTRIBUTE_CHARS,
-    MAX_SVG_DEPTH,
-    MAX_SVG_ELEMENTS,
-    MAX_SVG_NUMBERS,
-    MAX_SVG_TRANSFORMS,
     MIN_POINTS,
     as_drawn_points,
     as_int,
     shown,
 )
 from links_ray.engine.paths import even_along
+from links_ray.interop.curve_limits import (
+    MAX_CURVE_FILE_BYTES,
+    MAX_CURVE_SEGMENTS,
+    MAX_DXF_ENTITIES,
+    MAX_SPLINE_FIT_POINTS,
+    MAX_SVG_ATTRIBUTE_CHARS,
+    MAX_SVG_DEPTH,
+    MAX_SVG_ELEMENTS,
+    MAX_SVG_NUMBERS,
+    MAX_SVG_TRANSFORMS,
+)
 
 __all__ = [
     "CURVE_FILE_TYPES",
