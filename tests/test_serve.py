@@ -168,7 +168,7 @@ def test_openapi_bodies_carry_the_engines_limits(client: Client) -> None:
 
 
 def test_limits_are_the_engines_and_enforced(client: Client) -> None:
-    """GET /api/limits is engine/inputs.py's limits, and each is where requests start to be
+    """GET /api/limits is serve/limits.py's limits, and each is where requests start to be
     refused."""
     status, limits = client.get("/api/limits")
     assert status == 200 and limits == http_limits.request_limits()

@@ -17,7 +17,7 @@ contents (what the HTTP API's `/api/curve` is sent). `read_points` reads the JSO
 - `.json`: `[[x, y], ...]` or `{"points": [[x, y], ...], "closed": true}`; closed when it says
   so or the last point repeats the first.
 
-Every file is bounded before its parser expands it (engine/inputs.py, drawing files): an SVG is
+Every file is bounded before its parser expands it (interop/curve_limits.py): an SVG is
 scanned first (its elements, nesting, numbers and transforms counted as svgelements would make
 them, `<use>` copies included) and handed to svgelements with its geometry alone, no CSS, text
 or styling; a DXF's entities are counted before ezdxf loads it; the curve read has at most
@@ -91,7 +91,7 @@ _DXF_ENTITIES = "LWPOLYLINE, POLYLINE or SPLINE"
 
 class CurveFileTooLarge(ValueError):
     """A drawing past a limit on what a curve file may hold (its bytes, an SVG's elements, a
-    curve's segments, ...): `limit` is the name of the constant in engine/inputs.py. The
+    curve's segments, ...): `limit` is the name of the constant in interop/curve_limits.py. The
     HTTP API answers it with 413."""
 
     status = 413
