@@ -23,13 +23,13 @@ import ezdxf
 import numpy as np
 import pytest
 
-from links_ray.engine.inputs import (
+from links_ray.interop.curve_files import read_curve, read_curve_text, read_points
+from links_ray.interop.curve_limits import (
     MAX_CURVE_SEGMENTS,
     MAX_DXF_ENTITIES,
     MAX_SPLINE_FIT_POINTS,
     MAX_SVG_ELEMENTS,
 )
-from links_ray.interop.curve_files import read_curve, read_curve_text, read_points
 from links_ray.interop.curve_worker import (
     CurveFileTooCostly,
     CurveReaders,

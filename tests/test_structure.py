@@ -115,7 +115,9 @@ def imports_numba(path: Path) -> bool:
     """Whether the module imports numba (at its top level): a module of compiled kernels."""
     tree = ast.parse(path.read_text(), filename=str(path))
     for node in tree.body:
-        if isinstance(node, ast.Import) and any(a.name.split(".")[0] == "numba" for a in node.names):
+        if isinstance(node, ast.Import) and any(
+            alias.name.split(".")[0] == "numba" for alias in node.names
+        ):
             return True
         if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "numba":
             return True

@@ -55,15 +55,13 @@ from links_ray.data.schemas import SCHEMAS, TRAJECTORY_DTYPE, list_array
 from links_ray.data.shards import NEGATIVE_ID_BASE, VARIANTS
 from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.inputs import (
-    ACTUATED,
     DEFAULT_STEPS,
-    FIXED,
-    SIMPLE,
     InvalidMechanismError,
     as_positions,
     check_positions,
 )
 from links_ray.engine.mechanism import MAX_DATASET_JOINTS, Topology, analyze_topology
+from links_ray.engine.node_kinds import ACTUATED, FIXED, SIMPLE
 from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.transmission import mechanism_transmission_deg
 

@@ -24,7 +24,7 @@ import pickletools
 import numpy as np
 from numba import njit
 
-from links_ray.engine.inputs import check_buffer
+from links_ray.engine.buffers import check_buffer
 
 #: The most MARKs a batch may have open at once.
 MAX_MARKS = 1000

@@ -17,7 +17,7 @@ contents (what the HTTP API's `/api/curve` is sent). `read_points` reads the JSO
 - `.json`: `[[x, y], ...]` or `{"points": [[x, y], ...], "closed": true}`; closed when it says
   so or the last point repeats the first.
 
-Every file is bounded before its parser expands it (engine/inputs.py, drawing files): an SVG
+Every file is bounded before its parser expands it (interop/curve_limits.py): an SVG
 is scanned first (`interop.svg_curves`), a DXF's records are counted (`interop.dxf_curves`),
 and the curve read has at most MAX_CURVE_SEGMENTS segments, flattened to a fixed budget of
 points (`interop.outlines`). A file past a limit raises `interop.outlines.CurveFileTooLarge`.
@@ -35,7 +35,6 @@ import numpy as np
 import orjson
 
 from links_ray.engine.inputs import (
-    MAX_CURVE_FILE_BYTES,
     MAX_POINTS,
     MIN_POINTS,
     as_drawn_points,
@@ -43,6 +42,7 @@ from links_ray.engine.inputs import (
     shown,
 )
 from links_ray.engine.paths import even_along
+from links_ray.interop.curve_limits import MAX_CURVE_FILE_BYTES
 from links_ray.interop.dxf_curves import read_dxf
 from links_ray.interop.outlines import CurveFileTooLarge, check_coordinates
 from links_ray.interop.svg_curves import read_svg

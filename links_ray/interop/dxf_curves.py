@@ -13,7 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from links_ray.engine.inputs import MAX_CURVE_SEGMENTS, MAX_DXF_ENTITIES, MAX_SPLINE_FIT_POINTS
+from links_ray.interop.curve_limits import (
+    MAX_CURVE_SEGMENTS,
+    MAX_DXF_ENTITIES,
+    MAX_SPLINE_FIT_POINTS,
+)
 from links_ray.interop.outlines import Along, flatten, too_many
 
 DXF_ENTITIES = "LWPOLYLINE, POLYLINE or SPLINE"

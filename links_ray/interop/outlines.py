@@ -22,7 +22,7 @@ FLAT_POINTS = 20_000
 
 class CurveFileTooLarge(ValueError):
     """A drawing past a limit on what a curve file may hold (its bytes, an SVG's elements, a
-    curve's segments, ...): `limit` is the name of the constant in engine/inputs.py. The
+    curve's segments, ...): `limit` is the name of the constant in interop/curve_limits.py. The
     HTTP API answers it with 413."""
 
     status = 413

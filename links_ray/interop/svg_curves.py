@@ -19,14 +19,14 @@ from xml.parsers import expat
 
 import numpy as np
 
-from links_ray.engine.inputs import (
+from links_ray.engine.inputs import shown
+from links_ray.interop.curve_limits import (
     MAX_CURVE_SEGMENTS,
     MAX_SVG_ATTRIBUTE_CHARS,
     MAX_SVG_DEPTH,
     MAX_SVG_ELEMENTS,
     MAX_SVG_NUMBERS,
     MAX_SVG_TRANSFORMS,
-    shown,
 )
 from links_ray.interop.outlines import (
     SATURATED_COUNT,
