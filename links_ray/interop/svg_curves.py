@@ -196,9 +196,7 @@ class _SvgScan:
                 node = nodes[index]
                 elements[index] = min(SATURATED_COUNT, 1 + sum(elements[k] for k in below))
                 depth[index] = 1 + max((depth[k] for k in below), default=0)
-                numbers[index] = min(
-                    SATURATED_COUNT, node.numbers + sum(numbers[k] for k in below)
-                )
+                numbers[index] = min(SATURATED_COUNT, node.numbers + sum(numbers[k] for k in below))
                 applied[index] = min(
                     SATURATED_COUNT,
                     node.transforms * elements[index] + sum(applied[k] for k in below),
