@@ -1,4 +1,4 @@
-"""The release's curve rules (`data.release_format`) on hand-made curves with known answers, and
+"""The release's curve rules (`release.format`) on hand-made curves with known answers, and
 `links export-dataset --format release` read back by `release_reader`, a reader written from
 the release's published facts alone (it imports numpy and pickle only)."""
 
@@ -18,8 +18,9 @@ from test_export_dataset import BARE_PLAN, _write
 
 import links_ray
 from links_ray.data.pathset import KEEP_SHARE, keep_draw, path_ids
-from links_ray.data.release import export_release
-from links_ray.data.release_format import (
+from links_ray.engine.mechanism import ACTUATED, FIXED, SIMPLE
+from links_ray.release.exporter import export_release
+from links_ray.release.format import (
     RELEASE_CIRCLE_VARIANCE,
     release_arcs,
     release_circle_variance,
@@ -29,7 +30,6 @@ from links_ray.data.release_format import (
     release_trajectories,
     release_trajectories_many,
 )
-from links_ray.engine.mechanism import ACTUATED, FIXED, SIMPLE
 
 NAMES = ("dataset", "simulation_dataset", "normalized_dataset", "curated_dataset")
 

@@ -23,22 +23,22 @@ from serving import links_serve
 from studio_page import draw, open_studio
 from test_cli import links
 
-from links_ray.data import release_import
 from links_ray.data.commit import ShardWriter, committed_files, committed_shards
 from links_ray.data.lease import Lease, LeaseHeld
 from links_ray.data.pathset import path_table
-from links_ray.data.release_import import (
-    BATCH_STRIDE,
-    SHARDS_PER_BATCH,
-    import_release,
-    release_location,
-)
-from links_ray.data.release_pickles import ReleaseFileError, read_batches, release_files
 from links_ray.data.shards import NEGATIVE_ID_BASE
 from links_ray.data.store import Store, StoreError
 from links_ray.engine.sampling import PositionSampler
 from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.topology import grow_topology
+from links_ray.release import importer
+from links_ray.release.importer import (
+    BATCH_STRIDE,
+    SHARDS_PER_BATCH,
+    import_release,
+    release_location,
+)
+from links_ray.release.pickles import ReleaseFileError, read_batches, release_files
 from links_ray.serve.app import bindable_port
 
 
@@ -385,7 +385,7 @@ def test_resume_after_a_failure_inside_a_shard_gives_the_same_rows(
                 raise OSError("the store went away")
             return super().commit(stats)
 
-    monkeypatch.setattr(release_import, "ShardWriter", FailingWriter)
+    monkeypatch.setattr(importer, "ShardWriter", FailingWriter)
     with pytest.raises(OSError, match="the store went away"):
         import_release(str(release), root)
     monkeypatch.undo()
@@ -608,8 +608,7 @@ def test_export_then_import_keeps_the_mechanisms_and_the_curated_set(
     """A generated and curated root exported in the release's layout and imported again: every
     mechanism comes back, in mechanism_id order batch by batch, with its adjacency, node types
     and positions as the release holds them (float32), and the curated set is the source's."""
-    from links_ray.data.release import export_release, import_release
-    from links_ray.data.release_import import release_location
+    from links_ray.release.exporter import export_release
 
     out = tmp_path / "release"
     export_release(dataset, str(out), chunk_size=128, format="release")

@@ -14,8 +14,8 @@ trajectories (`pathset.trajectory_paths`: the same rows bit for bit); curated cu
 `curated` or chosen from the normalized ones with the recorded curation seed
 (`pathset.curated_mask`, seed 0 when the root was never curated, as `links curate` would).
 
-Import, the other direction, is `links_ray.data.release_import.import_release` (and
-`release_location`, a row's way back to the release), also importable from here.
+Import, the other direction, is `links_ray.release.importer.import_release` (and
+`release_location`, a row's way back to the release).
 
 Pure numpy/pyarrow: no Ray.
 """
@@ -44,19 +44,17 @@ from links_ray.data.pathset import (
     simulated_trajectories,
     trajectory_paths,
 )
-from links_ray.data.release_format import (
+from links_ray.data.splits import check_fractions, check_split, split_mask
+from links_ray.data.store import META, Store
+from links_ray.engine.inputs import DEFAULT_STEPS
+from links_ray.engine.mechanism import FIXED
+from links_ray.release.format import (
     RELEASE_FILES,
     release_arcs,
     release_circles,
     release_normalize_many,
     release_trajectories_many,
 )
-from links_ray.data.release_import import import_release as import_release
-from links_ray.data.release_import import release_location as release_location
-from links_ray.data.splits import check_fractions, check_split, split_mask
-from links_ray.data.store import META, Store
-from links_ray.engine.inputs import DEFAULT_STEPS
-from links_ray.engine.mechanism import FIXED
 
 #: Mechanisms per chunk by default: a 20-joint chunk's simulations take 320 MB.
 DEFAULT_CHUNK_MECHANISMS = 10_000
@@ -393,7 +391,7 @@ def export_release_files(
     `dataset` `[A (n, n) bool, x0 (n, 2) float32, node_type (n,) bool, True for fixed]`, the
     root's adjacency, positions and node types in links-ray's joint order (joint 0 fixed,
     joint 1 the crank's tip, as the release has them); `simulation_dataset` `[x_sol
-    (n, 200, 2) float32, j]`, x0 simulated at the release's angles (`release_format`);
+    (n, 200, 2) float32, j]`, x0 simulated at the release's angles (`release.format`);
     `normalized_dataset` `[curve (200, 2) float32, j, node]` for every moving joint, x_sol's
     path normalized by `release_normalize_many`; `curated_dataset` the same for the curated
     joints: the root's `curated` table where curation wrote one, else links-ray's seeded

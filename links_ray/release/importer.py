@@ -1,7 +1,7 @@
 """Import of the LINKS release's own files into a links-ray root
 (docs/guides/importing-the-release.md).
 
-The release's files are read with the restricted unpickler of `release_pickles`, one batch at
+The release's files are read with the restricted unpickler of `release.pickles`, one batch at
 a time, and one file's batch at a time: a batch's mechanisms stay in memory while its
 simulations are checked and dropped, then its curated (j, node) pairs are read. Each batch is
 split by joint count into shards committed by the commit protocol (`data.commit`) under the
@@ -19,7 +19,7 @@ ACTUATED (2), any other joint to SIMPLE (1). Positions are the release's float32
 float64, exactly.
 
 Every mechanism is checked with links-ray's own validators and solver: at the release's angles
-(`release_format.release_trajectories`' solver), compared with the release's own trajectories
+(`release.format.release_trajectories`' solver), compared with the release's own trajectories
 where it has them; and over links-ray's own turn (DEFAULT_STEPS steps from the initial angle),
 where one that locks goes to `negatives`. `paths` are links-ray's curation of the rest
 (`pathset.trajectory_paths`); `curated` are the paths the release curated when it has
@@ -49,11 +49,9 @@ from links_ray.data.pathset import (
     path_shares,
     trajectory_paths,
 )
-from links_ray.data.release_format import RELEASE_STEPS, release_turn
-from links_ray.data.release_pickles import ReleaseFileError, read_batches, release_files
 from links_ray.data.schemas import SCHEMAS, TRAJECTORY_DTYPE, list_array
 from links_ray.data.shards import NEGATIVE_ID_BASE, VARIANTS
-from links_ray.data.store import META, Store, StoreError
+from links_ray.data.store import IMPORTED_SOURCE, META, Store
 from links_ray.engine.inputs import (
     ACTUATED,
     DEFAULT_STEPS,
@@ -66,8 +64,10 @@ from links_ray.engine.inputs import (
 from links_ray.engine.mechanism import MAX_DATASET_JOINTS, Topology, analyze_topology
 from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.transmission import mechanism_transmission_deg
+from links_ray.release.format import RELEASE_STEPS, release_turn
+from links_ray.release.pickles import ReleaseFileError, read_batches, release_files
 
-__all__ = ["BATCH_STRIDE", "import_release", "refuse_imported", "release_location"]
+__all__ = ["BATCH_STRIDE", "import_release", "release_location"]
 
 #: Ids a release batch spans: a multiple of 5, so a batch's groups of five stay topologies.
 BATCH_STRIDE = VARIANTS * (1 << 22)
@@ -80,8 +80,6 @@ AGREEMENT_TOLERANCE = 1e-4
 #: Disagreeing mechanisms named in the import summary (every shard's marker names all of its).
 SHOWN_DISAGREEING = 100
 IMPORT_FORMAT = 1
-#: `run.json`'s source of an imported root.
-IMPORTED_SOURCE = "links-release"
 #: A mechanism's check against the release (`_release_check`), and the summary's count of each.
 VERDICT_STATS = {
     "agree": "agreeing",
@@ -100,19 +98,6 @@ def release_location(mechanism_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     ids = np.asarray(mechanism_ids, dtype=np.int64)
     ids = np.where(ids >= NEGATIVE_ID_BASE, ids - NEGATIVE_ID_BASE, ids)
     return ids // BATCH_STRIDE, ids % BATCH_STRIDE
-
-
-def refuse_imported(store: Store) -> dict:
-    """The root's run record (`run.json`, {} if none); StoreError if `store` holds an import of
-    the release: its curated set is the release's, which generating or curating more would mix
-    with a seeded one."""
-    run = store.read_json(f"{META}/run.json") or {}
-    if run.get("source") == IMPORTED_SOURCE:
-        raise StoreError(
-            f"{store.uri} is an import of the LINKS release: only links import-release writes "
-            "to it (run it again to finish an interrupted import)"
-        )
-    return run
 
 
 def _entries(value: Any, shown: str, width: int) -> list:

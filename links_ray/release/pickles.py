@@ -5,8 +5,8 @@ callable a pickle names, so `read_batches` unpickles with `ReleaseUnpickler`, wh
 only the names a plain `pickle.dump` of lists of numpy arrays and scalars uses (protocols 0 to
 5, numpy 1 and numpy 2 module names) and refuses any other before anything is called. Lists,
 tuples, ints, floats, bools and strings need no name at all. Before the unpickler reads a byte,
-the opcode filter of `release_scan` has passed it: no dict or set, no opcode such pickles never
-hold, memo indices only in the order a pickler writes them.
+the opcode filter of `release.opcode_scan` has passed it: no dict or set, no opcode such
+pickles never hold, memo indices only in the order a pickler writes them.
 
 Nor does a pickle reach numpy's own constructors: what it names stands in for code of ours.
 A pickle's BUILD step hands state from the file to the object's `__setstate__`, and numpy's
@@ -33,8 +33,8 @@ from typing import Any
 import numpy as np
 import pyarrow.fs as pafs
 
-from links_ray.data import release_scan
 from links_ray.data.store import Store
+from links_ray.release import opcode_scan
 
 #: The release's four files by released name, and the prefix the release's generator puts
 #: before its dataset's name (NAME, Solutions_NAME, Normalized_NAME, Curated_Normalized_NAME).
@@ -515,13 +515,13 @@ def release_files(store: Store) -> dict[str, str | None]:
 
 class _Source(io.RawIOBase):
     """A stream as a raw file for io.BufferedReader, its bytes passed through the opcode filter
-    (`release_scan`): it ends just before the first opcode the filter refuses, and `refused`
+    (`release.opcode_scan`): it ends just before the first opcode the filter refuses, and `refused`
     then says which and why."""
 
     def __init__(self, stream: Any) -> None:
         self._stream = stream
         self._position = 0
-        self._scan = release_scan.new_state()
+        self._scan = opcode_scan.new_state()
         self.refused: str | None = None
 
     def readable(self) -> bool:
@@ -536,11 +536,11 @@ class _Source(io.RawIOBase):
         data = self._stream.read(len(buffer))
         # The unpickler reads ahead of the opcode it runs: bytes past a refused opcode must
         # never reach it, so they are held back here, where it reads them from.
-        handed = release_scan.scan(np.frombuffer(data, np.uint8), self._scan)
+        handed = opcode_scan.scan(np.frombuffer(data, np.uint8), self._scan)
         buffer[:handed] = data[:handed]
         self._position += handed
         if handed < len(data):
-            self.refused = release_scan.refusal(self._scan)
+            self.refused = opcode_scan.refusal(self._scan)
         return handed
 
 
