@@ -32,12 +32,8 @@ from links_ray.engine.sampling import PositionSampler
 from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.topology import grow_topology
 from links_ray.release import importer
-from links_ray.release.importer import (
-    BATCH_STRIDE,
-    SHARDS_PER_BATCH,
-    import_release,
-    release_location,
-)
+from links_ray.release.ids import BATCH_STRIDE, SHARDS_PER_BATCH, release_location
+from links_ray.release.importer import import_release
 from links_ray.release.pickles import ReleaseFileError, read_batches, release_files
 from links_ray.serve.app import bindable_port
 

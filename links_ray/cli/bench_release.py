@@ -49,7 +49,7 @@ def bench_import(batches: int = 2, paths: int = 1_000_000) -> dict:
     """Export `batches` batches of BATCH mechanisms of the cached data set of `paths` curated
     paths in the release's layout, import them, and report both (the module docstring)."""
     from links_ray.cli.bench_data import retrieval_dataset
-    from links_ray.release.exporter import export_release_files
+    from links_ray.release.pickled_export import export_release_files
 
     root = retrieval_dataset(paths)
     with tempfile.TemporaryDirectory(prefix="links-bench-release-") as folder:

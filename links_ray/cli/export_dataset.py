@@ -9,12 +9,8 @@ import json
 from collections.abc import Callable
 
 from links_ray.data.splits import SPLITS
-from links_ray.release.exporter import (
-    DEFAULT_CHUNK_MECHANISMS,
-    DEFAULT_RELEASE_BATCH,
-    EXPORT_FORMATS,
-    export_release,
-)
+from links_ray.release.exporter import DEFAULT_CHUNK_MECHANISMS, EXPORT_FORMATS, export_release
+from links_ray.release.pickled_export import DEFAULT_RELEASE_BATCH
 
 
 def add_command(commands: argparse._SubParsersAction, count: Callable[[str], int]) -> None:
