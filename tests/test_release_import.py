@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import pickle
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -227,6 +228,64 @@ def test_a_wrong_shape_or_type_names_the_batch_and_index(
     write_release(tmp_path, bad)
     with pytest.raises(ReleaseFileError, match=message):
         import_release(str(tmp_path), str(tmp_path / "root"))
+
+
+def test_float64_trajectories_as_the_releases_numpy_solver_makes_them_import(
+    imported: tuple[str, dict], tmp_path: Path
+) -> None:
+    """The release's own solver (`sim.solve_rev_vectorized`) builds x_sol with `np.zeros`:
+    float64. Such files import to the very rows of the float32 files, positions bit for bit,
+    and every trajectory agrees with links-ray's solver as the float32 ones do."""
+    folder = tmp_path / "release"
+    write_release(folder, BATCHES, curated=CURATED, dtype=np.float64)
+    solutions = next(read_batches(Store.open(str(folder), writable=False), "simulation_dataset"))[2]
+    assert solutions[0][0].dtype == np.float64
+    root = str(tmp_path / "root")
+    summary = import_release(str(folder), root)
+    _, from_float32 = imported
+    for key in ("mechanisms", "negatives", "agreeing", "disagreeing", "curated"):
+        assert summary[key] == from_float32[key], key
+    assert summary["disagreeing"] == 0 and summary["agreeing"] > 0
+    for table in ("mechanisms", "negatives", "paths", "curated"):
+        assert read_table(root, table) == read_table(imported[0], table), table
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (
+            lambda x: np.full(x.shape, 2**62, dtype=np.int64),
+            r"x_sol must be \(\d+, 200, 2\) float16, float32 or float64, got \(\d+, 200, 2\) int64",
+        ),
+        (
+            lambda x: np.where(np.arange(200)[None, :, None] == 7, np.nan, x),
+            r"x_sol must be finite, and holds NaN or infinity",
+        ),
+        (lambda x: x[:, :199], r"x_sol must be \(\d+, 200, 2\) .*, got \(\d+, 199, 2\) float32"),
+        (lambda x: x.astype(np.complex64), r"at byte \d+ is not a readable pickle: dtype"),
+    ],
+)
+def test_a_trajectory_that_is_no_real_float_is_one_line(
+    tmp_path: Path, make: Any, message: str
+) -> None:
+    """An int (whatever its values), a NaN, a wrong shape or a complex trajectory: one line
+    naming the simulation file and the batch (and the index, or the offset where the pickle
+    itself is refused)."""
+    write_release(tmp_path, BATCHES[:2])
+    store = Store.open(str(tmp_path), writable=False)
+    batches = [batch for _, _, batch in read_batches(store, "simulation_dataset")]
+    batches[1][2][0] = make(batches[1][2][0])
+    with open(tmp_path / "simulation_dataset", "wb") as out:
+        for batch in batches:
+            pickle.dump(batch, out)
+    with pytest.raises(ReleaseFileError) as raised:
+        import_release(str(tmp_path), str(tmp_path / "root"))
+    said = str(raised.value)
+    assert "\n" not in said
+    assert said.startswith(f"{tmp_path}/simulation_dataset batch 1 ")
+    assert re.search(message, said), said
+    if "index" in said:
+        assert said.startswith(f"{tmp_path}/simulation_dataset batch 1 index 2: ")
 
 
 def test_a_mechanism_links_ray_refuses_names_the_batch_and_index(tmp_path: Path) -> None:

@@ -31,6 +31,9 @@ VERDICT_STATS = {
     "unchecked": "unchecked",
 }
 VERDICTS = tuple(VERDICT_STATS)
+#: The dtypes a release trajectory (`x_sol`) or curve may have: the release's files hold
+#: float32, but its own numpy solver (`sim.solve_rev_vectorized`) makes float64.
+FLOAT_DTYPES = ("float16", "float32", "float64")
 
 
 def _entries(value: Any, shown: str, width: int) -> list:
@@ -65,6 +68,28 @@ def _array(value: Any, shown: str, name: str, shape: tuple[int, ...], dtype: typ
             else type(value).__name__
         )
         raise ReleaseFileError(f"{shown}: {name} must be {shape} {np.dtype(dtype).name}, got {got}")
+    return value
+
+
+def _floats(value: Any, shown: str, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """`value` if it is a finite array of `shape` in one of FLOAT_DTYPES (either byte order);
+    ReleaseFileError in one line otherwise. It is only read, never stored, so any of them
+    serves: values are compared in float64."""
+    if (
+        not isinstance(value, np.ndarray)
+        or value.dtype.newbyteorder("=").name not in FLOAT_DTYPES
+        or value.shape != shape
+    ):
+        got = (
+            f"{value.shape} {value.dtype}"
+            if isinstance(value, np.ndarray)
+            else type(value).__name__
+        )
+        raise ReleaseFileError(
+            f"{shown}: {name} must be {shape} float16, float32 or float64, got {got}"
+        )
+    if not np.isfinite(value).all():
+        raise ReleaseFileError(f"{shown}: {name} must be finite, and holds NaN or infinity")
     return value
 
 
@@ -132,7 +157,7 @@ class CheckedBatch:
             where = f"{shown} batch {self.batch} index {k}"
             j = _index(j, where, self.size)
             n = int(self.n_joints[j])
-            _array(x_sol, where, "x_sol", (n, RELEASE_STEPS, 2), np.float32)
+            _floats(x_sol, where, "x_sol", (n, RELEASE_STEPS, 2))
             self._check(j, x_sol)
 
     def verdict(self, j: int) -> tuple[str, float]:
@@ -153,7 +178,7 @@ class CheckedBatch:
         self.curated = set()
         for k, (curve, j, node) in enumerate(_entries(value, f"{shown} batch {self.batch}", 3)):
             where = f"{shown} batch {self.batch} index {k}"
-            _array(curve, where, "curve", (RELEASE_STEPS, 2), np.float32)
+            _floats(curve, where, "curve", (RELEASE_STEPS, 2))
             j = _index(j, where, self.size)
             if isinstance(node, bool) or not isinstance(node, int | np.integer):
                 raise ReleaseFileError(f"{where}: node must be an int, got {_shown_number(node)}")
@@ -178,14 +203,17 @@ def release_check(
     topology: Topology, positions: np.ndarray, solution: np.ndarray | None
 ) -> tuple[str, float]:
     """("agree" | "disagree" | "locks" | "unchecked", error): links-ray's solver at the
-    release's angles against the release's own trajectory."""
+    release's angles against the release's own trajectory `solution` (any of FLOAT_DTYPES),
+    within AGREEMENT_TOLERANCE, or a few of float16's roundings for a float16 one."""
     out, (step, _) = release_turn(topology, positions)
     if step >= 0:
         return "locks", 0.0
     if solution is None:
         return "unchecked", 0.0
     size = max(float(np.ptp(positions, axis=0).max()), 1e-12)
-    error = float(np.abs(out - solution).max()) / size
+    error = float(np.abs(out - solution.astype(np.float64)).max()) / size
     if not np.isfinite(error):
         error = float("inf")
-    return ("agree" if error <= AGREEMENT_TOLERANCE else "disagree"), error
+    # float16 rounds at about 1e-3, past the tolerance: its own rounding is no disagreement.
+    tolerance = max(AGREEMENT_TOLERANCE, 4.0 * float(np.finfo(solution.dtype).eps))
+    return ("agree" if error <= tolerance else "disagree"), error
