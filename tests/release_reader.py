@@ -11,6 +11,7 @@ turns, the one whose 5 points nearest x = 0.5 reach the lower highest y).
 from __future__ import annotations
 
 import pickle
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -76,7 +77,7 @@ def simulate(a: np.ndarray, x0: np.ndarray, fixed: np.ndarray) -> np.ndarray | N
     return out
 
 
-def normalize(curve: np.ndarray) -> np.ndarray:
+def normalize(curve: np.ndarray, height: Callable[[np.ndarray], float] = np.max) -> np.ndarray:
     """The release's rule (its `get_oriented`) as its facts state it, one step at a time.
 
     Hop from point 0 to the point farthest from it, and on, until the farthest point from the
@@ -86,7 +87,8 @@ def normalize(curve: np.ndarray) -> np.ndarray:
     turn only if the highest y of its 5 points nearest x = 0.5 is lower than the first turn's
     (both in the curve's own units: nothing is scaled yet) by more than a millionth of the
     curve's width: the release compares them in float32, where a smaller difference is
-    rounding's, and keeps the first on equal heights. Divide by the x extent. A curve
+    rounding's, and keeps the first on equal heights. Divide by the x extent. (`height=np.mean`
+    is the rule links-ray once followed, kept so a test can show the two differ.) A curve
     that holds NaN, or has no extent, becomes zeros. The hops measure distances in the curve's
     own dtype, as the release's code does on its float32 curves; the turns are in float64.
     """
@@ -107,7 +109,7 @@ def normalize(curve: np.ndarray) -> np.ndarray:
         candidate = points @ np.array([[c, -s], [s, c]])  # turned by -angle
         candidate -= candidate.min(axis=0)
         middle = np.argsort(np.abs(candidate[:, 0] - 0.5), kind="stable")[:5]
-        turns.append((candidate[middle, 1].max(), candidate))
+        turns.append((height(candidate[middle, 1]), candidate))
     (first_height, first), (second_height, second) = turns
     width = first[:, 0].max()
     kept = second if second_height < first_height - 1e-6 * width else first
