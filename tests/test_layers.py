@@ -1,12 +1,14 @@
 """The package's layers hold: a module imports only its own layer or lower ones.
 
-engine (numpy/numba) < data (pyarrow), interop (other libraries, drawing files) < search, cluster
-< serve < cli, where data and interop are peers, and so are search and cluster (neither of a
-pair imports the other). `links_ray/__init__.py` may import engine and data only, but for
-`links_ray.ray_dataset`, which it loads from the cluster layer when first asked for (so that
-`import links_ray` still loads no Ray: `test_import_links_ray_loads_no_ray`). The engine and
-interop import no Ray, pyarrow or pandas; data and search import no Ray. Read from the source
-with `ast`, imports inside functions included: a lazy import is still a dependency.
+engine (numpy/numba) < data (pyarrow), interop (other libraries, drawing files) < search,
+cluster, release (the LINKS release's own files) < serve < cli, where data and interop are
+peers, and so are search, cluster and release (none of them imports another). Of the layers
+above it, only cli imports release. `links_ray/__init__.py` may import engine and data only,
+but for `links_ray.ray_dataset`, which it loads from the cluster layer when first asked for (so
+that `import links_ray` still loads no Ray: `test_import_links_ray_loads_no_ray`). The engine
+and interop import no Ray, pyarrow or pandas; data, search and release import no Ray. Read
+from the source with `ast`, imports inside functions included: a lazy import is still a
+dependency.
 """
 
 from __future__ import annotations
@@ -28,9 +30,13 @@ LAYERS = {
     "interop": 1,
     "search": 2,
     "cluster": 2,
+    "release": 2,
     "serve": 3,
     "cli": 4,
 }
+#: Layers only some of the layers above them may import: the release's files are the
+#: command line's business (`links import-release`, `links export-dataset --format release`).
+IMPORTED_ONLY_BY = {"release": ("cli",)}
 #: What the package's own `__init__.py` (`import links_ray`) may load.
 ROOT_MAY_IMPORT = ("engine", "data")
 #: Modules the package's own `__init__.py` may load lazily, on first use of a name.
@@ -42,6 +48,7 @@ FORBIDDEN = {
     "data": ("ray",),
     "interop": ("ray", "pyarrow", "pandas"),
     "search": ("ray",),
+    "release": ("ray",),
 }
 #: Modules that must not import these, even lazily, though their layer may: the serve rooms
 #: that describe, read and answer requests need no Ray (only the deployments and the launch do).
@@ -115,6 +122,8 @@ def may_import(own: str, target: str) -> bool:
         return all(may_import(own, layer) for layer in ROOT_MAY_IMPORT)
     if own not in LAYERS or target not in LAYERS:
         return False
+    if target != own and own not in IMPORTED_ONLY_BY.get(target, (own,)):
+        return False
     return target == own or LAYERS[target] < LAYERS[own]
 
 
@@ -176,8 +185,14 @@ def broken_package(tmp_path: Path) -> Path:
         "serve/__init__.py": "",
         "serve/app.py": "import links_ray\nfrom links_ray.cli import main\n",
         "serve/parsing.py": "def f():\n    from ray import serve\n",
+        "serve/export.py": "from links_ray.release import exporter\n",
+        "release/__init__.py": "",
+        "release/exporter.py": "from links_ray.search import index\nimport ray\n",
         "cli/__init__.py": "",
-        "cli/main.py": "import links_ray\nfrom links_ray.serve import app\nfrom . import main\n",
+        "cli/main.py": (
+            "import links_ray\nfrom links_ray.serve import app\nfrom . import main\n"
+            "from links_ray.release import exporter\n"
+        ),
         "stray.py": "import numpy\n",
     }
     for name, text in sources.items():
@@ -195,8 +210,11 @@ def test_the_rule_catches_what_breaks_it(broken_package: Path) -> None:
         "links_ray/data/store.py:2: data imports links_ray.search.index (search)",
         "links_ray/engine/solver.py:2: engine imports ray.util",
         "links_ray/engine/solver.py:3: engine imports links_ray.data (data)",
+        "links_ray/release/exporter.py:1: release imports links_ray.search.index (search)",
+        "links_ray/release/exporter.py:2: release imports ray",
         "links_ray/search/index.py:5: search imports links_ray.cluster.run (cluster)",
         "links_ray/serve/app.py:2: serve imports links_ray.cli.main (cli)",
+        "links_ray/serve/export.py:1: serve imports links_ray.release.exporter (release)",
         "links_ray/serve/parsing.py:2: serve imports ray",
         "links_ray/stray.py: in no layer",
     ]

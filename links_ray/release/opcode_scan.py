@@ -12,8 +12,8 @@ open at once. A batch's STOP starts the next batch's scan afresh: each pickle ha
 The scan's cost is per opcode: an argument of given length (an array's bytes) is skipped by
 count. Only newline-ended arguments, those of protocols 0 and 1, are read byte by byte.
 
-`scan` is the entry point; it checks its buffers first (`inputs.check_buffer`): numba checks no
-bounds. Pure numpy/numba: no Ray.
+`scan` is the entry point; it checks its buffers first (`engine.buffers.check_buffer`): numba
+checks no bounds. Pure numpy/numba: no Ray.
 """
 
 from __future__ import annotations
