@@ -8,7 +8,7 @@ node]`, plus a batch of every array and scalar kind a release file may hold, wri
 them, by a protocol 4 pickler without a memo; a file is one to three batches. Each case mutates
 one seed (bits, bytes, truncation, opcodes deleted, repeated, swapped or brought in from another
 seed, integer arguments set to edge values, pieces of another seed spliced in) and reads every
-batch of it with `release_pickles.read_pickles`.
+batch of it with `links_ray.release.pickles.read_pickles`.
 
 The property: a case either loads, holding only lists, tuples, plain values and numpy arrays
 and scalars of the release's plain dtypes (the seed's own batches, or others when the mutation
@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from links_ray.data.release_pickles import ReleaseFileError, read_pickles
+from links_ray.release.pickles import ReleaseFileError, read_pickles
 
 #: numpy kinds of the arrays and scalars a loaded batch may hold.
 PLAIN_KINDS = frozenset("biufS")

@@ -2,9 +2,10 @@
 
 Independent of links-ray's exporter: each batch is one `pickle.dump` of a list, the dataset's
 entries `[A bool (n, n), x0 float32 (n, 2), node_type bool (n,)]` with the motor joints 0 and
-1, the simulations `[x_sol (n, 200, 2) float32, j]` at the absolute crank angles
-linspace(0, 2 pi, 200) (joint 1 at x0[0] + r (cos t, sin t)), solved here by circle
-intersections keeping each joint's side from x0, and the curated `[curve, j, node]` entries.
+1, the simulations `[x_sol (n, 200, 2) float32 (or float64, as the release's numpy solver
+makes them), j]` at the absolute crank angles linspace(0, 2 pi, 200) (joint 1 at
+x0[0] + r (cos t, sin t)), solved here by circle intersections keeping each joint's side from
+x0, and the curated `[curve, j, node]` entries.
 """
 
 from __future__ import annotations
@@ -18,10 +19,12 @@ ANGLES = np.linspace(0.0, 2.0 * np.pi, 200)
 
 
 def release_simulation(
-    adjacency: np.ndarray, x0: np.ndarray, fixed: np.ndarray
+    adjacency: np.ndarray, x0: np.ndarray, fixed: np.ndarray, dtype: type = np.float32
 ) -> np.ndarray | None:
-    """(n, 200, 2) float32 positions at the release's angles, or None if a joint cannot be
-    placed at some angle. Joints are placed as soon as two placed neighbours are known."""
+    """(n, 200, 2) positions at the release's angles in `dtype` (float32 as the published
+    files hold them; float64 as the release's numpy solver makes them), or None if a joint
+    cannot be placed at some angle. Joints are placed as soon as two placed neighbours are
+    known."""
     x0 = x0.astype(np.float64)
     n = len(x0)
     out = np.full((n, 200, 2), np.nan)
@@ -56,7 +59,7 @@ def release_simulation(
         side = 1.0 if start >= 0 else -1.0
         out[joint] = pa + along[:, None] * unit + side * np.sqrt(height_sq)[:, None] * normal
         known.add(joint)
-    return out.astype(np.float32)
+    return out.astype(dtype)
 
 
 def write_release(
@@ -65,10 +68,12 @@ def write_release(
     curated: list[list[tuple[int, int]]] | None = None,
     generator_name: str | None = None,
     protocol: int = pickle.HIGHEST_PROTOCOL,
+    dtype: type = np.float32,
 ) -> dict:
     """Write `batches` of (A, x0, node_type) as the release's dataset and simulation files, and
     the curated (j, node) pairs of each batch when given (with zero curves: the import keeps
-    membership only). Returns how many mechanisms each batch's simulation file holds."""
+    membership only); trajectories and curves in `dtype`. Returns how many mechanisms each
+    batch's simulation file holds."""
     folder.mkdir(parents=True, exist_ok=True)
     names = (
         (generator_name, f"Solutions_{generator_name}", f"Curated_Normalized_{generator_name}")
@@ -81,7 +86,7 @@ def write_release(
             pickle.dump([list(entry) for entry in batch], data, protocol=protocol)
             solutions = []
             for j, (a, x0, fixed) in enumerate(batch):
-                x_sol = release_simulation(a, x0, fixed)
+                x_sol = release_simulation(a, x0, fixed, dtype)
                 if x_sol is not None:
                     solutions.append([x_sol, j])
             pickle.dump(solutions, sims, protocol=protocol)
@@ -89,7 +94,7 @@ def write_release(
     if curated is not None:
         with open(folder / names[2], "wb") as out:
             for pairs in curated:
-                curves = [[np.zeros((200, 2), np.float32), j, node] for j, node in pairs]
+                curves = [[np.zeros((200, 2), dtype), j, node] for j, node in pairs]
                 pickle.dump(curves, out, protocol=protocol)
     return {"simulated": simulated}
 

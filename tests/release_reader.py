@@ -4,12 +4,14 @@ written for the release reads them: numpy and pickle only, nothing of links-ray.
 It reads each file's batches with an unpickler that allows numpy's array globals only,
 simulates `[A, x0, node_type]` with the motor on joints [0, 1] by circle intersections at the
 absolute crank angles linspace(0, 2 pi, 200), each dyad keeping its side from x0, and
-normalizes a curve by the release's rule as its facts state it.
+normalizes a curve by the release's rule as its facts state it (`normalize`: of the two half
+turns, the one whose 5 points nearest x = 0.5 reach the lower highest y).
 """
 
 from __future__ import annotations
 
 import pickle
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -75,25 +77,43 @@ def simulate(a: np.ndarray, x0: np.ndarray, fixed: np.ndarray) -> np.ndarray | N
     return out
 
 
-def normalize(curve: np.ndarray) -> np.ndarray:
-    """The release's rule as its facts state it, one step at a time."""
-    curve = curve.astype(np.float64)
+def normalize(curve: np.ndarray, height: Callable[[np.ndarray], float] = np.max) -> np.ndarray:
+    """The release's rule (its `get_oriented`) as its facts state it, one step at a time.
+
+    Hop from point 0 to the point farthest from it, and on, until the farthest point from the
+    current one is the one just left: the chord joins those two. Turn the curve by the angle,
+    at most a quarter turn either way, that lays the chord along x, and also by that angle and
+    a half turn more. Move each turned curve so its least x and least y are 0. Keep the half
+    turn only if the highest y of its 5 points nearest x = 0.5 is lower than the first turn's
+    (both in the curve's own units: nothing is scaled yet) by more than a millionth of the
+    curve's width: the release compares them in float32, where a smaller difference is
+    rounding's, and keeps the first on equal heights. Divide by the x extent. (`height=np.mean`
+    is the rule links-ray once followed, kept so a test can show the two differ.) A curve
+    that holds NaN, or has no extent, becomes zeros. The hops measure distances in the curve's
+    own dtype, as the release's code does on its float32 curves; the turns are in float64.
+    """
     if not np.isfinite(curve).all():
-        return np.zeros_like(curve)
-    left, here = 0, int(np.argmax(np.sum((curve - curve[0]) ** 2, axis=1)))
+        return np.zeros(curve.shape)
+    left, here = 0, int(np.argmax(np.linalg.norm(curve - curve[0], axis=1)))
     for _ in range(len(curve)):
-        onward = int(np.argmax(np.sum((curve - curve[here]) ** 2, axis=1)))
+        onward = int(np.argmax(np.linalg.norm(curve - curve[here], axis=1)))
         if onward == left:
             break
         left, here = here, onward
-    dx, dy = curve[here] - curve[left]
-    best = None
-    for angle in (-np.arctan2(dy, dx), -np.arctan2(dy, dx) + np.pi):
+    points = curve.astype(np.float64)
+    dx, dy = points[here] - points[left]
+    quarter = np.pi / 2 if dx == 0 else float(np.arctan(dy / dx))
+    turns = []
+    for angle in (quarter, quarter + np.pi):
         c, s = np.cos(angle), np.sin(angle)
-        candidate = curve @ np.array([[c, s], [-s, c]])
+        candidate = points @ np.array([[c, -s], [s, c]])  # turned by -angle
         candidate -= candidate.min(axis=0)
         middle = np.argsort(np.abs(candidate[:, 0] - 0.5), kind="stable")[:5]
-        height = candidate[middle, 1].mean()
-        if best is None or height < best[0] - 1e-12:
-            best = (height, candidate)
-    return best[1] / best[1][:, 0].max()
+        turns.append((height(candidate[middle, 1]), candidate))
+    (first_height, first), (second_height, second) = turns
+    width = first[:, 0].max()
+    kept = second if second_height < first_height - 1e-6 * width else first
+    extent = kept[:, 0].max()
+    if not extent > 0:
+        return np.zeros(curve.shape)
+    return kept / extent

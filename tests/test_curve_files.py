@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from test_cli import links
 
-from links_ray.engine.inputs import MAX_CURVE_FILE_BYTES
 from links_ray.engine.paths import even_along
 from links_ray.interop.curve_files import read_curve
+from links_ray.interop.curve_limits import MAX_CURVE_FILE_BYTES
 
 SVG = '<svg xmlns="http://www.w3.org/2000/svg"{attrs}>{body}</svg>'
 

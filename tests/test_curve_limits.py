@@ -23,19 +23,12 @@ import ezdxf
 import numpy as np
 import pytest
 
-from links_ray.engine.inputs import (
+from links_ray.interop.curve_files import read_curve, read_curve_text, read_points
+from links_ray.interop.curve_limits import (
     MAX_CURVE_SEGMENTS,
     MAX_DXF_ENTITIES,
     MAX_SPLINE_FIT_POINTS,
     MAX_SVG_ELEMENTS,
-)
-from links_ray.interop import curve_files
-from links_ray.interop.curve_files import (
-    FLAT_POINTS,
-    CurveFileTooLarge,
-    read_curve,
-    read_curve_text,
-    read_points,
 )
 from links_ray.interop.curve_worker import (
     CurveFileTooCostly,
@@ -43,6 +36,8 @@ from links_ray.interop.curve_worker import (
     CurveReadersBusy,
     read_curve_isolated,
 )
+from links_ray.interop.dxf_curves import read_dxf
+from links_ray.interop.outlines import FLAT_POINTS, CurveFileTooLarge
 
 SVG = '<svg xmlns="http://www.w3.org/2000/svg">{}</svg>'
 PLAIN = '<path id="wing" d="M 0 0 C 10 20 30 -10 40 5 L 35 -12 Q 20 -25 4 -6 Z"/>'
@@ -234,7 +229,7 @@ def test_alternating_half_circle_bulges_read_on_their_circle_in_bounded_points()
             [(i % 2, 0, 0, 0, 1 if i % 2 == 0 else -1) for i in range(1000)], format="xyseb"
         )
     )
-    outline, closed, _ = curve_files._read_dxf("half.dxf", text.encode(), None)
+    outline, closed, _ = read_dxf("half.dxf", text.encode(), None)
     assert not closed and len(outline) <= 3 * 999 + FLAT_POINTS + 1
     np.testing.assert_allclose(np.linalg.norm(outline - [0.5, 0], axis=1), 0.5, rtol=1e-12)
     assert outline[:, 1].max() < 1e-12

@@ -25,7 +25,7 @@ from typing import Any
 import pytest
 import yaml
 
-from links_ray.engine.inputs import MAX_BODY_BYTES, MAX_SYNTHESIS_SECONDS
+from links_ray.engine.synthesis_options import MAX_SYNTHESIS_SECONDS
 from links_ray.serve.api import as_host_names
 from links_ray.serve.app import APP_ARGS, SHARD_CPUS, _arg
 from links_ray.serve.deployments import (
@@ -34,6 +34,7 @@ from links_ray.serve.deployments import (
     SHUTDOWN_DRAIN_S,
     LinksApi,
 )
+from links_ray.serve.limits import MAX_BODY_BYTES
 
 REPO = Path(__file__).resolve().parents[1]
 DEPLOY = REPO / "deploy"

@@ -26,18 +26,14 @@ from serving import Client, hand_drawn
 from test_cli import links
 
 import links_ray
-from links_ray.engine.constraints import violation
-from links_ray.engine.inputs import (
-    MAX_CURVE_FILE_BYTES,
-    REFINE_CHECK_STEPS,
-    Constraints,
-    as_constraints,
-    as_timing,
-    link_pairs,
-)
+from links_ray.engine.constraints import Constraints, as_constraints, violation
+from links_ray.engine.inputs import REFINE_CHECK_STEPS, link_pairs
 from links_ray.engine.mechanism import analyze_topology
-from links_ray.engine.refine import as_target, check_mechanism, refine_validated
+from links_ray.engine.refine import check_mechanism, refine_validated
 from links_ray.engine.synthesis import refine_retrieved, synthesize
+from links_ray.engine.synthesis_options import SynthesisOptions, as_timing
+from links_ray.engine.target import as_target
+from links_ray.interop.curve_limits import MAX_CURVE_FILE_BYTES
 from links_ray.search.index import RetrievalIndex
 
 ITERATIONS = 600
@@ -282,11 +278,7 @@ def test_timing_recovers_a_closed_form_four_bar(stroke: bool) -> None:
     answer = refine_retrieved(
         drawn,
         [retrieved(adjacency, node_types, start)],
-        k=1,
-        partial=stroke,
-        timing=timing,
-        seed=0,
-        iterations=800,
+        SynthesisOptions(k=1, partial=stroke, timing=timing, seed=0, iterations=800),
     )
     (result,) = answer
     assert result["timed_error"] < 1e-4

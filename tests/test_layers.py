@@ -1,12 +1,14 @@
 """The package's layers hold: a module imports only its own layer or lower ones.
 
-engine (numpy/numba) < data (pyarrow), interop (other libraries, drawing files) < search, cluster
-< serve < cli, where data and interop are peers, and so are search and cluster (neither of a
-pair imports the other). `links_ray/__init__.py` may import engine and data only, but for
-`links_ray.ray_dataset`, which it loads from the cluster layer when first asked for (so that
-`import links_ray` still loads no Ray: `test_import_links_ray_loads_no_ray`). The engine and
-interop import no Ray, pyarrow or pandas; data and search import no Ray. Read from the source
-with `ast`, imports inside functions included: a lazy import is still a dependency.
+engine (numpy/numba) < data (pyarrow), interop (other libraries, drawing files) < search,
+cluster, release (the LINKS release's own files) < serve < cli, where data and interop are
+peers, and so are search, cluster and release (none of them imports another). Of the layers
+above it, only cli imports release. `links_ray/__init__.py` may import engine and data only,
+but for `links_ray.ray_dataset`, which it loads from the cluster layer when first asked for (so
+that `import links_ray` still loads no Ray: `test_import_links_ray_loads_no_ray`). The engine
+and interop import no Ray, pyarrow or pandas; data, search and release import no Ray. Read
+from the source with `ast`, imports inside functions included: a lazy import is still a
+dependency.
 """
 
 from __future__ import annotations
@@ -28,9 +30,13 @@ LAYERS = {
     "interop": 1,
     "search": 2,
     "cluster": 2,
+    "release": 2,
     "serve": 3,
     "cli": 4,
 }
+#: Layers only some of the layers above them may import: the release's files are the
+#: command line's business (`links import-release`, `links export-dataset --format release`).
+IMPORTED_ONLY_BY = {"release": ("cli",)}
 #: What the package's own `__init__.py` (`import links_ray`) may load.
 ROOT_MAY_IMPORT = ("engine", "data")
 #: Modules the package's own `__init__.py` may load lazily, on first use of a name.
@@ -42,6 +48,7 @@ FORBIDDEN = {
     "data": ("ray",),
     "interop": ("ray", "pyarrow", "pandas"),
     "search": ("ray",),
+    "release": ("ray",),
 }
 #: Modules that must not import these, even lazily, though their layer may: the serve rooms
 #: that describe, read and answer requests need no Ray (only the deployments and the launch do).
@@ -115,6 +122,8 @@ def may_import(own: str, target: str) -> bool:
         return all(may_import(own, layer) for layer in ROOT_MAY_IMPORT)
     if own not in LAYERS or target not in LAYERS:
         return False
+    if target != own and own not in IMPORTED_ONLY_BY.get(target, (own,)):
+        return False
     return target == own or LAYERS[target] < LAYERS[own]
 
 
@@ -176,8 +185,14 @@ def broken_package(tmp_path: Path) -> Path:
         "serve/__init__.py": "",
         "serve/app.py": "import links_ray\nfrom links_ray.cli import main\n",
         "serve/parsing.py": "def f():\n    from ray import serve\n",
+        "serve/export.py": "from links_ray.release import exporter\n",
+        "release/__init__.py": "",
+        "release/exporter.py": "from links_ray.search import index\nimport ray\n",
         "cli/__init__.py": "",
-        "cli/main.py": "import links_ray\nfrom links_ray.serve import app\nfrom . import main\n",
+        "cli/main.py": (
+            "import links_ray\nfrom links_ray.serve import app\nfrom . import main\n"
+            "from links_ray.release import exporter\n"
+        ),
         "stray.py": "import numpy\n",
     }
     for name, text in sources.items():
@@ -195,8 +210,11 @@ def test_the_rule_catches_what_breaks_it(broken_package: Path) -> None:
         "links_ray/data/store.py:2: data imports links_ray.search.index (search)",
         "links_ray/engine/solver.py:2: engine imports ray.util",
         "links_ray/engine/solver.py:3: engine imports links_ray.data (data)",
+        "links_ray/release/exporter.py:1: release imports links_ray.search.index (search)",
+        "links_ray/release/exporter.py:2: release imports ray",
         "links_ray/search/index.py:5: search imports links_ray.cluster.run (cluster)",
         "links_ray/serve/app.py:2: serve imports links_ray.cli.main (cli)",
+        "links_ray/serve/export.py:1: serve imports links_ray.release.exporter (release)",
         "links_ray/serve/parsing.py:2: serve imports ray",
         "links_ray/stray.py: in no layer",
     ]
@@ -224,7 +242,7 @@ def face_violations(package_dir: Path) -> list[str]:
     return sorted(found)
 
 
-def test_rooms_import_their_face_only_for_type_hints() -> None:
+def test_rooms_never_import_their_face() -> None:
     assert face_violations(REPO / PACKAGE) == []
 
 
@@ -248,85 +266,4 @@ def test_the_face_rule_catches_a_room_importing_its_face(tmp_path: Path) -> None
         "links_ray.search.index",
         "links_ray/search/query.py:4: links_ray.search.query imports its face "
         "links_ray.search.index",
-    ]
-
-
-def import_cycles(package_dir: Path, within: str) -> list[list[str]]:
-    """The import circles among our modules that pass through a module under `within`
-    (each sorted), counting every import: top-level, type-only and inside functions."""
-    modules = module_names(package_dir)
-    known = set(modules)
-    graph = {
-        module: {name for _, name in imported(path, module, known) if name in known} - {module}
-        for module, path in modules.items()
-    }
-    # Tarjan's strongly connected components, iteratively (no recursion limit to meet).
-    order: dict[str, int] = {}
-    low: dict[str, int] = {}
-    stack: list[str] = []
-    on_stack: set[str] = set()
-    cycles = []
-    for root in sorted(graph):
-        if root in order:
-            continue
-        work = [(root, iter(sorted(graph[root])))]
-        order[root] = low[root] = len(order)
-        stack.append(root)
-        on_stack.add(root)
-        while work:
-            node, children = work[-1]
-            child = next(children, None)
-            if child is None:
-                work.pop()
-                if work:
-                    low[work[-1][0]] = min(low[work[-1][0]], low[node])
-                if low[node] == order[node]:
-                    component = []
-                    while True:
-                        member = stack.pop()
-                        on_stack.discard(member)
-                        component.append(member)
-                        if member == node:
-                            break
-                    if len(component) > 1 and any(
-                        m == within or m.startswith(f"{within}.") for m in component
-                    ):
-                        cycles.append(sorted(component))
-            elif child not in order:
-                order[child] = low[child] = len(order)
-                stack.append(child)
-                on_stack.add(child)
-                work.append((child, iter(sorted(graph[child]))))
-            elif child in on_stack:
-                low[node] = min(low[node], order[child])
-    return sorted(cycles)
-
-
-def test_search_imports_run_one_way() -> None:
-    assert import_cycles(REPO / PACKAGE, "links_ray.search") == []
-
-
-def test_the_cycle_check_catches_a_planted_circle(tmp_path: Path) -> None:
-    sources = {
-        "__init__.py": "",
-        "search/__init__.py": "",
-        "search/index.py": "from links_ray.search import query\nfrom . import build\n",
-        "search/query.py": "def f():\n    from links_ray.search.placement import g\n",
-        "search/placement.py": (
-            "from typing import TYPE_CHECKING\n\nif TYPE_CHECKING:\n"
-            "    from links_ray.search.index import RetrievalIndex\n"
-        ),
-        "search/build.py": "import numpy\n",
-        "serve/__init__.py": "",
-        "serve/api.py": "def f():\n    from links_ray.serve import handlers\n",
-        "serve/handlers.py": "from links_ray.serve.api import app\n",
-    }
-    for name, text in sources.items():
-        path = tmp_path / PACKAGE / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text)
-    circle = ["links_ray.search.index", "links_ray.search.placement", "links_ray.search.query"]
-    assert import_cycles(tmp_path / PACKAGE, "links_ray.search") == [circle]
-    assert import_cycles(tmp_path / PACKAGE, "links_ray.serve") == [
-        ["links_ray.serve.api", "links_ray.serve.handlers"]
     ]

@@ -31,10 +31,11 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.paths import longest_chord
-from links_ray.engine.refine import as_target, refine, refine_many, refine_validated
+from links_ray.engine.refine import refine, refine_many, refine_validated
 from links_ray.engine.refine_kernels import best_interval, nearest_pairs, solve_tangents
 from links_ray.engine.refine_step import constrained_minimum
 from links_ray.engine.solver import crank_table, dyad_geometry
+from links_ray.engine.target import as_target
 
 #: A Grashof crank-rocker with a coupler point, transmission angle 54 to 100 degrees.
 GOOD_FOURBAR = ((0.2, 0.1), 0.3, (0.1, 0.35, 0.3, 0.4), 0.7, 1, (0.15, 0.12))

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import pickle
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -23,22 +24,18 @@ from serving import links_serve
 from studio_page import draw, open_studio
 from test_cli import links
 
-from links_ray.data import release_import
 from links_ray.data.commit import ShardWriter, committed_files, committed_shards
 from links_ray.data.lease import Lease, LeaseHeld
 from links_ray.data.pathset import path_table
-from links_ray.data.release_import import (
-    BATCH_STRIDE,
-    SHARDS_PER_BATCH,
-    import_release,
-    release_location,
-)
-from links_ray.data.release_pickles import ReleaseFileError, read_batches, release_files
 from links_ray.data.shards import NEGATIVE_ID_BASE
 from links_ray.data.store import Store, StoreError
 from links_ray.engine.sampling import PositionSampler
 from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.topology import grow_topology
+from links_ray.release import importer
+from links_ray.release.ids import BATCH_STRIDE, SHARDS_PER_BATCH, release_location
+from links_ray.release.importer import import_release
+from links_ray.release.pickles import ReleaseFileError, read_batches, release_files
 from links_ray.serve.app import bindable_port
 
 
@@ -233,6 +230,64 @@ def test_a_wrong_shape_or_type_names_the_batch_and_index(
         import_release(str(tmp_path), str(tmp_path / "root"))
 
 
+def test_float64_trajectories_as_the_releases_numpy_solver_makes_them_import(
+    imported: tuple[str, dict], tmp_path: Path
+) -> None:
+    """The release's own solver (`sim.solve_rev_vectorized`) builds x_sol with `np.zeros`:
+    float64. Such files import to the very rows of the float32 files, positions bit for bit,
+    and every trajectory agrees with links-ray's solver as the float32 ones do."""
+    folder = tmp_path / "release"
+    write_release(folder, BATCHES, curated=CURATED, dtype=np.float64)
+    solutions = next(read_batches(Store.open(str(folder), writable=False), "simulation_dataset"))[2]
+    assert solutions[0][0].dtype == np.float64
+    root = str(tmp_path / "root")
+    summary = import_release(str(folder), root)
+    _, from_float32 = imported
+    for key in ("mechanisms", "negatives", "agreeing", "disagreeing", "curated"):
+        assert summary[key] == from_float32[key], key
+    assert summary["disagreeing"] == 0 and summary["agreeing"] > 0
+    for table in ("mechanisms", "negatives", "paths", "curated"):
+        assert read_table(root, table) == read_table(imported[0], table), table
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (
+            lambda x: np.full(x.shape, 2**62, dtype=np.int64),
+            r"x_sol must be \(\d+, 200, 2\) float16, float32 or float64, got \(\d+, 200, 2\) int64",
+        ),
+        (
+            lambda x: np.where(np.arange(200)[None, :, None] == 7, np.nan, x),
+            r"x_sol must be finite, and holds NaN or infinity",
+        ),
+        (lambda x: x[:, :199], r"x_sol must be \(\d+, 200, 2\) .*, got \(\d+, 199, 2\) float32"),
+        (lambda x: x.astype(np.complex64), r"at byte \d+ is not a readable pickle: dtype"),
+    ],
+)
+def test_a_trajectory_that_is_no_real_float_is_one_line(
+    tmp_path: Path, make: Any, message: str
+) -> None:
+    """An int (whatever its values), a NaN, a wrong shape or a complex trajectory: one line
+    naming the simulation file and the batch (and the index, or the offset where the pickle
+    itself is refused)."""
+    write_release(tmp_path, BATCHES[:2])
+    store = Store.open(str(tmp_path), writable=False)
+    batches = [batch for _, _, batch in read_batches(store, "simulation_dataset")]
+    batches[1][2][0] = make(batches[1][2][0])
+    with open(tmp_path / "simulation_dataset", "wb") as out:
+        for batch in batches:
+            pickle.dump(batch, out)
+    with pytest.raises(ReleaseFileError) as raised:
+        import_release(str(tmp_path), str(tmp_path / "root"))
+    said = str(raised.value)
+    assert "\n" not in said
+    assert said.startswith(f"{tmp_path}/simulation_dataset batch 1 ")
+    assert re.search(message, said), said
+    if "index" in said:
+        assert said.startswith(f"{tmp_path}/simulation_dataset batch 1 index 2: ")
+
+
 def test_a_mechanism_links_ray_refuses_names_the_batch_and_index(tmp_path: Path) -> None:
     bad = [list(BATCHES[0])]
     a, x0, fixed = bad[0][4]
@@ -385,7 +440,7 @@ def test_resume_after_a_failure_inside_a_shard_gives_the_same_rows(
                 raise OSError("the store went away")
             return super().commit(stats)
 
-    monkeypatch.setattr(release_import, "ShardWriter", FailingWriter)
+    monkeypatch.setattr(importer, "ShardWriter", FailingWriter)
     with pytest.raises(OSError, match="the store went away"):
         import_release(str(release), root)
     monkeypatch.undo()
@@ -608,8 +663,7 @@ def test_export_then_import_keeps_the_mechanisms_and_the_curated_set(
     """A generated and curated root exported in the release's layout and imported again: every
     mechanism comes back, in mechanism_id order batch by batch, with its adjacency, node types
     and positions as the release holds them (float32), and the curated set is the source's."""
-    from links_ray.data.release import export_release, import_release
-    from links_ray.data.release_import import release_location
+    from links_ray.release.exporter import export_release
 
     out = tmp_path / "release"
     export_release(dataset, str(out), chunk_size=128, format="release")

@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 
 import links_ray
-from links_ray.data import release_pickles
-from links_ray.data.release_pickles import ReleaseFileError, read_batches
 from links_ray.data.store import Store
+from links_ray.release import pickles
+from links_ray.release.pickles import ReleaseFileError, read_batches
 
 try:  # numpy 2 keeps its internals in numpy._core; numpy 1 in numpy.core
     from numpy._core import multiarray, numeric
@@ -55,7 +55,7 @@ OBJECT_FLAGS_PICKLE = b"".join(
 READ_IN_CHILD = """
 import resource, sys
 from pathlib import Path
-from links_ray.data.release_pickles import ReleaseFileError, read_batches
+from links_ray.release.pickles import ReleaseFileError, read_batches
 from links_ray.data.store import Store
 
 extra = int(sys.argv[2])
@@ -490,7 +490,7 @@ def test_reads_of_any_size_give_the_same_batches_and_refusals(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, buffer: int
 ) -> None:
     # The filter sees the file in the reads the buffered reader makes, as small as these.
-    monkeypatch.setattr(release_pickles, "READ_BUFFER", buffer)
+    monkeypatch.setattr(pickles, "READ_BUFFER", buffer)
     values = real_values()
     for protocol in range(6):
         batches = [pickle.dumps(values, protocol), pickle.dumps(values[:3], protocol)]

@@ -12,7 +12,7 @@ import pickletools
 import numpy as np
 import pytest
 
-from links_ray.data.release_scan import ALLOWED, MAX_MARKS, new_state, refusal, scan
+from links_ray.release.opcode_scan import ALLOWED, MAX_MARKS, new_state, refusal, scan
 from tests.fuzz_release_pickles import make_seeds
 from tests.test_release_pickles import real_values
 

@@ -15,8 +15,9 @@ import links_ray
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
 from links_ray.data.store import Store
-from links_ray.engine.inputs import FIXED, as_max_joints, validate_query
+from links_ray.engine.inputs import as_max_joints, validate_query
 from links_ray.engine.mechanism import reduce_mechanism
+from links_ray.engine.node_kinds import FIXED
 from links_ray.engine.paths import chamfer, chamfer_to_many, normalization, normalize_path
 from links_ray.engine.topology import grow_topology
 from links_ray.search import build as search_build

@@ -41,10 +41,11 @@ from serving import (
 )
 
 import links_ray
-from links_ray.engine import inputs
+from links_ray.engine import inputs, synthesis_options
 from links_ray.engine.fabrication import fabrication
 from links_ray.engine.inputs import validate_query
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
+from links_ray.serve import limits as http_limits
 from links_ray.serve.app import bindable_port
 
 REPO = Path(__file__).resolve().parents[1]
@@ -133,11 +134,14 @@ def test_openapi_bodies_carry_the_engines_limits(client: Client) -> None:
     assert (most["minimum"], most["maximum"]) == (inputs.MIN_JOINTS, inputs.MAX_DATASET_JOINTS)
     seconds = requests["/api/synthesize"]["seconds"]
     assert seconds["exclusiveMinimum"] == 0
-    assert seconds["maximum"] == inputs.MAX_SYNTHESIS_SECONDS
-    assert seconds["default"] == inputs.DEFAULT_SYNTHESIS_SECONDS
+    assert seconds["maximum"] == synthesis_options.MAX_SYNTHESIS_SECONDS
+    assert seconds["default"] == synthesis_options.DEFAULT_SYNTHESIS_SECONDS
     iterations = requests["/api/synthesize"]["iterations"]["anyOf"][0]
-    assert (iterations["minimum"], iterations["maximum"]) == (1, inputs.MAX_SYNTHESIS_ITERATIONS)
-    assert requests["/api/synthesize"]["seed"]["maximum"] == inputs.MAX_SEED
+    assert (iterations["minimum"], iterations["maximum"]) == (
+        1,
+        synthesis_options.MAX_SYNTHESIS_ITERATIONS,
+    )
+    assert requests["/api/synthesize"]["seed"]["maximum"] == synthesis_options.MAX_SEED
     for path in ("/api/simulate", "/api/analyze"):
         fields = requests[path]
         steps = fields["steps"]
@@ -148,12 +152,12 @@ def test_openapi_bodies_carry_the_engines_limits(client: Client) -> None:
         )
         adjacency = fields["adjacency"]
         assert adjacency["minItems"] == inputs.MIN_JOINTS
-        assert adjacency["maxItems"] == inputs.MAX_REQUEST_JOINTS
+        assert adjacency["maxItems"] == http_limits.MAX_REQUEST_JOINTS
         node_types = fields["node_types"]
-        assert node_types["maxItems"] == inputs.MAX_REQUEST_JOINTS
+        assert node_types["maxItems"] == http_limits.MAX_REQUEST_JOINTS
         assert node_types["items"]["enum"] == [0, 1, 2]
     positions = requests["/api/simulate"]["positions"]
-    assert positions["maxItems"] == inputs.MAX_REQUEST_JOINTS
+    assert positions["maxItems"] == http_limits.MAX_REQUEST_JOINTS
     export = paths["/api/export"]["post"]
     body = export["requestBody"]["content"]["application/json"]["schema"]
     fields = schema_of(spec, body)["properties"]
@@ -164,18 +168,18 @@ def test_openapi_bodies_carry_the_engines_limits(client: Client) -> None:
 
 
 def test_limits_are_the_engines_and_enforced(client: Client) -> None:
-    """GET /api/limits is engine/inputs.py's limits, and each is where requests start to be
+    """GET /api/limits is serve/limits.py's limits, and each is where requests start to be
     refused."""
     status, limits = client.get("/api/limits")
-    assert status == 200 and limits == inputs.request_limits()
+    assert status == 200 and limits == http_limits.request_limits()
     assert (limits["max_points"], limits["max_k"], limits["max_joints"]) == (
         inputs.MAX_POINTS,
         inputs.MAX_K,
-        inputs.MAX_REQUEST_JOINTS,
+        http_limits.MAX_REQUEST_JOINTS,
     )
-    assert limits["max_joint_steps"] == inputs.MAX_REQUEST_JOINT_STEPS
-    assert limits["max_seconds"] == inputs.MAX_SYNTHESIS_SECONDS
-    assert limits["max_iterations"] == inputs.MAX_SYNTHESIS_ITERATIONS
+    assert limits["max_joint_steps"] == http_limits.MAX_REQUEST_JOINT_STEPS
+    assert limits["max_seconds"] == synthesis_options.MAX_SYNTHESIS_SECONDS
+    assert limits["max_iterations"] == synthesis_options.MAX_SYNTHESIS_ITERATIONS
     curve = [[math.cos(t), math.sin(2 * t)] for t in np.linspace(0, 6, limits["max_points"])]
     assert client.post("/api/retrieve", {"points": curve, "k": limits["max_k"]})[0] == 200
     too_many = [*curve, [0.5, 0.5]]
@@ -973,7 +977,7 @@ def test_a_body_that_stalls_or_trickles_is_cut_off_with_408(client: Client) -> N
     error once BODY_TIMEOUT_S have passed (not before), and the connection is closed; a body
     sent in pieces with pauses shorter than that, at more than MIN_BODY_BYTES_PER_S, is
     answered as usual though it takes longer than BODY_TIMEOUT_S in all."""
-    timeout, rate = inputs.BODY_TIMEOUT_S, inputs.MIN_BODY_BYTES_PER_S
+    timeout, rate = http_limits.BODY_TIMEOUT_S, http_limits.MIN_BODY_BYTES_PER_S
     stall = ([(0.0, b'{"points": [[0, 0], ')], 1000)
     trickle = ([(0.0 if i == 0 else 0.25, b" ") for i in range(400)], 100_000)
     # Four pieces of 2 x rate bytes, 0.4 x timeout apart (12 s in all): each pause well within
@@ -1047,7 +1051,7 @@ def test_clients_that_send_only_headers_hold_no_place(client: Client, curated: A
     a place among a replica's MAX_RETRIEVALS is claimed only once a body has been read."""
     from links_ray.serve.deployments import MAX_RETRIEVALS
 
-    timeout = inputs.BODY_TIMEOUT_S
+    timeout = http_limits.BODY_TIMEOUT_S
     silent = MAX_RETRIEVALS + 2
     found: list[dict[str, Any]] = []
     lock = threading.Lock()

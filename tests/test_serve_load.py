@@ -21,9 +21,9 @@ import pytest
 from serving import FOUR_BAR, as_served, retrieved, serving
 
 import links_ray
-from links_ray.engine.inputs import MAX_REQUEST_JOINT_STEPS
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.app import build_app
+from links_ray.serve.limits import MAX_REQUEST_JOINT_STEPS
 from links_ray.serve.load_clients import (
     finish_load,
     health_probes,

@@ -26,7 +26,7 @@ from serving import as_served, retrieved, serving
 import links_ray
 from links_ray.data.commit import committed_shards
 from links_ray.data.store import Store
-from links_ray.engine.synthesis import CANDIDATES
+from links_ray.engine.synthesis_plan import CANDIDATES
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.app import build_app
 

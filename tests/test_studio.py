@@ -25,8 +25,9 @@ from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
 from studio_page import VIEWPORT, Studio, draw, open_studio
 
 import links_ray
-from links_ray.engine.inputs import MAX_K, MAX_TRANSMISSION_DEG, request_limits
+from links_ray.engine.inputs import MAX_K, MAX_TRANSMISSION_DEG
 from links_ray.engine.mechanism import analyze_topology
+from links_ray.serve.limits import request_limits
 
 STEPS = 200
 
@@ -850,8 +851,9 @@ def dxf_text(tmp_path: Path) -> Path:
 def test_curve_route_reads_a_drawing_as_the_cli_does(client: Client, tmp_path: Path) -> None:
     """POST /api/curve answers the points `read_curve` (what `--curve FILE#id` reads) finds in
     the same file, sent as text; a file it cannot read is a 400 naming the file's problem."""
-    from links_ray.engine.inputs import MAX_BODY_BYTES, MAX_CURVE_FILE_BYTES
     from links_ray.interop.curve_files import read_curve, read_curve_text
+    from links_ray.interop.curve_limits import MAX_CURVE_FILE_BYTES
+    from links_ray.serve.limits import MAX_BODY_BYTES
 
     svg = tmp_path / "drawing.svg"
     svg.write_text(DRAWING)

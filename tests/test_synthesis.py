@@ -34,9 +34,16 @@ from test_refine import assert_valid
 
 import links_ray
 from links_ray.engine import cpus
-from links_ray.engine.inputs import MAX_SYNTHESIS_ITERATIONS, MAX_SYNTHESIS_SECONDS, MIN_POINTS
+from links_ray.engine.inputs import MIN_POINTS
 from links_ray.engine.paths import chamfer, longest_chord
-from links_ray.engine.synthesis import CANDIDATES, fit, refine_retrieved, synthesize
+from links_ray.engine.synthesis import refine_retrieved, synthesize
+from links_ray.engine.synthesis_options import (
+    MAX_SYNTHESIS_ITERATIONS,
+    MAX_SYNTHESIS_SECONDS,
+    SynthesisOptions,
+)
+from links_ray.engine.synthesis_plan import CANDIDATES
+from links_ray.engine.synthesis_results import fit
 from links_ray.search.index import RetrievalIndex
 
 #: The fixed work of the tests of quality: a short pass over every candidate and some long
@@ -145,20 +152,21 @@ def test_no_time_left_returns_the_first_retrieved_unrefined(
     """With the budget spent before refinement starts, nothing more is prepared (each of
     the 96 candidates is simulated at 2,000 steps to be) or refined: the answer is
     retrieval's first k (those that can be refined), measured as retrieved."""
-    from links_ray.engine import synthesis
+    from links_ray.engine import synthesis_passes
 
-    prepare = synthesis._candidate
+    prepare = synthesis_passes.candidate
     prepared: list[int] = []
 
     def counted(result: dict, target: Any, constraints: Any) -> Any:
         prepared.append(result["path_id"])
         return prepare(result, target, constraints)
 
-    monkeypatch.setattr(synthesis, "_candidate", counted)
+    monkeypatch.setattr(synthesis_passes, "candidate", counted)
     query = queries[1]
     retrieved = dataset_index.retrieve(query, CANDIDATES)
     first = [r["path_id"] for r in retrieved[:3]]
-    results = refine_retrieved(query, retrieved, 3, 0.001, started=time.perf_counter() - 1.0)
+    options = SynthesisOptions(k=3, seconds=0.001)
+    results = refine_retrieved(query, retrieved, options, started=time.perf_counter() - 1.0)
     assert sorted(prepared) == sorted(first)
     assert len(results) >= 2
     for result in results:
@@ -569,7 +577,7 @@ HAIR_POSITIONS = [
 def test_a_refinement_simulate_cannot_trace_at_200_steps_is_not_kept() -> None:
     """Every result is simulated at 200 steps: a refinement `simulate` cannot trace there is
     refused, and the candidate keeps what it had."""
-    from links_ray.engine import synthesis
+    from links_ray.engine.candidates import Candidate
     from links_ray.engine.mechanism import LockingError, analyze_topology
     from links_ray.engine.refine import Refinement
 
@@ -583,9 +591,9 @@ def test_a_refinement_simulate_cannot_trace_at_200_steps_is_not_kept() -> None:
         links_ray.simulate(adjacency, node_types, positions, 200)
 
     before = positions + 0.5  # any mechanism: only the refinement is judged here
-    candidate = synthesis._Candidate({}, topology, 11, before, before, 0.05, 0.05, None)
+    candidate = Candidate({}, topology, 11, before, before, 0.05, 0.05, None)
     refined = Refinement(positions, 0.05, 0.01, None, 10, 10, 0.016)
-    assert not synthesis._keep(candidate, refined, 100)
+    assert not candidate.keep(refined, 100)
     assert candidate.positions is before and candidate.error == 0.05
 
 

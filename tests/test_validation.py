@@ -19,7 +19,7 @@ from links_ray import (
     simulate,
     simulate_batch,
 )
-from links_ray.engine import inputs
+from links_ray.engine import constraints, inputs, synthesis_options
 
 # A valid crank-rocker with a coupler point: O2, A (crank tip), B, O4, C on the coupler.
 LINKS = [(0, 1), (1, 2), (2, 3), (1, 4), (2, 4)]
@@ -522,19 +522,25 @@ HUGE = 10**400
 @pytest.mark.parametrize(
     ("check", "match"),
     [
-        (lambda v: inputs.as_seconds(v), "seconds must be a number within"),
+        (lambda v: synthesis_options.as_seconds(v), "seconds must be a number within"),
         (lambda v: inputs.as_transmission_deg(v, "min_transmission"), "min_transmission must be"),
         (lambda v: inputs.as_crank_mm(v), "crank_mm must be a number of millimetres within"),
-        (lambda v: inputs.as_constraints({"min_link": v}), "min_link must be a length within"),
-        (lambda v: inputs.as_constraints({"max_link_ratio": v}), "max_link_ratio must be"),
-        (lambda v: inputs.as_constraints({"pivots": [0, 0, v, 1]}), "pivots must be four"),
-        (lambda v: inputs.as_constraints({"footprint": [-v, 0, 1, 1]}), "footprint must be"),
-        (lambda v: inputs.as_timing([0, v, 2], 3, False), "timing must be true or a list"),
-        (lambda v: inputs.as_timing([0, [[v]], 2], 3, False), "timing must be true or a list"),
+        (lambda v: constraints.as_constraints({"min_link": v}), "min_link must be a length within"),
+        (lambda v: constraints.as_constraints({"max_link_ratio": v}), "max_link_ratio must be"),
+        (lambda v: constraints.as_constraints({"pivots": [0, 0, v, 1]}), "pivots must be four"),
+        (lambda v: constraints.as_constraints({"footprint": [-v, 0, 1, 1]}), "footprint must be"),
+        (
+            lambda v: synthesis_options.as_timing([0, v, 2], 3, False),
+            "timing must be true or a list",
+        ),
+        (
+            lambda v: synthesis_options.as_timing([0, [[v]], 2], 3, False),
+            "timing must be true or a list",
+        ),
         (lambda v: inputs.validate_query([[0, 0], [1, 1], [v, 2]]), "points must be a list"),
         (lambda v: inputs.validate_query([[0, 0], [1, 1]], v), "k must be from 1 to 100"),
-        (lambda v: inputs.validate_synthesis_work(seed=v), "seed must be from 0 to"),
-        (lambda v: inputs.validate_synthesis_work(iterations=v), "iterations must be from 1"),
+        (lambda v: synthesis_options.SynthesisOptions(seed=v), "seed must be from 0 to"),
+        (lambda v: synthesis_options.SynthesisOptions(iterations=v), "iterations must be from 1"),
         (lambda v: inputs.as_max_joints(v), "max_joints must be from 2 to 20"),
     ],
 )

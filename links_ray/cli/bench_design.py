@@ -25,10 +25,12 @@ import numpy as np
 from links_ray.cli.bench import machine_info
 from links_ray.cli.bench_synthesis import OVERRUN_GOAL_MS
 from links_ray.cli.targets import TARGET_POINTS, placed, target_curves
-from links_ray.engine.inputs import DEFAULT_SYNTHESIS_SECONDS, REFINE_CHECK_STEPS, as_constraints
+from links_ray.engine.constraints import as_constraints
+from links_ray.engine.inputs import REFINE_CHECK_STEPS
+from links_ray.engine.synthesis_options import DEFAULT_SYNTHESIS_SECONDS
 
 if TYPE_CHECKING:
-    from links_ray.engine.synthesis import Retriever
+    from links_ray.engine.synthesis_plan import Retriever
 
 #: "Simple": at most this many joints. The goal: the mean best so simple within SIMPLE_GOAL
 #: times the unconstrained mean.

@@ -29,7 +29,7 @@ from links_ray.cli import report
 from links_ray.cli.bench import machine_info
 from links_ray.cli.bench_data import retrieval_dataset
 from links_ray.cli.hostile_inputs import hostile_drawings
-from links_ray.engine.inputs import BODY_TIMEOUT_S
+from links_ray.serve.limits import BODY_TIMEOUT_S
 
 #: How often health is asked for, and how long one check may take before it counts as failed.
 HEALTH_EVERY_S, HEALTH_TIMEOUT_S = 0.2, 30.0

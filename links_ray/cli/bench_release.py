@@ -31,7 +31,7 @@ BATCH = 100_000
 _IMPORT = """
 import json, sys, time
 from links_ray.cli.bench_release import high_water_bytes
-from links_ray.data.release_import import import_release
+from links_ray.release.importer import import_release
 start = time.perf_counter()
 summary = import_release(sys.argv[1], sys.argv[2])
 seconds = time.perf_counter() - start
@@ -49,7 +49,7 @@ def bench_import(batches: int = 2, paths: int = 1_000_000) -> dict:
     """Export `batches` batches of BATCH mechanisms of the cached data set of `paths` curated
     paths in the release's layout, import them, and report both (the module docstring)."""
     from links_ray.cli.bench_data import retrieval_dataset
-    from links_ray.data.release import export_release_files
+    from links_ray.release.pickled_export import export_release_files
 
     root = retrieval_dataset(paths)
     with tempfile.TemporaryDirectory(prefix="links-bench-release-") as folder:

@@ -30,12 +30,13 @@ import numpy as np
 from links_ray.cli.bench import machine_info
 from links_ray.cli.curve_set import HALVES, curve_set
 from links_ray.cli.targets import TARGET_POINTS, placed, target_curves
-from links_ray.engine.inputs import DEFAULT_STEPS, DEFAULT_SYNTHESIS_SECONDS
+from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.paths import chamfer, even_along, longest_chord
 from links_ray.engine.solver import simulate
+from links_ray.engine.synthesis_options import DEFAULT_SYNTHESIS_SECONDS
 
 if TYPE_CHECKING:
-    from links_ray.engine.synthesis import Retriever
+    from links_ray.engine.synthesis_plan import Retriever
 
 #: Seconds each curve is given: the most that keeps the median under MEDIAN_SECONDS_GOAL
 #: (retrieval and the answer included).
@@ -118,7 +119,8 @@ def bench_row(
     row is fixed work, the same bit for bit whatever the time, the load, the threads and the
     rows run before it; its `seconds` alone vary. `seconds`: the budget (default the synthesis
     default)."""
-    from links_ray.engine.synthesis import fit, synthesize
+    from links_ray.engine.synthesis import synthesize
+    from links_ray.engine.synthesis_results import fit
 
     seconds = DEFAULT_SYNTHESIS_SECONDS if seconds is None else seconds
     start = time.perf_counter()

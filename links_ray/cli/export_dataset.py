@@ -1,6 +1,6 @@
 """`links export-dataset ROOT --out DIR [--format numpy|release]`: a dataset in the LINKS
 release layout, as numpy chunks or as the release's own pickled files
-(`links_ray.data.release`)."""
+(`links_ray.release.exporter`)."""
 
 from __future__ import annotations
 
@@ -8,13 +8,9 @@ import argparse
 import json
 from collections.abc import Callable
 
-from links_ray.data.release import (
-    DEFAULT_CHUNK_MECHANISMS,
-    DEFAULT_RELEASE_BATCH,
-    EXPORT_FORMATS,
-    export_release,
-)
 from links_ray.data.splits import SPLITS
+from links_ray.release.exporter import DEFAULT_CHUNK_MECHANISMS, EXPORT_FORMATS, export_release
+from links_ray.release.pickled_export import DEFAULT_RELEASE_BATCH
 
 
 def add_command(commands: argparse._SubParsersAction, count: Callable[[str], int]) -> None:

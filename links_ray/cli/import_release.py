@@ -1,12 +1,12 @@
 """`links import-release SRC --out ROOT`: the LINKS release's own files imported into a
-links-ray root (`links_ray.data.release_import`)."""
+links-ray root (`links_ray.release.importer`)."""
 
 from __future__ import annotations
 
 import argparse
 import json
 
-from links_ray.data.release_import import import_release
+from links_ray.release.importer import import_release
 
 
 def add_command(commands: argparse._SubParsersAction) -> None:

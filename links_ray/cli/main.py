@@ -21,23 +21,21 @@ from links_ray.cli.demo import run_demo
 from links_ray.cli.warm import format_warm, note_compiling, warm
 from links_ray.engine.inputs import (
     DEFAULT_K,
-    DEFAULT_SYNTHESIS_SECONDS,
-    MAX_CURVE_FILE_BYTES,
     MAX_DATASET_JOINTS,
     MAX_K,
-    MAX_SYNTHESIS_ITERATIONS,
-    MAX_SYNTHESIS_SECONDS,
     MAX_TRANSMISSION_DEG,
     MIN_JOINTS,
-    as_constraints,
     as_max_joints,
-    as_timing,
-    as_transmission_deg,
-    validate_synthesis,
-    validate_synthesis_work,
+)
+from links_ray.engine.synthesis_options import (
+    DEFAULT_SYNTHESIS_SECONDS,
+    MAX_SYNTHESIS_ITERATIONS,
+    MAX_SYNTHESIS_SECONDS,
+    SynthesisOptions,
 )
 from links_ray.engine.topology import TOPOLOGY_RULES
 from links_ray.interop.curve_files import DEFAULT_CURVE_POINTS
+from links_ray.interop.curve_limits import MAX_CURVE_FILE_BYTES
 
 
 def _report(args: argparse.Namespace, result: dict, formatted: Callable[[dict], str]) -> None:
@@ -219,31 +217,24 @@ def _synthesize(args: argparse.Namespace) -> None:
 
     points, closed = _query_points(args)
     partial = args.partial or not closed
-    # Before the index loads:
-    validate_synthesis_work(args.seconds, args.seed, args.iterations)
-    validate_synthesis(points, args.k, args.seconds, partial)
-    as_transmission_deg(args.min_transmission, "min_transmission")
-    as_max_joints(args.max_joints)
-    constraints = as_constraints(_json_file(args.constraints, "--constraints"))
-    timing = args.timing if args.timing in (None, True) else _json_file(args.timing, "--timing")
-    as_timing(timing, len(points), partial)
-    note_compiling("synthesize")
-    index = RetrievalIndex.open(args.root)
-    start = time.perf_counter()
-    results = synthesize(
-        index,
-        points,
+    # Checked once, before the index loads:
+    options = SynthesisOptions(
         k=args.k,
         seconds=args.seconds,
         partial=partial,
-        min_transmission=args.min_transmission,
+        min_transmission_deg=args.min_transmission,
         max_joints=args.max_joints,
         front=args.front,
-        constraints=constraints,
-        timing=timing,
+        constraints=_json_file(args.constraints, "--constraints"),
+        timing=args.timing if args.timing in (None, True) else _json_file(args.timing, "--timing"),
         seed=args.seed,
         iterations=args.iterations,
     )
+    points = options.drawing(points)
+    note_compiling("synthesize")
+    index = RetrievalIndex.open(args.root)
+    start = time.perf_counter()
+    results = synthesize(index, points, options=options)
     took_ms = (time.perf_counter() - start) * 1e3
     answer = {"results": list(results), "took_ms": took_ms}
     if results.unmet is not None:

@@ -54,6 +54,7 @@ COMMAND_KERNELS: dict[str, tuple[KernelGroup, ...]] = {
 #: Refinement iterations each warming synthesis runs: enough to reach every refinement kernel.
 WARM_ITERATIONS = 20
 
+
 def is_cached(dispatcher: Dispatcher) -> bool | None:
     """Whether numba's on-disk cache holds code of `dispatcher` that this process can load (its
     source unchanged, this CPU); None when the cache cannot be read (a numba this does not

@@ -32,9 +32,8 @@ from links_ray.data.pathset import (
     path_batches,
     path_shares,
 )
-from links_ray.data.release_import import refuse_imported
 from links_ray.data.schemas import CURATION_TABLES, choose_tables
-from links_ray.data.store import META, Store, StoreError, diagnose
+from links_ray.data.store import META, Store, StoreError, diagnose, refuse_imported
 from links_ray.engine.inputs import DEFAULT_STEPS
 
 CURATION_FORMAT = 1

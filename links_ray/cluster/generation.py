@@ -24,10 +24,9 @@ from links_ray.cluster.connect import connect
 from links_ray.cluster.progress import Progress
 from links_ray.data.commit import committed_shards, remove_uncommitted
 from links_ray.data.lease import Lease, LeaseLost, holder_still
-from links_ray.data.release_import import refuse_imported
 from links_ray.data.schemas import GENERATION_TABLES
 from links_ray.data.shards import GenerationPlan, Shard, write_shard
-from links_ray.data.store import META, Store, StoreError
+from links_ray.data.store import META, Store, StoreError, refuse_imported
 from links_ray.engine.topology import TOPOLOGY_RULES
 
 #: Shards queued on an actor at once: one running, one ready, so no actor waits on the driver.

@@ -16,6 +16,9 @@ they build on:
 - on a local disk, `sync_file` and `sync_folder`, by which a commit survives a power loss (on S3
   an acknowledged write is durable, and both do nothing).
 
+The run record (`_links/run.json`) says what made a root; `refuse_imported` keeps the commands
+that generate or curate out of a root the release's import wrote.
+
 A writable S3 root is checked at `open` to refuse a second create-only write: a store that
 ignores or refuses If-None-Match is named in one line, never used without it.
 
@@ -46,6 +49,8 @@ import pyarrow.parquet as pq
 META = "_links"
 #: Prefix of the hidden temporary names small files are written under before their move.
 TEMPORARY_PREFIX = "_tmp-"
+#: The run record's (`_links/run.json`) `source` in a root that `links import-release` wrote.
+IMPORTED_SOURCE = "links-release"
 
 
 class StoreError(ValueError):
@@ -389,6 +394,19 @@ class Store:
 _PRECONDITION_CODES = ("PreconditionFailed", "412", "ConditionalRequestConflict", "409")
 #: What a store that does not implement a conditional write answers.
 _REFUSED_CONDITION_CODES = ("NotImplemented", "501")
+
+
+def refuse_imported(store: Store) -> dict:
+    """The root's run record (`run.json`, {} if none); StoreError if `store` holds an import of
+    the release: its curated set is the release's, which generating or curating more would mix
+    with a seeded one."""
+    run = store.read_json(f"{META}/run.json") or {}
+    if run.get("source") == IMPORTED_SOURCE:
+        raise StoreError(
+            f"{store.uri} is an import of the LINKS release: only links import-release writes "
+            "to it (run it again to finish an interrupted import)"
+        )
+    return run
 
 
 def _sync_path(path: str) -> None:

@@ -1,7 +1,7 @@
 """Design constraints on a mechanism in the drawing's frame: how far positions are from keeping
 them, and the linearized rows that keep a refinement step inside them.
 
-The constraints themselves (`inputs.Constraints`, validated by `inputs.as_constraints`) are a
+The constraints themselves (`Constraints`, validated by `as_constraints`) are a
 pivot region (every fixed joint in a box), a footprint (every joint in a box over the whole
 turn) and link lengths (every link between `min_link` and `max_link`, the longest at most
 `max_link_ratio` times the shortest). A link is an edge of the mechanism's adjacency, the
@@ -22,9 +22,89 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from links_ray.engine.inputs import Constraints
+from links_ray.engine.inputs import MAX_COORDINATE, as_real_array, positive_at_most, shown
 
-__all__ = ["Violation", "extent", "guard_rows", "link_lengths", "violation"]
+__all__ = [
+    "CONSTRAINT_NAMES",
+    "Constraints",
+    "Violation",
+    "as_constraints",
+    "extent",
+    "guard_rows",
+    "link_lengths",
+    "violation",
+]
+
+#: The design constraints a synthesis takes (`as_constraints`), in the drawing's units.
+CONSTRAINT_NAMES = ("pivots", "footprint", "max_link_ratio", "min_link", "max_link")
+
+
+@dataclass(frozen=True)
+class Constraints:
+    """What a designer fixes, in the drawing's own units and frame (None: not constrained).
+
+    `pivots` (xmin, ymin, xmax, ymax): every fixed joint inside this box. `footprint`: every
+    joint inside this box through the whole crank turn. `max_link_ratio`: the longest link at
+    most this many times the shortest. `min_link`, `max_link`: every link's length within.
+    """
+
+    pivots: tuple[float, float, float, float] | None = None
+    footprint: tuple[float, float, float, float] | None = None
+    max_link_ratio: float | None = None
+    min_link: float | None = None
+    max_link: float | None = None
+
+    def given(self) -> tuple[str, ...]:
+        """The names of the constraints set."""
+        return tuple(name for name in CONSTRAINT_NAMES if getattr(self, name) is not None)
+
+
+def _as_box(value: object, name: str) -> tuple[float, float, float, float]:
+    """[xmin, ymin, xmax, ymax] as four finite floats, each min below its max."""
+    if isinstance(value, str | bytes | dict) or not hasattr(value, "__len__"):
+        raise ValueError(f"{name} must be a box [xmin, ymin, xmax, ymax], got {shown(value)}")
+    box = as_real_array(name, value, "four numbers [xmin, ymin, xmax, ymax]")
+    if box.shape != (4,) or any(isinstance(v, bool) for v in value):  # type: ignore[union-attr]
+        raise ValueError(f"{name} must be four numbers [xmin, ymin, xmax, ymax]")
+    if not np.all(np.isfinite(box)) or np.any(np.abs(box) > MAX_COORDINATE):
+        raise ValueError(f"{name} must be finite numbers within +-{MAX_COORDINATE:g}")
+    if not (box[0] < box[2] and box[1] < box[3]):
+        raise ValueError(f"{name} must have xmin < xmax and ymin < ymax, got {box.tolist()}")
+    xmin, ymin, xmax, ymax = (float(v) for v in box)
+    return xmin, ymin, xmax, ymax
+
+
+def as_constraints(value: object) -> Constraints | None:
+    """Design constraints from a mapping of CONSTRAINT_NAMES (or a `Constraints`); None or an
+    empty mapping gives None. Raises ValueError naming an unknown or bad constraint."""
+    if value is None or isinstance(value, Constraints):
+        return value if value is None or value.given() else None
+    if not isinstance(value, dict):
+        raise ValueError(f"constraints must be an object of {', '.join(CONSTRAINT_NAMES)}")
+    for name in value:
+        if name not in CONSTRAINT_NAMES:
+            raise ValueError(
+                f"unknown constraint {shown(name)}: constraints are {', '.join(CONSTRAINT_NAMES)}"
+            )
+    given = {name: v for name, v in value.items() if v is not None}
+    boxes = {name: _as_box(given[name], name) for name in ("pivots", "footprint") if name in given}
+    lengths = {
+        name: positive_at_most(given[name], name, MAX_COORDINATE, "a length", "")
+        for name in ("min_link", "max_link")
+        if name in given
+    }
+    ratio = None
+    if "max_link_ratio" in given:
+        ratio = positive_at_most(given["max_link_ratio"], "max_link_ratio", 1e6, "a number", "")
+        if ratio < 1.0:
+            raise ValueError(f"max_link_ratio must be at least 1, got {ratio:g}")
+    low, high = lengths.get("min_link"), lengths.get("max_link")
+    if low is not None and high is not None and low > high:
+        raise ValueError(f"min_link ({low:g}) must not exceed max_link ({high:g})")
+    if not given:
+        return None
+    return Constraints(max_link_ratio=ratio, **boxes, **lengths)
+
 
 #: Steps aim this share of the drawing's chord inside a bound (and a ratio this share of
 #: itself): the footprint is kept between the simulation's steps too, and a step lands near,

@@ -22,7 +22,6 @@ from numpy.typing import ArrayLike
 from links_ray.engine.inputs import (
     DEFAULT_CRANK_MM,
     DEFAULT_STEPS,
-    FIXED,
     MAX_DRAWING_MM,
     InvalidMechanismError,
     as_crank_mm,
@@ -32,6 +31,7 @@ from links_ray.engine.inputs import (
     check_positions,
 )
 from links_ray.engine.mechanism import analyze_topology
+from links_ray.engine.node_kinds import FIXED
 from links_ray.engine.solver import simulate
 
 #: Diameter of the hole drawn at each joint, in millimetres (an M3 pin's clearance).

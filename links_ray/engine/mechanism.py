@@ -19,16 +19,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from links_ray.engine.inputs import (
-    ACTUATED,
-    FIXED,
     MAX_DATASET_JOINTS,
     MIN_DATASET_JOINTS,
-    SIMPLE,
     InvalidMechanismError,
     as_graph,
     as_positions,
     link_pairs,
 )
+from links_ray.engine.node_kinds import ACTUATED, FIXED, SIMPLE
 
 CRANK_CENTER = (0.5, 0.5)
 CRANK_TIP = (0.55, 0.5)

@@ -11,7 +11,7 @@ import math
 import numba
 import numpy as np
 
-from links_ray.engine.inputs import check_buffer
+from links_ray.engine.buffers import check_buffer
 
 __all__ = [
     "CIRCLE_VARIANCE_THRESHOLD",

@@ -14,7 +14,7 @@ least squares): at the current positions the weighted sum of squares has the val
 gradient of the mean distance, so the step aims at the chamfer itself rather than at its squares,
 and far outliers (parts of a drawing the mechanism cannot reach) do not dominate. Pairs nearer
 than a floor weigh alike: a quarter of the current chamfer (the floor follows the fit down), or
-a larger share of the chord if the caller asks (`irls_floor`: synthesis's short pass does, to
+a larger share of the chord if the caller asks (`weight_floor`: synthesis's short pass does, to
 pull harder on the parts of a drawing the path is far from). The exact
 derivatives of the path come from `refine_kernels.solve_tangents`.
 
@@ -57,18 +57,15 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from links_ray.engine.constraints import KEPT, Violation, extent, guard_rows, violation
+from links_ray.engine.constraints import KEPT, Constraints, Violation, extent, guard_rows, violation
 from links_ray.engine.inputs import (
     DEFAULT_MARGIN_DEG,
     DEFAULT_REFINE_ITERATIONS,
     DEFAULT_STEPS,
-    FIXED,
     MAX_REFINE_ITERATIONS,
     MIN_POINTS,
     REFINE_CHECK_STEPS,
-    Constraints,
     InvalidMechanismError,
-    as_drawn_points,
     as_int,
     as_positions,
     as_transmission_deg,
@@ -77,28 +74,27 @@ from links_ray.engine.inputs import (
     link_pairs,
 )
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
-from links_ray.engine.paths import chamfer, longest_chord
-from links_ray.engine.refine_kernels import best_interval, solve_tangents
+from links_ray.engine.node_kinds import FIXED
+from links_ray.engine.refine_kernels import solve_tangents
 from links_ray.engine.refine_step import (
-    IRLS_FLOOR,
+    IRLS_WEIGHT_FLOOR,
     guarded_step,
     normal_equations,
     timed_equations,
     transmission_guards,
 )
 from links_ray.engine.solver import crank_turn
+from links_ray.engine.target import Target, as_target, target_chamfer, timed_distances
 from links_ray.engine.turning import rigid_dyads, turn_lock
 
 __all__ = [
     "Check",
     "Refinement",
-    "Target",
-    "as_target",
     "check_mechanism",
     "refine",
     "refine_many",
     "refine_validated",
-    "target_chamfer",
+    "target_error",
 ]
 
 #: A step may bring a dyad's least transmission angle at the simulation's steps no nearer its
@@ -231,58 +227,6 @@ def _least_deg(sines: np.ndarray) -> float:
     return math.degrees(math.asin(min(1.0, float(sines.min())))) if len(sines) else 90.0
 
 
-@dataclass
-class Target:
-    """A validated drawing and its scale (`as_target` makes one).
-
-    `points` (T, 2) float64: the drawn points. `chord`: the drawing's longest chord, in the
-    drawing's units; refinement's chamfers are divided by it. `partial`: the points are an open
-    stroke, matched to a run of a turn. `crank` (T, 2): for a timed target, the cos and sin of
-    the crank angle (from the mechanism's start) at which each point is to be reached; its
-    measure is then the timed error, not the chamfer (`target_error`).
-    """
-
-    points: np.ndarray
-    chord: float
-    partial: bool
-    crank: np.ndarray | None = None
-
-    def timed(self, angles: np.ndarray) -> Target:
-        """This target with each point to be reached at `angles` (T,) radians of the crank
-        from the mechanism's start."""
-        crank = np.ascontiguousarray(np.stack([np.cos(angles), np.sin(angles)], axis=1))
-        return Target(self.points, self.chord, self.partial, crank)
-
-
-def as_target(points: object, partial: object) -> Target:
-    """The drawing `points` ([x, y] pairs) as a `Target`. Raises ValueError naming bad points
-    (as `target_points`) or a `partial` that is not a bool."""
-    if not isinstance(partial, bool | np.bool_):
-        raise ValueError(f"partial must be True or False, got {partial!r}")
-    drawn = as_drawn_points(points, "target_points")
-    i, j = longest_chord(drawn)
-    return Target(drawn, float(np.hypot(*(drawn[j] - drawn[i]))), bool(partial))
-
-
-def target_chamfer(target: Target, path: np.ndarray) -> tuple[float, tuple[int, int] | None]:
-    """(chamfer, interval): the chamfer distance between the target's points and `path`
-    (steps, 2), in the drawing's units (not yet divided by the chord), and for a partial
-    target the matched run (start step, count) of the path, else None. For a partial target
-    the chamfer is the least over the path's cyclic runs of at least MIN_POINTS steps."""
-    if not target.partial:
-        return chamfer(target.points, path), None
-    start, count, _ = best_interval(path, target.points, MIN_POINTS)
-    rows = (start + np.arange(count)) % len(path)
-    # The exact chamfer of the chosen run, so accepted steps compare like with like.
-    return chamfer(target.points, path[rows]), (int(start), int(count))
-
-
-def timed_distances(target: Target, timed_path: np.ndarray) -> np.ndarray:
-    """(T,) distance of each drawn point from the path at its crank angle, `timed_path` (T, 2)
-    (the path solved at the target's `crank`), in the drawing's units."""
-    return np.hypot(*(timed_path - target.points).T)
-
-
 def target_error(
     target: Target, topology: Topology, positions: np.ndarray, joint: int, path: np.ndarray
 ) -> tuple[float, tuple[int, int] | None]:
@@ -344,7 +288,7 @@ def refine_validated(
     deadline: float | None = None,
     origin: np.ndarray | None = None,
     damping: float = DAMPING_START,
-    irls_floor: float = IRLS_FLOOR,
+    weight_floor: float = IRLS_WEIGHT_FLOOR,
     constraints: Constraints | None = None,
 ) -> Refinement:
     """Refine a validated mechanism (`topology`, start positions (n, 2) float64, a moving
@@ -444,11 +388,11 @@ def refine_validated(
         _, traj, dtraj, trans, dtrans, _ = _solve(topology, pos, steps, True)
         if target.crank is None:
             hessian, gradient = normal_equations(
-                target, traj[joint], dtraj[joint], interval, irls_floor
+                target, traj[joint], dtraj[joint], interval, weight_floor
             )
         else:  # solved at the target's crank angles, in scratch of its own
             _, timed, dtimed, _, _, _ = _solve(topology, pos, len(target.crank), True, target.crank)
-            hessian, gradient = timed_equations(target, timed[joint], dtimed[joint], irls_floor)
+            hessian, gradient = timed_equations(target, timed[joint], dtimed[joint], weight_floor)
         margins = transmission_guards(trans, dtrans, np.where(rigid, flat, floors), clearance)
         kept = guard_rows(constraints, pos, fixed, links, traj, dtraj, target.chord)
         guards = (np.concatenate([margins[0], kept[0]]), np.concatenate([margins[1], kept[1]]))

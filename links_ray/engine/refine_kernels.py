@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from links_ray.engine.inputs import check_buffer, check_solution_path
+from links_ray.engine.buffers import check_buffer, check_solution_path
 from links_ray.engine.paths import _nearest_sq
 from links_ray.engine.solver import _dyad_geometry, _place_crank, _place_fixed, dyad_fails
 

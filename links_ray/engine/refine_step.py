@@ -11,17 +11,14 @@ Pure numpy/numba: no Ray, no files.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from links_ray.engine.refine_kernels import nearest_pairs
+from links_ray.engine.target import Target
 
-if TYPE_CHECKING:
-    from links_ray.engine.refine import Target
-
-#: Distances below this share of the drawing's chord weigh as much as this (the IRLS floor).
-IRLS_FLOOR = 1e-4
+#: Distances below this share of the drawing's chord weigh as much as this (the IRLS weight
+#: floor: how near a pair may come before its weight stops growing).
+IRLS_WEIGHT_FLOOR = 1e-4
 #: The floor is at least this share of the current chamfer too: pairs nearer than that weigh
 #: alike, as in least squares, and only the far ones as the chamfer weighs them. The floor
 #: follows the fit down, so the steps aim at the chamfer more closely as it falls.
@@ -35,13 +32,13 @@ def normal_equations(
     path: np.ndarray,
     jac: np.ndarray,
     interval: tuple[int, int] | None,
-    irls_floor: float = IRLS_FLOOR,
+    weight_floor: float = IRLS_WEIGHT_FLOOR,
 ) -> tuple[np.ndarray, np.ndarray]:
     """IRLS Gauss-Newton system (A, g) of the chamfer with correspondences fixed at `path`.
 
     jac (steps, 2, P) is d path / d positions. Residuals of the two directions that land on
     the same path step are summed into one weight and one weighted residual per step.
-    Distances below the floor, the larger of `irls_floor` times the chord and IRLS_RELATIVE
+    Distances below the floor, the larger of `weight_floor` times the chord and IRLS_RELATIVE
     times the current chamfer, weigh as the floor does.
     """
     steps = len(path)
@@ -55,10 +52,10 @@ def normal_equations(
     drawn_d = np.empty(points)
     nearest_pairs(sub, drawn, path_nn, path_d, drawn_nn, drawn_d)
     current = path_d.mean() + drawn_d.mean()  # the chamfer (engine.paths.chamfer)
-    floor = max(irls_floor * target.chord, IRLS_RELATIVE * current)
+    least = max(weight_floor * target.chord, IRLS_RELATIVE * current)
     # Weight 1 / (count x distance): the weighted squares' gradient is the mean distance's.
-    w_path = 1.0 / (count * np.maximum(path_d, floor))
-    w_drawn = 1.0 / (points * np.maximum(drawn_d, floor))
+    w_path = 1.0 / (count * np.maximum(path_d, least))
+    w_drawn = 1.0 / (points * np.maximum(drawn_d, least))
     weight = w_path.copy()
     np.add.at(weight, drawn_nn, w_drawn)
     residual = w_path[:, None] * (sub - drawn[path_nn])
@@ -70,7 +67,10 @@ def normal_equations(
 
 
 def timed_equations(
-    target: Target, timed_path: np.ndarray, jac: np.ndarray, irls_floor: float = IRLS_FLOOR
+    target: Target,
+    timed_path: np.ndarray,
+    jac: np.ndarray,
+    weight_floor: float = IRLS_WEIGHT_FLOOR,
 ) -> tuple[np.ndarray, np.ndarray]:
     """IRLS Gauss-Newton system (A, g) of the timed error: the mean distance of each drawn
     point from `timed_path` (T, 2), the path at that point's crank angle, whose derivative is
@@ -78,8 +78,8 @@ def timed_equations(
     weights as `normal_equations`'s."""
     gaps = timed_path - target.points
     distances = np.hypot(gaps[:, 0], gaps[:, 1])
-    floor = max(irls_floor * target.chord, IRLS_RELATIVE * float(distances.mean()))
-    weight = 1.0 / (len(gaps) * np.maximum(distances, floor))
+    least = max(weight_floor * target.chord, IRLS_RELATIVE * float(distances.mean()))
+    weight = 1.0 / (len(gaps) * np.maximum(distances, least))
     cols = jac.shape[2]
     scaled = (jac * np.sqrt(weight)[:, None, None]).reshape(-1, cols)
     residual = weight[:, None] * gaps

@@ -18,17 +18,19 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
+from links_ray.engine.buffers import (
+    check_buffer,
+    check_indices,
+    check_packed_paths,
+    check_solution_path,
+)
 from links_ray.engine.inputs import (
     DEFAULT_STEPS,
     MAX_COORDINATE,
     MIN_LINK_LENGTH,
     as_positions,
     as_steps,
-    check_buffer,
-    check_indices,
-    check_packed_paths,
     check_positions,
-    check_solution_path,
 )
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.turning import _turn_lock

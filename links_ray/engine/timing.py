@@ -1,7 +1,7 @@
 """Prescribed timing: where in its turn a mechanism should start so that its joint reaches
 each drawn point at that point's crank angle.
 
-A timed target (`refine.Target.timed`) gives each drawn point a crank angle relative to a
+A timed target (`target.Target.timed`) gives each drawn point a crank angle relative to a
 free start. Refinement moves the joints' initial positions, which can shift the start only a
 little at a time; `best_start` picks it outright. It traces the joint over a fine turn, finds
 the start among those steps (coarsely, then finely around the best) whose timed error (the
@@ -18,8 +18,8 @@ import numpy as np
 
 from links_ray.engine.inputs import REFINE_CHECK_STEPS
 from links_ray.engine.mechanism import Topology
-from links_ray.engine.refine import Target
 from links_ray.engine.solver import simulate
+from links_ray.engine.target import Target
 
 __all__ = ["best_start"]
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from links_ray.engine.inputs import check_buffer, check_solution_path
+from links_ray.engine.buffers import check_buffer, check_solution_path
 
 #: The angle of a joint whose motion goes through no dyad (fixed joints and the crank tip).
 NO_DYAD_DEG = 90.0

@@ -38,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from links_ray.engine.inputs import check_buffer, check_solution_path
+from links_ray.engine.buffers import check_buffer, check_solution_path
 
 #: The parents' path length over an interval is taken as at most this times their chord.
 ARC_FACTOR = 2.0

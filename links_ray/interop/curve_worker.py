@@ -39,24 +39,21 @@ from pathlib import Path
 import numpy as np
 import orjson
 
-from links_ray.engine.inputs import (
+from links_ray.engine.inputs import MAX_POINTS, MIN_POINTS, as_drawn_points, as_int
+from links_ray.interop.curve_files import (
+    DEFAULT_CURVE_POINTS,
+    Curve,
+    _sized,
+    read_curve_text,
+)
+from links_ray.interop.curve_limits import (
     CURVE_READ_SECONDS,
     CURVE_READER_MEMORY_BYTES,
     CURVE_READER_WAIT_S,
     CURVE_READERS,
     MAX_CURVE_FILE_BYTES,
-    MAX_POINTS,
-    MIN_POINTS,
-    as_drawn_points,
-    as_int,
 )
-from links_ray.interop.curve_files import (
-    DEFAULT_CURVE_POINTS,
-    Curve,
-    CurveFileTooLarge,
-    _sized,
-    read_curve_text,
-)
+from links_ray.interop.outlines import CurveFileTooLarge
 
 __all__ = [
     "CurveFileTooCostly",

@@ -13,7 +13,7 @@ from __future__ import annotations
 import io
 
 from links_ray.engine.fabrication import HOLE_MM, TEXT_MM, Fabrication
-from links_ray.engine.inputs import FIXED
+from links_ray.engine.node_kinds import FIXED
 
 __all__ = ["DXF_VERSION", "LAYERS", "PATH_ID", "dxf_drawing", "svg_drawing"]
 

@@ -24,10 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from links_ray.engine.inputs import (
-    ACTUATED,
     DEFAULT_STEPS,
-    FIXED,
-    SIMPLE,
     InvalidMechanismError,
     as_int,
     as_positions,
@@ -35,6 +32,7 @@ from links_ray.engine.inputs import (
     check_positions,
 )
 from links_ray.engine.mechanism import analyze_topology
+from links_ray.engine.node_kinds import ACTUATED, FIXED, SIMPLE
 
 if TYPE_CHECKING:
     import pylinkage

@@ -42,7 +42,7 @@ from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from links_ray.engine.inputs import check_buffer, check_indices
+from links_ray.engine.buffers import check_buffer, check_indices
 
 #: Descriptor grid: GRID x GRID nodes spanning [0, 1]^2 (node spacing 1 / (GRID - 1)).
 GRID = 24

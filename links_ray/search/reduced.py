@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from links_ray.engine.inputs import check_buffer, check_indices, check_packed_paths
+from links_ray.engine.buffers import check_buffer, check_indices, check_packed_paths
 
 
 @njit(cache=True, nogil=True)

@@ -58,7 +58,7 @@ from ray.serve.handle import DeploymentHandle, DeploymentResponse
 
 from links_ray.engine.cpus import set_given_cpus
 from links_ray.engine.solver import simulate
-from links_ray.engine.synthesis import pooled
+from links_ray.engine.synthesis_plan import pooled
 from links_ray.interop.curve_worker import warm_curve_readers
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.api import ApiError, allow_host_names, api, logger

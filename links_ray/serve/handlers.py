@@ -33,7 +33,7 @@ from fastapi.responses import HTMLResponse, Response, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from links_ray.engine.fabrication import Fabrication, fabrication
-from links_ray.engine.inputs import DEFAULT_STEPS, MAX_SYNTHESIS_SECONDS, request_limits
+from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.mechanism import (
     InvalidMechanismError,
     LockingError,
@@ -42,7 +42,10 @@ from links_ray.engine.mechanism import (
     mobility,
 )
 from links_ray.engine.solver import simulate, simulate_until_lock
-from links_ray.engine.synthesis import SynthesisResults, refine_retrieved, retrievals
+from links_ray.engine.synthesis import refine_retrieved
+from links_ray.engine.synthesis_options import MAX_SYNTHESIS_SECONDS
+from links_ray.engine.synthesis_plan import retrievals
+from links_ray.engine.synthesis_results import SynthesisResults
 from links_ray.interop.curve_worker import CurveReadersBusy, read_curve_isolated
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve import models
@@ -56,6 +59,7 @@ from links_ray.serve.api import (
     logger,
     request_body,
 )
+from links_ray.serve.limits import request_limits
 from links_ray.serve.parsing import (
     EXPORT_FORMATS,
     curve_args,
@@ -337,19 +341,22 @@ class LinksApiRoutes:
         With `"stream": true` the answer is NDJSON: a `{"progress": ...}` line each time the
         best so far improves, then the answer's own line (`_synthesis_lines`)."""
         body = await read_json_object(request, "/api/synthesize")
-        points, k, seconds, partial, floor, seed, iterations, design = synthesize_args(body)
+        points, options = synthesize_args(body)
+        seconds = options.seconds
         stream = stream_arg(body)
         self._claim_synthesis()  # once the body is read and checked, as a retrieval's place
         turn: _Turn | None = None
         released = True  # until the refinement, once submitted, releases its place itself
         try:
             start = time.perf_counter()
-            wanted = retrievals(k, design["max_joints"], design["front"])
-            retrieved, waited = await self._synthesis_candidates(points, wanted, floor)
+            wanted = retrievals(options.k, options.max_joints, options.front)
+            retrieved, waited = await self._synthesis_candidates(
+                points, wanted, options.min_transmission_deg
+            )
             retrieved_at = time.perf_counter()
             retrieval_s = retrieved_at - start - waited
             budget = None if seconds is None else max(0.0, seconds - retrieval_s)
-            # Fixed work is not weakened by waiting; it waits as long as a request may take.
+            # Counted work is not weakened by waiting; it waits as long as a request may take.
             patience = (MAX_SYNTHESIS_SECONDS if seconds is None else seconds) - waited
             turn = await self._wait_for_refiner(budget, patience)
             loop = asyncio.get_running_loop()
@@ -360,21 +367,13 @@ class LinksApiRoutes:
                 results = refine_retrieved(
                     points,
                     retrieved,
-                    k,
-                    seconds,
-                    partial,
+                    options,
                     started=began - retrieval_s,  # waiting spent none of the budget
-                    seed=seed,
-                    margin_deg=floor,
                     progress=(
                         (lambda best: loop.call_soon_threadsafe(reports.put_nowait, best))
                         if stream
                         else None
                     ),
-                    iterations=iterations,
-                    front=design["front"],
-                    constraints=design["constraints"],
-                    timing=design["timing"],
                 )
                 return results, waited + began - retrieved_at
 

@@ -15,24 +15,25 @@ from links_ray.engine.inputs import (
     DEFAULT_CRANK_MM,
     DEFAULT_K,
     DEFAULT_STEPS,
-    DEFAULT_SYNTHESIS_SECONDS,
     MAX_COORDINATE,
     MAX_CRANK_MM,
-    MAX_CURVE_NAME_CHARS,
     MAX_DATASET_JOINTS,
     MAX_K,
     MAX_POINTS,
-    MAX_REQUEST_JOINTS,
-    MAX_SEED,
     MAX_STEPS,
-    MAX_SYNTHESIS_ITERATIONS,
-    MAX_SYNTHESIS_SECONDS,
     MAX_TRANSMISSION_DEG,
     MIN_JOINTS,
     MIN_K,
     MIN_POINTS,
     MIN_STEPS,
 )
+from links_ray.engine.synthesis_options import (
+    DEFAULT_SYNTHESIS_SECONDS,
+    MAX_SEED,
+    MAX_SYNTHESIS_ITERATIONS,
+    MAX_SYNTHESIS_SECONDS,
+)
+from links_ray.serve.limits import MAX_CURVE_NAME_CHARS, MAX_REQUEST_JOINTS
 
 Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
 #: [x, y]

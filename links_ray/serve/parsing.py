@@ -23,27 +23,26 @@ from fastapi import Request
 from starlette.requests import ClientDisconnect
 
 from links_ray.engine.inputs import (
-    BODY_TIMEOUT_S,
     DEFAULT_CRANK_MM,
     DEFAULT_K,
     DEFAULT_STEPS,
+    as_crank_mm,
+    as_flag,
+    as_max_joints,
+    as_steps,
+    as_transmission_deg,
+    validate_query,
+)
+from links_ray.engine.synthesis_options import SynthesisOptions
+from links_ray.serve.api import INLINE_JSON_BYTES, JSON_POOL, ApiError
+from links_ray.serve.limits import (
+    BODY_TIMEOUT_S,
     MAX_BODY_BYTES,
     MAX_CURVE_NAME_CHARS,
     MAX_REQUEST_JOINT_STEPS,
     MAX_REQUEST_JOINTS,
     MIN_BODY_BYTES_PER_S,
-    as_constraints,
-    as_crank_mm,
-    as_flag,
-    as_max_joints,
-    as_steps,
-    as_timing,
-    as_transmission_deg,
-    validate_query,
-    validate_synthesis,
-    validate_synthesis_work,
 )
-from links_ray.serve.api import INLINE_JSON_BYTES, JSON_POOL, ApiError
 from links_ray.serve.models import REQUEST_MODELS
 
 
@@ -271,35 +270,30 @@ def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float, int | N
     return points, k, _min_transmission(body), _checked(as_max_joints, body.get("max_joints"))
 
 
-def synthesize_args(
-    body: dict[str, Any],
-) -> tuple[np.ndarray, int, float | None, bool, float, int, int | None, dict[str, Any]]:
-    """(points (T, 2), k, seconds, partial, min_transmission, seed, iterations, design) of a
-    /api/synthesize body, or ApiError naming the problem: the points, k and min_transmission
-    as /api/retrieve takes them; seconds None when the work is fixed (iterations); design
-    the validated `max_joints`, `front`, `constraints` and `timing`, as `synthesize` takes
-    them."""
+def synthesize_args(body: dict[str, Any]) -> tuple[np.ndarray, SynthesisOptions]:
+    """(points (T, 2), options) of a /api/synthesize body, or ApiError naming the problem: the
+    points, k and min_transmission as /api/retrieve takes them, and the rest as `synthesize`
+    takes them, checked once (`SynthesisOptions`)."""
     points = _pairs("points", _required(body, "points"))
     k = body.get("k")
-    seconds, seed, iterations = _checked(
-        validate_synthesis_work, body.get("seconds"), body.get("seed"), body.get("iterations")
-    )
-    points, k, budget, partial = _checked(
-        validate_synthesis,
-        points,
-        DEFAULT_K if k is None else k,
-        seconds,
-        body.get("partial", False),
-    )
-    budget = None if iterations is not None else budget
-    design = {
-        "max_joints": _checked(as_max_joints, body.get("max_joints")),
-        "front": _checked(as_flag, body.get("front", False), "front"),
-        "constraints": _checked(as_constraints, body.get("constraints")),
-        "timing": body.get("timing"),
-    }
-    _checked(as_timing, design["timing"], len(points), partial)
-    return points, k, budget, partial, _min_transmission(body), seed, iterations, design
+    min_transmission = body.get("min_transmission")
+
+    def checked() -> tuple[np.ndarray, SynthesisOptions]:
+        options = SynthesisOptions(
+            k=DEFAULT_K if k is None else k,
+            seconds=body.get("seconds"),
+            partial=body.get("partial", False),
+            min_transmission_deg=0.0 if min_transmission is None else min_transmission,
+            max_joints=body.get("max_joints"),
+            front=body.get("front", False),
+            constraints=body.get("constraints"),
+            timing=body.get("timing"),
+            seed=body.get("seed"),
+            iterations=body.get("iterations"),
+        )
+        return options.drawing(points), options
+
+    return _checked(checked)
 
 
 def stream_arg(body: dict[str, Any]) -> bool:

@@ -30,6 +30,7 @@ __all__ = [
     "RELEASE_FILES",
     "RELEASE_MIDDLE_POINTS",
     "RELEASE_STEPS",
+    "RELEASE_TIE",
     "release_angles",
     "release_arcs",
     "release_circle_variance",
@@ -49,6 +50,11 @@ RELEASE_STEPS = 200
 RELEASE_FILES = ("dataset", "simulation_dataset", "normalized_dataset", "curated_dataset")
 #: How many points nearest x = 0.5 decide between a turn and the turn 180 degrees more.
 RELEASE_MIDDLE_POINTS = 5
+#: Heights of the two turns (`release_normalize_many`, step 3) closer than this share of the
+#: curve's width are a tie, and the first turn is kept: the release compares them in float32,
+#: where such a difference is rounding's (a circle's two turns, whose highest middle points
+#: are both its top, differ by nothing else).
+RELEASE_TIE = 1e-6
 #: The circle test's bound on `release_circle_variance`. The release's own bound is not known
 #: here, so it is links-ray's curation bound (`engine.paths.CIRCLE_VARIANCE_THRESHOLD`).
 RELEASE_CIRCLE_VARIANCE = CIRCLE_VARIANCE_THRESHOLD
@@ -136,7 +142,9 @@ def release_trajectories_many(
 def release_normalize(curve: ArrayLike) -> np.ndarray:
     """(RELEASE_STEPS, 2) float64: one curve (points, 2) normalized by the release's rule
     (`release_normalize_many`)."""
-    points = np.asarray(curve, dtype=np.float64)
+    points = np.asarray(curve)
+    if not np.issubdtype(points.dtype, np.floating):
+        points = points.astype(np.float64)
     if points.ndim != 2 or points.shape[1] != 2 or len(points) < RELEASE_MIDDLE_POINTS:
         raise ValueError(
             f"curve must be (points, 2) with at least {RELEASE_MIDDLE_POINTS} points, "
@@ -151,20 +159,30 @@ def release_normalize_many(curves: ArrayLike) -> np.ndarray:
     1. The longest chord, by farthest-point hops: from point 0 hop to the point farthest
        from the current one, until the farthest point from the current one is the one just
        left (a pair each farthest from the other), or after `points` hops; the chord runs
-       from the point left to the current one. Ties go to the lowest index.
-    2. The turn that makes this chord horizontal, pointing +x (a rotation; the centre does
-       not matter, step 3 translates), and that turn plus 180 degrees.
+       from the point left to the current one. Ties go to the lowest index. Distances are
+       measured as the release's code measures them, in the curves' own float dtype (float32
+       for the release's files): the square root of the summed squares, rounded there. A
+       circle's diameters are all nearly the longest, and float64 would pick another.
+    2. The turn by the smaller angle (at most 90 degrees either way) that makes this chord
+       horizontal, and that turn plus 180 degrees (rotations; the centre does not matter,
+       step 3 translates).
     3. Each turned curve is translated so its least x and least y are 0 (the translation
        comes before the choice, so that x = 0.5 means the same for every placement of a
        curve; there is no scaling yet, so x = 0.5 is in the curve's own units). Of the two,
        the kept one is that whose RELEASE_MIDDLE_POINTS points nearest x = 0.5 (ties to the
-       lower index) reach lower, read as the lower mean y of those points (not their least
-       y); on equal means the first turn (chord towards +x).
+       lower index) have the lower highest y, as the release's `get_oriented` compares them
+       (not their mean, nor their least y); on a tie (heights within RELEASE_TIE of the
+       curve's width) the first turn, as the release keeps it on equal heights.
     4. Both coordinates are divided by the x extent, so x spans [0, 1] and y starts at 0.
 
     A curve holding NaN or infinity, or with no x extent (one point repeated), becomes zeros.
+    Steps 2 to 4 are in float64. The release computes them in the curves' dtype, so on a tie
+    its own choice is float32 rounding's, and may be either turn: about one curve in 150 of
+    generated mechanisms (mostly circles) is such a tie.
     """
-    c = np.asarray(curves, dtype=np.float64)
+    c = np.asarray(curves)
+    if not np.issubdtype(c.dtype, np.floating):
+        c = c.astype(np.float64)
     if c.ndim != 3 or c.shape[2] != 2 or c.shape[1] < RELEASE_MIDDLE_POINTS:
         raise ValueError(
             f"curves must be (P, points, 2) with at least {RELEASE_MIDDLE_POINTS} points, "
@@ -178,20 +196,23 @@ def release_normalize_many(curves: ArrayLike) -> np.ndarray:
 
 
 def _farthest(c: np.ndarray, rows: np.ndarray, frm: np.ndarray) -> np.ndarray:
-    """Per curve, the index of the point farthest from point `frm` (first on ties)."""
+    """Per curve, the index of the point farthest from point `frm` (first on ties), the
+    distances rounded in `c`'s dtype as `numpy.linalg.norm` rounds them: the release's
+    measure, whose ties (two distances equal once rounded) it breaks the same way."""
     d = c - c[rows, frm][:, None, :]
-    return np.argmax(np.einsum("pki,pki->pk", d, d), axis=1)
+    return np.argmax(np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1]), axis=1)
 
 
-def _normalize_block(c: np.ndarray) -> np.ndarray:
-    bad = ~np.isfinite(c).all(axis=(1, 2))
-    c = np.where(bad[:, None, None], 0.0, c)
+def _normalize_block(given: np.ndarray) -> np.ndarray:
+    bad = ~np.isfinite(given).all(axis=(1, 2))
+    given = np.where(bad[:, None, None], given.dtype.type(0), given)
+    c = given.astype(np.float64)
     rows = np.arange(len(c))
     left = np.zeros(len(c), dtype=np.int64)
-    here = _farthest(c, rows, left)
+    here = _farthest(given, rows, left)
     hopping = rows  # the curves whose last hop has not come back
     for _ in range(c.shape[1]):
-        onward = _farthest(c[hopping], np.arange(len(hopping)), here[hopping])
+        onward = _farthest(given[hopping], np.arange(len(hopping)), here[hopping])
         moving = onward != left[hopping]
         if not moving.any():
             break
@@ -199,14 +220,19 @@ def _normalize_block(c: np.ndarray) -> np.ndarray:
         left[hopping] = here[hopping]
         here[hopping] = onward[moving]
     chord = c[rows, here] - c[rows, left]
+    # The release turns by -arctan(dy / dx): the chord's direction folded into (-90, 90]
+    # degrees, so which of the two turns is "first" (kept on a tie) is the release's too.
     angle = np.arctan2(chord[:, 1], chord[:, 0])
+    angle = np.where(angle > np.pi / 2, angle - np.pi, angle)
+    angle = np.where(angle <= -np.pi / 2, angle + np.pi, angle)
     cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
     x = cos * c[..., 0] + sin * c[..., 1]
     y = cos * c[..., 1] - sin * c[..., 0]
     # The turn 180 degrees more is (-x, -y); each translated so its least x and y are 0.
     first = np.stack([x - x.min(axis=1)[:, None], y - y.min(axis=1)[:, None]], axis=2)
     second = np.stack([x.max(axis=1)[:, None] - x, y.max(axis=1)[:, None] - y], axis=2)
-    keep_second = _middle_height(second) < _middle_height(first)
+    width = x.max(axis=1) - x.min(axis=1)
+    keep_second = _middle_height(second) < _middle_height(first) - RELEASE_TIE * width
     turned = np.where(keep_second[:, None, None], second, first)
     extent = turned[..., 0].max(axis=1)
     bad |= ~(extent > 0)
@@ -217,10 +243,10 @@ def _normalize_block(c: np.ndarray) -> np.ndarray:
 
 
 def _middle_height(c: np.ndarray) -> np.ndarray:
-    """Per curve, the mean y of its RELEASE_MIDDLE_POINTS points nearest x = 0.5."""
+    """Per curve, the highest y of its RELEASE_MIDDLE_POINTS points nearest x = 0.5."""
     nearest = np.argsort(np.abs(c[..., 0] - 0.5), axis=1, kind="stable")
     nearest = nearest[:, :RELEASE_MIDDLE_POINTS]
-    return np.take_along_axis(c[..., 1], nearest, axis=1).mean(axis=1)
+    return np.take_along_axis(c[..., 1], nearest, axis=1).max(axis=1)
 
 
 def release_circle_variance(curves: ArrayLike) -> np.ndarray:

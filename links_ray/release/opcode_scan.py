@@ -12,8 +12,8 @@ open at once. A batch's STOP starts the next batch's scan afresh: each pickle ha
 The scan's cost is per opcode: an argument of given length (an array's bytes) is skipped by
 count. Only newline-ended arguments, those of protocols 0 and 1, are read byte by byte.
 
-`scan` is the entry point; it checks its buffers first (`inputs.check_buffer`): numba checks no
-bounds. Pure numpy/numba: no Ray.
+`scan` is the entry point; it checks its buffers first (`engine.buffers.check_buffer`): numba
+checks no bounds. Pure numpy/numba: no Ray.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import pickletools
 import numpy as np
 from numba import njit
 
-from links_ray.engine.inputs import check_buffer
+from links_ray.engine.buffers import check_buffer
 
 #: The most MARKs a batch may have open at once.
 MAX_MARKS = 1000

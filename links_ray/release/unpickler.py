@@ -1,12 +1,9 @@
-"""Reading the LINKS release's pickled files without running what they name.
+"""The restricted unpickler of the LINKS release's files: it runs nothing a pickle names.
 
-A release file is a sequence of pickles, one `pickle.dump` per batch. Unpickling runs whatever
-callable a pickle names, so `read_batches` unpickles with `ReleaseUnpickler`, which resolves
-only the names a plain `pickle.dump` of lists of numpy arrays and scalars uses (protocols 0 to
-5, numpy 1 and numpy 2 module names) and refuses any other before anything is called. Lists,
-tuples, ints, floats, bools and strings need no name at all. Before the unpickler reads a byte,
-the opcode filter of `release_scan` has passed it: no dict or set, no opcode such pickles never
-hold, memo indices only in the order a pickler writes them.
+Unpickling runs whatever callable a pickle names, so `ReleaseUnpickler` resolves only the names
+a plain `pickle.dump` of lists of numpy arrays and scalars uses (protocols 0 to 5, numpy 1 and
+numpy 2 module names) and refuses any other before anything is called. Lists, tuples, ints,
+floats, bools and strings need no name at all.
 
 Nor does a pickle reach numpy's own constructors: what it names stands in for code of ours.
 A pickle's BUILD step hands state from the file to the object's `__setstate__`, and numpy's
@@ -16,7 +13,7 @@ kinds in `PLAIN_DTYPES`, then a shape and exactly the bytes that shape holds. Th
 copy of those bytes, made by numpy's buffer constructor; once the pickle is loaded, each
 stand-in is replaced by what it made.
 
-Pure numpy: no Ray.
+Files are read through it, behind the opcode filter, by `release.pickles`. Pure numpy: no Ray.
 """
 
 from __future__ import annotations
@@ -24,38 +21,18 @@ from __future__ import annotations
 import codecs
 import functools
 import gc
-import io
 import pickle
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import pyarrow.fs as pafs
 
-from links_ray.data import release_scan
-from links_ray.data.store import Store
-
-#: The release's four files by released name, and the prefix the release's generator puts
-#: before its dataset's name (NAME, Solutions_NAME, Normalized_NAME, Curated_Normalized_NAME).
-RELEASE_FILES = {
-    "dataset": "",
-    "simulation_dataset": "Solutions_",
-    "normalized_dataset": "Normalized_",
-    "curated_dataset": "Curated_Normalized_",
-}
-#: Bytes read from the store at once.
-READ_BUFFER = 8 * 1024 * 1024
 #: The dtypes an array or scalar of a release file may have, as numpy's pickles spell them
 #: (kind and item size): bool, signed and unsigned ints, floats, and byte strings of any length.
 PLAIN_DTYPES = re.compile(r"b1|[iuf][248]|[iu]1|S[1-9][0-9]{0,9}")
 #: The most dimensions an array may have (numpy 2's own limit).
 MAX_DIMENSIONS = 64
-
-
-class ReleaseFileError(ValueError):
-    """A release file that cannot be read as the release writes it: a refused name, a
-    truncated or damaged batch, or contents of the wrong shape or type."""
 
 
 class RefusedName(pickle.UnpicklingError):
@@ -464,164 +441,3 @@ def _plain(value: Any) -> Any:
         )
         raise _refuse(f"a batch holds a {shown}; only lists, tuples, numbers, strings and arrays")
     return value
-
-
-def release_files(store: Store) -> dict[str, str | None]:
-    """The release's files at the root of `store`, by released name (RELEASE_FILES), each
-    the path relative to the root or None if absent.
-
-    Either released names (`dataset`, `simulation_dataset`, ...) or the generator's (`NAME`,
-    `Solutions_NAME`, ...) are read: NAME is `dataset` when that file is there, else the one
-    NAME with both `NAME` and `Solutions_NAME`. Raises ReleaseFileError if there is no dataset,
-    several NAMEs, or one file under both its names.
-    """
-    selector = pafs.FileSelector(store.root, allow_not_found=True)
-    files = {
-        info.base_name
-        for info in store.fs.get_file_info(selector)
-        if info.type == pafs.FileType.File
-    }
-    if "dataset" in files:
-        base = "dataset"
-    else:
-        prefix = RELEASE_FILES["simulation_dataset"]
-        bases = sorted(
-            name[len(prefix) :]
-            for name in files
-            if name.startswith(prefix) and name[len(prefix) :] in files
-        )
-        if not bases:
-            raise ReleaseFileError(
-                f"{store.uri} holds no release dataset: a file named dataset, or NAME beside "
-                "Solutions_NAME"
-            )
-        if len(bases) > 1:
-            raise ReleaseFileError(
-                f"{store.uri} holds several release datasets ({', '.join(bases)}): keep one"
-            )
-        base = bases[0]
-    found: dict[str, str | None] = {}
-    for name, prefix in RELEASE_FILES.items():
-        there = [
-            candidate
-            for candidate in dict.fromkeys((name if base == "dataset" else None, prefix + base))
-            if candidate in files
-        ]
-        if len(there) > 1:
-            raise ReleaseFileError(f"{store.uri} holds both {there[0]} and {there[1]}: keep one")
-        found[name] = there[0] if there else None
-    return found
-
-
-class _Source(io.RawIOBase):
-    """A stream as a raw file for io.BufferedReader, its bytes passed through the opcode filter
-    (`release_scan`): it ends just before the first opcode the filter refuses, and `refused`
-    then says which and why."""
-
-    def __init__(self, stream: Any) -> None:
-        self._stream = stream
-        self._position = 0
-        self._scan = release_scan.new_state()
-        self.refused: str | None = None
-
-    def readable(self) -> bool:
-        return True
-
-    def tell(self) -> int:
-        return self._position
-
-    def readinto(self, buffer: Any) -> int:
-        if self.refused is not None:
-            return 0
-        data = self._stream.read(len(buffer))
-        # The unpickler reads ahead of the opcode it runs: bytes past a refused opcode must
-        # never reach it, so they are held back here, where it reads them from.
-        handed = release_scan.scan(np.frombuffer(data, np.uint8), self._scan)
-        buffer[:handed] = data[:handed]
-        self._position += handed
-        if handed < len(data):
-            self.refused = release_scan.refusal(self._scan)
-        return handed
-
-
-def read_batches(store: Store, relative: str) -> Iterator[tuple[int, int, Any]]:
-    """(batch number, byte offset, object) of each pickle of a release file, one at a time.
-
-    Raises ReleaseFileError naming the file, the batch and its offset for a refused name
-    (nothing it names is called), an opcode the release's files never hold (refused before the
-    unpickler reads it), a batch cut short, or one that is not a pickle of the release's kind.
-    The iterator keeps no reference to a batch it has handed out: a caller that drops one frees
-    it before the next is read.
-    """
-    path = store.path(relative)
-    with store.fs.open_input_stream(path) as stream:
-        size = store.fs.get_file_info(path).size
-        yield from read_pickles(stream, f"{store.uri}/{relative}", size)
-
-
-def read_pickles(stream: Any, shown: str, size: int) -> Iterator[tuple[int, int, Any]]:
-    """`read_batches` of a binary `stream` (anything with `read(n)`) of `size` bytes, open at
-    its start, named `shown` in errors.
-
-    A batch's arrays and scalars together hold at most the bytes from the batch's offset to
-    the end of the file: a pickle may hand the same bytes to many arrays, and each is a copy.
-    """
-    raw = _Source(stream)
-    source = io.BufferedReader(raw, READ_BUFFER)
-    batch = 0
-    while True:
-        offset = source.tell()
-        if not source.peek(1):
-            if raw.refused is not None:  # refused where a batch would begin
-                raise ReleaseFileError(
-                    f"{shown} batch {batch} at byte {offset} is not a readable pickle: "
-                    f"{raw.refused}"
-                )
-            return
-        yield batch, offset, _load(source, raw, f"{shown} batch {batch}", offset, size - offset)
-        batch += 1
-
-
-def _load(source: io.BufferedReader, raw: _Source, shown: str, offset: int, budget: int) -> Any:
-    """One batch's object, read at `offset`; ReleaseFileError saying why it cannot be."""
-    try:
-        return ReleaseUnpickler(source, budget).load()
-    except RefusedName as exc:
-        raise ReleaseFileError(
-            f"{shown} names {exc.name}; only numpy arrays and lists are read"
-        ) from None
-    except OSError:
-        raise  # the store failed, not the file
-    except Exception as exc:
-        # A damaged or crafted batch can fail anywhere in the unpickler, in any exception;
-        # each is the file's fault and ends the import in one line. The stream ends early at
-        # an opcode the filter refused: running out there is that refusal, not the file's end.
-        if _ran_out(exc) and not source.peek(1):
-            if raw.refused is not None:
-                raise ReleaseFileError(
-                    f"{shown} at byte {offset} is not a readable pickle: {raw.refused}"
-                ) from None
-            raise ReleaseFileError(
-                f"{shown} at byte {offset} is cut short: the file ends inside it, at byte "
-                f"{source.tell()}"
-            ) from None
-        raise ReleaseFileError(
-            f"{shown} at byte {offset} is not a readable pickle: {_reason(exc)}"
-        ) from None
-
-
-def _ran_out(exc: Exception) -> bool:
-    """Whether the unpickler failed for want of the pickle's next bytes."""
-    return isinstance(exc, EOFError) or (
-        type(exc) is pickle.UnpicklingError and str(exc) == "pickle data was truncated"
-    )
-
-
-def _reason(exc: Exception) -> str:
-    """Why a batch failed, in one line of at most about 200 characters."""
-    if isinstance(exc, MemoryError):
-        return "it asks for more memory than there is"
-    if isinstance(exc, RecursionError):
-        return "it is nested too deeply"
-    text = " ".join(str(exc).split()) or type(exc).__name__
-    return text if len(text) <= 200 else f"{text[:200]}..."

@@ -1,12 +1,12 @@
 """Import of the LINKS release's own files into a links-ray root
 (docs/guides/importing-the-release.md).
 
-The release's files are read with the restricted unpickler of `release_pickles`, one batch at
-a time, and one file's batch at a time: a batch's mechanisms stay in memory while its
-simulations are checked and dropped, then its curated (j, node) pairs are read. Each batch is
+The release's files are read by `release.pickles`, one batch at a time, and one file's batch at
+a time: a batch's mechanisms stay in memory while its simulations are checked and dropped
+(`release.checked_batch`), then its curated (j, node) pairs are read. Each batch is
 split by joint count into shards committed by the commit protocol (`data.commit`) under the
 root's writer lease, so an interrupted import resumes where it stopped and every shard is
-committed exactly once:
+committed exactly once, under ids that say where each row came from (`release.ids`):
 
     shard_id = SHARDS_PER_BATCH * release_batch + n_joints
     mechanism_id = BATCH_STRIDE * release_batch + release_index
@@ -19,7 +19,7 @@ ACTUATED (2), any other joint to SIMPLE (1). Positions are the release's float32
 float64, exactly.
 
 Every mechanism is checked with links-ray's own validators and solver: at the release's angles
-(`release_format.release_trajectories`' solver), compared with the release's own trajectories
+(`release.format.release_trajectories`' solver), compared with the release's own trajectories
 where it has them; and over links-ray's own turn (DEFAULT_STEPS steps from the initial angle),
 where one that locks goes to `negatives`. `paths` are links-ray's curation of the rest
 (`pathset.trajectory_paths`); `curated` are the paths the release curated when it has
@@ -49,209 +49,34 @@ from links_ray.data.pathset import (
     path_shares,
     trajectory_paths,
 )
-from links_ray.data.release_format import RELEASE_STEPS, release_turn
-from links_ray.data.release_pickles import ReleaseFileError, read_batches, release_files
 from links_ray.data.schemas import SCHEMAS, TRAJECTORY_DTYPE, list_array
 from links_ray.data.shards import NEGATIVE_ID_BASE, VARIANTS
-from links_ray.data.store import META, Store, StoreError
+from links_ray.data.store import IMPORTED_SOURCE, META, Store
 from links_ray.engine.inputs import (
-    ACTUATED,
     DEFAULT_STEPS,
-    FIXED,
-    SIMPLE,
     InvalidMechanismError,
     as_positions,
     check_positions,
 )
-from links_ray.engine.mechanism import MAX_DATASET_JOINTS, Topology, analyze_topology
 from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.transmission import mechanism_transmission_deg
+from links_ray.release.checked_batch import (
+    AGREEMENT_TOLERANCE,
+    VERDICT_STATS,
+    CheckedBatch,
+    node_types_of,
+)
+from links_ray.release.ids import BATCH_STRIDE, SHARDS_PER_BATCH
+from links_ray.release.pickles import ReleaseFileError, read_batches, release_files
 
-__all__ = ["BATCH_STRIDE", "import_release", "refuse_imported", "release_location"]
+__all__ = ["import_release", "summarize_import"]
 
-#: Ids a release batch spans: a multiple of 5, so a batch's groups of five stay topologies.
-BATCH_STRIDE = VARIANTS * (1 << 22)
-#: Shard ids a release batch spans: one per joint count.
-SHARDS_PER_BATCH = 32
-#: A joint's largest distance from the release's own trajectory, relative to the mechanism's
-#: size (the largest coordinate difference of its x0), below which the two agree: the
-#: release's float32 rounding is some 1e-7 of it.
-AGREEMENT_TOLERANCE = 1e-4
 #: Disagreeing mechanisms named in the import summary (every shard's marker names all of its).
 SHOWN_DISAGREEING = 100
 IMPORT_FORMAT = 1
-#: `run.json`'s source of an imported root.
-IMPORTED_SOURCE = "links-release"
-#: A mechanism's check against the release (`_release_check`), and the summary's count of each.
-VERDICT_STATS = {
-    "agree": "agreeing",
-    "disagree": "disagreeing",
-    "locks": "locking_at_release_angles",
-    "unchecked": "unchecked",
-}
-VERDICTS = tuple(VERDICT_STATS)
 #: Called with "batch <b> committed" after each release batch's shards are all committed:
 #: the fault tests' way to stop an import between batches.
 Failpoint = Callable[[str], None]
-
-
-def release_location(mechanism_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(release_batch, release_index) of imported mechanism ids, valid or negative."""
-    ids = np.asarray(mechanism_ids, dtype=np.int64)
-    ids = np.where(ids >= NEGATIVE_ID_BASE, ids - NEGATIVE_ID_BASE, ids)
-    return ids // BATCH_STRIDE, ids % BATCH_STRIDE
-
-
-def refuse_imported(store: Store) -> dict:
-    """The root's run record (`run.json`, {} if none); StoreError if `store` holds an import of
-    the release: its curated set is the release's, which generating or curating more would mix
-    with a seeded one."""
-    run = store.read_json(f"{META}/run.json") or {}
-    if run.get("source") == IMPORTED_SOURCE:
-        raise StoreError(
-            f"{store.uri} is an import of the LINKS release: only links import-release writes "
-            "to it (run it again to finish an interrupted import)"
-        )
-    return run
-
-
-def _entries(value: Any, shown: str, width: int) -> list:
-    if not isinstance(value, list):
-        raise ReleaseFileError(f"{shown} is a {type(value).__name__}, not a list")
-    for index, entry in enumerate(value):
-        if not isinstance(entry, list | tuple) or len(entry) != width:
-            raise ReleaseFileError(f"{shown} index {index} is not a list of {width} items")
-    return value
-
-
-def _index(value: Any, shown: str, limit: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or not 0 <= value < limit:
-        raise ReleaseFileError(
-            f"{shown}: j must be an index of the batch's {limit}, got {_shown_number(value)}"
-        )
-    return int(value)
-
-
-def _shown_number(value: Any) -> str:
-    # Only a number is shown: a file's list could be deeply nested or huge.
-    return (
-        repr(value) if isinstance(value, int | float | np.number) else f"a {type(value).__name__}"
-    )
-
-
-def _array(value: Any, shown: str, name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
-    if not isinstance(value, np.ndarray) or value.dtype != np.dtype(dtype) or value.shape != shape:
-        got = (
-            f"{value.shape} {value.dtype}"
-            if isinstance(value, np.ndarray)
-            else type(value).__name__
-        )
-        raise ReleaseFileError(f"{shown}: {name} must be {shape} {np.dtype(dtype).name}, got {got}")
-    return value
-
-
-class _Batch:
-    """One release batch, checked: its mechanisms, each one's check against the release's
-    simulation of it (the simulations themselves are not kept), and the release's curated
-    (j, node) pairs of it."""
-
-    def __init__(self, shown: str, batch: int, value: Any) -> None:
-        self.batch = batch
-        entries = _entries(value, f"{shown} batch {batch}", 3)
-        if len(entries) > BATCH_STRIDE:
-            raise ReleaseFileError(
-                f"{shown} batch {batch} holds {len(entries)} mechanisms; at most {BATCH_STRIDE}"
-            )
-        self.size = len(entries)
-        self.adjacency: list[np.ndarray] = []
-        self.fixed: list[np.ndarray] = []
-        self.x0: list[np.ndarray] = []
-        for index, (a, x0, fixed) in enumerate(entries):
-            where = f"{shown} batch {batch} index {index}"
-            n = len(fixed) if isinstance(fixed, np.ndarray) and fixed.ndim == 1 else -1
-            if not 2 <= n <= MAX_DATASET_JOINTS:
-                raise ReleaseFileError(
-                    f"{where}: node_type must be (n,) bool with n from 2 to "
-                    f"{MAX_DATASET_JOINTS}, got "
-                    + (
-                        f"{fixed.shape} {fixed.dtype}"
-                        if isinstance(fixed, np.ndarray)
-                        else type(fixed).__name__
-                    )
-                )
-            self.fixed.append(_array(fixed, where, "node_type", (n,), np.bool_))
-            self.adjacency.append(_array(a, where, "A", (n, n), np.bool_))
-            self.x0.append(_array(x0, where, "x0", (n, 2), np.float32))
-        self.n_joints = np.array([len(f) for f in self.fixed], dtype=np.int64)
-        #: Each mechanism's check against the release (an index of VERDICTS, -1 until checked)
-        #: and its error there.
-        self.verdicts = np.full(self.size, -1, dtype=np.int8)
-        self.errors = np.zeros(self.size)
-        self.curated: set[tuple[int, int]] | None = None
-        self._shown = shown
-        self._topologies: dict[tuple[bytes, bytes], Topology] = {}
-
-    def topology(self, j: int) -> Topology:
-        """The analyzed topology of mechanism `j` (shared by every mechanism with the same
-        `A` and `node_type`); ReleaseFileError naming `j` for one links-ray cannot simulate."""
-        key = (self.adjacency[j].tobytes(), self.fixed[j].tobytes())
-        found = self._topologies.get(key)
-        if found is None:
-            try:
-                found = analyze_topology(self.adjacency[j], node_types_of(self.fixed[j]))
-            except InvalidMechanismError as exc:
-                raise ReleaseFileError(
-                    f"{self._shown} batch {self.batch} index {j}: {exc}"
-                ) from None
-            self._topologies[key] = found
-        return found
-
-    def check_solutions(self, shown: str, value: Any) -> None:
-        """Check every mechanism the release simulated against its trajectory in `value` (the
-        batch of `simulation_dataset`), keeping only the verdicts: a batch's trajectories are
-        its largest part, and are dropped with `value`."""
-        for k, (x_sol, j) in enumerate(_entries(value, f"{shown} batch {self.batch}", 2)):
-            where = f"{shown} batch {self.batch} index {k}"
-            j = _index(j, where, self.size)
-            n = int(self.n_joints[j])
-            _array(x_sol, where, "x_sol", (n, RELEASE_STEPS, 2), np.float32)
-            self._check(j, x_sol)
-
-    def verdict(self, j: int) -> tuple[str, float]:
-        """Mechanism `j`'s check (VERDICTS) and error; one the release has no trajectory of is
-        checked only for locking at the release's angles."""
-        if self.verdicts[j] < 0:
-            self._check(j, None)
-        return VERDICTS[self.verdicts[j]], float(self.errors[j])
-
-    def _check(self, j: int, solution: np.ndarray | None) -> None:
-        verdict, error = _release_check(self.topology(j), self.x0[j].astype(np.float64), solution)
-        self.verdicts[j] = VERDICTS.index(verdict)
-        self.errors[j] = error
-
-    def add_curated(self, shown: str, value: Any) -> None:
-        self.curated = set()
-        for k, (curve, j, node) in enumerate(_entries(value, f"{shown} batch {self.batch}", 3)):
-            where = f"{shown} batch {self.batch} index {k}"
-            _array(curve, where, "curve", (RELEASE_STEPS, 2), np.float32)
-            j = _index(j, where, self.size)
-            if isinstance(node, bool) or not isinstance(node, int | np.integer):
-                raise ReleaseFileError(f"{where}: node must be an int, got {_shown_number(node)}")
-            if not 0 <= node < self.n_joints[j]:
-                raise ReleaseFileError(
-                    f"{where}: node {node} is not a joint of mechanism {j} "
-                    f"({self.n_joints[j]} joints)"
-                )
-            self.curated.add((j, int(node)))
-
-
-def node_types_of(fixed: np.ndarray) -> np.ndarray:
-    """links-ray's node types (int8) of a release `node_type` (True for fixed): FIXED for
-    fixed joints, ACTUATED for joint 1 (the crank's tip), SIMPLE for the others."""
-    types = np.where(fixed, FIXED, SIMPLE).astype(np.int8)
-    if not fixed[1]:
-        types[1] = ACTUATED
-    return types
 
 
 def _rows(table: str, columns: dict[str, np.ndarray]) -> pa.RecordBatch:
@@ -265,25 +90,8 @@ def _rows(table: str, columns: dict[str, np.ndarray]) -> pa.RecordBatch:
     return pa.RecordBatch.from_arrays(arrays, schema=SCHEMAS[table])
 
 
-def _release_check(
-    topology: Topology, positions: np.ndarray, solution: np.ndarray | None
-) -> tuple[str, float]:
-    """("agree" | "disagree" | "locks" | "unchecked", error): links-ray's solver at the
-    release's angles against the release's own trajectory."""
-    out, (step, _) = release_turn(topology, positions)
-    if step >= 0:
-        return "locks", 0.0
-    if solution is None:
-        return "unchecked", 0.0
-    size = max(float(np.ptp(positions, axis=0).max()), 1e-12)
-    error = float(np.abs(out - solution).max()) / size
-    if not np.isfinite(error):
-        error = float("inf")
-    return ("agree" if error <= AGREEMENT_TOLERANCE else "disagree"), error
-
-
 def _group_rows(
-    batch: _Batch,
+    batch: CheckedBatch,
     shown: str,
     indices: np.ndarray,
     n: int,
@@ -422,7 +230,7 @@ def _group_rows(
 
 def _import_shard(
     store: Store,
-    batch: _Batch,
+    batch: CheckedBatch,
     shown: str,
     n: int,
     seed: int,
@@ -526,7 +334,7 @@ def import_release(
         shown = f"{source.uri}/{data_file}"
         imported_now = 0  # valid mechanisms whose shards this run committed
         for number, _, value in read_batches(source, data_file):
-            batch = _Batch(shown, number, value)
+            batch = CheckedBatch(shown, number, value)
             del value
             shards = [
                 (n, SHARDS_PER_BATCH * number + n) for n in np.unique(batch.n_joints).tolist()

@@ -1,0 +1,287 @@
+"""Synthesis's passes over the retrieved candidates, within a budget (`engine.budget`):
+
+1. A short pass: every candidate gets up to `FIRST_ITERATIONS` refinement iterations, in
+   rounds of `FIRST_ROUND` over them all, within `FIRST_SHARE` of the work left. Retrieval
+   ranks by normalized shape alone; a few iterations show which candidates can really move
+   onto the curve. Their steps weigh the point pairs nearer than SHORT_WEIGHT_FLOOR alike,
+   pulling harder toward the parts of the drawing a path is far from than the chamfer would.
+2. A long pass: the best `LONG_PASS_CANDIDATES` after the first pass are refined on, in rounds
+   of `LONG_ROUND` iterations, each continuing where the first pass left it (at the damping it
+   ended with). One that converges gives its place to the next best of the first pass, until
+   the budget is spent: the first pass ranks roughly, and the one that ends best is often
+   well down its order.
+3. Restarts: if every candidate has converged and work remains, the best are shaken (every
+   joint moved by a random share of the drawing's chord, log-uniform in `SHAKE`) and refined
+   again for at most `HOP_ITERATIONS`, keeping the shaken result only if it is better (a
+   basin hop: the point-sampled chamfer has many local minima).
+
+Refinements run in threads (the refinement kernels release the GIL). A `TimeBudget` gives
+every piece of work the deadline, so an answer comes at most one damping trial past it; an
+`IterationBudget` counts refinement iterations and runs rounds in lockstep, so that its answer
+is bit-equal for equal inputs whatever the time, the load and the threads.
+
+Pure numpy/numba and threads: no Ray.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from concurrent.futures import ALL_COMPLETED, FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from typing import Any
+
+import numpy as np
+
+from links_ray.engine.budget import Budget
+from links_ray.engine.candidates import WORST_RANK, Candidate, candidate
+from links_ray.engine.inputs import DEFAULT_MARGIN_DEG
+from links_ray.engine.pareto import pareto_front
+from links_ray.engine.refine_step import IRLS_WEIGHT_FLOOR
+from links_ray.engine.synthesis_options import SynthesisOptions
+from links_ray.engine.synthesis_results import SynthesisResults, as_result
+from links_ray.engine.target import Target
+
+__all__ = ["Progress", "SynthesisPasses"]
+
+#: Iterations of the short pass, in rounds of FIRST_ROUND for every candidate, and the most
+#: share of the budget it may take.
+FIRST_ITERATIONS, FIRST_ROUND, FIRST_SHARE = 30, 10, 0.4
+#: Candidates the long pass refines at a time (at least k), the best of the short pass first.
+LONG_PASS_CANDIDATES = 3
+#: Long-pass refinements run in rounds of LONG_ROUND iterations over the finalists.
+LONG_ROUND = 50
+#: Restarts move every joint by up to a share of the drawing's chord drawn log-uniformly
+#: between these (the basin to leave may be narrow or wide), and refine for at most
+#: HOP_ITERATIONS.
+SHAKE = (0.003, 0.05)
+HOP_ITERATIONS = 300
+#: The short pass's IRLS weight floor (`refine_step.normal_equations`), a share of the
+#: drawing's chord: its steps weigh every pair nearer than that alike, as least squares does,
+#: which pulls harder on the parts of the drawing the path is far from; the long pass and
+#: restarts then weigh pairs as the chamfer does (IRLS_WEIGHT_FLOOR).
+SHORT_WEIGHT_FLOOR = 0.15
+#: Least seconds between two progress reports (the best so far) of one synthesis.
+PROGRESS_INTERVAL_S = 0.2
+#: With timing, the candidates the short pass leaves best go on, timed: choosing each one's
+#: start costs a fine turn.
+TIMED_CANDIDATES = 24
+
+#: Called with the best so far, as a result with `trajectories` and `elapsed_ms`.
+Progress = Callable[[dict[str, Any]], None]
+
+
+class SynthesisPasses:
+    """One synthesis's candidates and the passes that refine them (the module says how), run
+    on `pool`'s `workers` threads within `budget`. Its state is explicit: `candidates` (all
+    still in the running), `finalists` (those the long pass took), `measure` (the target the
+    passes lower: the shape, then the timing once the candidates are timed)."""
+
+    def __init__(
+        self,
+        options: SynthesisOptions,
+        target: Target,
+        budget: Budget,
+        pool: ThreadPoolExecutor,
+        workers: int,
+        progress: Progress | None,
+        started: float,
+    ) -> None:
+        self.options = options
+        self.target = target
+        angles = options.timing_angles(len(target.points))
+        self.timed = None if angles is None else target.timed(angles)
+        self.measure = target
+        self.budget = budget
+        self.pool = pool
+        self.workers = workers
+        # Refinement keeps at least DEFAULT_MARGIN_DEG whatever the floor asked for.
+        self.min_transmission_deg = max(DEFAULT_MARGIN_DEG, options.min_transmission_deg)
+        self.candidates: list[Candidate] = []
+        self.finalists: list[Candidate] = []
+        self.progress = progress
+        self.started = started
+        # The measure reported, when, and the best candidate's rank last looked at.
+        self._reported_rank: tuple = WORST_RANK
+        self._reported_at = -math.inf
+        self._looked_at: tuple | None = None
+
+    def run(self, retrieved: list[dict]) -> SynthesisResults:
+        """Every pass over the `retrieved` results, and the answer."""
+        self.prepare(retrieved)
+        self.report()
+        self.short_pass()
+        if self.timed is not None:
+            self.time_candidates(self.timed)
+        self.candidates.sort(key=Candidate.rank)
+        self.long_pass()
+        self.restarts()
+        return self.answer()
+
+    def prepare(self, retrieved: list[dict]) -> None:
+        """The retrieved results as candidates: retrieval's first k whatever the budget (an
+        answer needs them), the rest while it lasts."""
+        k, target, constraints = self.options.k, self.target, self.options.constraints
+
+        def prepared(item: tuple[int, dict]) -> Candidate | None:
+            place, result = item
+            if place >= k and self.budget.expired():
+                return None
+            return candidate(result, target, constraints)
+
+        found = self.pool.map(prepared, enumerate(retrieved))
+        self.candidates = [c for c in found if c is not None]
+
+    def _refine(
+        self, c: Candidate, start: np.ndarray, iterations: int, end: float, floor: float
+    ) -> bool:
+        """Refine `c` from `start` toward the pass's measure, charge the budget, keep it if
+        better; True if kept. `end`: when the pass must end; `floor`: the IRLS weight floor."""
+        refined = c.refined(
+            self.measure,
+            start,
+            iterations,
+            self.budget.refine_deadline(end),
+            self.min_transmission_deg,
+            floor,
+            self.options.constraints,
+        )
+        return c.keep(self.budget.charge(refined), iterations)
+
+    def short_pass(self) -> None:
+        """Every candidate a few rounds of FIRST_ROUND iterations, within FIRST_SHARE."""
+        first_end = self.budget.pass_end(FIRST_SHARE)
+
+        def short(c: Candidate) -> None:
+            if not self._refine(c, c.positions, FIRST_ROUND, first_end, SHORT_WEIGHT_FLOOR):
+                c.converged = True  # no step helped: it will not move
+
+        # In rounds, so that when time runs short every candidate has had as many iterations
+        # (large mechanisms take many times as long per iteration as small ones).
+        for _ in range(0, FIRST_ITERATIONS, FIRST_ROUND):
+            moving = [c for c in self.candidates if not c.converged]
+            if not moving or self.budget.done(FIRST_SHARE, first_end):
+                break
+            list(self.pool.map(short, moving))
+            self.report()
+
+    def time_candidates(self, timed: Target) -> None:
+        """The shape is near: the best TIMED_CANDIDATES (and a front's leaders) get their
+        start, and from here on the timing ranks them; the rest are dropped."""
+        candidates = sorted(self.candidates, key=Candidate.rank)
+        leaders = pareto_front(candidates) if self.options.front else []
+        best = candidates[:TIMED_CANDIDATES]
+        self.candidates = best + [c for c in leaders if c not in best]
+        list(self.pool.map(lambda c: c.start_timed(timed), self.candidates))
+        self.measure = timed
+
+    def long_pass(self) -> None:
+        """LONG_PASS_CANDIDATES (at least k; with a front, all its leaders) refined at a time,
+        in rounds of LONG_ROUND, the finalist with the fewest rounds next; one that converges
+        makes room for the next best after the short pass (whose ranking is rough: the one
+        that ends best is often well down it)."""
+        budget, deadline = self.budget, self.budget.deadline
+        waiting = list(self.candidates)
+        quota = max(LONG_PASS_CANDIDATES, self.options.k)
+        if self.options.front:
+            # The front as the short pass leaves it goes first, all of it at once.
+            leaders = pareto_front(self.candidates)
+            waiting = leaders + [c for c in self.candidates if c not in leaders]
+            quota = max(quota, len(leaders))
+
+        def long(c: Candidate) -> None:
+            if not self._refine(c, c.positions, LONG_ROUND, deadline, IRLS_WEIGHT_FLOOR):
+                c.converged = True
+
+        def moving_finalists() -> list[Candidate]:
+            moving = [c for c in self.finalists if not c.converged]
+            while len(moving) < quota and waiting:
+                c = waiting.pop(0)
+                c.converged = False  # a short round cut by its end is no sign of it
+                self.finalists.append(c)
+                moving.append(c)
+            return moving
+
+        # In lockstep (counted work), every moving finalist refines once a round, whatever
+        # the threads, so the same candidates get the same work. Else each worker takes the
+        # next round as it finishes one: waiting for a round over all of them would idle a
+        # core, as a large finalist's round takes many times a small one's.
+        running: dict[Future[None], Candidate] = {}
+        while not budget.done(1.0, deadline):
+            moving = moving_finalists()
+            idle = [c for c in moving if c not in running.values()]
+            idle.sort(key=lambda c: c.rounds)
+            free = len(idle) if budget.lockstep else self.workers - len(running)
+            for c in idle[:free]:
+                running[self.pool.submit(long, c)] = c
+            if not running:
+                break
+            done, _ = wait(
+                running, return_when=ALL_COMPLETED if budget.lockstep else FIRST_COMPLETED
+            )
+            for future in done:
+                future.result()
+                running.pop(future).rounds += 1
+            self.report()
+        wait(running)  # rounds past the deadline stop within their damping trial under way
+
+    def restarts(self) -> None:
+        """While work remains, the best finalists shaken and refined again, each kept only if
+        better: one per worker, or with counted work as many as the long pass refines (so the
+        threads change nothing)."""
+        budget, deadline, k = self.budget, self.budget.deadline, self.options.k
+        rng = np.random.default_rng(self.options.seed)
+
+        def hop(c: Candidate, start: np.ndarray) -> None:
+            self._refine(c, start, HOP_ITERATIONS, deadline, IRLS_WEIGHT_FLOOR)
+
+        while not budget.done(1.0, deadline) and self.finalists:
+            self.finalists.sort(key=Candidate.rank)
+            chosen = self.finalists[: max(budget.at_once(self.workers, LONG_PASS_CANDIDATES), k)]
+            if self.options.front:
+                chosen += [c for c in pareto_front(self.finalists) if c not in chosen]
+            shakes = np.exp(rng.uniform(*np.log(SHAKE), len(chosen))) * self.target.chord
+            starts = [
+                c.positions + rng.uniform(-1.0, 1.0, c.positions.shape) * shake
+                for c, shake in zip(chosen, shakes, strict=True)
+            ]
+            list(self.pool.map(hop, chosen, starts))
+            self.report()
+
+    def answer(self) -> SynthesisResults:
+        """The k best candidates that keep the constraints (or a front of them), as results;
+        `unmet` says what the nearest missed when none keeps them."""
+        candidates = sorted(self.candidates, key=lambda c: (*c.rank(), c.result["path_id"]))
+        kept = [c for c in candidates if c.missed.kept]
+        chosen = pareto_front(kept) if self.options.front else kept[: self.options.k]
+        answer = SynthesisResults(as_result(c, self.target, self.timed) for c in chosen)
+        if candidates and not kept:
+            nearest = candidates[0].missed
+            answer.unmet = {"constraint": nearest.name, "by": nearest.by}
+        return answer
+
+    def report(self) -> None:
+        """Call `progress` with the best so far if it has improved, at most every
+        PROGRESS_INTERVAL_S."""
+        now = time.perf_counter()
+        if (
+            self.progress is None
+            or not self.candidates
+            or now - self._reported_at < PROGRESS_INTERVAL_S
+        ):
+            return
+        best = min(self.candidates, key=Candidate.rank)
+        best_rank = best.rank()
+        if best_rank == self._looked_at:  # nothing kept since: no answer to measure
+            return
+        self._looked_at = best_rank
+        # Measured from the positions read now (a worker may have moved them on since its
+        # rank), by the answer's own measure (the timed error once timing ranks): the
+        # reports must fall as the answer's measures do.
+        timed = self.timed
+        answer = as_result(best, self.target, timed, trajectories=True, elapsed=now - self.started)
+        measured = answer["timed_error"] if timed is not None else answer["chamfer"]
+        rank = (not best.missed.kept, best.missed.total, measured)
+        if rank < self._reported_rank:
+            self._reported_rank, self._reported_at = rank, now
+            self.progress(answer)

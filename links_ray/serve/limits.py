@@ -1,0 +1,70 @@
+"""Limits of one HTTP request: its size, its body's pace, and what `GET /api/limits` tells
+clients. The engine's own limits (points, k, steps, synthesis time) are the engine's; the ones
+here bound what a request may hold a replica for, so only `serve` uses them.
+"""
+
+from __future__ import annotations
+
+from links_ray.engine.inputs import (
+    DEFAULT_K,
+    DEFAULT_STEPS,
+    MAX_COORDINATE,
+    MAX_K,
+    MAX_POINTS,
+    MAX_STEPS,
+    MAX_TRANSMISSION_DEG,
+    MIN_JOINTS,
+    MIN_K,
+    MIN_POINTS,
+    MIN_STEPS,
+)
+from links_ray.engine.synthesis_options import (
+    DEFAULT_SYNTHESIS_SECONDS,
+    MAX_SYNTHESIS_ITERATIONS,
+    MAX_SYNTHESIS_SECONDS,
+)
+
+#: Longest file name or element id (SVG id, DXF layer) a curve file is named by over HTTP.
+MAX_CURVE_NAME_CHARS = 1000
+
+#: Largest mechanism one request may carry, in joints. Smaller than MAX_JOINTS: a request holds
+#: a replica's CPU while it runs, and the studio draws nothing larger.
+MAX_REQUEST_JOINTS = 100
+#: Largest simulation one request may ask for: joints x steps (the answer holds twice as many
+#: numbers, about 4 MB of JSON at the limit).
+MAX_REQUEST_JOINT_STEPS = 100_000
+#: Largest request body, in bytes (MAX_POINTS points take about 0.5 MB).
+MAX_BODY_BYTES = 2 * 1024 * 1024
+#: A request body must keep coming: a pause of BODY_TIMEOUT_S seconds with nothing of it, or
+#: a body that falls behind MIN_BODY_BYTES_PER_S (after t seconds it must have sent
+#: (t - BODY_TIMEOUT_S) x MIN_BODY_BYTES_PER_S bytes), is cut off with 408. A slow client
+#: then holds a connection for at most BODY_TIMEOUT_S + MAX_BODY_BYTES / MIN_BODY_BYTES_PER_S
+#: (138 s), however it sends.
+BODY_TIMEOUT_S = 10.0
+MIN_BODY_BYTES_PER_S = 16 * 1024
+
+
+def request_limits() -> dict[str, float | int]:
+    """The limits an HTTP request meets, by name, as `GET /api/limits` gives them to clients
+    (the studio reads its own from there)."""
+    return {
+        "min_points": MIN_POINTS,
+        "max_points": MAX_POINTS,
+        "min_k": MIN_K,
+        "max_k": MAX_K,
+        "default_k": DEFAULT_K,
+        "min_joints": MIN_JOINTS,
+        "max_joints": MAX_REQUEST_JOINTS,
+        "min_steps": MIN_STEPS,
+        "max_steps": MAX_STEPS,
+        "default_steps": DEFAULT_STEPS,
+        "max_joint_steps": MAX_REQUEST_JOINT_STEPS,
+        "max_seconds": MAX_SYNTHESIS_SECONDS,
+        "max_iterations": MAX_SYNTHESIS_ITERATIONS,
+        "default_seconds": DEFAULT_SYNTHESIS_SECONDS,
+        "max_transmission_deg": MAX_TRANSMISSION_DEG,
+        "max_coordinate": MAX_COORDINATE,
+        "max_body_bytes": MAX_BODY_BYTES,
+        "body_timeout_s": BODY_TIMEOUT_S,
+        "min_body_bytes_per_s": MIN_BODY_BYTES_PER_S,
+    }
