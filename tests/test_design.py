@@ -29,7 +29,8 @@ import links_ray
 from links_ray.engine.constraints import Constraints, as_constraints, violation
 from links_ray.engine.inputs import REFINE_CHECK_STEPS, link_pairs
 from links_ray.engine.mechanism import analyze_topology
-from links_ray.engine.refine import check_mechanism, refine_validated
+from links_ray.engine.refine import refine_validated
+from links_ray.engine.refine_checks import check_mechanism
 from links_ray.engine.synthesis import refine_retrieved, synthesize
 from links_ray.engine.synthesis_options import SynthesisOptions, as_timing
 from links_ray.engine.target import as_target

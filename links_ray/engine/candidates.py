@@ -14,13 +14,8 @@ import numpy as np
 from links_ray.engine.constraints import KEPT, Constraints, Violation, violation
 from links_ray.engine.inputs import DEFAULT_STEPS, check_refine_size, link_pairs
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
-from links_ray.engine.refine import (
-    DAMPING_START,
-    Refinement,
-    check_mechanism,
-    refine_validated,
-    target_error,
-)
+from links_ray.engine.refine import DAMPING_START, Refinement, refine_validated
+from links_ray.engine.refine_checks import check_mechanism, target_error
 from links_ray.engine.solver import simulate
 from links_ray.engine.target import Target, target_chamfer
 from links_ray.engine.timing import best_start

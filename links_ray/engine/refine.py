@@ -37,7 +37,8 @@ result is valid whenever the input was.
 Synthesis (`engine.synthesis`) drives refinement in pieces through the public interface
 below the entry points: `as_target` validates a drawing once, `target_chamfer` measures a path
 against it, `refine_validated` refines a validated mechanism within a deadline and continues a
-refinement from its origin, and `check_mechanism` tells whether positions are valid.
+refinement from its origin, and `engine.refine_checks.check_mechanism` tells whether positions
+are valid.
 
 Partial strokes (`partial=True`): an open stroke matches part of a turn. The measure is then the
 least chamfer between the stroke and a run of consecutive steps (cyclic) of the path, over
@@ -49,7 +50,6 @@ Pure numpy/numba: no Ray, no files.
 from __future__ import annotations
 
 import math
-import threading
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -57,7 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from links_ray.engine.constraints import KEPT, Constraints, Violation, extent, guard_rows, violation
+from links_ray.engine.constraints import KEPT, Constraints, Violation, guard_rows, violation
 from links_ray.engine.inputs import (
     DEFAULT_MARGIN_DEG,
     DEFAULT_REFINE_ITERATIONS,
@@ -75,7 +75,13 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.node_kinds import FIXED
-from links_ray.engine.refine_kernels import solve_tangents
+from links_ray.engine.refine_checks import (
+    check_mechanism,
+    least_deg,
+    solve_turn,
+    target_error,
+    valid_trial,
+)
 from links_ray.engine.refine_step import (
     IRLS_WEIGHT_FLOOR,
     guarded_step,
@@ -83,19 +89,9 @@ from links_ray.engine.refine_step import (
     timed_equations,
     transmission_guards,
 )
-from links_ray.engine.solver import crank_turn
-from links_ray.engine.target import Target, as_target, target_chamfer, timed_distances
-from links_ray.engine.turning import rigid_dyads, turn_lock
+from links_ray.engine.target import Target, as_target
 
-__all__ = [
-    "Check",
-    "Refinement",
-    "check_mechanism",
-    "refine",
-    "refine_many",
-    "refine_validated",
-    "target_error",
-]
+__all__ = ["Refinement", "refine", "refine_many", "refine_validated"]
 
 #: A step may bring a dyad's least transmission angle at the simulation's steps no nearer its
 #: floor than about this many degrees: the check steps between them dip lower.
@@ -114,11 +110,6 @@ BELOW_MARGIN = 0.5
 #: Gauss-Newton steps jump between the nearest-point correspondences' local minima.
 DAMPING_START, DAMPING_UP, DAMPING_DOWN = 1.0, 4.0, 3.0
 DAMPING_MIN, DAMPING_REJECTED, DAMPING_MAX = 1e-3, 1e-3, 1e8
-
-
-#: Each thread's scratch arrays of `_solve`, by shape; at most SCRATCH_SHAPES shapes are kept.
-_SCRATCH = threading.local()
-SCRATCH_SHAPES = 12
 
 
 @dataclass(frozen=True)
@@ -144,119 +135,6 @@ class Refinement:
     error: str | None = None
     damping: float = DAMPING_START
     violation: Violation = KEPT
-
-
-@dataclass(frozen=True)
-class Check:
-    """Validity of a position set at REFINE_CHECK_STEPS (`check_mechanism`).
-
-    `lock`: (step, joint) of the first lock, or (-1, -1). `sides` (m,): each dyad's assembly
-    branch sign. `min_transmission_sine` (m,): each dyad's least transmission sine over the
-    check steps (sine of the transmission angle, 0 to 1; not degrees). `rigid` (m,) bool: the
-    dyads whose parents keep their distance, so the angle at the joint never changes (no dead
-    centre). `bounds` (4,): xmin, ymin, xmax, ymax of every joint over the check steps.
-    """
-
-    lock: tuple[int, int]
-    sides: np.ndarray
-    min_transmission_sine: np.ndarray
-    rigid: np.ndarray
-    bounds: np.ndarray
-
-
-def _solve(
-    topology: Topology,
-    positions: np.ndarray,
-    steps: int,
-    tangents: bool,
-    crank: np.ndarray | None = None,
-) -> tuple[tuple[int, int], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(lock, traj, dtraj, trans, dtrans, geometry) of `solve_tangents` at `steps` steps of a
-    turn, or at the crank angles of `crank` (steps, 2) cos and sin (a timed target's).
-
-    The arrays are the calling thread's scratch for this shape: valid until its next `_solve`
-    of the same shape (an iteration makes one of each of three shapes, and allocating and
-    paging in megabytes of derivatives anew each time would cost a share of every iteration).
-    A turn's and a timed target's arrays are kept apart, as one iteration needs both."""
-    n, m = topology.n_joints, len(topology.order)
-    cols = 2 * n if tangents else 0
-    key = (n, m, steps, cols, crank is not None)
-    scratch = _SCRATCH.__dict__.setdefault("arrays", {})
-    if key not in scratch:
-        if len(scratch) >= SCRATCH_SHAPES:
-            scratch.clear()
-        scratch[key] = (
-            np.empty((n, steps, 2)),
-            np.empty((n, steps, 2, cols)),
-            np.empty((m, steps)),
-            np.empty((m, steps, cols)),
-            np.empty((m, 3)),
-        )
-    traj, dtraj, trans, dtrans, geometry = scratch[key]
-    lock = solve_tangents(
-        topology.order,
-        topology.fixed_joints,
-        positions,
-        crank_turn(steps) if crank is None else crank,
-        traj,
-        dtraj,
-        trans,
-        dtrans,
-        geometry,
-    )
-    return (int(lock[0]), int(lock[1])), traj, dtraj, trans, dtrans, geometry
-
-
-def check_mechanism(
-    topology: Topology, positions: np.ndarray, rigid: np.ndarray | None = None
-) -> Check:
-    """Simulate `positions` (n, 2) at REFINE_CHECK_STEPS steps: lock, branch signs, least
-    transmission sine per dyad, rigid dyads (found from the trajectories unless given:
-    refinement decides them once). A lock is reported in the `Check`, not raised."""
-    lock, traj, _, trans, _, geometry = _solve(topology, positions, REFINE_CHECK_STEPS, False)
-    if lock[0] < 0:  # and between the steps: valid means it turns
-        lock = turn_lock(topology.order, positions, geometry, traj)
-    if rigid is None:
-        # A rigid dyad (a triangle of links) keeps its angle: no dead centre, no margin.
-        rigid = rigid_dyads(topology.order, traj)
-    return Check(lock, geometry[:, 2].copy(), trans.min(axis=1), rigid, extent(traj))
-
-
-def _least_deg(sines: np.ndarray) -> float:
-    """The least angle in degrees of these transmission sines (90 with none)."""
-    return math.degrees(math.asin(min(1.0, float(sines.min())))) if len(sines) else 90.0
-
-
-def target_error(
-    target: Target, topology: Topology, positions: np.ndarray, joint: int, path: np.ndarray
-) -> tuple[float, tuple[int, int] | None]:
-    """(value, interval) of the measure refinement lowers, in the drawing's units: for an
-    untimed target `target_chamfer` of `path` (steps, 2), `joint`'s path over the turn; for a
-    timed one the mean distance of each point from `joint`'s path at its crank angle."""
-    if target.crank is None:
-        return target_chamfer(target, path)
-    _, traj, _, _, _, _ = _solve(topology, positions, len(target.crank), False, target.crank)
-    return float(timed_distances(target, traj[joint]).mean()), None
-
-
-def _valid_trial(
-    topology: Topology,
-    trial: np.ndarray,
-    sides: np.ndarray,
-    floors: np.ndarray,
-    rigid: np.ndarray,
-) -> Check | None:
-    """The trial's check if it is a valid step (links, lock, branches, margins), else None."""
-    try:
-        check_positions(topology.adjacency, trial)
-    except InvalidMechanismError:
-        return None
-    check = check_mechanism(topology, trial, rigid)
-    if check.lock[0] >= 0 or not np.array_equal(check.sides, sides):
-        return None
-    if np.any(check.min_transmission_sine < floors):
-        return None
-    return check
 
 
 def _prepare(
@@ -310,7 +188,7 @@ def refine_validated(
     to the fit; once they are kept, no step leaves them. The `Refinement`'s `violation` says
     what is still missed (nothing when kept).
     """
-    lock, traj, _, _, _, _ = _solve(topology, start, steps, False)
+    lock, traj, _, _, _, _ = solve_turn(topology, start, steps, False)
     if lock[0] >= 0:
         raise LockingError(*lock)
     value, interval = target_error(target, topology, start, joint, traj[joint])
@@ -333,7 +211,7 @@ def refine_validated(
 
     missed = missed_by(start, check.bounds)
     if late():  # the origin's check would be one more 2,000-step turn past the deadline
-        least = _least_deg(check.min_transmission_sine[~check.rigid])
+        least = least_deg(check.min_transmission_sine[~check.rigid])
         return Refinement(
             start.copy(),
             value / target.chord,
@@ -385,13 +263,15 @@ def refine_validated(
         if late() or (missed.kept and value <= CONVERGED * target.chord):
             break
         done += 1
-        _, traj, dtraj, trans, dtrans, _ = _solve(topology, pos, steps, True)
+        _, traj, dtraj, trans, dtrans, _ = solve_turn(topology, pos, steps, True)
         if target.crank is None:
             hessian, gradient = normal_equations(
                 target, traj[joint], dtraj[joint], interval, weight_floor
             )
         else:  # solved at the target's crank angles, in scratch of its own
-            _, timed, dtimed, _, _, _ = _solve(topology, pos, len(target.crank), True, target.crank)
+            _, timed, dtimed, _, _, _ = solve_turn(
+                topology, pos, len(target.crank), True, target.crank
+            )
             hessian, gradient = timed_equations(target, timed[joint], dtimed[joint], weight_floor)
         margins = transmission_guards(trans, dtrans, np.where(rigid, flat, floors), clearance)
         kept = guard_rows(constraints, pos, fixed, links, traj, dtraj, target.chord)
@@ -414,7 +294,7 @@ def refine_validated(
                 MAX_MOVE * target.chord,
             )
             if trial is not None:
-                lock, trial_traj, _, _, _, _ = _solve(topology, trial, steps, False)
+                lock, trial_traj, _, _, _, _ = solve_turn(topology, trial, steps, False)
                 if lock[0] < 0:
                     trial_value, trial_interval = target_error(
                         target, topology, trial, joint, trial_traj[joint]
@@ -422,7 +302,7 @@ def refine_validated(
                     # Cheap tests first: most rejected trials fail on the fit. While the
                     # constraints are missed, a step need only miss them by less.
                     trial_check = (
-                        _valid_trial(topology, trial, sides, floors, rigid)
+                        valid_trial(topology, trial, sides, floors, rigid)
                         if (trial_value < value or not missed.kept) and not late()
                         else None
                     )
@@ -462,7 +342,7 @@ def refine_validated(
         interval=interval,
         iterations=done,
         evaluations=evaluations,
-        min_transmission_deg=_least_deg(check.min_transmission_sine[~rigid]),
+        min_transmission_deg=least_deg(check.min_transmission_sine[~rigid]),
         damping=damping,
         violation=missed,
     )

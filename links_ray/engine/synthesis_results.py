@@ -12,7 +12,7 @@ import numpy as np
 
 from links_ray.engine.candidates import Candidate
 from links_ray.engine.inputs import DEFAULT_STEPS
-from links_ray.engine.refine import target_error
+from links_ray.engine.refine_checks import target_error
 from links_ray.engine.solver import simulate
 from links_ray.engine.target import Target, as_target, target_chamfer
 

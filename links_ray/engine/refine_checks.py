@@ -1,0 +1,141 @@
+"""Refinement's simulations and checks: a turn solved with the path's derivatives in
+per-thread scratch arrays (`solve_turn`), a position set's validity at REFINE_CHECK_STEPS
+(`check_mechanism`, `valid_trial`), and the measure refinement lowers (`target_error`).
+
+Pure numpy/numba: no Ray, no files.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from links_ray.engine.constraints import extent
+from links_ray.engine.inputs import REFINE_CHECK_STEPS, InvalidMechanismError, check_positions
+from links_ray.engine.mechanism import Topology
+from links_ray.engine.refine_kernels import solve_tangents
+from links_ray.engine.solver import crank_turn
+from links_ray.engine.target import Target, target_chamfer, timed_distances
+from links_ray.engine.turning import rigid_dyads, turn_lock
+
+__all__ = ["Check", "check_mechanism", "least_deg", "solve_turn", "target_error", "valid_trial"]
+
+#: Each thread's scratch arrays of `solve_turn`, by shape; at most SCRATCH_SHAPES shapes are kept.
+_SCRATCH = threading.local()
+SCRATCH_SHAPES = 12
+
+
+@dataclass(frozen=True)
+class Check:
+    """Validity of a position set at REFINE_CHECK_STEPS (`check_mechanism`).
+
+    `lock`: (step, joint) of the first lock, or (-1, -1). `sides` (m,): each dyad's assembly
+    branch sign. `min_transmission_sine` (m,): each dyad's least transmission sine over the
+    check steps (sine of the transmission angle, 0 to 1; not degrees). `rigid` (m,) bool: the
+    dyads whose parents keep their distance, so the angle at the joint never changes (no dead
+    centre). `bounds` (4,): xmin, ymin, xmax, ymax of every joint over the check steps.
+    """
+
+    lock: tuple[int, int]
+    sides: np.ndarray
+    min_transmission_sine: np.ndarray
+    rigid: np.ndarray
+    bounds: np.ndarray
+
+
+def solve_turn(
+    topology: Topology,
+    positions: np.ndarray,
+    steps: int,
+    tangents: bool,
+    crank: np.ndarray | None = None,
+) -> tuple[tuple[int, int], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(lock, traj, dtraj, trans, dtrans, geometry) of `solve_tangents` at `steps` steps of a
+    turn, or at the crank angles of `crank` (steps, 2) cos and sin (a timed target's).
+
+    The arrays are the calling thread's scratch for this shape: valid until its next `solve_turn`
+    of the same shape (an iteration makes one of each of three shapes, and allocating and
+    paging in megabytes of derivatives anew each time would cost a share of every iteration).
+    A turn's and a timed target's arrays are kept apart, as one iteration needs both."""
+    n, m = topology.n_joints, len(topology.order)
+    cols = 2 * n if tangents else 0
+    key = (n, m, steps, cols, crank is not None)
+    scratch = _SCRATCH.__dict__.setdefault("arrays", {})
+    if key not in scratch:
+        if len(scratch) >= SCRATCH_SHAPES:
+            scratch.clear()
+        scratch[key] = (
+            np.empty((n, steps, 2)),
+            np.empty((n, steps, 2, cols)),
+            np.empty((m, steps)),
+            np.empty((m, steps, cols)),
+            np.empty((m, 3)),
+        )
+    traj, dtraj, trans, dtrans, geometry = scratch[key]
+    lock = solve_tangents(
+        topology.order,
+        topology.fixed_joints,
+        positions,
+        crank_turn(steps) if crank is None else crank,
+        traj,
+        dtraj,
+        trans,
+        dtrans,
+        geometry,
+    )
+    return (int(lock[0]), int(lock[1])), traj, dtraj, trans, dtrans, geometry
+
+
+def check_mechanism(
+    topology: Topology, positions: np.ndarray, rigid: np.ndarray | None = None
+) -> Check:
+    """Simulate `positions` (n, 2) at REFINE_CHECK_STEPS steps: lock, branch signs, least
+    transmission sine per dyad, rigid dyads (found from the trajectories unless given:
+    refinement decides them once). A lock is reported in the `Check`, not raised."""
+    lock, traj, _, trans, _, geometry = solve_turn(topology, positions, REFINE_CHECK_STEPS, False)
+    if lock[0] < 0:  # and between the steps: valid means it turns
+        lock = turn_lock(topology.order, positions, geometry, traj)
+    if rigid is None:
+        # A rigid dyad (a triangle of links) keeps its angle: no dead centre, no margin.
+        rigid = rigid_dyads(topology.order, traj)
+    return Check(lock, geometry[:, 2].copy(), trans.min(axis=1), rigid, extent(traj))
+
+
+def least_deg(sines: np.ndarray) -> float:
+    """The least angle in degrees of these transmission sines (90 with none)."""
+    return math.degrees(math.asin(min(1.0, float(sines.min())))) if len(sines) else 90.0
+
+
+def target_error(
+    target: Target, topology: Topology, positions: np.ndarray, joint: int, path: np.ndarray
+) -> tuple[float, tuple[int, int] | None]:
+    """(value, interval) of the measure refinement lowers, in the drawing's units: for an
+    untimed target `target_chamfer` of `path` (steps, 2), `joint`'s path over the turn; for a
+    timed one the mean distance of each point from `joint`'s path at its crank angle."""
+    if target.crank is None:
+        return target_chamfer(target, path)
+    _, traj, _, _, _, _ = solve_turn(topology, positions, len(target.crank), False, target.crank)
+    return float(timed_distances(target, traj[joint]).mean()), None
+
+
+def valid_trial(
+    topology: Topology,
+    trial: np.ndarray,
+    sides: np.ndarray,
+    floors: np.ndarray,
+    rigid: np.ndarray,
+) -> Check | None:
+    """The trial's check if it is a valid step (links, lock, branches, margins), else None."""
+    try:
+        check_positions(topology.adjacency, trial)
+    except InvalidMechanismError:
+        return None
+    check = check_mechanism(topology, trial, rigid)
+    if check.lock[0] >= 0 or not np.array_equal(check.sides, sides):
+        return None
+    if np.any(check.min_transmission_sine < floors):
+        return None
+    return check
