@@ -38,7 +38,7 @@ __all__ = [
     "split_of",
     "synthesize",
 ]
-__version__ = "0.1.0"
+__version__ = "0.4.0"
 
 
 def __getattr__(name: str) -> object:

@@ -396,3 +396,22 @@ def test_the_readme_links_only_to_files_the_repository_has() -> None:
     assert dead_links("[a](docs/guides/none.md) [b](docs/index.md#x)", REPO) == [
         "docs/guides/none.md"
     ]
+
+
+def test_the_changelog_names_the_version_the_package_reports() -> None:
+    """CHANGELOG.md's newest release is the version pyproject.toml, `links --version` (through
+    links_ray.__version__) and CITATION.cff give; releases are listed newest first."""
+    import tomllib
+
+    import links_ray
+
+    releases = re.findall(
+        r"^## (\d+)\.(\d+)\.(\d+) - \d{4}-\d{2}-\d{2}$", (REPO / "CHANGELOG.md").read_text(), re.M
+    )
+    assert releases, "CHANGELOG.md lists no release as '## X.Y.Z - YYYY-MM-DD'"
+    versions = [tuple(int(part) for part in release) for release in releases]
+    assert versions == sorted(versions, reverse=True), versions
+    newest = ".".join(releases[0])
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["version"]
+    cited = re.search(r"^version: (\S+)$", (REPO / "CITATION.cff").read_text(), re.M)
+    assert (project, links_ray.__version__, cited and cited.group(1)) == (newest, newest, newest)

@@ -60,13 +60,7 @@ def ray_dataset(
         check_fractions(split_fractions)
         read = with_split_key(columns, dataset.schema.names)
     connect()
-    rows = ray.data.read_parquet(
-        files,
-        filesystem=store.fs,
-        partitioning=Partitioning(
-            "hive", base_dir=store.path(table), field_types={"n_joints": int}
-        ),
-    )
+    rows = _read_files(files, store.fs, store.path(table))
     if read is not None:
         # Ray 2.60 deprecates read_parquet's `columns=`; the selection is pushed into the scan.
         rows = rows.select_columns(read)
@@ -76,6 +70,29 @@ def ray_dataset(
     added = [] if read == columns else [read[-1]]  # the split's key, read for the split only
     keep = {"where": filter, "split": split, "fractions": split_fractions, "drop": added}
     return rows.map_batches(_keep, fn_kwargs=keep, batch_format="pyarrow")
+
+
+def _read_files(files: list[str], fs: object, base_dir: str) -> ray.data.Dataset:
+    """The Parquet files `files` (already listed, by the commit markers) as a Dataset.
+
+    Read through Ray Data's first Parquet reader (`use_datasource_v2` off for this call only),
+    which takes the list as it is. Ray 2.60's default reader lists the files again in a task,
+    in threads whose completion signaller can raise InterruptedError when the task finishes
+    first (ray.data._internal.dynamic_work_queue: `_signal_completion` puts its sentinels after
+    the consumer has set the pool's interrupt), and that thread's traceback reaches the
+    driver's output. tests/test_ray_dataset.py holds the race and this way round it.
+    """
+    context = ray.data.DataContext.get_current()
+    before = context.use_datasource_v2
+    context.use_datasource_v2 = False
+    try:
+        return ray.data.read_parquet(
+            files,
+            filesystem=fs,
+            partitioning=Partitioning("hive", base_dir=base_dir, field_types={"n_joints": int}),
+        )
+    finally:
+        context.use_datasource_v2 = before
 
 
 def _keep(
