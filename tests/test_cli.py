@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import links_ray
-from links_ray.cli import bench
+from links_ray.cli.bench import engine as bench
 from links_ray.engine.mechanism import LockingError, analyze_topology, dataset_rule_violations
 from links_ray.engine.reference import simulate_reference
 from links_ray.engine.sampling import measure_candidates_per_valid
@@ -367,7 +367,7 @@ def test_first_run_says_it_compiles_and_links_warm_compiles_everything(tmp_path:
     }
     notices = run_python(
         env,
-        "from links_ray.cli.warm import COMMAND_KERNELS, compile_notice\n"
+        "from links_ray.cli.kernels import COMMAND_KERNELS, compile_notice\n"
         "print([n for n in map(compile_notice, COMMAND_KERNELS) if n])",
     )
     assert notices == "[]"

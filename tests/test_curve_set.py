@@ -1,4 +1,4 @@
-"""The curve set of `links bench synthesize --set` (links_ray.cli.curve_set): its size, names,
+"""The curve set of `links bench synthesize --set` (links_ray.cli.bench.curve_set): its size, names,
 families, halves fixed by name, even spacing, closure, letters read from two different fonts,
 random curves that never cross themselves, and determinism."""
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from links_ray.cli.curve_set import (
+from links_ray.cli.bench.curve_set import (
     CURVE_POINTS,
     FONTS,
     LETTERS,
@@ -22,7 +22,7 @@ from links_ray.cli.curve_set import (
     half_of,
     letter_outlines,
 )
-from links_ray.cli.targets import target_curves
+from links_ray.cli.bench.targets import target_curves
 from links_ray.engine.paths import chamfer
 
 FAMILIES = {"letter_outline", "letter_stroke", "gait", "cam", "random_smooth"}
@@ -199,7 +199,7 @@ def test_missing_font_names_the_package(tmp_path: Path) -> None:
 
 
 def test_set_groups_sum_up_by_half_and_family() -> None:
-    from links_ray.cli.bench_synthesis import set_groups
+    from links_ray.cli.bench.synthesis import set_groups
 
     def row(family: str, half: str, retrieved: float, refined: float, seconds: float) -> dict:
         return {"family": family, "half": half, "retrieved": retrieved, "refined": refined,
@@ -226,7 +226,7 @@ def test_set_groups_sum_up_by_half_and_family() -> None:
 
 
 def test_even_reference_of_a_stroke_stays_on_the_stroke() -> None:
-    from links_ray.cli.bench_synthesis import even_reference
+    from links_ray.cli.bench.synthesis import even_reference
     from links_ray.engine.paths import even_along
 
     corner = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
@@ -237,8 +237,8 @@ def test_even_reference_of_a_stroke_stays_on_the_stroke() -> None:
 
 
 def test_a_set_curve_frame_depends_on_its_name_and_seed_only() -> None:
-    from links_ray.cli.bench_synthesis import name_rng
-    from links_ray.cli.targets import placed
+    from links_ray.cli.bench.synthesis import name_rng
+    from links_ray.cli.bench.targets import placed
 
     curve = target_curves(50)["bean"]
     first = placed(curve, name_rng(0, "cam_dwell"))
@@ -252,7 +252,7 @@ def test_a_bench_row_of_fixed_work_is_reproduced_bit_for_bit(
 ) -> None:
     """Deterministic mode: a row of `links bench synthesize --set --iterations N` is the same
     whether run with the others or alone (`--curve`), and whatever the threads."""
-    from links_ray.cli.bench_synthesis import bench_synthesize
+    from links_ray.cli.bench.synthesis import bench_synthesize
     from links_ray.engine import cpus
 
     # An open stroke and a closed curve, the latter's row after the other's in the first run.

@@ -1,1 +1,2 @@
-"""The face: the `links` command, its benchmarks, the one-core demo and the figures."""
+"""The face: the `links` command, a module per command (listed in `main`), the arguments they
+share, and the benchmarks (`bench/`)."""

@@ -7,6 +7,7 @@ docs/reference/contract.md, Mechanisms, plus the traced path of its last joint) 
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from collections import Counter
@@ -14,11 +15,34 @@ from pathlib import Path
 
 import numpy as np
 
+from links_ray.cli import report
+from links_ray.cli.arguments import json_option, non_negative_int, positive_int, print_result
+from links_ray.cli.kernels import note_compiling
 from links_ray.engine.sampling import PositionSampler, Sampler
 from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.topology import random_topology
 
 VARIANTS = 5
+
+
+def add_command(commands: argparse._SubParsersAction) -> None:
+    """Register `links demo` on the `links` command's subparsers."""
+    command = commands.add_parser(
+        "demo", help="generate a few valid mechanisms with the engine and save them as JSON lines"
+    )
+    command.add_argument("--out", default="links-demo", help="output folder (default links-demo)")
+    command.add_argument("--mechanisms", type=positive_int, default=100)
+    command.add_argument("--seed", type=non_negative_int, default=0)
+    command.add_argument("--sampler", choices=["sequential", "rejection"], default="sequential")
+    json_option(command, "the summary")
+    command.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> None:
+    """`links demo`: write the mechanisms, then print the summary."""
+    note_compiling("demo")
+    summary = run_demo(args.out, mechanisms=args.mechanisms, seed=args.seed, sampler=args.sampler)
+    print_result(args, summary, report.format_demo)
 
 
 def run_demo(

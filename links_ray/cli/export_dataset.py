@@ -6,15 +6,15 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Callable
 
+from links_ray.cli.arguments import positive_int
 from links_ray.data.splits import SPLITS
 from links_ray.release.exporter import DEFAULT_CHUNK_MECHANISMS, EXPORT_FORMATS, export_release
 from links_ray.release.pickled_export import DEFAULT_RELEASE_BATCH
 
 
-def add_command(commands: argparse._SubParsersAction, count: Callable[[str], int]) -> None:
-    """Add `export-dataset` to the `links` subcommands; `count` parses a positive integer."""
+def add_command(commands: argparse._SubParsersAction) -> None:
+    """Add `export-dataset` to the `links` subcommands."""
     command = commands.add_parser(
         "export-dataset",
         help="write a dataset in the LINKS release layout: numpy chunks or the release's files",
@@ -31,7 +31,7 @@ def add_command(commands: argparse._SubParsersAction, count: Callable[[str], int
     )
     command.add_argument(
         "--chunk-size",
-        type=count,
+        type=positive_int,
         default=None,
         metavar="N",
         help=f"mechanisms per chunk (default {DEFAULT_CHUNK_MECHANISMS:,}, each of one joint "

@@ -8,16 +8,15 @@ the paper's figures beside ours. Timings are wall-clock on this machine, after c
 from __future__ import annotations
 
 import os
-import platform
 import statistics
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from importlib import metadata
 
 import numpy as np
 
 from links_ray.cli import report
+from links_ray.cli.bench.machine import machine_info
 from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.mechanism import CRANK_CENTER, CRANK_TIP, MAX_DATASET_JOINTS
 from links_ray.engine.reference import simulate_reference
@@ -298,16 +297,6 @@ def bench_sample(per_joint_count: int = 10, count: int = 5, seed: int = 0) -> di
     result["paper_candidates_per_valid"] = PAPER_CANDIDATES_PER_VALID
     result["targets"] = {"sequential_valid_per_core_second": 2000}
     return result
-
-
-def machine_info() -> dict:
-    """The machine a benchmark ran on: CPU count, processor, Python and numba versions."""
-    return {
-        "cpus": os.cpu_count(),
-        "processor": platform.processor() or platform.machine(),
-        "python": platform.python_version(),
-        "numba": metadata.version("numba"),
-    }
 
 
 def format_simulate(result: dict) -> str:

@@ -1,5 +1,5 @@
 """`links bench retrieve`: index build, load and memory, latency in process and over HTTP, and
-recall@3 against exact brute force, on the cached benchmark dataset (`bench_data`)."""
+recall@3 against exact brute force, on the cached benchmark dataset (`bench.data`)."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import urllib.request
 
 import numpy as np
 
-from links_ray.cli.bench import machine_info
-from links_ray.cli.bench_data import folder_bytes, retrieval_dataset
+from links_ray.cli.bench.data import folder_bytes, retrieval_dataset
+from links_ray.cli.bench.machine import machine_info
 from links_ray.engine.paths import normalize_path
 from links_ray.search.held_out import held_out_queries
 

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from links_ray.cli.targets import TARGET_POINTS
+from links_ray.cli.bench.targets import TARGET_POINTS
 from links_ray.engine.paths import even_along
 
 #: Points per curve, as for the shipped targets.

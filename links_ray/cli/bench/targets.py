@@ -22,7 +22,7 @@ import numpy as np
 from links_ray.engine.paths import even_along
 
 #: Points per target curve: about as dense as a mouse stroke the studio records, and dense
-#: enough that the point-sampled chamfer of an exact fit is small (see bench_synthesis).
+#: enough that the point-sampled chamfer of an exact fit is small (see bench.synthesis).
 TARGET_POINTS = 400
 
 

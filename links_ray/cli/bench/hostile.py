@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 
 from links_ray.cli import report
-from links_ray.cli.bench import machine_info
-from links_ray.cli.bench_data import retrieval_dataset
-from links_ray.cli.hostile_inputs import hostile_drawings
+from links_ray.cli.bench.data import retrieval_dataset
+from links_ray.cli.bench.hostile_inputs import hostile_drawings
+from links_ray.cli.bench.machine import machine_info
 from links_ray.serve.limits import BODY_TIMEOUT_S
 
 #: How often health is asked for, and how long one check may take before it counts as failed.

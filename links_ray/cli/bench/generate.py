@@ -7,8 +7,8 @@ import os
 import time
 
 from links_ray.cli import report
-from links_ray.cli.bench import machine_info
-from links_ray.cli.bench_data import folder_bytes
+from links_ray.cli.bench.data import folder_bytes
+from links_ray.cli.bench.machine import machine_info
 
 
 def bench_generate(

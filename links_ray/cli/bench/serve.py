@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 
 from links_ray.cli import report
-from links_ray.cli.bench import machine_info
-from links_ray.cli.bench_data import retrieval_dataset
+from links_ray.cli.bench.data import retrieval_dataset
+from links_ray.cli.bench.machine import machine_info
 from links_ray.search.held_out import held_out_queries
 from links_ray.serve.load_clients import (
     finish_load,

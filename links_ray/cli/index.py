@@ -1,0 +1,79 @@
+"""`links index ROOT [--shards N]`: the retrieval index of a curated root built and saved beside
+the data (`_links/index/`), in as many parts as `links serve --shards N` opens."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from links_ray.cli import report
+from links_ray.cli.arguments import json_option, positive_int, print_result
+
+
+def add_command(commands: argparse._SubParsersAction) -> None:
+    """Register `links index` on the `links` command's subparsers."""
+    index_command = commands.add_parser(
+        "index",
+        help="build and save the retrieval index of a curated root (each part with --shards)",
+    )
+    index_command.add_argument("root", help="dataset root: a folder or s3://...")
+    index_command.add_argument(
+        "--shards",
+        type=positive_int,
+        default=None,
+        help="save the index split in N parts, as `links serve --shards N` opens it "
+        "(default: one index)",
+    )
+    index_command.add_argument(
+        "--rebuild",
+        action="store_true",
+        help="build every part again, even one saved from the same curated shards",
+    )
+    json_option(index_command, "the summary, with each part's paths and seconds")
+    index_command.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> None:
+    """`links index`: build (or find saved) each part, check it was saved, print the summary."""
+    from links_ray.data.store import Store
+    from links_ray.search.cache import INDEX_FOLDER, cache_folder
+    from links_ray.search.index import RetrievalIndex
+    from links_ray.serve.app import check_root  # imports Ray Serve: only when asked for
+
+    parts = args.shards or 1
+    check_root(args.root, args.shards)  # what `links serve --shards` would refuse, at once
+    # Opened for writing: a root whose keys cannot save the index fails here, not after the
+    # builds (`RetrievalIndex.open` on a read-only root builds in memory and saves nothing).
+    # Its requests are tried as often as curation's, to ride out a store's brief refusals
+    # over a long build.
+    store = Store.open(args.root, attempts=10)
+    start = time.perf_counter()
+    made = []
+    for part in range(parts):
+        began = time.perf_counter()
+        index = RetrievalIndex.open(store, rebuild=args.rebuild, part=part, parts=parts)
+        saved = store.read_json(f"{cache_folder(part, parts)}/current.json") or {}
+        if saved.get("fingerprint") != index.fingerprint or saved.get("rows") != len(index):
+            raise OSError(
+                f"{store.uri}: part {part} of {parts} of the index was built but not saved "
+                f"under {store.uri}/{cache_folder(part, parts)}/"
+            )
+        made.append(
+            {
+                "part": part,
+                "paths": len(index),
+                "built": index.build_s > 0,
+                "seconds": round(time.perf_counter() - began, 3),
+            }
+        )
+        del index  # one part's arrays in memory at a time
+    summary = {
+        "root": store.uri,
+        "paths": sum(entry["paths"] for entry in made),
+        "parts": parts,
+        "built": sum(entry["built"] for entry in made),
+        "seconds": round(time.perf_counter() - start, 3),
+        "folder": f"{store.uri}/{INDEX_FOLDER}",
+        "by_part": made,
+    }
+    print_result(args, summary, report.format_index)
