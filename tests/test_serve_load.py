@@ -59,13 +59,13 @@ def test_a_lost_shard_is_503_until_serve_replaces_it(
 ) -> None:
     """Retrievals while a part is gone are 503 with Retry-After and a JSON error, never a
     500 or a dropped connection; health keeps answering; then answers come back as before."""
-    app = build_app(dataset, shards=2, shard_cpus=SHARD_CPUS, shard_timeout_s=2.0)
+    app = build_app(dataset, shards=2, shard_cpus=SHARD_CPUS, partition_timeout_s=2.0)
     query = queries[0]
     expected = as_served(reference.retrieve(query, K))
     with serving(app, serve_port) as client:
         assert client.get("/api/health")[0] == 200
         assert retrieved(client, query, K) == expected
-        assert _kill_replicas("IndexShard-1-of-2") == 1
+        assert _kill_replicas("IndexPartition-1-of-2") == 1
         seen: list[int] = []
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
@@ -77,7 +77,7 @@ def test_a_lost_shard_is_503_until_serve_replaces_it(
             if status == 503:
                 assert headers.get("retry-after") == "1"
                 assert set(data) == {"error"}, data
-                assert "index shard 1 of 2 is unavailable" in data["error"] or (
+                assert "index partition 1 of 2 is unavailable" in data["error"] or (
                     "did not answer" in data["error"]
                 ), data
                 assert client.get("/api/health")[0] == 200

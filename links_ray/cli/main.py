@@ -606,7 +606,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--shards",
         type=_positive_int,
         default=None,
-        help="save the index split in N parts, as `links serve --shards N` opens it "
+        help="save the index split into N partitions, as `links serve --shards N` opens it "
         "(default: one index)",
     )
     index_command.add_argument(
@@ -637,27 +637,27 @@ def build_parser() -> argparse.ArgumentParser:
         "--replicas",
         type=_positive_int,
         default=1,
-        help="replicas of the app (with --shards: of the front and of each shard; default 1)",
+        help="replicas of the app (with --shards: of the gateway and of each partition; default 1)",
     )
     serve.add_argument(
         "--shards",
         type=_positive_int,
         default=None,
-        help="split the index into N parts, each served by its own deployment, which the "
-        "front asks at once (default: one index in the front)",
+        help="split the index into N partitions, each served by its own deployment, which "
+        "the gateway asks at once (default: one index in the gateway)",
     )
     serve.add_argument(
         "--shard-cpus",
         type=_positive_float,
         default=None,
-        help="CPUs Ray reserves for each shard replica (default 1, or on a Ray this command "
-        "starts, if that does not fit, an equal share of what the front leaves)",
+        help="CPUs Ray reserves for each partition replica (default 1, or on a Ray this "
+        "command starts, if that does not fit, an equal share of what the gateway leaves)",
     )
     serve.add_argument(
         "--shard-memory-gb",
         type=_positive_float,
         default=None,
-        help="memory Ray reserves for each shard replica, in GB (default none)",
+        help="memory Ray reserves for each partition replica, in GB (default none)",
     )
     serve.add_argument(
         "--allow-host",
@@ -852,7 +852,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_non_negative_int,
         action="append",
         default=None,
-        help="shard count to serve with, 0 for one index in the front; repeat for several "
+        help="partitions to serve with, 0 for one index in the gateway; repeat for several "
         "runs (default: 0, 1 and 2)",
     )
     serve_bench.add_argument(

@@ -43,8 +43,8 @@ from links_ray.engine.inputs import (
     validate_synthesis,
     validate_synthesis_work,
 )
-from links_ray.serve.api import INLINE_JSON_BYTES, JSON_POOL, ApiError
 from links_ray.serve.models import REQUEST_MODELS
+from links_ray.serve.responses import INLINE_JSON_BYTES, JSON_POOL, ApiError
 
 
 def _kind(value: object) -> str:
