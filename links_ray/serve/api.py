@@ -1,6 +1,6 @@
 """The FastAPI app `api` that the Serve deployments answer with, assembled in one place.
 
-It takes the routes of `serve.handlers` in, puts the guards of `serve.guards` in front of them,
+It takes the routes of `serve.handlers` in, puts the guards of `serve.guards` before them,
 answers every refusal as a 4xx `{"error": "<what is wrong>"}` (`ApiError`, and FastAPI's own
 refusals of unknown routes and methods and malformed parameters), and serves the document of
 `serve.openapi` at `GET /openapi.json`. Nothing here imports Ray: the deployments

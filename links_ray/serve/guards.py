@@ -106,12 +106,12 @@ def host_allowed(header: str | None, names: frozenset[str]) -> bool:
 
 
 #: The host names this process's app answers to besides addresses and localhost: set by the
-#: front replica's constructor (`allow_host_names`), read by `HostGuard` on every request.
+#: gateway replica's constructor (`allow_host_names`), read by `HostGuard` on every request.
 _allowed_host_names: frozenset[str] = frozenset()
 
 
 def allow_host_names(names: object) -> None:
-    """Have this process's app answer requests for `names` too (`as_host_names`); the front
+    """Have this process's app answer requests for `names` too (`as_host_names`); the gateway
     replica calls it with its `allowed_hosts` when it starts."""
     global _allowed_host_names
     _allowed_host_names = as_host_names(names)

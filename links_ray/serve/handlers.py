@@ -222,7 +222,7 @@ class LinksApiRoutes:
 
     @router.get("/api/health", response_model=models.HealthResponse)
     async def api_health(self) -> JsonResponse:
-        """`{"status": "ok", "paths": <indexed paths>}`, and with shards their parts' paths."""
+        """`{"status": "ok", "paths": <indexed paths>}`, and with partitions their paths."""
         if self._retrieving is not None:
             return JsonResponse({"status": "ok", "paths": len(self._retrieving.index)})
         counts = await self._partition_counts()
