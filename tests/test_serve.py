@@ -90,12 +90,22 @@ def test_openapi_describes_the_routes(client: Client) -> None:
 
 def test_the_docs_document_is_the_served_one(client: Client) -> None:
     """`serve.openapi` builds, without Ray or Serve, the document a replica serves: the docs'
-    HTTP reference is made from it (no `self` parameter of the routes' methods in either)."""
-    from links_ray.serve.api import api
-    from links_ray.serve.openapi import openapi_document
-
+    HTTP reference is made from it (no `self` parameter of the routes' methods in either).
+    Built as the docs hook builds it: in a fresh process that imports no Ray."""
+    probe = (
+        "import json, sys\n"
+        "from links_ray.serve.api import api\n"
+        "from links_ray.serve.openapi import openapi_document\n"
+        "assert 'ray' not in sys.modules\n"
+        "print(json.dumps(openapi_document(api.routes)))"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}  # this checkout, whatever is installed
+    done = subprocess.run(
+        [sys.executable, "-c", probe], cwd=REPO, env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
     _, spec = client.get("/openapi.json")
-    assert spec == openapi_document(api.routes)
+    assert spec == json.loads(done.stdout)
     assert "self" not in json.dumps(spec["paths"])
 
 
