@@ -1196,8 +1196,8 @@ def test_app_builder_args(dataset: str, tmp_path: Path) -> None:
         (
             {"root": dataset, "shards": _curated_shards(dataset) + 1},
             f"has {_curated_shards(dataset)} curated shards: split in "
-            f"{_curated_shards(dataset) + 1} parts, part {_curated_shards(dataset)} would have "
-            "none; use fewer shards",
+            f"{_curated_shards(dataset) + 1} partitions, partition {_curated_shards(dataset)} "
+            "would have none; use a smaller --shards",
         ),
     ):
         with pytest.raises(ValueError, match=message):
