@@ -27,7 +27,7 @@ from links_ray.serve.app import build_app, fit_partition_cpus
 
 #: Results per query, and the least recall@K of one index against the exact brute force.
 K, RECALL = 3, 0.95
-#: Index splits served: 1 is one index in the front.
+#: Index splits served: 1 is one index in the gateway.
 SPLITS = (1, 2, 4)
 #: How far a merged best may exceed one index's best by rounding alone (both are exact).
 ROUNDING = 1e-9

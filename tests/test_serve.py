@@ -1286,9 +1286,9 @@ def test_an_app_that_cannot_fit_is_refused() -> None:
         check_fits(1, 2, 0.5, 6, two_cpus)
 
 
-def test_shards_share_the_cpus_the_front_leaves() -> None:
+def test_partitions_share_the_cpus_the_gateway_leaves() -> None:
     """On a Ray `links serve` started, shards given no CPUs reserve 1 each where that fits,
-    else an equal share of what the front's replicas (one CPU each) leave, in Ray's steps of
+    else an equal share of what the gateway's replicas (one CPU each) leave, in Ray's steps of
     0.0001 CPU, and the app then fits; where nothing is left, a refusal naming why."""
     from links_ray.serve.app import check_fits, fit_partition_cpus
 
@@ -1305,7 +1305,7 @@ def test_shards_share_the_cpus_the_front_leaves() -> None:
         assert fit_partition_cpus(replicas, shards, resources) == share
         check_fits(replicas, shards, share, None, resources)
     for cpus, replicas in ((2, 2), (1, 1), (0, 1)):
-        with pytest.raises(ValueError, match=r"none is left for the shards"):
+        with pytest.raises(ValueError, match=r"none is left for the partitions"):
             fit_partition_cpus(replicas, 2, {"CPU": float(cpus)})
 
 
@@ -1341,10 +1341,10 @@ def test_the_replica_answers_http_itself(client: Client) -> None:
 def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
     dataset: str, curated: Any, shards: int | None, tmp_path: Path
 ) -> None:
-    """`links serve` starts its own Ray; the replica (the front, with --shards) answers on
+    """`links serve` starts its own Ray; the replica (the gateway, with --shards) answers on
     --port, and Ctrl-C (one index) or SIGTERM (shards) stops all, cleanly. On its Ray of 2
-    CPUs, `--shards 2` does not fit at 1 CPU a shard beside the front's 1: the shards share
-    the CPU the front leaves, said in one line on stderr."""
+    CPUs, `--shards 2` does not fit at 1 CPU a partition beside the gateway's 1: the partitions
+    share the CPU the gateway leaves, said in one line on stderr."""
     port = bindable_port("127.0.0.1", 0)
     sharding = () if shards is None else ("--shards", str(shards))
     errors = tmp_path / "stderr.txt"
@@ -1377,8 +1377,8 @@ def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
     assert "Traceback" not in errors.read_text()
 
 
-def test_links_serve_refuses_shards_when_the_front_takes_every_cpu(dataset: str) -> None:
-    """Where no share is left (two front replicas on 2 CPUs), one line and exit status 2,
+def test_links_serve_refuses_partitions_when_the_gateway_takes_every_cpu(dataset: str) -> None:
+    """Where no share is left (two gateway replicas on 2 CPUs), one line and exit status 2,
     not a server waiting for CPUs forever; and the same for shards told to take 1 CPU each."""
     port = str(bindable_port("127.0.0.1", 0))
     for options, words in (

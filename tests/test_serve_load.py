@@ -3,9 +3,9 @@
 
 `LOAD_CLIENTS` clients retrieve for `LOAD_SECONDS` (in a process of their own, each waiting
 the `Retry-After` it is given) while another checks health and simulates: retrievals beyond
-the front's bound are refused at once with 503, `Retry-After` and a JSON error, nothing else
+the gateway's bound are refused at once with 503, `Retry-After` and a JSON error, nothing else
 fails, health checks and simulations are answered ahead of the queued retrievals, and
-afterwards the server answers as before; with one index in the front and with two shards. A
+afterwards the server answers as before; with one index in the gateway and with the index in two partitions. A
 shard whose replica dies makes retrievals 503 until Serve has replaced it. Clients posting
 bodies and asking for simulations as large as the limits allow do not hold up the event loop,
 which answers health checks.
@@ -38,7 +38,7 @@ K = 5
 #: The load: clients retrieving at once, and for how long (seconds) in each setting.
 LOAD_CLIENTS = 32
 LOAD_SECONDS = 20.0
-#: Shard replicas' CPUs, so that the shards and the front (one CPU) fit the 2-CPU cluster.
+#: Partition replicas' CPUs, so that the partitions and the gateway (one CPU) fit the 2-CPU cluster.
 SHARD_CPUS = 0.25
 
 
