@@ -5,10 +5,10 @@
 the `Retry-After` it is given) while another checks health and simulates: retrievals beyond
 the gateway's bound are refused at once with 503, `Retry-After` and a JSON error, nothing else
 fails, health checks and simulations are answered ahead of the queued retrievals, and
-afterwards the server answers as before; with one index in the gateway and with the index in two partitions. A
-shard whose replica dies makes retrievals 503 until Serve has replaced it. Clients posting
-bodies and asking for simulations as large as the limits allow do not hold up the event loop,
-which answers health checks.
+afterwards the server answers as before; with one index in the gateway and with the index in
+two partitions. A partition whose replica dies makes retrievals 503 until Serve has replaced
+it. Clients posting bodies and asking for simulations as large as the limits allow do not hold
+up the event loop, which answers health checks.
 """
 
 from __future__ import annotations
