@@ -215,7 +215,7 @@ def test_index_saves_every_part_for_a_later_open_to_load(dataset: str, tmp_path:
     assert refused.returncode == 2
     assert refused.stderr.count("\n") == 1 and "Traceback" not in refused.stderr
     assert refused.stderr.startswith(f"links index: error: {root} has ")
-    assert refused.stderr.rstrip().endswith("would have none; use fewer shards")
+    assert refused.stderr.rstrip().endswith("would have none; use a smaller --shards")
 
 
 def count_valid_by_reference(workload: bench.Workload, steps: int) -> int:

@@ -26,14 +26,14 @@ import pytest
 import yaml
 
 from links_ray.engine.synthesis_options import MAX_SYNTHESIS_SECONDS
-from links_ray.serve.api import as_host_names
-from links_ray.serve.app import APP_ARGS, SHARD_CPUS, _arg
+from links_ray.serve.app import APP_ARGS, PARTITION_CPUS, _arg
 from links_ray.serve.deployments import (
+    PARTITION_TIMEOUT_S,
     REPLICA_ENV,
-    SHARD_TIMEOUT_S,
     SHUTDOWN_DRAIN_S,
     LinksApi,
 )
+from links_ray.serve.guards import as_host_names
 from links_ray.serve.limits import MAX_BODY_BYTES
 
 REPO = Path(__file__).resolve().parents[1]
@@ -54,8 +54,8 @@ SYNTHESIZE = "/api/synthesize"
 NGINX = "nginx.ingress.kubernetes.io/"
 #: Shell operators in an entrypoint, as `shlex` splits them with punctuation_chars.
 SHELL_OPERATORS = {"&&", "||", ";", "|", "&", ";;", "(", ")", "<", ">", ">>", "<<"}
-#: Ray's logical CPUs of a RayService's replicas: the front's unless the config says otherwise.
-FRONT_CPUS = float(LinksApi.ray_actor_options["num_cpus"])
+#: Ray's logical CPUs of a RayService's replicas: the gateway's unless the config says otherwise.
+GATEWAY_CPUS = float(LinksApi.ray_actor_options["num_cpus"])
 
 
 def load_manifests() -> Manifests:
@@ -345,7 +345,7 @@ def serve_config_problems(manifests: Manifests) -> list[str]:
         deployments = {LinksApi.name}
         with contextlib.suppress(KeyError, ValueError):  # no shards, or reported above
             shards = _arg(args, "shards")
-            deployments |= {f"IndexShard-{part}-of-{shards}" for part in range(shards)}
+            deployments |= {f"IndexPartition-{part}-of-{shards}" for part in range(shards)}
         for override in app.get("deployments", []):
             if override["name"] not in deployments:
                 problems.append(f"{where}: the app has no deployment {override['name']!r}")
@@ -369,12 +369,12 @@ def fit_problems(manifests: Manifests) -> list[str]:
         args = app.get("args", {})
         replicas = int(args.get("replicas", 1))
         overrides = {o["name"]: o for o in app.get("deployments", [])}
-        front = overrides.get(LinksApi.name, {})
-        front_cpus = float(front.get("ray_actor_options", {}).get("num_cpus", FRONT_CPUS))
-        needed = front.get("num_replicas", replicas) * front_cpus
-        largest = front_cpus
+        gateway = overrides.get(LinksApi.name, {})
+        gateway_cpus = float(gateway.get("ray_actor_options", {}).get("num_cpus", GATEWAY_CPUS))
+        needed = gateway.get("num_replicas", replicas) * gateway_cpus
+        largest = gateway_cpus
         if args.get("shards"):
-            shard_cpus = float(args.get("shard_cpus", SHARD_CPUS))
+            shard_cpus = float(args.get("shard_cpus", PARTITION_CPUS))
             needed += int(args["shards"]) * replicas * shard_cpus
             largest = max(largest, shard_cpus)
         cluster = service["spec"]["rayClusterConfig"]
@@ -458,10 +458,10 @@ def ingress_problems(manifests: Manifests) -> list[str]:
             )
         served = routes_of(ingress, routes)
         longest = 0.0
-        if served & {"/api/retrieve", SYNTHESIZE}:  # a sharded front waits for its shards
-            longest = SHARD_TIMEOUT_S
+        if served & {"/api/retrieve", SYNTHESIZE}:  # a partitioned gateway waits for its partitions
+            longest = PARTITION_TIMEOUT_S
         if SYNTHESIZE in served:  # its wait for another, its budget, its retrieval
-            longest = 2 * MAX_SYNTHESIS_SECONDS + SHARD_TIMEOUT_S
+            longest = 2 * MAX_SYNTHESIS_SECONDS + PARTITION_TIMEOUT_S
         for name in ("proxy-connect-timeout", "proxy-read-timeout"):
             if annotation(ingress, name) is None:
                 problems.append(f"{where}: no {name}")
@@ -778,7 +778,7 @@ def in_script(old: str, new: str) -> Callable[[dict], None]:
     return change
 
 
-def front_override(change_options: Callable[[dict], None]) -> Callable[[dict], None]:
+def gateway_override(change_options: Callable[[dict], None]) -> Callable[[dict], None]:
     def change(app: dict) -> None:
         change_options(app["deployments"][0]["ray_actor_options"])
 
@@ -940,7 +940,7 @@ PLANTED: list[tuple[Callable[[Manifests], list[str]], Callable[[Manifests], None
     (
         serve_config_problems,
         lambda m: edit_serve(
-            m, PUBLIC, "links-public", front_override(lambda options: options.pop("runtime_env"))
+            m, PUBLIC, "links-public", gateway_override(lambda options: options.pop("runtime_env"))
         ),
         "drop the replicas' env_vars",
     ),
@@ -954,7 +954,7 @@ PLANTED: list[tuple[Callable[[Manifests], list[str]], Callable[[Manifests], None
     (
         fit_problems,
         lambda m: edit_serve(
-            m, PUBLIC, "links-public", front_override(lambda options: options.update(num_cpus=3))
+            m, PUBLIC, "links-public", gateway_override(lambda options: options.update(num_cpus=3))
         ),
         "fits on no worker",
     ),

@@ -55,6 +55,11 @@ FORBIDDEN = {
 FORBIDDEN_IN = {
     "links_ray.serve.models": ("ray",),
     "links_ray.serve.parsing": ("ray",),
+    "links_ray.serve.responses": ("ray",),
+    "links_ray.serve.guards": ("ray",),
+    "links_ray.serve.admission": ("ray",),
+    "links_ray.serve.handlers": ("ray",),
+    "links_ray.serve.openapi": ("ray",),
     "links_ray.serve.api": ("ray",),
 }
 
@@ -267,3 +272,71 @@ def test_the_face_rule_catches_a_room_importing_its_face(tmp_path: Path) -> None
         "links_ray/search/query.py:4: links_ray.search.query imports its face "
         "links_ray.search.index",
     ]
+
+
+def import_circles(package_dir: Path, within: str) -> list[list[str]]:
+    """The import circles among the modules whose dotted names start with `within`, counting
+    every import (top level, `if TYPE_CHECKING:`, inside functions): each strongly connected
+    group of two or more modules, or a module importing itself, sorted."""
+    modules = module_names(package_dir)
+    ours = {name for name in modules if name == within or name.startswith(within + ".")}
+    graph = {
+        name: {
+            target for _, target in imported(modules[name], name, set(modules)) if target in ours
+        }
+        for name in ours
+    }
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(name: str) -> None:  # Tarjan's strongly connected components
+        index[name] = low[name] = len(index)
+        stack.append(name)
+        for target in graph[name]:
+            if target not in index:
+                visit(target)
+                low[name] = min(low[name], low[target])
+            elif target in stack:
+                low[name] = min(low[name], index[target])
+        if low[name] == index[name]:
+            group = []
+            while not group or group[-1] != name:
+                group.append(stack.pop())
+            if len(group) > 1 or name in graph[name]:
+                found.append(sorted(group))
+
+    for name in sorted(graph):
+        if name not in index:
+            visit(name)
+    return sorted(found)
+
+
+def test_serve_imports_run_one_way() -> None:
+    """Serve's modules import one way: the routes never import the assembly (the app, the
+    deployments, the launch), and no circle closes among them, lazily or for types only."""
+    assert import_circles(REPO / PACKAGE, "links_ray.serve") == []
+    modules = module_names(REPO / PACKAGE)
+    assembly = {"links_ray.serve.api", "links_ray.serve.deployments", "links_ray.serve.app"}
+    for route_module in ("links_ray.serve.handlers", "links_ray.serve.openapi"):
+        path = modules[route_module]
+        assert not {name for _, name in imported(path, route_module, set(modules))} & assembly
+
+
+def test_a_planted_circle_is_found(tmp_path: Path) -> None:
+    """A lazy import and a type-only one close a circle as surely as top-level ones."""
+    sources = {
+        "__init__.py": "",
+        "serve/__init__.py": "",
+        "serve/api.py": "def f():\n    from links_ray.serve import routes\n",
+        "serve/routes.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+        "    from links_ray.serve.api import f\n",
+        "serve/models.py": "from . import parsing\n",
+        "serve/parsing.py": "import links_ray.engine\n",
+    }
+    for name, text in sources.items():
+        (tmp_path / PACKAGE / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / PACKAGE / name).write_text(text)
+    found = import_circles(tmp_path / PACKAGE, "links_ray.serve")
+    assert found == [["links_ray.serve.api", "links_ray.serve.routes"]]

@@ -24,11 +24,11 @@ from links_ray.engine.paths import normalize_path
 from links_ray.search.held_out import held_out_queries
 from links_ray.search.index import RetrievalIndex
 from links_ray.search.query import query_variants
-from links_ray.serve.app import build_app, fit_shard_cpus
+from links_ray.serve.app import build_app, fit_partition_cpus
 
 #: Results per query, and the least recall@K of one index against the exact brute force.
 K, RECALL = 3, 0.95
-#: Index splits served: 1 is one index in the front.
+#: Index splits served: 1 is one index in the gateway.
 SPLITS = (1, 2, 4)
 #: How far a merged best may exceed one index's best by rounding alone (both are exact).
 ROUNDING = 1e-9
@@ -77,7 +77,7 @@ def answers(
         if parts == 1:
             app = build_app(scale_root)
         else:
-            cpus = fit_shard_cpus(1, parts, ray.cluster_resources())
+            cpus = fit_partition_cpus(1, parts, ray.cluster_resources())
             app = build_app(scale_root, shards=parts, shard_cpus=cpus)
         with serving(app, serve_port) as client:
             assert client.proxy is not None

@@ -89,6 +89,27 @@ def test_openapi_describes_the_routes(client: Client) -> None:
     } <= routes
 
 
+def test_the_docs_document_is_the_served_one(client: Client) -> None:
+    """`serve.openapi` builds, without Ray or Serve, the document a replica serves: the docs'
+    HTTP reference is made from it (no `self` parameter of the routes' methods in either).
+    Built as the docs hook builds it: in a fresh process that imports no Ray."""
+    probe = (
+        "import json, sys\n"
+        "from links_ray.serve.api import api\n"
+        "from links_ray.serve.openapi import openapi_document\n"
+        "assert 'ray' not in sys.modules\n"
+        "print(json.dumps(openapi_document(api.routes)))"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}  # this checkout, whatever is installed
+    done = subprocess.run(
+        [sys.executable, "-c", probe], cwd=REPO, env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    _, spec = client.get("/openapi.json")
+    assert spec == json.loads(done.stdout)
+    assert "self" not in json.dumps(spec["paths"])
+
+
 def schema_of(spec: dict[str, Any], ref: dict[str, Any]) -> dict[str, Any]:
     """The component a `$ref` names."""
     return spec["components"]["schemas"][ref["$ref"].rpartition("/")[2]]
@@ -883,7 +904,7 @@ def test_lying_content_length_is_refused(client: Client) -> None:
 def test_large_answers_render_in_pieces_as_one_call_would() -> None:
     """`render_json` gives the bytes one `json.dumps` call gives (JsonResponse's), for answers
     of every shape, in pieces of at most about JSON_PIECE_NUMBERS numbers."""
-    from links_ray.serve.api import JSON_PIECE_NUMBERS, _dumps, _json_pieces, render_json
+    from links_ray.serve.responses import JSON_PIECE_NUMBERS, _dumps, _json_pieces, render_json
 
     rng = np.random.default_rng(3)
     trajectories = rng.uniform(-1, 1, (100, 1000, 2))
@@ -1049,7 +1070,7 @@ def test_clients_that_send_only_headers_hold_no_place(client: Client, curated: A
     """Ten clients that send a retrieval's headers and never its body each get 408 once
     BODY_TIMEOUT_S have passed, and meanwhile an eleventh, real retrieval is answered 200:
     a place among a replica's MAX_RETRIEVALS is claimed only once a body has been read."""
-    from links_ray.serve.deployments import MAX_RETRIEVALS
+    from links_ray.serve.admission import MAX_RETRIEVALS
 
     timeout = http_limits.BODY_TIMEOUT_S
     silent = MAX_RETRIEVALS + 2
@@ -1179,8 +1200,8 @@ def test_app_builder_args(dataset: str, tmp_path: Path) -> None:
         (
             {"root": dataset, "shards": _curated_shards(dataset) + 1},
             f"has {_curated_shards(dataset)} curated shards: split in "
-            f"{_curated_shards(dataset) + 1} parts, part {_curated_shards(dataset)} would have "
-            "none; use fewer shards",
+            f"{_curated_shards(dataset) + 1} partitions, partition {_curated_shards(dataset)} "
+            "would have none; use a smaller --shards",
         ),
     ):
         with pytest.raises(ValueError, match=message):
@@ -1259,17 +1280,21 @@ def test_an_app_that_cannot_fit_is_refused() -> None:
     two_cpus = {"CPU": 2.0, "memory": 8e9}
     check_fits(1, None, 1.0, None, two_cpus)
     check_fits(1, 4, 0.25, 1.5, two_cpus)
-    with pytest.raises(ValueError, match=r"the app needs 5 CPUs \(1 a front replica, 1 a shard"):
+    with pytest.raises(
+        ValueError, match=r"the app needs 5 CPUs \(1 a gateway replica, 1 a partition"
+    ):
         check_fits(1, 4, 1.0, None, two_cpus)
-    with pytest.raises(ValueError, match=r"the shards reserve 12\.0 GB and this Ray has 8\.0 GB"):
+    with pytest.raises(
+        ValueError, match=r"the partitions reserve 12\.0 GB and this Ray has 8\.0 GB"
+    ):
         check_fits(1, 2, 0.5, 6, two_cpus)
 
 
-def test_shards_share_the_cpus_the_front_leaves() -> None:
+def test_partitions_share_the_cpus_the_gateway_leaves() -> None:
     """On a Ray `links serve` started, shards given no CPUs reserve 1 each where that fits,
-    else an equal share of what the front's replicas (one CPU each) leave, in Ray's steps of
+    else an equal share of what the gateway's replicas (one CPU each) leave, in Ray's steps of
     0.0001 CPU, and the app then fits; where nothing is left, a refusal naming why."""
-    from links_ray.serve.app import check_fits, fit_shard_cpus
+    from links_ray.serve.app import check_fits, fit_partition_cpus
 
     for cpus, replicas, shards, share in (
         (8, 1, 2, 1.0),
@@ -1281,11 +1306,11 @@ def test_shards_share_the_cpus_the_front_leaves() -> None:
         (1.5, 1, 2, 0.25),
     ):
         resources = {"CPU": float(cpus), "memory": 8e9}
-        assert fit_shard_cpus(replicas, shards, resources) == share
+        assert fit_partition_cpus(replicas, shards, resources) == share
         check_fits(replicas, shards, share, None, resources)
     for cpus, replicas in ((2, 2), (1, 1), (0, 1)):
-        with pytest.raises(ValueError, match=r"none is left for the shards"):
-            fit_shard_cpus(replicas, 2, {"CPU": float(cpus)})
+        with pytest.raises(ValueError, match=r"none is left for the partitions"):
+            fit_partition_cpus(replicas, 2, {"CPU": float(cpus)})
 
 
 def listening_process(port: int) -> str:
@@ -1320,10 +1345,10 @@ def test_the_replica_answers_http_itself(client: Client) -> None:
 def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
     dataset: str, curated: Any, shards: int | None, tmp_path: Path
 ) -> None:
-    """`links serve` starts its own Ray; the replica (the front, with --shards) answers on
+    """`links serve` starts its own Ray; the replica (the gateway, with --shards) answers on
     --port, and Ctrl-C (one index) or SIGTERM (shards) stops all, cleanly. On its Ray of 2
-    CPUs, `--shards 2` does not fit at 1 CPU a shard beside the front's 1: the shards share
-    the CPU the front leaves, said in one line on stderr."""
+    CPUs, `--shards 2` does not fit at 1 CPU a partition beside the gateway's 1: the partitions
+    share the CPU the gateway leaves, said in one line on stderr."""
     port = bindable_port("127.0.0.1", 0)
     sharding = () if shards is None else ("--shards", str(shards))
     errors = tmp_path / "stderr.txt"
@@ -1345,30 +1370,30 @@ def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
         assert taken.returncode == 2
         assert taken.stderr.strip().endswith(f"port {port}: Address already in use")
     assert listening_process(port) == ""
-    notices = [line for line in errors.read_text().splitlines() if "shard replicas" in line]
+    notices = [line for line in errors.read_text().splitlines() if "partition replicas" in line]
     if shards is None:
         assert notices == []
     else:
         assert notices == [
-            "links-ray: this Ray has 2 CPUs and the front takes 1: each of the 2 shard "
+            "links-ray: this Ray has 2 CPUs and the gateway takes 1: each of the 2 partition "
             "replicas reserves 0.5 CPU (--shard-cpus to choose)"
         ]
     assert "Traceback" not in errors.read_text()
 
 
-def test_links_serve_refuses_shards_when_the_front_takes_every_cpu(dataset: str) -> None:
-    """Where no share is left (two front replicas on 2 CPUs), one line and exit status 2,
+def test_links_serve_refuses_partitions_when_the_gateway_takes_every_cpu(dataset: str) -> None:
+    """Where no share is left (two gateway replicas on 2 CPUs), one line and exit status 2,
     not a server waiting for CPUs forever; and the same for shards told to take 1 CPU each."""
     port = str(bindable_port("127.0.0.1", 0))
     for options, words in (
         (
             ["--replicas", "2"],
-            "this Ray has 2 CPUs and the front takes 2 (one a replica): none "
-            "is left for the shards; serve fewer replicas, or no shards",
+            "this Ray has 2 CPUs and the gateway takes 2 (one a replica): none "
+            "is left for the partitions; serve fewer replicas, or no --shards",
         ),
         (
             ["--shard-cpus", "1"],
-            "the app needs 3 CPUs (1 a front replica, 1 a shard replica) and this Ray has 2",
+            "the app needs 3 CPUs (1 a gateway replica, 1 a partition replica) and this Ray has 2",
         ),
     ):
         command = [sys.executable, "-m", "links_ray.cli", "serve", dataset, "--port", port]
@@ -1514,7 +1539,9 @@ def test_serve_cli_refuses_more_shards_than_the_data_splits_into(
     assert main(["serve", dataset, "--port", str(port), "--shards", str(count + 1)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0
-    assert err.endswith(f"in {count + 1} parts, part {count} would have none; use fewer shards")
+    assert err.endswith(
+        f"in {count + 1} partitions, partition {count} would have none; use a smaller --shards"
+    )
     for option, value, words in (
         ("--shards", "0", "must be a positive integer, got 0"),
         ("--shard-cpus", "-1", "must be a positive number, got -1"),

@@ -3,12 +3,12 @@
 
 `LOAD_CLIENTS` clients retrieve for `LOAD_SECONDS` (in a process of their own, each waiting
 the `Retry-After` it is given) while another checks health and simulates: retrievals beyond
-the front's bound are refused at once with 503, `Retry-After` and a JSON error, nothing else
+the gateway's bound are refused at once with 503, `Retry-After` and a JSON error, nothing else
 fails, health checks and simulations are answered ahead of the queued retrievals, and
-afterwards the server answers as before; with one index in the front and with two shards. A
-shard whose replica dies makes retrievals 503 until Serve has replaced it. Clients posting
-bodies and asking for simulations as large as the limits allow do not hold up the event loop,
-which answers health checks.
+afterwards the server answers as before; with one index in the gateway and with the index in
+two partitions. A partition whose replica dies makes retrievals 503 until Serve has replaced
+it. Clients posting bodies and asking for simulations as large as the limits allow do not hold
+up the event loop, which answers health checks.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ K = 5
 #: The load: clients retrieving at once, and for how long (seconds) in each setting.
 LOAD_CLIENTS = 32
 LOAD_SECONDS = 20.0
-#: Shard replicas' CPUs, so that the shards and the front (one CPU) fit the 2-CPU cluster.
+#: Partition replicas' CPUs, so that the partitions and the gateway (one CPU) fit the 2-CPU cluster.
 SHARD_CPUS = 0.25
 
 
@@ -59,13 +59,13 @@ def test_a_lost_shard_is_503_until_serve_replaces_it(
 ) -> None:
     """Retrievals while a part is gone are 503 with Retry-After and a JSON error, never a
     500 or a dropped connection; health keeps answering; then answers come back as before."""
-    app = build_app(dataset, shards=2, shard_cpus=SHARD_CPUS, shard_timeout_s=2.0)
+    app = build_app(dataset, shards=2, shard_cpus=SHARD_CPUS, partition_timeout_s=2.0)
     query = queries[0]
     expected = as_served(dataset_index.retrieve(query, K))
     with serving(app, serve_port) as client:
         assert client.get("/api/health")[0] == 200
         assert retrieved(client, query, K) == expected
-        assert _kill_replicas("IndexShard-1-of-2") == 1
+        assert _kill_replicas("IndexPartition-1-of-2") == 1
         seen: list[int] = []
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
@@ -77,7 +77,7 @@ def test_a_lost_shard_is_503_until_serve_replaces_it(
             if status == 503:
                 assert headers.get("retry-after") == "1"
                 assert set(data) == {"error"}, data
-                assert "index shard 1 of 2 is unavailable" in data["error"] or (
+                assert "index partition 1 of 2 is unavailable" in data["error"] or (
                     "did not answer" in data["error"]
                 ), data
                 assert client.get("/api/health")[0] == 200

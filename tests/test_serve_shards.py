@@ -1,8 +1,8 @@
 """Sharded serving (`links serve --shards N`; docs/reference/contract.md, HTTP API) on real Ray
 (2 CPUs), real Parquet and real HTTP on loopback.
 
-The index is split into N parts, each served by its own deployment, and the front merges their
-answers. The dataset is small enough that every part's search, and one index's, estimates
+The index is split into N partitions, each served by its own deployment, and the gateway merges
+their answers. The dataset is small enough that every part's search, and one index's, estimates
 every path: over HTTP the answers must then be one index's exactly (same path ids, same chamfer
 distances, same mechanisms), and the exact brute force's, for N = 1, 2 and 4. Each part builds
 and saves only its own folder under `_links/index/`. Where the searches scan, sharded answers
@@ -32,7 +32,7 @@ from links_ray.serve.app import build_app
 
 #: Results per query in the comparisons.
 K = 5
-#: Shard replicas' CPUs: four shards and the front (one CPU) fill the 2-CPU test cluster.
+#: Partition replicas' CPUs: four partitions and the gateway (one CPU) fill the 2-CPU test cluster.
 SHARD_CPUS = 0.25
 
 

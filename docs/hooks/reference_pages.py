@@ -33,10 +33,12 @@ def cli_parser() -> argparse.ArgumentParser:
 
 
 def openapi_document() -> dict[str, Any]:
-    """The HTTP app's OpenAPI document, as `GET /openapi.json` serves it."""
-    from links_ray.serve.api import api_openapi
+    """The HTTP app's OpenAPI document, as `GET /openapi.json` serves it: built from the app's
+    routes by `serve.openapi`, which needs no Ray."""
+    from links_ray.serve.api import api
+    from links_ray.serve.openapi import openapi_document
 
-    return api_openapi()
+    return openapi_document(api.routes)
 
 
 def pages() -> dict[str, str]:

@@ -1,5 +1,5 @@
 """`links index ROOT [--shards N]`: the retrieval index of a curated root built and saved beside
-the data (`_links/index/`), in as many parts as `links serve --shards N` opens."""
+the data (`_links/index/`), in as many partitions as `links serve --shards N` opens."""
 
 from __future__ import annotations
 
@@ -14,14 +14,14 @@ def add_command(commands: argparse._SubParsersAction) -> None:
     """Register `links index` on the `links` command's subparsers."""
     index_command = commands.add_parser(
         "index",
-        help="build and save the retrieval index of a curated root (each part with --shards)",
+        help="build and save the retrieval index of a curated root (in partitions with --shards)",
     )
     index_command.add_argument("root", help="dataset root: a folder or s3://...")
     index_command.add_argument(
         "--shards",
         type=positive_int,
         default=None,
-        help="save the index split in N parts, as `links serve --shards N` opens it "
+        help="save the index split into N partitions, as `links serve --shards N` opens it "
         "(default: one index)",
     )
     index_command.add_argument(

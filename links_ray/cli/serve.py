@@ -18,27 +18,27 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         "--replicas",
         type=positive_int,
         default=1,
-        help="replicas of the app (with --shards: of the front and of each shard; default 1)",
+        help="replicas of the app (with --shards: of the gateway and of each partition; default 1)",
     )
     serve.add_argument(
         "--shards",
         type=positive_int,
         default=None,
-        help="split the index into N parts, each served by its own deployment, which the "
-        "front asks at once (default: one index in the front)",
+        help="split the index into N partitions, each served by its own deployment, which "
+        "the gateway asks at once (default: one index in the gateway)",
     )
     serve.add_argument(
         "--shard-cpus",
         type=positive_float,
         default=None,
-        help="CPUs Ray reserves for each shard replica (default 1, or on a Ray this command "
-        "starts, if that does not fit, an equal share of what the front leaves)",
+        help="CPUs Ray reserves for each partition replica (default 1, or on a Ray this "
+        "command starts, if that does not fit, an equal share of what the gateway leaves)",
     )
     serve.add_argument(
         "--shard-memory-gb",
         type=positive_float,
         default=None,
-        help="memory Ray reserves for each shard replica, in GB (default none)",
+        help="memory Ray reserves for each partition replica, in GB (default none)",
     )
     serve.add_argument(
         "--allow-host",

@@ -1,13 +1,14 @@
 """Building and launching the Ray Serve application behind `links serve`: the HTTP API of
 docs/reference/contract.md and the web studio.
 
-`build_app` makes the application of a dataset (one index in the front, `LinksApi`, or the
-index split in `IndexShard` deployments: `serve.deployments`), and `app_builder` does the same
-for Serve config files (deploy/serve/serve_config.yaml). The routes are `serve.handlers`', the
-bodies they read `serve.parsing`'s, and the errors, JSON and OpenAPI plumbing `serve.api`'s.
+`build_app` makes the application of a dataset (one index in the gateway, `LinksApi`, or the
+index split into `IndexPartition` deployments: `serve.deployments`), and `app_builder` does the
+same for Serve config files (deploy/serve/serve_config.yaml), whose `shards` arg, like `links
+serve --shards N`, is the number of partitions. The app the gateway answers with is
+`serve.api`'s, its routes `serve.handlers`'.
 
 `run_server` (what `links serve` runs) starts its own Ray and, with one replica, has the replica
-(the front, with shards) answer HTTP itself, on the port asked for: Ray Serve's *direct
+(the gateway, with partitions) answer HTTP itself, on the port asked for: Ray Serve's *direct
 ingress*, which its throughput mode uses, and which spares every request the actor hop to
 Serve's HTTP proxy and a second one to fetch the body. Serve's proxy then listens on another
 loopback port. With several replicas, or on a cluster that Ray was already running, the proxy
@@ -32,19 +33,20 @@ from ray.serve.deployment import Application
 from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
 from links_ray.data.store import Store
-from links_ray.serve.api import as_host_names
+from links_ray.serve.admission import MAX_RETRIEVALS
 from links_ray.serve.deployments import (
-    MAX_RETRIEVALS,
+    PARTITION_TIMEOUT_S,
     REPLICA_ENV,
-    SHARD_TIMEOUT_S,
     SHUTDOWN_DRAIN_S,
-    IndexShard,
+    IndexPartition,
     LinksApi,
 )
+from links_ray.serve.guards import as_host_names
 
-#: CPUs a shard replica reserves unless told otherwise (and unless `fit_shard_cpus` gives it
-#: less on a Ray that `links serve` started itself); Ray counts CPUs in steps of 1 / CPU_STEPS.
-SHARD_CPUS, CPU_STEPS = 1.0, 10_000
+#: CPUs a partition replica reserves unless told otherwise (`--shard-cpus`, and unless
+#: `fit_partition_cpus` gives it less on a Ray that `links serve` started itself); Ray counts
+#: CPUs in steps of 1 / CPU_STEPS.
+PARTITION_CPUS, CPU_STEPS = 1.0, 10_000
 #: Seconds `links serve` gives Serve's controller beyond the drain to stop the replicas and
 #: proxies, before it stops Ray under them.
 SHUTDOWN_STOP_S = 5.0
@@ -52,7 +54,7 @@ SHUTDOWN_STOP_S = 5.0
 
 def check_root(root: str, shards: int | None = None) -> None:
     """Fail early, with ValueError naming the problem, if `root` has no curated table, or has
-    a part without curated shards when split in `shards` parts."""
+    a partition without curated shards when the index is split into `shards` partitions."""
     store = Store.open(root, writable=False)
     open_table(store, "curated")
     if shards:
@@ -64,8 +66,8 @@ def check_root(root: str, shards: int | None = None) -> None:
         empty = sorted(set(range(shards)) - {shard % shards for shard in numbers})
         if empty:
             raise ValueError(
-                f"{store.uri} has {len(numbers)} curated shards: split in {shards} parts, "
-                f"part {empty[0]} would have none; use fewer shards"
+                f"{store.uri} has {len(numbers)} curated shards: split in {shards} partitions, "
+                f"partition {empty[0]} would have none; use a smaller --shards"
             )
 
 
@@ -87,32 +89,33 @@ def build_app(
     root: str,
     replicas: int = 1,
     shards: int | None = None,
-    shard_cpus: float = SHARD_CPUS,
+    shard_cpus: float = PARTITION_CPUS,
     shard_memory_gb: float | None = None,
     max_retrievals: int = MAX_RETRIEVALS,
-    shard_timeout_s: float = SHARD_TIMEOUT_S,
+    partition_timeout_s: float = PARTITION_TIMEOUT_S,
     allowed_hosts: tuple[str, ...] | list[str] = (),
 ) -> Application:
     """The Serve application for dataset `root` (not yet running), answering requests for
     its addresses, `localhost` and the host names `allowed_hosts` (`*`: any).
 
     Without `shards`, `replicas` replicas of `LinksApi`, each holding the whole index. With
-    `shards` = N, N `IndexShard` deployments (`IndexShard-P-of-N`), each of `replicas`
-    replicas holding part P, with `shard_cpus` CPUs and `shard_memory_gb` GB of memory
-    reserved in Ray per replica, placed wherever the cluster has room; and `replicas`
-    replicas of the front, `LinksApi`, which asks them all.
+    `shards` = N, the index split into N partitions: N `IndexPartition` deployments
+    (`IndexPartition-P-of-N`), each of `replicas` replicas holding partition P, with
+    `shard_cpus` CPUs and `shard_memory_gb` GB of memory reserved in Ray per replica, placed
+    wherever the cluster has room; and `replicas` replicas of the gateway, `LinksApi`, which
+    asks them all. (`shards` and its kin keep the names of `links serve`'s flags.)
     """
     _positive("replicas", replicas)
     _positive("max_retrievals", max_retrievals)
-    _positive("shard_timeout_s", shard_timeout_s, float)
-    front_args = {
+    _positive("partition_timeout_s", partition_timeout_s, float)
+    gateway_args = {
         "max_retrievals": max_retrievals,
-        "shard_timeout_s": shard_timeout_s,
+        "partition_timeout_s": partition_timeout_s,
         "allowed_hosts": tuple(sorted(as_host_names(allowed_hosts))),
     }
-    front = LinksApi.options(num_replicas=replicas)
+    gateway = LinksApi.options(num_replicas=replicas)
     if shards is None:
-        return front.bind(root, **front_args)
+        return gateway.bind(root, **gateway_args)
     _positive("shards", shards)
     options: dict[str, Any] = {
         "num_cpus": _positive("shard_cpus", shard_cpus, float),
@@ -120,15 +123,15 @@ def build_app(
     }
     if shard_memory_gb is not None:
         options["memory"] = round(_positive("shard_memory_gb", shard_memory_gb, float) * 1e9)
-    parts = [
-        IndexShard.options(
-            name=f"IndexShard-{part}-of-{shards}",
+    partitions = [
+        IndexPartition.options(
+            name=f"IndexPartition-{part}-of-{shards}",
             num_replicas=replicas,
             ray_actor_options=options,
         ).bind(root, part, shards)
         for part in range(shards)
     ]
-    return front.bind(root, parts, **front_args)
+    return gateway.bind(root, partitions, **gateway_args)
 
 
 #: The args of the Serve config application (`app_builder`), and how each is read.
@@ -214,39 +217,40 @@ def check_fits(
     resources: dict[str, float],
 ) -> None:
     """ValueError unless the app of `build_app` fits in a Ray of these total `resources`."""
-    cpus = float(replicas)  # the front: one CPU a replica
+    cpus = float(replicas)  # the gateway: one CPU a replica
     memory = 0.0
     if shards:
         cpus += shards * replicas * shard_cpus
         memory = shards * replicas * (shard_memory_gb or 0.0) * 1e9
     have_cpus = resources.get("CPU", 0.0)
     if cpus > have_cpus + 1e-9:
-        each = "1 a front replica" + (f", {shard_cpus:g} a shard replica" if shards else "")
+        each = "1 a gateway replica" + (f", {shard_cpus:g} a partition replica" if shards else "")
         raise ValueError(
-            f"the app needs {cpus:g} CPUs ({each}) and this Ray has {have_cpus:g}: "
-            "serve fewer replicas or shards, or give shards fewer CPUs (--shard-cpus)"
+            f"the app needs {cpus:g} CPUs ({each}) and this Ray has {have_cpus:g}: serve "
+            "fewer replicas or partitions (--shards), or give partitions fewer CPUs (--shard-cpus)"
         )
     have_memory = resources.get("memory", 0.0)
     if memory > have_memory:
         raise ValueError(
-            f"the shards reserve {memory / 1e9:.1f} GB and this Ray has "
+            f"the partitions reserve {memory / 1e9:.1f} GB and this Ray has "
             f"{have_memory / 1e9:.1f} GB to give: lower --shard-memory-gb"
         )
 
 
-def fit_shard_cpus(replicas: int, shards: int, resources: dict[str, float]) -> float:
-    """CPUs each shard replica reserves on one machine's Ray of these `resources`: SHARD_CPUS
-    if the app fits so, else an equal share of what the front's replicas (one CPU each) leave,
-    rounded down to Ray's steps (1 / CPU_STEPS); ValueError if they leave none."""
+def fit_partition_cpus(replicas: int, shards: int, resources: dict[str, float]) -> float:
+    """CPUs each partition replica reserves on one machine's Ray of these `resources`:
+    PARTITION_CPUS if the app fits so, else an equal share of what the gateway's replicas (one
+    CPU each) leave, rounded down to Ray's steps (1 / CPU_STEPS); ValueError if they leave
+    none."""
     have = resources.get("CPU", 0.0)
-    if float(replicas) + shards * replicas * SHARD_CPUS <= have + 1e-9:
-        return SHARD_CPUS
+    if float(replicas) + shards * replicas * PARTITION_CPUS <= have + 1e-9:
+        return PARTITION_CPUS
     left = math.floor(round((have - replicas) * CPU_STEPS, 6))  # in steps
     share = max(left, 0) // (shards * replicas)
     if share == 0:
         raise ValueError(
-            f"this Ray has {have:g} CPUs and the front takes {replicas} (one a replica): none "
-            "is left for the shards; serve fewer replicas, or no shards"
+            f"this Ray has {have:g} CPUs and the gateway takes {replicas} (one a replica): "
+            "none is left for the partitions; serve fewer replicas, or no --shards"
         )
     return share / CPU_STEPS
 
@@ -263,22 +267,22 @@ def run_server(
     allowed_hosts: tuple[str, ...] | list[str] = (),
 ) -> None:
     """Serve `root` on http://host:port/ (Ray local unless RAY_ADDRESS) until Ctrl-C; with
-    `shards`, split the index into that many `IndexShard` deployments (`build_app`), each
-    replica reserving `shard_cpus` CPUs (default SHARD_CPUS).
+    `shards`, split the index into that many partitions, `IndexPartition` deployments
+    (`build_app`), each replica reserving `shard_cpus` CPUs (default PARTITION_CPUS).
 
-    When this call starts Ray and serves one replica (of the front, with shards), the replica
-    answers on `port` directly (`direct_ingress_env`) and Serve's proxy takes a free port;
-    otherwise the proxy answers. On a Ray it starts itself, shards given no `shard_cpus`
-    share what the front leaves when SHARD_CPUS each would not fit (`fit_shard_cpus`, said
-    in one line on stderr), and an app that cannot fit is refused at once (ValueError naming
-    what it needs), where Serve would wait for resources forever.
+    When this call starts Ray and serves one replica (of the gateway, with partitions), the
+    replica answers on `port` directly (`direct_ingress_env`) and Serve's proxy takes a free
+    port; otherwise the proxy answers. On a Ray it starts itself, partitions given no
+    `shard_cpus` share what the gateway leaves when PARTITION_CPUS each would not fit
+    (`fit_partition_cpus`, said in one line on stderr), and an app that cannot fit is refused
+    at once (ValueError naming what it needs), where Serve would wait for resources forever.
     """
     import ray
 
     from links_ray.cluster.connect import connect
 
     check_root(root, shards)  # a wrong ROOT is one line here, not a replica failing to start
-    cpus = SHARD_CPUS if shard_cpus is None else shard_cpus
+    cpus = PARTITION_CPUS if shard_cpus is None else shard_cpus
     hosts = {"allowed_hosts": allowed_hosts}
     app = build_app(root, replicas, shards, cpus, shard_memory_gb, **hosts)  # checks them first
     local = not ray.is_initialized() and not os.environ.get("RAY_ADDRESS")
@@ -300,11 +304,11 @@ def run_server(
         if local:
             resources = ray.cluster_resources()
             if shards and shard_cpus is None:
-                cpus = fit_shard_cpus(replicas, shards, resources)
-                if cpus < SHARD_CPUS:
+                cpus = fit_partition_cpus(replicas, shards, resources)
+                if cpus < PARTITION_CPUS:
                     print(
                         f"links-ray: this Ray has {resources.get('CPU', 0.0):g} CPUs and the "
-                        f"front takes {replicas}: each of the {shards * replicas} shard "
+                        f"gateway takes {replicas}: each of the {shards * replicas} partition "
                         f"replicas reserves {cpus:g} CPU (--shard-cpus to choose)",
                         file=sys.stderr,
                         flush=True,

@@ -2,22 +2,24 @@
 
 | route | answers |
 |---|---|
-| `GET /api/health` | `{"status": "ok", "paths": <indexed paths>}`; sharded also `"shards"` |
+| `GET /api/health` | `{"status": "ok", "paths": <indexed paths>}`; partitioned also `"shards"` |
 | `POST /api/simulate` | 200 `{"trajectories"}`, 422 `{"error": "locking", "step", "node"}` |
 | `POST /api/retrieve` | 200 `{"results", "took_ms"}`, best first; 503 when busy |
 | `POST /api/synthesize` | 200 `{"results", "took_ms", "queued_ms"}`, refined; 503 when busy |
 | `POST /api/analyze` | 200 the studio's analysis: mobility, dyadic solvability, where it locks |
 | `POST /api/export` | 200 the mechanism as an SVG, DXF or table file in mm (an attachment) |
 | `POST /api/curve` | 200 `{"points", "closed"}`: a drawing's curve, read in a reader process |
-| `GET /api/limits` | the limits a request meets (`engine.inputs.request_limits`) |
-| `GET /openapi.json` | the API described, bodies and bounds included (`serve.api`) |
+| `GET /api/limits` | the limits a request meets (`serve.limits.request_limits`) |
+| `GET /openapi.json` | the API described, bodies and bounds included (`serve.openapi`) |
 | `GET /` | the web studio (`links_ray/serve/studio/index.html`) |
 | `GET /studio/<file>` | the studio's scripts and style sheet, from the package |
 
-The routes are methods of `LinksApiRoutes`, which the front deployment `LinksApi`
-(`serve.deployments`) inherits: it holds the index or the shards' handles, and the limits on
-retrievals and syntheses under way that these routes claim and release. Bodies are read and
-checked by `serve.parsing`; simulations, analyses and exports run in the default thread pool.
+The routes are methods of `LinksApiRoutes`, declared on `router`, which the app (`serve.api`)
+takes in; the gateway deployment `LinksApi` (`serve.deployments`) inherits them and holds the
+index or its partitions' handles, and the admission (`serve.admission`) whose places these
+routes claim and release. This module imports neither: the assembly imports the routes, never
+the other way. Bodies are read and checked by `serve.parsing`; simulations, analyses and
+exports run in the default thread pool.
 """
 
 import asyncio
@@ -25,10 +27,11 @@ import functools
 import importlib.resources
 import time
 from collections.abc import AsyncIterator
-from typing import TYPE_CHECKING, Any
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
-from fastapi import Request
+from fastapi import APIRouter, Request
 from fastapi.responses import HTMLResponse, Response, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
@@ -49,17 +52,9 @@ from links_ray.engine.synthesis_results import SynthesisResults
 from links_ray.interop.curve_worker import CurveReadersBusy, read_curve_isolated
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve import models
-from links_ray.serve.api import (
-    ApiError,
-    JsonResponse,
-    _error,
-    _json_line,
-    api,
-    json_answer,
-    logger,
-    request_body,
-)
+from links_ray.serve.admission import Admission, Place, RetrievalSlot
 from links_ray.serve.limits import request_limits
+from links_ray.serve.models import request_body
 from links_ray.serve.parsing import (
     EXPORT_FORMATS,
     curve_args,
@@ -71,9 +66,17 @@ from links_ray.serve.parsing import (
     synthesize_args,
     topology_args,
 )
+from links_ray.serve.responses import (
+    ApiError,
+    JsonResponse,
+    error_response,
+    json_answer,
+    json_line,
+    logger,
+)
 
-if TYPE_CHECKING:
-    from links_ray.serve.deployments import _Retrieving, _Turn
+#: The routes, as methods of `LinksApiRoutes`; the app (`serve.api`) takes them in.
+router = APIRouter()
 
 #: The studio's files (plain HTML, CSS and JavaScript modules; no build step) and their types.
 STUDIO_MEDIA_TYPES = {
@@ -184,40 +187,58 @@ def _synthesis_answer(results: SynthesisResults, took_ms: float, queued_s: float
 
 
 class LinksApiRoutes:
-    """The routes of the HTTP API, as methods of the front deployment `LinksApi`, which
-    inherits them and holds what they use: its index (`_retrieving`, None with shards) or its
-    shards (`_ask_shards`, `_shard_counts`), and the retrievals and syntheses under way
-    (`_claim_retrieval`, `_claim_synthesis`, `_wait_for_refiner` and the refinement thread)."""
+    """The routes of the HTTP API, as methods of the gateway deployment `LinksApi`
+    (`serve.deployments`), which inherits them and provides what they use: its index
+    (`_retrieving`, None when the index is split into partitions), its admission of
+    retrievals and syntheses (`_admission`), its refinement thread (`_refining`) and the
+    three ways to the index below (`_retrieve`, `_synthesis_candidates`, `_partition_counts`).
+    """
 
-    _retrieving: "_Retrieving | None"
-    _retrievals: int
-    _syntheses: int
+    _retrieving: RetrievalSlot | None
+    _admission: Admission
+    _refining: ThreadPoolExecutor
 
-    @api.get("/", response_class=HTMLResponse)
+    async def _retrieve(
+        self, points: np.ndarray, k: int, min_transmission_deg: float, max_joints: int | None = None
+    ) -> list[dict]:
+        """The k best results for a query, best first."""
+        raise NotImplementedError
+
+    async def _synthesis_candidates(
+        self, points: np.ndarray, wanted: list[tuple[int, int | None]], min_transmission_deg: float
+    ) -> tuple[list[dict], float]:
+        """A synthesis's retrieved candidates, and the seconds they waited for the index."""
+        raise NotImplementedError
+
+    async def _partition_counts(self) -> list[int]:
+        """Each index partition's paths, in partition order."""
+        raise NotImplementedError
+
+    @router.get("/", response_class=HTMLResponse)
     async def api_studio(self) -> Response:
         """The web studio's page."""
         return studio_response("index.html")
 
-    @api.get("/studio/{name}")
+    @router.get("/studio/{name}")
     async def api_studio_file(self, name: str) -> Response:
         """One of the studio's scripts or its style sheet; 404 for any other name."""
         return studio_response(name)
 
-    @api.get("/api/health", response_model=models.HealthResponse)
+    @router.get("/api/health", response_model=models.HealthResponse)
     async def api_health(self) -> JsonResponse:
-        """`{"status": "ok", "paths": <indexed paths>}`, and with shards their parts' paths."""
+        """`{"status": "ok", "paths": <indexed paths>}`, and with partitions their paths."""
         if self._retrieving is not None:
             return JsonResponse({"status": "ok", "paths": len(self._retrieving.index)})
-        counts = await self._shard_counts()
-        shards = [{"part": part, "paths": paths} for part, paths in enumerate(counts)]
-        return JsonResponse({"status": "ok", "paths": sum(counts), "shards": shards})
+        counts = await self._partition_counts()
+        parts = [{"part": part, "paths": paths} for part, paths in enumerate(counts)]
+        return JsonResponse({"status": "ok", "paths": sum(counts), "shards": parts})
 
-    @api.get("/api/limits", response_model=models.LimitsResponse)
+    @router.get("/api/limits", response_model=models.LimitsResponse)
     async def api_limits(self) -> JsonResponse:
         """The limits every request meets (the studio reads its own from here)."""
         return JsonResponse(request_limits())
 
-    @api.post(
+    @router.post(
         "/api/simulate",
         response_model=models.SimulateResponse,
         responses={
@@ -232,12 +253,12 @@ class LinksApiRoutes:
         try:
             trajectories = await run_in_threadpool(simulate, *args)
         except LockingError as exc:
-            return _error(422, "locking", step=exc.step, node=exc.node)
+            return error_response(422, "locking", step=exc.step, node=exc.node)
         except ValueError as exc:  # InvalidMechanismError names the problem
             raise ApiError(400, str(exc)) from None
         return await json_answer({"trajectories": trajectories})
 
-    @api.post(
+    @router.post(
         "/api/analyze",
         response_model=models.AnalyzeResponse,
         responses=models.error_responses(400, 413, 415),
@@ -257,7 +278,7 @@ class LinksApiRoutes:
             raise ApiError(400, str(exc)) from None
         return await json_answer(found)
 
-    @api.post(
+    @router.post(
         "/api/export",
         response_class=Response,
         responses={
@@ -278,11 +299,13 @@ class LinksApiRoutes:
         try:
             return await run_in_threadpool(export_file, *args)
         except LockingError as exc:  # only with a path: a locking mechanism has none
-            return _error(422, f"{exc}: it has no full path to draw", step=exc.step, node=exc.node)
+            return error_response(
+                422, f"{exc}: it has no full path to draw", step=exc.step, node=exc.node
+            )
         except ValueError as exc:  # the engine's message: the mechanism, the scale, path_joint
             raise ApiError(400, str(exc)) from None
 
-    @api.post(
+    @router.post(
         "/api/curve",
         response_model=models.CurveFileResponse,
         responses=models.error_responses(400, 413, 415, 422, 503),
@@ -304,7 +327,7 @@ class LinksApiRoutes:
             raise ApiError(getattr(exc, "status", 400), str(exc)) from None
         return await json_answer({"points": curve.points, "closed": curve.closed})
 
-    @api.post(
+    @router.post(
         "/api/retrieve",
         response_model=models.RetrieveResponse,
         responses=models.error_responses(400, 413, 415, 503),
@@ -314,19 +337,19 @@ class LinksApiRoutes:
         """The k curated paths nearest to a drawn curve, best first, with their mechanisms;
         503 with `Retry-After` when MAX_RETRIEVALS are already under way here."""
         body = await read_json_object(request, "/api/retrieve")
-        points, k, floor, most = retrieve_args(body)
+        points, k, min_transmission_deg, most = retrieve_args(body)
         # Claimed once the body is read and checked: a client that sends its body slowly, or
         # never, holds a connection until the body timeout, never a place of the index.
-        self._claim_retrieval()
+        self._admission.claim_retrieval()
         try:
             start = time.perf_counter()
-            results = await self._retrieve(points, k, floor, most)
+            results = await self._retrieve(points, k, min_transmission_deg, most)
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
-            self._retrievals -= 1
+            self._admission.release_retrieval()
         return await json_answer({"results": results, "took_ms": round(took_ms, 3)})
 
-    @api.post(
+    @router.post(
         "/api/synthesize",
         response_model=models.SynthesizeResponse,
         responses=models.error_responses(400, 413, 415, 503),
@@ -344,8 +367,8 @@ class LinksApiRoutes:
         points, options = synthesize_args(body)
         seconds = options.seconds
         stream = stream_arg(body)
-        self._claim_synthesis()  # once the body is read and checked, as a retrieval's place
-        turn: _Turn | None = None
+        self._admission.claim_synthesis()  # once the body is read and checked, as a retrieval
+        place: Place | None = None
         released = True  # until the refinement, once submitted, releases its place itself
         try:
             start = time.perf_counter()
@@ -358,7 +381,7 @@ class LinksApiRoutes:
             budget = None if seconds is None else max(0.0, seconds - retrieval_s)
             # Counted work is not weakened by waiting; it waits as long as a request may take.
             patience = (MAX_SYNTHESIS_SECONDS if seconds is None else seconds) - waited
-            turn = await self._wait_for_refiner(budget, patience)
+            place = await self._admission.wait_for_refiner(budget, patience)
             loop = asyncio.get_running_loop()
             reports: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
 
@@ -377,11 +400,11 @@ class LinksApiRoutes:
                 )
                 return results, waited + began - retrieved_at
 
-            turn.began = time.perf_counter()
+            place.began = time.perf_counter()
             refining = loop.run_in_executor(self._refining, refine)
             # The place is freed when the refinement ends, whether or not anyone still
             # reads its stream (a client gone mid-stream must not hold it for good).
-            refining.add_done_callback(functools.partial(self._synthesis_done, turn))
+            refining.add_done_callback(functools.partial(self._admission.release_synthesis, place))
             released = False
             if stream:
                 return StreamingResponse(
@@ -392,9 +415,7 @@ class LinksApiRoutes:
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
             if released:
-                self._syntheses -= 1
-                if turn is not None:
-                    self._next_turn(turn)
+                self._admission.release_synthesis(place)
         return await json_answer(_synthesis_answer(results, took_ms, queued_s))
 
     async def _synthesis_lines(
@@ -410,14 +431,14 @@ class LinksApiRoutes:
             waiting = asyncio.ensure_future(reports.get())
             await asyncio.wait({waiting, refining}, return_when=asyncio.FIRST_COMPLETED)
             if waiting.done():
-                yield await _json_line({"progress": waiting.result()})
+                yield await json_line({"progress": waiting.result()})
             else:
                 waiting.cancel()
         try:
             results, queued_s = refining.result()
         except Exception as exc:  # the status is sent: the failure can only be a line
             logger.warning("links-ray API: a streamed synthesis failed (%s)", type(exc).__name__)
-            yield await _json_line({"error": "synthesis failed"})
+            yield await json_line({"error": "synthesis failed"})
             return
         took_ms = (time.perf_counter() - start) * 1e3
-        yield await _json_line(_synthesis_answer(results, took_ms, queued_s))
+        yield await json_line(_synthesis_answer(results, took_ms, queued_s))

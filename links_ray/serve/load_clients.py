@@ -37,7 +37,7 @@ PROBE_FOUR_BAR = {
 def retrieval_load(
     port: int, queries: list[np.ndarray], seconds: float, clients: int = 32, k: int = 3
 ) -> subprocess.Popen:
-    """Start `clients` clients that post retrievals of `queries` (in turn, `k` results each) to
+    """Start `clients` clients that post retrievals of `queries` (in rotation, `k` results each) to
     http://127.0.0.1:port/api/retrieve for `seconds`, each on a kept-alive connection.
 
     They run in a process of their own, so that their threads do not slow the caller's own
@@ -53,7 +53,7 @@ def retrieval_load(
 def post_load(
     port: int, route: str, bodies: list[str], seconds: float, clients: int, niceness: int = 0
 ) -> subprocess.Popen:
-    """`retrieval_load`'s clients, posting `bodies` (in turn: client i starts with body i) to
+    """`retrieval_load`'s clients, posting `bodies` (in rotation: client i starts with body i) to
     any `route`, their process `niceness` lower in priority than this one."""
     spec = {
         "niceness": niceness,
@@ -108,10 +108,10 @@ def _load() -> None:
 
     def client(number: int, stop: float) -> None:
         conn = None
-        turn = number
+        next_body = number
         while time.monotonic() < stop:
-            body = bodies[turn % len(bodies)]
-            turn += clients
+            body = bodies[next_body % len(bodies)]
+            next_body += clients
             if conn is None:
                 conn = http.client.HTTPConnection("127.0.0.1", spec["port"], timeout=60)
             start = time.perf_counter()
@@ -170,18 +170,18 @@ def _json_error(raw: bytes) -> bool:
 
 
 def probe_loop(port: int, seconds: float) -> dict:
-    """Health checks and simulations, in turn, on one kept-alive connection to
+    """Health checks and simulations, alternately, on one kept-alive connection to
     127.0.0.1:port for `seconds`: their `health` and `simulate` latencies (seconds) and
     `statuses` (count by route and HTTP status, e.g. "health 200")."""
     body = json.dumps(PROBE_FOUR_BAR).encode()
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
     found: dict = {"health": [], "simulate": [], "statuses": {}}
     stop = time.monotonic() + seconds
-    turn = 0
+    asked = 0
     try:
         while time.monotonic() < stop:
-            kind = ("health", "simulate")[turn % 2]
-            turn += 1
+            kind = ("health", "simulate")[asked % 2]
+            asked += 1
             start = time.perf_counter()
             if kind == "health":
                 conn.request("GET", "/api/health")

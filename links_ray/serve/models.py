@@ -202,19 +202,22 @@ class LockingResponse(BaseModel):
     node: int
 
 
-class ShardInfo(BaseModel):
-    """One part of a split index, and the curated paths it holds."""
+class PartitionInfo(BaseModel):
+    """One partition of a split index, and the curated paths it holds."""
 
     part: int
     paths: int
 
 
 class HealthResponse(BaseModel):
-    """GET /api/health; `shards` when the index is split."""
+    """GET /api/health; `shards` (its partitions; the field's name is the API's) when the
+    index is split into partitions."""
 
     status: Literal["ok"]
     paths: int = Field(description="curated paths indexed")
-    shards: list[ShardInfo] | None = None
+    shards: list[PartitionInfo] | None = Field(
+        default=None, description="the index's partitions, when it is split (--shards N)"
+    )
 
 
 class LimitsResponse(BaseModel):
@@ -366,3 +369,13 @@ REQUEST_MODELS: dict[str, type[BaseModel]] = {
     "/api/export": ExportRequest,
     "/api/curve": CurveFileRequest,
 }
+
+
+def request_body(path: str) -> dict[str, Any]:
+    """The OpenAPI `requestBody` of a POST route (its `openapi_extra`): its model in
+    `REQUEST_MODELS`. The routes read their bodies themselves (`serve.parsing`: size, media
+    type, the engine's checks), so FastAPI does not see the model; `serve.openapi` adds its
+    schema to the document."""
+    name = REQUEST_MODELS[path].__name__
+    schema = {"$ref": f"#/components/schemas/{name}"}
+    return {"requestBody": {"required": True, "content": {"application/json": {"schema": schema}}}}

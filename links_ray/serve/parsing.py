@@ -34,7 +34,6 @@ from links_ray.engine.inputs import (
     validate_query,
 )
 from links_ray.engine.synthesis_options import SynthesisOptions
-from links_ray.serve.api import INLINE_JSON_BYTES, JSON_POOL, ApiError
 from links_ray.serve.limits import (
     BODY_TIMEOUT_S,
     MAX_BODY_BYTES,
@@ -44,6 +43,7 @@ from links_ray.serve.limits import (
     MIN_BODY_BYTES_PER_S,
 )
 from links_ray.serve.models import REQUEST_MODELS
+from links_ray.serve.responses import INLINE_JSON_BYTES, JSON_POOL, ApiError
 
 
 def _kind(value: object) -> str:

@@ -189,7 +189,7 @@ def _serve_arguments(command: argparse.ArgumentParser) -> None:
         type=non_negative_int,
         action="append",
         default=None,
-        help="shard count to serve with, 0 for one index in the front; repeat for several "
+        help="partitions to serve with, 0 for one index in the gateway; repeat for several "
         "runs (default: 0, 1 and 2)",
     )
     command.add_argument(

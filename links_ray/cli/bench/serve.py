@@ -65,7 +65,7 @@ def bench_serve(
         build_app,
         check_root,
         direct_ingress_env,
-        fit_shard_cpus,
+        fit_partition_cpus,
     )
 
     counts = [0, 1, 2] if shards is None else shards
@@ -84,7 +84,7 @@ def bench_serve(
             parts = max(count, 1)
             for part in range(parts):  # built before the run, not during it
                 RetrievalIndex.open(root, part=part, parts=parts)
-            shard_cpus = fit_shard_cpus(1, count, ray.cluster_resources()) if count else None
+            shard_cpus = fit_partition_cpus(1, count, ray.cluster_resources()) if count else None
             app = build_app(root, shards=count or None, shard_cpus=shard_cpus or 1.0)
             with _served(app, port, no_access_log):
                 with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/health") as response:

@@ -1,0 +1,214 @@
+"""Admission: how many retrievals and syntheses a gateway replica holds, and in what order
+syntheses take its one refinement thread.
+
+A replica holds at most `max_retrievals` retrievals (`MAX_RETRIEVALS` by default) and
+`MAX_SYNTHESES` syntheses, running or waiting; one more is refused at once with 503 and
+`Retry-After` (`busy`), so that a burst neither piles up without bound nor holds what health
+checks and simulations need. Syntheses then wait in line (`Admission.line`, one `Place` each)
+for the refinement thread, which refines one at a time; one that would wait longer than its
+own budget is refused 503 too.
+
+Retrievals run in a thread of their own, one at a time, beside the index they search
+(`RetrievalSlot`). Both threads run at `RETRIEVAL_NICENESS`, below the event loop that answers
+health checks. Nothing here imports Ray: the routes (`serve.handlers`) and the deployments
+(`serve.deployments`) both use it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from links_ray.serve.responses import ApiError
+
+if TYPE_CHECKING:  # only a type here: the routes, and the docs, need no index module
+    from links_ray.search.index import RetrievalIndex
+
+#: Retrievals are the throughput work; health checks and simulations must be answered at
+#: once. So the thread that retrieves, and the kernels' worker threads it starts, run at this
+#: niceness (Linux niceness is per thread, and new threads inherit it), below the replica's
+#: event loop and thread pool and any gateway on the same node, still above Ray's workers.
+RETRIEVAL_NICENESS = 5
+#: Retrievals one gateway replica holds at once, running or waiting for the index (its own
+#: or the partitions'). One more is answered at once with 503, `Retry-After` and a JSON
+#: `error`.
+MAX_RETRIEVALS = 8
+#: Syntheses one gateway replica holds at once, running or waiting. Each holds the replica's
+#: cores for its whole budget (up to MAX_SYNTHESIS_SECONDS), so few; one more is answered 503.
+#: One that would wait for the refinement thread longer than its own budget is answered 503
+#: too: waiting does not shorten its refinement, whose budget starts when it starts.
+MAX_SYNTHESES = 2
+#: Seconds a refused client is asked to wait (`Retry-After`).
+RETRY_AFTER_S = 1
+
+
+def busy(message: str, retry_after: float = RETRY_AFTER_S) -> ApiError:
+    """503 with `Retry-After` (whole seconds, at least RETRY_AFTER_S): come back then."""
+    seconds = max(RETRY_AFTER_S, math.ceil(retry_after))
+    return ApiError(503, message, headers={"Retry-After": str(seconds)})
+
+
+class Place:
+    """A synthesis's place in the line for a replica's refinement thread: its refinement
+    budget (None for fixed work, whose length is unknown), when its refinement began, and the
+    future set when the thread is its own."""
+
+    def __init__(self, budget: float | None) -> None:
+        self.budget = budget
+        self.began: float | None = None
+        self.ready: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+
+
+class Admission:
+    """The retrievals and syntheses one replica holds, and the line of syntheses for its
+    refinement thread. Only the event loop's thread uses it, so plain counts suffice."""
+
+    def __init__(self, max_retrievals: int = MAX_RETRIEVALS) -> None:
+        self.max_retrievals = max_retrievals
+        self.retrievals = 0  # running or waiting
+        self.syntheses = 0  # running or waiting
+        self.line: list[Place] = []  # the first holds the refinement thread
+
+    def claim_retrieval(self) -> None:
+        """Count one more retrieval under way, or refuse it 503 at the limit."""
+        if self.retrievals >= self.max_retrievals:
+            raise busy(
+                f"busy: {self.retrievals} retrievals under way, the most this server "
+                f"holds; retry after {RETRY_AFTER_S} s"
+            )
+        self.retrievals += 1
+
+    def release_retrieval(self) -> None:
+        """One retrieval under way fewer."""
+        self.retrievals -= 1
+
+    def claim_synthesis(self) -> None:
+        """Count one more synthesis under way, or refuse it 503 at MAX_SYNTHESES."""
+        if self.syntheses >= MAX_SYNTHESES:
+            raise busy(
+                f"busy: {self.syntheses} syntheses under way, the most this server holds; "
+                f"retry after {RETRY_AFTER_S} s"
+            )
+        self.syntheses += 1
+
+    def release_synthesis(self, place: Place | None, _: object = None) -> None:
+        """One synthesis under way fewer, and its place (if it had one) left; the unused
+        argument lets it be a future's done callback."""
+        self.syntheses -= 1
+        if place is not None:
+            self.leave(place)
+
+    def expected_wait(self) -> float | None:
+        """Seconds until the syntheses in line end their budgets; None if one does fixed work
+        (its length is not known beforehand)."""
+        now = time.perf_counter()
+        wait = 0.0
+        for place in self.line:
+            if place.budget is None:
+                return None
+            wait += (
+                place.budget if place.began is None else max(0.0, place.began + place.budget - now)
+            )
+        return wait
+
+    async def wait_for_refiner(self, budget: float | None, patience: float) -> Place:
+        """This synthesis's place at the refinement thread, once the ones before it are done;
+        503 with `Retry-After` if it would wait longer than `patience` seconds: at once when
+        the wait is known beforehand, else once it has waited that long."""
+        expected = self.expected_wait()
+        if expected is not None and expected > patience:
+            raise busy(
+                f"busy: the syntheses under way end in about {expected:.1f} s, longer than "
+                f"this one may wait ({max(0.0, patience):.1f} s of its budget)",
+                retry_after=expected - max(0.0, patience),
+            )
+        place = Place(budget)
+        self.line.append(place)
+        if len(self.line) == 1:
+            place.ready.set_result(None)
+        try:
+            await asyncio.wait({place.ready}, timeout=max(0.0, patience))
+        except BaseException:  # the client went away: its place, or the thread, goes on
+            self.leave(place)
+            raise
+        if not place.ready.done():
+            self.leave(place)
+            raise busy(
+                f"busy: waited {max(0.0, patience):.1f} s for the syntheses under way, as "
+                "long as this one may wait; retry after they end"
+            )
+        return place
+
+    def leave(self, place: Place) -> None:
+        """`place` is done with the refinement thread (or gave up waiting): the next in line
+        takes the thread."""
+        self.line.remove(place)
+        if self.line and not self.line[0].ready.done():
+            self.line[0].ready.set_result(None)
+
+
+def low_priority_thread(name: str) -> ThreadPoolExecutor:
+    """One thread, named `name`, at RETRIEVAL_NICENESS: retrievals and refinements run so,
+    never in the thread pool that health checks, simulations and analyses use."""
+    return ThreadPoolExecutor(max_workers=1, thread_name_prefix=name, initializer=_lower_priority)
+
+
+def _lower_priority() -> None:
+    """This thread (and the threads it starts) at RETRIEVAL_NICENESS, if that is lower
+    priority than it has; where threads have no niceness of their own, nothing."""
+    try:
+        thread = threading.get_native_id()
+        if os.getpriority(os.PRIO_PROCESS, thread) < RETRIEVAL_NICENESS:
+            os.setpriority(os.PRIO_PROCESS, thread, RETRIEVAL_NICENESS)
+    except (AttributeError, OSError):  # not Linux
+        pass
+
+
+class RetrievalSlot:
+    """An index and the one thread its retrievals run in: one at a time (the index's compiled
+    kernels are parallel, and the JIT's workqueue threading layer, its fallback without TBB
+    or OpenMP, cannot take concurrent callers), never in the thread pool that simulations
+    and analyses run in, and at `RETRIEVAL_NICENESS`. The index is warmed in that thread, so
+    the kernels' worker threads exist, at that niceness, before the first user asks."""
+
+    def __init__(self, index: RetrievalIndex) -> None:
+        self.index = index
+        self.pool = low_priority_thread("links-retrieve")
+        self.pool.submit(index.warm).result()
+
+    async def retrieve(
+        self, points: np.ndarray, k: int, min_transmission: float, max_joints: int | None = None
+    ) -> list[dict]:
+        """`RetrievalIndex.retrieve`'s answer, from the slot's thread."""
+        return await asyncio.get_running_loop().run_in_executor(
+            self.pool, self.index.retrieve, points, k, min_transmission, max_joints
+        )
+
+    async def retrieve_waited(
+        self,
+        points: np.ndarray,
+        k: int,
+        min_transmission: float,
+        max_joints: int | None = None,
+    ) -> tuple[list[dict], float]:
+        """`retrieve`'s answer, and the seconds it waited behind other retrievals."""
+        asked = time.perf_counter()
+        began: list[float] = []
+
+        def run() -> list[dict]:
+            began.append(time.perf_counter())
+            return self.index.retrieve(points, k, min_transmission, max_joints)
+
+        results = await asyncio.get_running_loop().run_in_executor(self.pool, run)
+        return results, began[0] - asked
+
+    def close(self) -> None:
+        """Stop the thread, dropping retrievals not yet begun."""
+        self.pool.shutdown(wait=False, cancel_futures=True)
