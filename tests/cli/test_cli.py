@@ -20,12 +20,7 @@ from links_ray.cli import bench
 from links_ray.engine.mechanism import LockingError, analyze_topology, dataset_rule_violations
 from links_ray.engine.reference import simulate_reference
 from links_ray.engine.sampling import measure_candidates_per_valid
-
-
-def links(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "links_ray.cli", *args], capture_output=True, text=True, timeout=600
-    )
+from tests.support.cli import links
 
 
 @pytest.mark.parametrize("module", ["links_ray.cli", "links_ray"])

@@ -25,9 +25,9 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
-from serving import TWO_CPU_RAY
 
 from links_ray.serve.app import bindable_port
+from tests.support.serving import TWO_CPU_RAY
 
 #: Ray's own log lines, by where they come from. Colour codes are taken out first.
 RAY_LOG_FORMATS = {

@@ -9,13 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_cli import links
 
 import links_ray
 from links_ray.data.release import CURVE_SETS, export_release
 from links_ray.data.shards import GenerationPlan, write_shard
 from links_ray.data.store import Store
 from links_ray.engine.paths import CIRCLE_VARIANCE_THRESHOLD
+from tests.support.cli import links
 
 #: The root without simulations: generation's mechanisms only, never curated.
 BARE_PLAN = GenerationPlan(seed=2, mechanisms=45, topologies_per_shard=2, tables=("mechanisms",))

@@ -17,15 +17,15 @@ from typing import Any
 
 import numpy as np
 import pytest
-from drawings import dxf_parts, read_dxf
-from needs import need_module
-from serving import FOUR_BAR, LOCKING_FOUR_BAR
 
 import links_ray
 from links_ray.data.shards import GenerationPlan, write_shard
 from links_ray.data.store import Store
 from links_ray.engine.fabrication import fabrication
 from links_ray.interop.drawings import dxf_drawing
+from tests.support.drawings import dxf_parts, read_dxf
+from tests.support.needs import need_module
+from tests.support.serving import FOUR_BAR, LOCKING_FOUR_BAR
 
 SVG = "{http://www.w3.org/2000/svg}"
 

@@ -23,8 +23,6 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
-from test_cli import links
-from test_generation import assert_only_committed_files, read_table
 
 import links_ray
 from links_ray.cluster.curation import curate
@@ -36,6 +34,8 @@ from links_ray.data.schemas import CURATION_TABLES
 from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.paths import circle_variance, normalize_path
 from links_ray.engine.sampling import measure_candidates_per_valid
+from tests.cluster.test_generation import assert_only_committed_files, read_table
+from tests.support.cli import links
 
 MECHANISMS = 300
 #: The plan of `curated_run`: topology i has 8 + i % 13 joints and five variants, and each joint

@@ -12,9 +12,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from test_generation import assert_same_rows, read_all
-
 from links_ray.cluster.generation import generate
+from tests.cluster.test_generation import assert_same_rows, read_all
 
 SCRIPT = r"""
 import json, os, sys, threading, time

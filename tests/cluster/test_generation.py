@@ -24,7 +24,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as pads
 import pytest
-from needs import missing
 
 import links_ray
 from links_ray.cluster import generation
@@ -35,6 +34,7 @@ from links_ray.data.schemas import GENERATION_TABLES as TABLES
 from links_ray.data.shards import NEGATIVE_ID_BASE, GenerationPlan
 from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.mechanism import analyze_topology, dataset_rule_violations
+from tests.support.needs import missing
 
 
 def read_table(store: Store, table: str) -> pa.Table:

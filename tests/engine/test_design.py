@@ -22,8 +22,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from serving import Client, hand_drawn
-from test_cli import links
 
 import links_ray
 from links_ray.engine.constraints import violation
@@ -39,6 +37,8 @@ from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.refine import as_target, check_mechanism, refine_validated
 from links_ray.engine.synthesis import refine_retrieved, synthesize
 from links_ray.search.index import RetrievalIndex
+from tests.support.cli import links
+from tests.support.serving import Client, hand_drawn
 
 ITERATIONS = 600
 

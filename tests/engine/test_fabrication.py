@@ -16,8 +16,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from drawings import dxf_parts, read_dxf
-from serving import FOUR_BAR, LOCKING_FOUR_BAR
 
 import links_ray
 from links_ray.engine.fabrication import HOLE_MM, TEXT_MM, fabrication
@@ -26,6 +24,8 @@ from links_ray.engine.mechanism import LockingError
 from links_ray.engine.paths import even_along
 from links_ray.interop.curve_files import read_curve
 from links_ray.interop.drawings import LAYERS, PATH_ID, dxf_drawing, svg_drawing
+from tests.support.drawings import dxf_parts, read_dxf
+from tests.support.serving import FOUR_BAR, LOCKING_FOUR_BAR
 
 SVG = "{http://www.w3.org/2000/svg}"
 TOL_MM = 2e-9  # the SVG holds coordinates to the nanometre, the DXF as they are

@@ -19,7 +19,6 @@ import time
 
 import numpy as np
 import pytest
-from test_solver import fourbar_positions, fourbar_topology, fourbar_truth, grashof
 
 import links_ray
 from links_ray import LockingError, TopologySimulator, chamfer, random_topology, simulate
@@ -35,6 +34,7 @@ from links_ray.engine.refine import as_target, refine, refine_many, refine_valid
 from links_ray.engine.refine_kernels import best_interval, nearest_pairs, solve_tangents
 from links_ray.engine.refine_step import constrained_minimum
 from links_ray.engine.solver import crank_table, dyad_geometry
+from tests.engine.test_solver import fourbar_positions, fourbar_topology, fourbar_truth, grashof
 
 #: A Grashof crank-rocker with a coupler point, transmission angle 54 to 100 degrees.
 GOOD_FOURBAR = ((0.2, 0.1), 0.3, (0.1, 0.35, 0.3, 0.4), 0.7, 1, (0.15, 0.12))

@@ -30,7 +30,7 @@ from links_ray.engine.solver import (
     topology_cache,
 )
 from links_ray.engine.topology import random_topology
-from tests.fourbars import stretched_four_bar, window_slack
+from tests.support.fourbars import stretched_four_bar, window_slack
 
 
 def valid_mechanisms(count: int, seed: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:

@@ -28,9 +28,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from serving import Client, hand_drawn
-from test_cli import links
-from test_refine import assert_valid
 
 import links_ray
 from links_ray.engine import cpus
@@ -38,6 +35,9 @@ from links_ray.engine.inputs import MAX_SYNTHESIS_ITERATIONS, MAX_SYNTHESIS_SECO
 from links_ray.engine.paths import chamfer, longest_chord
 from links_ray.engine.synthesis import CANDIDATES, fit, refine_retrieved, synthesize
 from links_ray.search.index import RetrievalIndex
+from tests.engine.test_refine import assert_valid
+from tests.support.cli import links
+from tests.support.serving import Client, hand_drawn
 
 #: The fixed work of the tests of quality: a short pass over every candidate and some long
 #: rounds (a few seconds here).

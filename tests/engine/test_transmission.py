@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from fourbars import stretched_four_bar
-from nearest_point import agreement
 
 import links_ray
 from links_ray.engine.mechanism import analyze_topology
@@ -16,6 +14,8 @@ from links_ray.engine.transmission import (
     joint_transmission_deg,
     mechanism_transmission_deg,
 )
+from tests.support.fourbars import stretched_four_bar
+from tests.support.nearest_point import agreement
 
 
 def folded_degrees(cosines: np.ndarray) -> np.ndarray:

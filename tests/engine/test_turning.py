@@ -6,7 +6,6 @@ steps with the sampled check alone (`simulate_one`, which looks only at the step
 
 import numpy as np
 import pytest
-from fourbars import stretched_four_bar, window_slack
 
 import links_ray
 from links_ray.engine.sampling import PositionSampler
@@ -18,6 +17,7 @@ from links_ray.engine.solver import (
 )
 from links_ray.engine.topology import random_topology
 from links_ray.engine.turning import turn_lock
+from tests.support.fourbars import stretched_four_bar, window_slack
 
 STEP = 37  # the lock sits between sampled steps 37 and 38
 
@@ -130,7 +130,7 @@ def test_a_grazing_turn_is_refused_within_the_split_budget() -> None:
     made this one) keeps nearly every part of every interval there unsure: proving it turned
     took up to 79 s at 2,000 steps. The budget refuses it, as locking, at once; ordinary valid
     sets are decided as an unbounded check decides them."""
-    from test_synthesis import HAIR_EDGES, HAIR_POSITIONS
+    from tests.engine.test_synthesis import HAIR_EDGES, HAIR_POSITIONS
 
     adjacency = np.zeros((12, 12), dtype=int)
     for i, j in HAIR_EDGES:

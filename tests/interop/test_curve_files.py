@@ -11,11 +11,11 @@ from pathlib import Path
 import ezdxf
 import numpy as np
 import pytest
-from test_cli import links
 
 from links_ray.engine.inputs import MAX_CURVE_FILE_BYTES
 from links_ray.engine.paths import even_along
 from links_ray.interop.curve_files import read_curve
+from tests.support.cli import links
 
 SVG = '<svg xmlns="http://www.w3.org/2000/svg"{attrs}>{body}</svg>'
 

@@ -12,9 +12,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from fourbars import stretched_four_bar
-from needs import need_module
-from serving import FOUR_BAR
 
 import links_ray
 from links_ray.engine.fabrication import fabrication
@@ -22,6 +19,9 @@ from links_ray.engine.inputs import DEFAULT_MARGIN_DEG
 from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.transmission import mechanism_transmission_deg
 from links_ray.interop.pylinkage import from_pylinkage, pylinkage_script, to_pylinkage
+from tests.support.fourbars import stretched_four_bar
+from tests.support.needs import need_module
+from tests.support.serving import FOUR_BAR
 
 pl = need_module("pylinkage", "pip install pylinkage (the test extra)")
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import numba
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 #: Every test file that calls a kernel with buffers it made, and those of the engine,
 #: refinement and retrieval kernels besides; tests.boundscheck leaves out the tests that need

@@ -35,7 +35,7 @@ from links_ray.serve.deployments import (
     LinksApi,
 )
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DEPLOY = REPO / "deploy"
 
 #: Documents of each YAML file under deploy/, by path from the repository root.

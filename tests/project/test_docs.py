@@ -23,9 +23,9 @@ from types import ModuleType
 
 import pytest
 
-from tests.needs import need_module
+from tests.support.needs import need_module
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DOCS = REPO / "docs"
 
 #: Fenced blocks whose lines are shell commands (or a console's, prompts and output).

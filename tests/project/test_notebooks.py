@@ -16,7 +16,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from needs import missing, need_module
+
+from tests.support.needs import missing, need_module
 
 nbformat = need_module("nbformat", "pip install '.[notebooks]'")
 need_module("nbclient", "pip install '.[notebooks]'")
@@ -26,7 +27,7 @@ try:
 except kernelspec.NoSuchKernel:
     missing("no Jupyter kernel 'python3' to run the notebooks in: pip install ipykernel")
 
-NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
+NOTEBOOKS = Path(__file__).resolve().parents[2] / "notebooks"
 sys.path.insert(0, str(NOTEBOOKS))
 from store_outputs import NAMES, notebook_env, run_notebook, source_digest  # noqa: E402
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-from test_layers import PACKAGE, REPO, imported, module_names
+from tests.support.package_imports import PACKAGE, REPO, imported, module_names
 
 #: The most lines a module may have; a module of numba kernels (it imports numba) may have
 #: more, since a kernel and its plain-array entry point read best side by side.

@@ -11,10 +11,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from release_reader import ANGLES as T
-from release_reader import normalize, read_batches, simulate
-from test_cli import links
-from test_export_dataset import BARE_PLAN, _write
 
 import links_ray
 from links_ray.data.pathset import KEEP_SHARE, keep_draw, path_ids
@@ -30,6 +26,10 @@ from links_ray.data.release_format import (
     release_trajectories_many,
 )
 from links_ray.engine.mechanism import ACTUATED, FIXED, SIMPLE
+from tests.cli.test_export_dataset import BARE_PLAN, _write
+from tests.support.cli import links
+from tests.support.release_reader import ANGLES as T
+from tests.support.release_reader import normalize, read_batches, simulate
 
 NAMES = ("dataset", "simulation_dataset", "normalized_dataset", "curated_dataset")
 

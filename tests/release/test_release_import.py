@@ -17,11 +17,6 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pytest
-from fourbars import stretched_four_bar, window_slack
-from release_files import as_release, release_simulation, write_release
-from serving import links_serve
-from studio_page import draw, open_studio
-from test_cli import links
 
 from links_ray.data import release_import
 from links_ray.data.commit import ShardWriter, committed_files, committed_shards
@@ -40,6 +35,11 @@ from links_ray.engine.sampling import PositionSampler
 from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.topology import grow_topology
 from links_ray.serve.app import bindable_port
+from tests.support.cli import links
+from tests.support.fourbars import stretched_four_bar, window_slack
+from tests.support.release_files import as_release, release_simulation, write_release
+from tests.support.serving import links_serve
+from tests.support.studio_page import draw, open_studio
 
 
 def mechanisms(seed: int, batches: int, topologies: int) -> list[list[tuple]]:

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from links_ray.data.release_scan import ALLOWED, MAX_MARKS, new_state, refusal, scan
-from tests.fuzz_release_pickles import make_seeds
-from tests.test_release_pickles import real_values
+from tests.release.test_release_pickles import real_values
+from tests.support.fuzz_release_pickles import make_seeds
 
 
 def scanned(data: bytes, chunk: int | None = None) -> tuple[int, str | None]:

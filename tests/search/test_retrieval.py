@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_cli import links
 
 import links_ray
 from links_ray.cluster.curation import curate
@@ -28,6 +27,7 @@ from links_ray.search.held_out import held_out_queries
 from links_ray.search.index import RetrievalIndex, cache_folder
 from links_ray.search.query import _about_least, distance_table, query_variants, variant_map
 from links_ray.search.reduced import reduced_joints
+from tests.support.cli import links
 
 
 @pytest.fixture(scope="module")

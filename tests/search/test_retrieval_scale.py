@@ -17,13 +17,13 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
-from scale_data import cached_json, index_key
-from serving import hand_drawn, retrieved, serving
 
 from links_ray.engine.paths import normalize_path
 from links_ray.search.held_out import held_out_queries
 from links_ray.search.index import RetrievalIndex, query_variants
 from links_ray.serve.app import build_app, fit_shard_cpus
+from tests.support.scale_data import cached_json, index_key
+from tests.support.serving import hand_drawn, retrieved, serving
 
 #: Results per query, and the least recall@K of one index against the exact brute force.
 K, RECALL = 3, 0.95

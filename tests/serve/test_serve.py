@@ -27,9 +27,16 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from drawings import dxf_parts, read_dxf
-from fourbars import stretched_four_bar, window_slack
-from serving import (
+
+import links_ray
+from links_ray.engine import inputs
+from links_ray.engine.fabrication import fabrication
+from links_ray.engine.inputs import validate_query
+from links_ray.interop.drawings import dxf_drawing, svg_drawing
+from links_ray.serve.app import bindable_port
+from tests.support.drawings import dxf_parts, read_dxf
+from tests.support.fourbars import stretched_four_bar, window_slack
+from tests.support.serving import (
     FOUR_BAR,
     LOCKING_FOUR_BAR,
     TWO_CPU_RAY,
@@ -40,14 +47,7 @@ from serving import (
     processes_mentioning,
 )
 
-import links_ray
-from links_ray.engine import inputs
-from links_ray.engine.fabrication import fabrication
-from links_ray.engine.inputs import validate_query
-from links_ray.interop.drawings import dxf_drawing, svg_drawing
-from links_ray.serve.app import bindable_port
-
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 RESULT_FIELDS = {
     "path_id",
     "n_joints",
@@ -1208,7 +1208,7 @@ def test_a_host_it_was_not_told_of_gets_400(client: Client) -> None:
     """A request for a DNS name the server was not given (how a web page reaches a loopback
     server through a name it controls) is refused 400 before its body is read, through the
     replica and through Serve's proxy; addresses, localhost and the allowed name are answered."""
-    from conftest import ALLOWED_HOST
+    from tests.support.serve_app import ALLOWED_HOST
 
     port = client.port
     for way in (client, client.proxy):

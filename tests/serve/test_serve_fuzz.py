@@ -17,9 +17,9 @@ from typing import Any
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from serving import FOUR_BAR, Client
 
 from links_ray.serve.models import REQUEST_MODELS
+from tests.support.serving import FOUR_BAR, Client
 
 #: Examples each route runs.
 EXAMPLES = 150

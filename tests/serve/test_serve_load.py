@@ -18,7 +18,6 @@ import time
 
 import numpy as np
 import pytest
-from serving import FOUR_BAR, as_served, retrieved, serving
 
 import links_ray
 from links_ray.engine.inputs import MAX_REQUEST_JOINT_STEPS
@@ -32,6 +31,7 @@ from links_ray.serve.load_clients import (
     probe_loop,
     retrieval_load,
 )
+from tests.support.serving import FOUR_BAR, as_served, retrieved, serving
 
 #: Results per query in the comparisons.
 K = 5

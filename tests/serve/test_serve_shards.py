@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from serving import as_served, retrieved, serving
 
 import links_ray
 from links_ray.data.commit import committed_shards
@@ -29,6 +28,7 @@ from links_ray.data.store import Store
 from links_ray.engine.synthesis import CANDIDATES
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.app import build_app
+from tests.support.serving import as_served, retrieved, serving
 
 #: Results per query in the comparisons.
 K = 5

@@ -19,14 +19,14 @@ from typing import Any
 
 import numpy as np
 import pytest
-from drawings import dxf_parts, read_dxf
-from needs import need_module
-from serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
-from studio_page import VIEWPORT, Studio, draw, open_studio
 
 import links_ray
 from links_ray.engine.inputs import MAX_K, MAX_TRANSMISSION_DEG, request_limits
 from links_ray.engine.mechanism import analyze_topology
+from tests.support.drawings import dxf_parts, read_dxf
+from tests.support.needs import need_module
+from tests.support.serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
+from tests.support.studio_page import VIEWPORT, Studio, draw, open_studio
 
 STEPS = 200
 
@@ -1205,8 +1205,8 @@ def named_browser(browser: Any) -> Iterator[Any]:
     """A Chromium that resolves the allowed name (conftest.ALLOWED_HOST) and attacker.test to
     127.0.0.1, as DNS would for a server's own name and for a name rebound to loopback;
     launched by the module's own Playwright (one Playwright runs in a process at a time)."""
-    from conftest import ALLOWED_HOST
-    from studio_page import CHROMIUM, CHROMIUM_ARGS
+    from tests.support.serve_app import ALLOWED_HOST
+    from tests.support.studio_page import CHROMIUM, CHROMIUM_ARGS
 
     rules = f"--host-resolver-rules=MAP {ALLOWED_HOST} 127.0.0.1, MAP attacker.test 127.0.0.1"
     chromium = browser.browser_type.launch(executable_path=CHROMIUM, args=[*CHROMIUM_ARGS, rules])
@@ -1249,7 +1249,7 @@ def test_the_studio_works_by_its_name_and_no_other_site_can_use_the_server(
     send the server no drawing: its posts that need no preflight (of no type, or plain text)
     are refused 415 unread, and a JSON post is stopped by the browser's preflight, which the
     server does not grant."""
-    from conftest import ALLOWED_HOST
+    from tests.support.serve_app import ALLOWED_HOST
 
     context = named_browser.new_context(viewport=VIEWPORT)
     try:

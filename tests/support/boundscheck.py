@@ -19,7 +19,7 @@ from numba.core import config as numba_config
 
 #: Fixtures whose tests the pass leaves out: they start SeaweedFS (and Ray on top of it).
 NEEDS_SERVICES = ("s3_server",)
-PACKAGE = Path(__file__).resolve().parent.parent / "links_ray"
+PACKAGE = Path(__file__).resolve().parents[2] / "links_ray"
 
 
 def _write_past_end(buffer: np.ndarray) -> None:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import links_ray
 
-REPOSITORY = Path(__file__).resolve().parent.parent
+REPOSITORY = Path(__file__).resolve().parents[2]
 CACHE = Path(os.environ.get("LINKS_TEST_CACHE") or REPOSITORY / ".cache" / "test-data")
 PACKAGE = Path(links_ray.__file__).resolve().parent
 

@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from serving import FOUR_BAR
+
+from tests.support.serving import FOUR_BAR
 
 CHROMIUM = os.environ.get("LINKS_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
