@@ -16,8 +16,6 @@ Tests of quality run a fixed amount of work (`seed` and `iterations`).
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,7 +24,6 @@ import pytest
 import links_ray
 from links_ray.engine.constraints import violation
 from links_ray.engine.inputs import (
-    MAX_CURVE_FILE_BYTES,
     REFINE_CHECK_STEPS,
     Constraints,
     as_constraints,
@@ -37,8 +34,7 @@ from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.refine import as_target, check_mechanism, refine_validated
 from links_ray.engine.synthesis import refine_retrieved, synthesize
 from links_ray.search.index import RetrievalIndex
-from tests.support.cli import links
-from tests.support.serving import Client, hand_drawn
+from tests.support.serving import hand_drawn
 
 ITERATIONS = 600
 
@@ -318,72 +314,3 @@ def test_a_front_rises_in_joints_as_it_falls_in_chamfer(reference: RetrievalInde
     assert front[-1]["chamfer"] <= best[0]["chamfer"] * 1.5
     simple = synthesize(reference, drawn, k=3, seed=0, iterations=300, max_joints=joints[0])
     assert simple and all(r["n_joints"] <= joints[0] for r in simple)
-
-
-# -- the CLI and HTTP ---------------------------------------------------------------------------
-
-
-def test_links_synthesize_with_constraints_and_timing(dataset: str, tmp_path: Path) -> None:
-    drawn = hand_drawn()[0]
-    points = tmp_path / "curve.json"
-    points.write_text(json.dumps(drawn.tolist()))
-    low, high = drawn.min(axis=0), drawn.max(axis=0)
-    span = float((high - low).max())
-    given = {"pivots": [*(low - 0.1 * span), *(high + 0.1 * span)]}
-    constraints = tmp_path / "constraints.json"
-    constraints.write_text(json.dumps(given))
-    common = ["--points", str(points), "--iterations", "300", "--json"]
-    done = links("synthesize", dataset, *common, "--constraints", str(constraints), "--timing")
-    assert done.returncode == 0, done.stderr
-    results = json.loads(done.stdout)["results"]
-    assert results
-    for result in results:
-        assert max(misses(result, given).values()) == 0.0
-        assert 0 < result["timed_error"]
-    done = links("synthesize", dataset, *common, "--front", "--max-joints", "12")
-    assert done.returncode == 0, done.stderr
-    joints = [r["n_joints"] for r in json.loads(done.stdout)["results"]]
-    assert joints and joints == sorted(set(joints)) and joints[-1] <= 12
-    constraints.write_text(json.dumps({"pivot": [0, 0, 1, 1]}))
-    done = links("synthesize", dataset, "--points", str(points), "--constraints", str(constraints))
-    assert done.returncode == 2
-    assert done.stderr.startswith("links synthesize: error: unknown constraint 'pivot'")
-    assert done.stderr.count("\n") == 1
-    # A file that is no JSON, or too large to be a designer's, is named and refused.
-    for text, said in (
-        ("{pivots", "not JSON"),
-        (" " * MAX_CURVE_FILE_BYTES + "{}", f"larger than {MAX_CURVE_FILE_BYTES:,} bytes"),
-    ):
-        constraints.write_text(text)
-        done = links(
-            "synthesize", dataset, "--points", str(points), "--constraints", str(constraints)
-        )
-        assert done.returncode == 2
-        assert done.stderr.startswith(
-            f"links synthesize: error: --constraints {constraints}: {said}"
-        )
-        assert done.stderr.count("\n") == 1
-
-
-def test_http_synthesize_keeps_constraints_and_says_unmet(
-    client: Client, reference: RetrievalIndex
-) -> None:
-    drawn = hand_drawn()[0]
-    low, high = drawn.min(axis=0), drawn.max(axis=0)
-    span = float((high - low).max())
-    given = {"pivots": [*(low - 0.1 * span), *(high + 0.1 * span)], "max_link_ratio": 6.0}
-    body = {"points": drawn.tolist(), "seed": 1, "iterations": 300, "constraints": given}
-    status, data = client.post("/api/synthesize", {**body, "front": True, "timing": True})
-    assert status == 200, data
-    assert data["results"] and "unmet" not in data
-    expected = synthesize(
-        reference, drawn, seed=1, iterations=300, constraints=given, front=True, timing=True
-    )
-    assert data["results"] == json.loads(json.dumps(list(expected)))
-    for result in data["results"]:
-        assert max(misses(result, given).values()) == 0.0
-        assert result["timed_error"] > 0
-    far = {"pivots": [1e4, 1e4, 1e4 + 1, 1e4 + 1]}
-    status, data = client.post("/api/synthesize", {**body, "constraints": far})
-    assert status == 200, data
-    assert data["results"] == [] and data["unmet"]["constraint"] == "pivots"
