@@ -3,8 +3,8 @@
 * The kernel's trajectories equal `simulate`'s bit for bit, its locks `first_lock`'s; its
   derivatives equal central finite differences; its transmission sines equal the angle at each
   solved joint measured from `simulate`'s trajectories.
-* A closed-form four-bar (Freudenstein, tests/test_solver.py): refining a perturbed copy toward
-  the original's coupler curve brings the chamfer to about 0, in any frame.
+* A closed-form four-bar (Freudenstein, tests/engine/test_solver.py): refining a perturbed copy
+  toward the original's coupler curve brings the chamfer to about 0, in any frame.
 * On random mechanisms refinement never raises the chamfer, and the result turns at 2,000
   steps, keeps every branch and keeps the transmission margin, all measured from `simulate`.
 * A third of a known path, as a partial stroke, finds a run of steps overlapping the true one.

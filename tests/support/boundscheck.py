@@ -1,5 +1,5 @@
-"""A pytest plugin for the bound-checked pass of the kernel tests (tests/test_boundscheck.py
-runs them in a process of its own with `-p tests.boundscheck`).
+"""A pytest plugin for the bound-checked pass of the kernel tests (tests/project/test_boundscheck.py
+runs them in a process of its own with `-p tests.support.boundscheck`).
 
 It refuses to run unless numba checks bounds in this process and caches what it compiles
 outside the package (a bound-checked build in the package's `__pycache__` would be loaded by
@@ -28,18 +28,19 @@ def _write_past_end(buffer: np.ndarray) -> None:
 
 def pytest_configure(config: pytest.Config) -> None:
     if numba_config.BOUNDSCHECK != 1:
-        raise pytest.UsageError("tests.boundscheck: run with NUMBA_BOUNDSCHECK=1")
+        raise pytest.UsageError("tests.support.boundscheck: run with NUMBA_BOUNDSCHECK=1")
     cache = os.environ.get("NUMBA_CACHE_DIR", "")
     if not cache or Path(cache).resolve().is_relative_to(PACKAGE):
         raise pytest.UsageError(
-            f"tests.boundscheck: set NUMBA_CACHE_DIR to a folder outside links_ray, got {cache!r}"
+            "tests.support.boundscheck: set NUMBA_CACHE_DIR to a folder outside links_ray, "
+            f"got {cache!r}"
         )
     # The setting is read once, when numba is imported: prove it took.
     try:
         numba.njit(cache=False)(_write_past_end)(np.zeros(2))
     except IndexError:
         return
-    raise pytest.UsageError("tests.boundscheck: numba wrote past an array's end unchecked")
+    raise pytest.UsageError("tests.support.boundscheck: numba wrote past an array's end unchecked")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -18,8 +18,8 @@ counts as one JSON object and exits 1 if there was a violation.
 
 Run from the repository root (cases are numbered and each is reproducible on its own):
 
-    python -m tests.fuzz_release_pickles --cases 100000
-    python -m tests.fuzz_release_pickles --case 1234      # one case: its mutation and outcome
+    python -m tests.support.fuzz_release_pickles --cases 100000
+    python -m tests.support.fuzz_release_pickles --case 1234  # one case: its mutation and outcome
 """
 
 from __future__ import annotations

@@ -6,7 +6,8 @@ dyad's branch (the side of its parents' line) at the start instead. The two agre
 dyad comes near a dead centre, where its two intersections meet. This one is plain numpy and
 shares no code with the engine: it finds its own solving order from the graph.
 
-Run as a script for the figures of docs/benchmarks.md: `python tests/nearest_point.py [PER_FLOOR]`.
+Run as a script for the figures of docs/benchmarks.md:
+`python tests/support/nearest_point.py [PER_FLOOR]`.
 """
 
 from __future__ import annotations

@@ -1,5 +1,6 @@
-"""The studio in a browser tab, with helpers that act as a user would (tests/test_studio.py and
-the tests of an imported root); the `browser` fixture in conftest.py launches Debian's Chromium."""
+"""The studio in a browser tab, with helpers that act as a user would (tests/serve/test_studio.py
+and the tests of an imported root); the `browser` fixture (support/browser.py) launches Debian's
+Chromium."""
 
 from __future__ import annotations
 
