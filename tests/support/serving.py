@@ -97,12 +97,14 @@ def low_port() -> int:
 def serving(app: Any, port: int) -> Iterator[Client]:
     """Run the Serve application `app`, its HTTP replica answering on `port` (Serve's direct
     ingress, as under `links serve`: the `ray_cluster` fixture set Ray up for it) and Serve's
-    HTTP proxy on a port of its own (the client's `proxy`); shut Serve down after. No other
-    app may be running."""
+    HTTP proxy on a port of its own (the client's `proxy`); shut Serve down after. The
+    `client` fixture's app is shut down first; no other app may be running."""
     from ray import serve
 
     from links_ray.serve.load_clients import wait_for_port
+    from tests.support.serve_app import stop_shared_app
 
+    stop_shared_app()  # the `client` fixture's app, kept between modules, holds `port`
     wait_for_port(port)  # the last app's replica may still be letting go of it
     no_access_log = {"enable_access_log": False}
     proxy_port = low_port()
