@@ -93,6 +93,7 @@ def table_rows(text: str, first: str) -> list[list[str]]:
 RAY_NOISE = ("Token authentication", "Progress bars disabled", "deprecated", "Traceback")
 
 
+@pytest.mark.ray  # a local Ray of the command's own
 def test_generate_and_curate_print_short_summaries(tmp_path: Path) -> None:
     """On a local Ray: a few lines and one row per joint count (topology i has 8 + i % 13
     joints: 30 mechanisms are six topologies of 8 to 13), counts as the tables hold them, the

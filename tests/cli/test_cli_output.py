@@ -167,6 +167,7 @@ def ran(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]:
     shutil.rmtree(ray_dir, ignore_errors=True)  # every command's Ray has stopped
 
 
+@pytest.mark.ray  # `ran` runs the commands on a Ray of their own
 @pytest.mark.parametrize(
     ("command", "says"),
     [
@@ -181,6 +182,7 @@ def test_a_command_prints_no_line_of_rays(ran: dict[str, str], command: str, say
     assert unexpected_ray_lines(ran[command]) == []
 
 
+@pytest.mark.ray
 def test_serve_starts_up_printing_no_line_of_rays(ran: dict[str, str]) -> None:
     """`links serve` until its replica answers health, then SIGTERM: it stops cleanly."""
     port = bindable_port("127.0.0.1", 0)

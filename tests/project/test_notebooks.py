@@ -44,6 +44,7 @@ def outputs_text(notebook) -> str:
     )
 
 
+@pytest.mark.ray  # each notebook starts a Ray of its own
 @pytest.mark.parametrize("name", ["01_quickstart", "02_paper_figures", "04_training_data"])
 def test_notebook_runs(name: str, tmp_path: Path) -> None:
     notebook, seconds = run_notebook(name, tmp_path, notebook_env())
@@ -54,6 +55,8 @@ def test_notebook_runs(name: str, tmp_path: Path) -> None:
     assert "Traceback" not in outputs_text(notebook)
 
 
+@pytest.mark.ray
+@pytest.mark.s3  # the notebook starts a SeaweedFS of its own
 def test_s3_notebook_starts_and_stops_its_own_store(tmp_path: Path) -> None:
     notebook, seconds = run_notebook("03_cluster_and_s3", tmp_path, notebook_env())
     print(f"03_cluster_and_s3: {seconds:.1f} s")
@@ -67,6 +70,7 @@ def test_s3_notebook_starts_and_stops_its_own_store(tmp_path: Path) -> None:
     assert not list(tmp_path.iterdir()), "the S3 notebook wrote into its working directory"
 
 
+@pytest.mark.ray
 def test_s3_notebook_uses_a_store_from_the_environment(s3_server, tmp_path: Path) -> None:
     """With AWS_ENDPOINT_URL set, notebook 03 uses that store instead of starting its own."""
     import boto3
