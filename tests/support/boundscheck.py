@@ -17,8 +17,10 @@ import numpy as np
 import pytest
 from numba.core import config as numba_config
 
-#: Fixtures whose tests the pass leaves out: they start SeaweedFS (and Ray on top of it).
-NEEDS_SERVICES = ("s3_server",)
+#: Fixtures whose tests the pass leaves out: they start SeaweedFS (and Ray on top of it), or
+#: read a generated dataset (tests/engine makes its own without Ray: generating it again with
+#: every index checked would cost minutes, and the tests that read it run in the suite anyway).
+NEEDS_SERVICES = ("s3_server", "dataset")
 PACKAGE = Path(__file__).resolve().parents[2] / "links_ray"
 
 
