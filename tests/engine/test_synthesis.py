@@ -119,7 +119,9 @@ def test_a_partial_stroke_gets_its_crank_interval(reference: RetrievalIndex, cur
     """A third of a stored path, turned and moved: some run of steps traces it."""
     path = curated.points.iloc[7].astype(np.float64)
     stroke = path[40:107] @ np.array([[0.6, -0.8], [0.8, 0.6]]) * 3.0 + [5.0, -2.0]
-    results = synthesize(reference, stroke, k=2, partial=True, seed=0, iterations=ITERATIONS)
+    # What is checked is how the interval is chosen and reported, not how far refinement got:
+    # a fifth of ITERATIONS takes the same path through partial matching.
+    results = synthesize(reference, stroke, k=2, partial=True, seed=0, iterations=300)
     assert len(results) == 2
     for result in results:
         interval = result["interval"]
