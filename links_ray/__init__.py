@@ -1,7 +1,7 @@
 """links-ray: the LINKS dataset of planar linkage mechanisms, generated and served on Ray.
 
 `import links_ray` loads the engine (numpy/numba) and `load` (pyarrow), and nothing of Ray:
-the package is built in layers (docs/design/architecture.md), held by tests/test_layers.py.
+the package is built in layers (docs/design/architecture.md), held by tests/project/test_layers.py.
 `ray_dataset` is the one name that needs Ray: it is loaded when first asked for.
 """
 

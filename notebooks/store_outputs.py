@@ -8,7 +8,7 @@ notebooks by default). Each runs in a fresh kernel, its outputs cleared first, i
 working directory that is removed after, at the sizes its first cell reads from the
 environment (small by default), on its own Ray and store: Ray addresses and S3 settings are
 left out of its environment. Every code cell is stamped with the SHA-256 of its source
-(`metadata.links.source_sha256`): `tests/test_notebooks.py` checks the stored outputs come
+(`metadata.links.source_sha256`): `tests/project/test_notebooks.py` checks the stored outputs come
 from the cells as they are.
 """
 

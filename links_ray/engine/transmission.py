@@ -10,8 +10,8 @@ those of every joint it depends on), the angle of the reduced mechanism that tra
 Rigid dyads (a triangle of links, whose angle never changes) count too: a nearly flat one is a
 sliver of a plate, its joint ill-determined by its link lengths, and a nearest-point simulator
 flips it to its mirror image when the plate turns faster a step than its two assemblies are
-apart: tests/nearest_point.py is such a simulator, and on mechanisms whose moving dyads keep 10
-degrees, where it parted from this one a nearly flat rigid triangle was the cause
+apart: tests/support/nearest_point.py is such a simulator, and on mechanisms whose moving
+dyads keep 10 degrees, where it parted from this one a nearly flat rigid triangle was the cause
 (docs/benchmarks.md, Simulators that track the nearest point).
 
 Pure numpy/numba: no Ray.

@@ -1,0 +1,239 @@
+"""The package's layers hold: a module imports only its own layer or lower ones.
+
+engine (numpy/numba) < data (pyarrow), interop (other libraries, drawing files) < search,
+cluster, release (the LINKS release's own files) < serve < cli, where data and interop are
+peers, and so are search, cluster and release (none of them imports another). Of the layers
+above it, only cli imports release. `links_ray/__init__.py` may import engine and data only,
+but for `links_ray.ray_dataset`, which it loads from the cluster layer when first asked for (so
+that `import links_ray` still loads no Ray: `test_import_links_ray_loads_no_ray`). The engine
+and interop import no Ray, pyarrow or pandas; data, search and release import no Ray. Read
+from the source with `ast`, imports inside functions included: a lazy import is still a
+dependency.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.support.package_imports import PACKAGE, REPO, imported, module_names
+
+#: Rank of each layer: a module may import its own layer and layers of lower rank.
+LAYERS = {
+    "engine": 0,
+    "data": 1,
+    "interop": 1,
+    "search": 2,
+    "cluster": 2,
+    "release": 2,
+    "serve": 3,
+    "cli": 4,
+}
+#: Layers only some of the layers above them may import: the release's files are the
+#: command line's business (`links import-release`, `links export-dataset --format release`).
+IMPORTED_ONLY_BY = {"release": ("cli",)}
+#: What the package's own `__init__.py` (`import links_ray`) may load.
+ROOT_MAY_IMPORT = ("engine", "data")
+#: Modules the package's own `__init__.py` may load lazily, on first use of a name.
+ROOT_LAZY = ("links_ray.cluster.datasets",)
+#: Third-party packages a layer must not import, even lazily.
+FORBIDDEN = {
+    "root": ("ray",),
+    "engine": ("ray", "pyarrow", "pandas"),
+    "data": ("ray",),
+    "interop": ("ray", "pyarrow", "pandas"),
+    "search": ("ray",),
+    "release": ("ray",),
+}
+#: Modules that must not import these, even lazily, though their layer may: the serve rooms
+#: that describe, read and answer requests need no Ray (only the deployments and the launch do).
+FORBIDDEN_IN = {
+    "links_ray.serve.models": ("ray",),
+    "links_ray.serve.parsing": ("ray",),
+    "links_ray.serve.responses": ("ray",),
+    "links_ray.serve.guards": ("ray",),
+    "links_ray.serve.admission": ("ray",),
+    "links_ray.serve.handlers": ("ray",),
+    "links_ray.serve.openapi": ("ray",),
+    "links_ray.serve.api": ("ray",),
+}
+
+
+def layer_of(module: str) -> str | None:
+    """The layer a dotted name of ours lives in: "root" for the package itself, and the
+    command line's for `links_ray.__main__` (`python -m links_ray` is the `links` command)."""
+    parts = module.split(".")
+    if parts[0] != PACKAGE:
+        return None
+    if parts[1:] == ["__main__"]:
+        return "cli"
+    return "root" if len(parts) == 1 else parts[1]
+
+
+def may_import(own: str, target: str) -> bool:
+    """Whether layer `own` may import from layer `target`."""
+    if own == "root":
+        return target in ROOT_MAY_IMPORT
+    if target == "root":  # `import links_ray` loads engine and data
+        return all(may_import(own, layer) for layer in ROOT_MAY_IMPORT)
+    if own not in LAYERS or target not in LAYERS:
+        return False
+    if target != own and own not in IMPORTED_ONLY_BY.get(target, (own,)):
+        return False
+    return target == own or LAYERS[target] < LAYERS[own]
+
+
+def violations(package_dir: Path) -> list[str]:
+    """Every import that breaks the layer rule, as `file:line: what`."""
+    modules = module_names(package_dir)
+    problems = []
+    for module, path in modules.items():
+        where = path.relative_to(package_dir.parent)
+        own = layer_of(module)
+        if own != "root" and own not in LAYERS:
+            problems.append(f"{where}: in no layer")
+            continue
+        for line, name in imported(path, module, set(modules)):
+            top = name.split(".")[0]
+            if top in FORBIDDEN.get(own, ()) + FORBIDDEN_IN.get(module, ()):
+                problems.append(f"{where}:{line}: {own} imports {name}")
+            target = layer_of(name)
+            if own == "root" and name in ROOT_LAZY:
+                continue
+            if target is not None and not may_import(own, target):
+                problems.append(f"{where}:{line}: {own} imports {name} ({target})")
+    return problems
+
+
+def test_every_import_goes_to_its_own_layer_or_lower() -> None:
+    assert set(FORBIDDEN_IN) <= set(module_names(REPO / PACKAGE))
+    assert violations(REPO / PACKAGE) == []
+
+
+def test_import_links_ray_loads_no_ray() -> None:
+    probe = (
+        "import sys, links_ray\n"
+        "print(sorted(m for m in sys.modules if m == 'ray' or m.startswith('ray.'))[:5])"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}  # this checkout, whatever is installed
+    done = subprocess.run(
+        [sys.executable, "-c", probe], cwd=REPO, env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
+
+
+@pytest.fixture
+def broken_package(tmp_path: Path) -> Path:
+    """A small package shaped like ours, one module per kind of violation."""
+    sources = {
+        "__init__.py": "from .engine import solver\nfrom .search import index\nimport ray\n",
+        "engine/__init__.py": "",
+        "engine/solver.py": "def f():\n    import ray.util\n    from links_ray import data\n",
+        "data/__init__.py": "",
+        "data/store.py": "import pyarrow\nfrom ..search.index import g\n",
+        "search/__init__.py": "",
+        "search/index.py": (
+            "import importlib\n\n\ndef g():\n    importlib.import_module('links_ray.cluster.run')\n"
+        ),
+        "cluster/__init__.py": "",
+        "cluster/run.py": "from links_ray.search import index\nimport ray\n",
+        "serve/__init__.py": "",
+        "serve/app.py": "import links_ray\nfrom links_ray.cli import main\n",
+        "serve/parsing.py": "def f():\n    from ray import serve\n",
+        "serve/export.py": "from links_ray.release import exporter\n",
+        "release/__init__.py": "",
+        "release/exporter.py": "from links_ray.search import index\nimport ray\n",
+        "cli/__init__.py": "",
+        "cli/main.py": (
+            "import links_ray\nfrom links_ray.serve import app\nfrom . import main\n"
+            "from links_ray.release import exporter\n"
+        ),
+        "stray.py": "import numpy\n",
+    }
+    for name, text in sources.items():
+        path = tmp_path / PACKAGE / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    return tmp_path / PACKAGE
+
+
+def test_the_rule_catches_what_breaks_it(broken_package: Path) -> None:
+    assert violations(broken_package) == [
+        "links_ray/__init__.py:2: root imports links_ray.search.index (search)",
+        "links_ray/__init__.py:3: root imports ray",
+        "links_ray/cluster/run.py:1: cluster imports links_ray.search.index (search)",
+        "links_ray/data/store.py:2: data imports links_ray.search.index (search)",
+        "links_ray/engine/solver.py:2: engine imports ray.util",
+        "links_ray/engine/solver.py:3: engine imports links_ray.data (data)",
+        "links_ray/release/exporter.py:1: release imports links_ray.search.index (search)",
+        "links_ray/release/exporter.py:2: release imports ray",
+        "links_ray/search/index.py:5: search imports links_ray.cluster.run (cluster)",
+        "links_ray/serve/app.py:2: serve imports links_ray.cli.main (cli)",
+        "links_ray/serve/export.py:1: serve imports links_ray.release.exporter (release)",
+        "links_ray/serve/parsing.py:2: serve imports ray",
+        "links_ray/stray.py: in no layer",
+    ]
+
+
+#: A package's face (the module its callers import) and the package of the rooms behind it:
+#: a room never imports its face, not even for type hints (`if TYPE_CHECKING:`), so that
+#: imports run one way, face to rooms (the face passes the rooms plain arrays).
+FACES = {"links_ray.search.index": "links_ray.search"}
+
+
+def face_violations(package_dir: Path) -> list[str]:
+    """Every import of a face by one of its rooms, type hints' included."""
+    modules = module_names(package_dir)
+    known = set(modules)
+    found = []
+    for face, package in FACES.items():
+        for module, path in modules.items():
+            if module == face or not module.startswith(f"{package}."):
+                continue
+            for line, name in imported(path, module, known):
+                if name == face:
+                    where = path.relative_to(package_dir.parent).as_posix()
+                    found.append(f"{where}:{line}: {module} imports its face {face}")
+    return sorted(found)
+
+
+def test_rooms_never_import_their_face() -> None:
+    assert face_violations(REPO / PACKAGE) == []
+
+
+def test_the_face_rule_catches_a_room_importing_its_face(tmp_path: Path) -> None:
+    sources = {
+        "__init__.py": "",
+        "search/__init__.py": "",
+        "search/index.py": "from links_ray.search import query\n",
+        "search/query.py": (
+            "from typing import TYPE_CHECKING\n\nif TYPE_CHECKING:\n"
+            "    from links_ray.search.index import RetrievalIndex\n"
+        ),
+        "search/build.py": "def f():\n    from links_ray.search import index\n",
+    }
+    for name, text in sources.items():
+        path = tmp_path / PACKAGE / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    assert face_violations(tmp_path / PACKAGE) == [
+        "links_ray/search/build.py:2: links_ray.search.build imports its face "
+        "links_ray.search.index",
+        "links_ray/search/query.py:4: links_ray.search.query imports its face "
+        "links_ray.search.index",
+    ]
+
+
+def test_serve_routes_never_import_the_assembly() -> None:
+    """The routes never import the assembly (the app, the deployments, the launch): the
+    assembly takes the routes in. No circle anywhere is tests/project/test_structure.py's."""
+    modules = module_names(REPO / PACKAGE)
+    assembly = {"links_ray.serve.api", "links_ray.serve.deployments", "links_ray.serve.app"}
+    for route_module in ("links_ray.serve.handlers", "links_ray.serve.openapi"):
+        path = modules[route_module]
+        assert not {name for _, name in imported(path, route_module, set(modules))} & assembly
