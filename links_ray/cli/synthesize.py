@@ -45,7 +45,7 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         "--iterations",
         type=positive_int,
         default=None,
-        help=f"fixed work instead of a time budget: about this many refinement iterations "
+        help=f"counted work instead of a time budget: about this many refinement iterations "
         f"(at most {MAX_SYNTHESIS_ITERATIONS:,}); equal inputs give equal answers",
     )
     synthesize.add_argument(

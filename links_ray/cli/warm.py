@@ -83,7 +83,7 @@ def warm(folder: str | None = None) -> dict[str, float]:
     index.warm(seconds=0, queries=1)
     angle = np.linspace(0, 2 * np.pi, 60)
     curve = np.column_stack([np.cos(angle), 0.6 * np.sin(angle) + 0.2 * np.sin(2 * angle)])
-    # A fixed amount of work, not a time budget: on a busy machine a budget can be spent
+    # A counted amount of work, not a time budget: on a busy machine a budget can be spent
     # compiling before the refinement is reached, and its kernels left cold.
     synthesize(index, curve, k=2, iterations=WARM_ITERATIONS)
     synthesize(index, curve[:30], k=2, partial=True, iterations=WARM_ITERATIONS)

@@ -39,9 +39,9 @@ __all__ = [
 #: Seconds a synthesis takes by default (retrieval included), and the most it may be given:
 #: a synthesis holds a core for its whole budget, so a request may not hold one for long.
 DEFAULT_SYNTHESIS_SECONDS, MAX_SYNTHESIS_SECONDS = 3.0, 30.0
-#: Most refinement iterations a synthesis of fixed work may be given (`iterations`, summed over
+#: Most refinement iterations a synthesis of counted work may be given (`iterations`, summed over
 #: its candidates): about what MAX_SYNTHESIS_SECONDS allow on two cores (docs/benchmarks.md,
-#: Synthesis), so that fixed work holds a replica about as long as a timed one.
+#: Synthesis), so that counted work holds a replica about as long as a timed one.
 MAX_SYNTHESIS_ITERATIONS = 10_000
 #: Seeds are what numpy's generators take whole: non-negative, here within 64 bits.
 MAX_SEED = 2**64 - 1

@@ -57,7 +57,7 @@ def busy(message: str, retry_after: float = RETRY_AFTER_S) -> ApiError:
 
 class Place:
     """A synthesis's place in the line for a replica's refinement thread: its refinement
-    budget (None for fixed work, whose length is unknown), when its refinement began, and the
+    budget (None for counted work, whose length is unknown), when its refinement began, and the
     future set when the thread is its own."""
 
     def __init__(self, budget: float | None) -> None:
@@ -106,7 +106,7 @@ class Admission:
             self.leave(place)
 
     def expected_wait(self) -> float | None:
-        """Seconds until the syntheses in line end their budgets; None if one does fixed work
+        """Seconds until the syntheses in line end their budgets; None if one does counted work
         (its length is not known beforehand)."""
         now = time.perf_counter()
         wait = 0.0

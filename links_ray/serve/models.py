@@ -131,7 +131,7 @@ class SynthesizeRequest(CurveRequest):
         None,
         ge=1,
         le=MAX_SYNTHESIS_ITERATIONS,
-        description="fixed work instead of a time budget: equal requests, bit-equal answers",
+        description="counted work instead of a time budget: equal requests, bit-equal answers",
     )
     seed: int = Field(0, ge=0, le=MAX_SEED, description="seed of the random restarts")
     partial: bool = Field(False, description="the drawing is part of a curve: match a run")

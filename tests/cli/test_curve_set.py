@@ -270,7 +270,7 @@ def test_a_bench_row_of_fixed_work_is_reproduced_bit_for_bit(
     alone = rows(names[1:], 1.0)
     assert together[names[1]] == alone[names[1]]
     assert together[names[0]]["partial"] and not together[names[1]]["partial"]
-    # Fixed work is not idle: the rows moved from their retrieval.
+    # Counted work is not idle: the rows moved from their retrieval.
     assert all(row["refined"] < row["retrieved"] for row in together.values())
     with pytest.raises(ValueError, match="no curve named nope"):
         bench_synthesize(root=dataset, use_set=True, only=("nope",), iterations=1)

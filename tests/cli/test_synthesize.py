@@ -1,4 +1,4 @@
-"""`links synthesize` over the Serve tests' dataset: its table, its JSON, fixed work that
+"""`links synthesize` over the Serve tests' dataset: its table, its JSON, counted work that
 repeats, bad options refused in one line; and `links bench synthesize --figure`'s picture.
 The engine's own tests of synthesis are tests/engine/test_synthesis.py."""
 

@@ -11,7 +11,7 @@ Against independent truth:
   phase, with equal steps or explicit angles of a stroke;
 * a front's joint counts rise as its chamfers fall, and `max_joints` bounds every result.
 
-Tests of quality run a fixed amount of work (`seed` and `iterations`).
+Tests of quality run a counted amount of work (`seed` and `iterations`).
 """
 
 from __future__ import annotations

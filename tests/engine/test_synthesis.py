@@ -1,6 +1,6 @@
 """Synthesis (engine.synthesis) over the Serve tests' small dataset, against independent truth.
 
-Tests of quality run a fixed amount of work (`seed` and `iterations`), so that none depends on
+Tests of quality run a counted amount of work (`seed` and `iterations`), so that none depends on
 how busy the machine is; only the deadline tests measure time.
 
 * A retrieved mechanism, unrefined, measures the retrieval's own chamfer.
@@ -8,7 +8,7 @@ how busy the machine is; only the deadline tests measure time.
   chamfer to the drawing is the one reported, no worse than where it started, and is valid:
   it turns at 2,000 steps, keeps its branches and its transmission margin.
 * A partial stroke gets the interval of crank steps that traces it.
-* Fixed work gives bit-equal answers, whatever the threads (1 or 2); timed work ends within
+* Counted work gives bit-equal answers, whatever the threads (1 or 2); timed work ends within
   its budget; with no time left the answer is retrieval's first k, unrefined.
 * The threads are the CPUs the process was given.
 * Bad input is a ValueError that names it (the CLI's and the HTTP API's answers to it:
@@ -43,7 +43,7 @@ from links_ray.search.index import RetrievalIndex
 from tests.engine.test_refine import assert_valid
 from tests.support.serving import hand_drawn
 
-#: The fixed work of the tests of quality: a short pass over every candidate and some long
+#: The counted work of the tests of quality: a short pass over every candidate and some long
 #: rounds (a few seconds here).
 ITERATIONS = 1500
 
@@ -192,7 +192,7 @@ def test_a_synthesis_ends_within_its_budget(dataset_index: RetrievalIndex, queri
 def synthesis_threads(
     dataset_index: RetrievalIndex, query: np.ndarray, given: float | None
 ) -> tuple[list[dict], int]:
-    """A synthesis of fixed work with the process given `given` CPUs, and the most threads
+    """A synthesis of counted work with the process given `given` CPUs, and the most threads
     it ran refinements in (counted from its progress reports, which run between rounds)."""
     seen: list[int] = []
 

@@ -763,7 +763,7 @@ def test_draw_and_synthesize(studio: Studio, client: Client, shots: Path) -> Non
             };
         }"""
     )
-    # A fixed amount of work (a seed and an iteration count) instead of the studio's seconds,
+    # A counted amount of work (a seed and an iteration count) instead of the studio's seconds,
     # so that what the refinement reaches does not depend on how busy the machine is.
     studio.page.route(
         "**/api/synthesize",
@@ -1043,7 +1043,7 @@ def test_constraint_boxes_are_drawn_in_the_drawings_frame(studio: Studio) -> Non
 
 
 def fixed_synthesis_work(studio: Studio) -> list[dict[str, Any]]:
-    """Give the page's syntheses a fixed amount of work (a seed and an iteration count) instead
+    """Give the page's syntheses a counted amount of work (a seed and an iteration count) instead
     of its seconds, so that what they reach does not depend on the machine's load; returns the
     bodies sent, as the server receives them."""
     sent: list[dict[str, Any]] = []

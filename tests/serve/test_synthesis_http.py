@@ -26,7 +26,7 @@ from tests.support.serving import Client, hand_drawn
 
 
 def test_http_synthesize(client: Client, dataset_index: RetrievalIndex) -> None:
-    """Fixed work over HTTP is the Python API's answer, bit for bit (the replica runs one
+    """Counted work over HTTP is the Python API's answer, bit for bit (the replica runs one
     thread, this process two); the answer says how long it waited."""
     curve = hand_drawn()[0].tolist()
     body = {"points": curve, "k": 2, "seed": 3, "iterations": ITERATIONS}

@@ -152,7 +152,7 @@ def _synthesize_arguments(command: argparse.ArgumentParser) -> None:
         "--iterations",
         type=positive_int,
         default=None,
-        help="fixed work per curve instead of --seconds (the seed seeds the restarts too)",
+        help="counted work per curve instead of --seconds (the seed seeds the restarts too)",
     )
     command.add_argument(
         "--figure",

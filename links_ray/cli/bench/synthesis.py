@@ -116,7 +116,7 @@ def bench_row(
 ) -> tuple[dict, dict | None]:
     """One curve's row of the bench, synthesized from `points` (already in their frame) over
     `index`, and with `draw` what the figure draws of it (else None). With `iterations` the
-    row is fixed work, the same bit for bit whatever the time, the load, the threads and the
+    row is counted work, the same bit for bit whatever the time, the load, the threads and the
     rows run before it; its `seconds` alone vary. `seconds`: the budget (default the synthesis
     default)."""
     from links_ray.engine.synthesis import synthesize
@@ -182,7 +182,7 @@ def bench_synthesize(
     """Synthesize every target curve, placed in a random frame (`seed`), over the cached data
     set of `paths` curated paths; per curve and overall (means, median seconds, the worst
     overrun past the budget). `seconds`: the budget per curve (default BENCH_SECONDS for the
-    targets, the synthesis default for the set). `iterations`: fixed work per curve instead of
+    targets, the synthesis default for the set). `iterations`: counted work per curve instead of
     `seconds`, its restarts seeded with `seed` (no overrun then: there is no budget). `figure`:
     a PNG path for a picture of every curve, its best retrieved path and its refined mechanism
     (needs the `plots` extra). `use_set`: the curve set instead of the targets (its fonts need
