@@ -41,7 +41,8 @@ def test_the_module_table_names_every_module_once() -> None:
 
 
 def test_the_table_check_sees_a_missing_and_a_stale_row() -> None:
-    page = "## Modules\n\n| module | layer | what |\n|---|---|---|\n| `engine/solver` | engine | x |\n"
+    page = "## Modules\n\n| module | layer | what |\n|---|---|---|\n"
+    page += "| `engine/solver` | engine | x |\n"
     assert tabled_modules(page) == ["engine/solver"]
     assert "engine/paths" in package_modules() - set(tabled_modules(page))
     stale = page + "| `engine/gone`, `engine/solver` | engine | y |\n"
