@@ -54,7 +54,7 @@ MAX_REFINE_STEPS = 1000
 REFINE_CHECK_STEPS = 2000
 DEFAULT_REFINE_ITERATIONS, MAX_REFINE_ITERATIONS = 200, 10_000
 #: Least transmission angle, in degrees, every dyad keeps at every check step.
-DEFAULT_MARGIN_DEG = 3.0
+DEFAULT_MIN_TRANSMISSION_DEG = 3.0
 #: The most any least transmission angle may be asked to be (refinement's margin, generation's
 #: and retrieval's thresholds): near 90 degrees no mechanism of several dyads is left.
 MAX_TRANSMISSION_DEG = 45.0
@@ -298,7 +298,7 @@ def as_max_joints(value: object, name: str = "max_joints") -> int | None:
 # -- refinement -------------------------------------------------------------------------------
 
 
-def as_transmission_deg(value: object, name: str = "margin_deg") -> float:
+def as_transmission_deg(value: object, name: str = "min_transmission_deg") -> float:
     """A least transmission angle in degrees, from 0 to MAX_TRANSMISSION_DEG, or ValueError
     naming the option `name`."""
     degrees = as_real(name, value, "a number of degrees")

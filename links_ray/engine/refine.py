@@ -59,7 +59,7 @@ from numpy.typing import ArrayLike
 
 from links_ray.engine.constraints import KEPT, Constraints, Violation, guard_rows, violation
 from links_ray.engine.inputs import (
-    DEFAULT_MARGIN_DEG,
+    DEFAULT_MIN_TRANSMISSION_DEG,
     DEFAULT_REFINE_ITERATIONS,
     DEFAULT_STEPS,
     MAX_REFINE_ITERATIONS,
@@ -162,7 +162,7 @@ def refine_validated(
     target: Target,
     steps: int,
     iterations: int,
-    margin_deg: float,
+    min_transmission_deg: float,
     deadline: float | None = None,
     origin: np.ndarray | None = None,
     damping: float = DAMPING_START,
@@ -171,7 +171,7 @@ def refine_validated(
 ) -> Refinement:
     """Refine a validated mechanism (`topology`, start positions (n, 2) float64, a moving
     `joint`) toward `target` at `steps` steps, for at most `iterations` iterations, keeping a
-    transmission margin of `margin_deg` degrees; `refine`'s checks of its input are the
+    transmission margin of `min_transmission_deg` degrees; `refine`'s checks of its input are the
     caller's. Raises LockingError if it locks as given.
 
     Stops once `time.perf_counter()` passes `deadline`: checked before each iteration, each
@@ -223,8 +223,8 @@ def refine_validated(
             damping=damping,
             violation=missed,
         )
-    margin = math.sin(math.radians(margin_deg))
-    clearance = math.sin(math.radians(margin_deg + CLEARANCE_DEG)) - margin
+    margin = math.sin(math.radians(min_transmission_deg))
+    clearance = math.sin(math.radians(min_transmission_deg + CLEARANCE_DEG)) - margin
     # Dyads keep the margin once they have it. One below it at the start may not fall under
     # BELOW_MARGIN of its starting sine: "not at all" would freeze it, as every step moves its
     # least angle a little. Rigid dyads (decided once, from the input) have no margin: their
@@ -357,14 +357,14 @@ def refine(
     *,
     partial: bool = False,
     iterations: int = DEFAULT_REFINE_ITERATIONS,
-    margin_deg: float = DEFAULT_MARGIN_DEG,
+    min_transmission_deg: float = DEFAULT_MIN_TRANSMISSION_DEG,
     steps: int = DEFAULT_STEPS,
 ) -> Refinement:
     """Move the joints of a mechanism so that `joint`'s path at `steps` crank steps traces
     `target_points` (in the mechanism's frame); the module docstring says how.
 
     `partial`: the points are an open stroke matched to part of a turn. `iterations`: most
-    Levenberg-Marquardt iterations. `margin_deg`: least transmission angle kept. Raises
+    Levenberg-Marquardt iterations. `min_transmission_deg`: least transmission angle kept. Raises
     `InvalidMechanismError` or `ValueError` for bad input and `LockingError` if the mechanism
     locks as given (at `steps` or REFINE_CHECK_STEPS steps).
     """
@@ -372,8 +372,8 @@ def refine(
     topology, pos, joint = _prepare(adjacency, node_types, positions, joint, steps)
     target = as_target(target_points, partial)
     iterations = as_int("iterations", iterations, 0, MAX_REFINE_ITERATIONS)
-    margin_deg = as_transmission_deg(margin_deg)
-    return refine_validated(topology, pos, joint, target, steps, iterations, margin_deg)
+    min_transmission_deg = as_transmission_deg(min_transmission_deg)
+    return refine_validated(topology, pos, joint, target, steps, iterations, min_transmission_deg)
 
 
 def refine_many(
@@ -382,7 +382,7 @@ def refine_many(
     *,
     partial: bool = False,
     iterations: int = DEFAULT_REFINE_ITERATIONS,
-    margin_deg: float = DEFAULT_MARGIN_DEG,
+    min_transmission_deg: float = DEFAULT_MIN_TRANSMISSION_DEG,
     steps: int = DEFAULT_STEPS,
 ) -> list[Refinement]:
     """`refine` for many candidates (adjacency, node_types, positions, joint) of one drawing.
@@ -394,7 +394,7 @@ def refine_many(
     steps = as_int("steps", steps, MIN_POINTS, None, InvalidMechanismError)
     target = as_target(target_points, partial)
     iterations = as_int("iterations", iterations, 0, MAX_REFINE_ITERATIONS)
-    margin_deg = as_transmission_deg(margin_deg)
+    min_transmission_deg = as_transmission_deg(min_transmission_deg)
     prepared = []
     for index, candidate in enumerate(candidates):
         try:
@@ -411,7 +411,9 @@ def refine_many(
     for topology, pos, joint in prepared:
         try:
             results.append(
-                refine_validated(topology, pos, joint, target, steps, iterations, margin_deg)
+                refine_validated(
+                    topology, pos, joint, target, steps, iterations, min_transmission_deg
+                )
             )
         except LockingError as exc:
             results.append(

@@ -50,7 +50,7 @@ def refine_retrieved(
 ) -> SynthesisResults:
     """The `options.k` best synthesis results (best first) refined from retrieval results of
     `points` (`RetrievalIndex.retrieve`'s, in the drawing's frame), keeping a transmission
-    floor of at least DEFAULT_MARGIN_DEG and `options.min_transmission_deg`.
+    floor of at least DEFAULT_MIN_TRANSMISSION_DEG and `options.min_transmission_deg`.
 
     The work is bounded by time, or counted. Timed: within `options.seconds` counted from
     `started` (a `time.perf_counter()` value; now if None); every piece of work checks the
@@ -108,7 +108,7 @@ def synthesize(
     DEFAULT_SYNTHESIS_SECONDS, at most MAX_SYNTHESIS_SECONDS), retrieval included.
     `partial`: the points are an open stroke, matched to part of a turn. `min_transmission`
     (degrees): only paths keeping it are retrieved, and refinement keeps it as its floor (at
-    least DEFAULT_MARGIN_DEG). `progress`: called with the best so far as it improves
+    least DEFAULT_MIN_TRANSMISSION_DEG). `progress`: called with the best so far as it improves
     (`refine_retrieved` says how). `iterations` (instead of `seconds`): a counted amount of
     work, about that many refinement iterations, whose answer is the same bit for bit for
     equal inputs whatever the time and the cores; `seed` (default 0) seeds the restarts.

@@ -35,7 +35,7 @@ import numpy as np
 
 from links_ray.engine.budget import Budget
 from links_ray.engine.candidates import WORST_RANK, Candidate, candidate
-from links_ray.engine.inputs import DEFAULT_MARGIN_DEG
+from links_ray.engine.inputs import DEFAULT_MIN_TRANSMISSION_DEG
 from links_ray.engine.pareto import pareto_front
 from links_ray.engine.refine_step import IRLS_WEIGHT_FLOOR
 from links_ray.engine.synthesis_options import SynthesisOptions
@@ -95,8 +95,8 @@ class SynthesisPasses:
         self.budget = budget
         self.pool = pool
         self.workers = workers
-        # Refinement keeps at least DEFAULT_MARGIN_DEG whatever the floor asked for.
-        self.min_transmission_deg = max(DEFAULT_MARGIN_DEG, options.min_transmission_deg)
+        # Refinement keeps at least DEFAULT_MIN_TRANSMISSION_DEG, whatever the request asked for.
+        self.min_transmission_deg = max(DEFAULT_MIN_TRANSMISSION_DEG, options.min_transmission_deg)
         self.candidates: list[Candidate] = []
         self.finalists: list[Candidate] = []
         self.progress = progress
@@ -133,17 +133,18 @@ class SynthesisPasses:
         self.candidates = [c for c in found if c is not None]
 
     def _refine(
-        self, c: Candidate, start: np.ndarray, iterations: int, end: float, floor: float
+        self, c: Candidate, start: np.ndarray, iterations: int, end: float, weight_floor: float
     ) -> bool:
         """Refine `c` from `start` toward the pass's measure, charge the budget, keep it if
-        better; True if kept. `end`: when the pass must end; `floor`: the IRLS weight floor."""
+        better; True if kept. `end`: when the pass must end; `weight_floor`: the IRLS weight
+        floor."""
         refined = c.refined(
             self.measure,
             start,
             iterations,
             self.budget.refine_deadline(end),
             self.min_transmission_deg,
-            floor,
+            weight_floor,
             self.options.constraints,
         )
         return c.keep(self.budget.charge(refined), iterations)

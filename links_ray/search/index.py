@@ -311,10 +311,10 @@ class RetrievalIndex:
         reduced mechanism has at most `max_joints` joints (None: any) (fewer than k if fewer
         do). Raises ValueError naming a bad query, k, min_transmission or max_joints."""
         query, k = validate_query(points, k)
-        floor = as_transmission_deg(min_transmission, "min_transmission")
+        min_transmission_deg = as_transmission_deg(min_transmission, "min_transmission")
         most = as_max_joints(max_joints)
         normalized, query_matrix, query_offset = normalization(query)
-        ranked = self.ranked(normalized, k, min_transmission=floor, max_joints=most)
+        ranked = self.ranked(normalized, k, min_transmission=min_transmission_deg, max_joints=most)
         rows = np.array([row for row, _, _ in ranked], dtype=np.int64)
         paths = self.paths(rows)
         results = []

@@ -3,7 +3,7 @@ same plan and seeds as the session's `dataset` (tests/support/datasets.py), so t
 generated and curated in this process. tests/run runs this folder with Ray blocked
 (`-p tests.support.no_ray`).
 
-`curated` and `reference` are defined again here, over this `dataset`, so that a run of the
+`curated` and `dataset_index` are defined again here, over this `dataset`, so that a run of the
 whole tree in one process never hands the engine's tests the value cached for the other one.
 """
 
@@ -33,7 +33,7 @@ def curated(dataset: str) -> Any:
 
 
 @pytest.fixture(scope="session")
-def reference(dataset: str) -> Any:
+def dataset_index(dataset: str) -> Any:
     """One index over every curated path of `dataset`, built without Ray."""
     from links_ray.search.index import RetrievalIndex
 

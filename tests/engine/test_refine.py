@@ -240,7 +240,7 @@ def assert_valid(
     node_types: np.ndarray,
     start: np.ndarray,
     refined: np.ndarray,
-    margin_deg: float,
+    min_transmission_deg: float,
 ) -> None:
     """The refined mechanism turns at 2,000 steps, keeps the branches of `start`, and keeps the
     margin on each non-rigid dyad (or, one below it at the start, half its starting sine)."""
@@ -252,7 +252,7 @@ def assert_valid(
     dyad_geometry(order, refined, sides[1])
     np.testing.assert_array_equal(sides[0, :, 2], sides[1, :, 2])
     moving = ~rigid_dyads(order, before)
-    margin = math.sin(math.radians(margin_deg))
+    margin = math.sin(math.radians(min_transmission_deg))
     start_least = angle_sines(order, before).min(axis=1)
     floor = np.where(start_least >= margin, margin, 0.5 * start_least)
     least = angle_sines(order, traj).min(axis=1)
@@ -294,12 +294,12 @@ def test_margin_is_kept_when_the_best_fit_breaks_it() -> None:
     )
     assert low_angle < 35 < 45 < start_angle
     target = fourbar_truth(low, 200)[4]
-    result = refine(adjacency, node_types, start, 4, target, margin_deg=40.0)
+    result = refine(adjacency, node_types, start, 4, target, min_transmission_deg=40.0)
     assert result.chamfer_after < 0.8 * result.chamfer_before
     assert result.min_transmission_deg == pytest.approx(40.0, abs=0.5)  # the margin binds
     assert 40.0 <= result.min_transmission_deg
     assert_valid(adjacency, node_types, start, result.positions, 40.0)
-    free = refine(adjacency, node_types, start, 4, target, margin_deg=0.0)
+    free = refine(adjacency, node_types, start, 4, target, min_transmission_deg=0.0)
     assert free.chamfer_after < result.chamfer_after
 
 
@@ -436,9 +436,9 @@ def test_bad_input_raises_value_error() -> None:
         ({"target_points": target[:, :1]}, r"target_points must be \[x, y\] pairs"),
         ({"positions": positions[:4]}, "positions must have shape"),
         ({"partial": "yes"}, "partial must be True or False"),
-        ({"margin_deg": MAX_TRANSMISSION_DEG + 1}, "margin_deg must be from 0"),
-        ({"margin_deg": float("nan")}, "margin_deg must be from 0"),
-        ({"margin_deg": "3"}, "margin_deg must be a number"),
+        ({"min_transmission_deg": MAX_TRANSMISSION_DEG + 1}, "min_transmission_deg must be from 0"),
+        ({"min_transmission_deg": float("nan")}, "min_transmission_deg must be from 0"),
+        ({"min_transmission_deg": "3"}, "min_transmission_deg must be a number"),
         ({"iterations": -1}, "iterations must be from 0"),
         ({"steps": MAX_REFINE_STEPS + 1}, f"at most {MAX_REFINE_STEPS} steps"),
         ({"steps": 2}, "steps must be >= 3"),

@@ -15,7 +15,7 @@ import pytest
 
 import links_ray
 from links_ray.engine.fabrication import fabrication
-from links_ray.engine.inputs import DEFAULT_MARGIN_DEG
+from links_ray.engine.inputs import DEFAULT_MIN_TRANSMISSION_DEG
 from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.transmission import mechanism_transmission_deg
 from links_ray.interop.pylinkage import from_pylinkage, pylinkage_script, to_pylinkage
@@ -38,7 +38,7 @@ def least_transmission(mech: dict[str, Any], trajectories: np.ndarray) -> float:
 
 
 def margined_mechanisms(count: int) -> list[dict[str, Any]]:
-    """Random dataset mechanisms whose every dyad keeps DEFAULT_MARGIN_DEG from its dead
+    """Random dataset mechanisms whose every dyad keeps DEFAULT_MIN_TRANSMISSION_DEG from its dead
     centre: pylinkage's nearest-point branch is then links-ray's frozen one."""
     found = []
     seed = 0
@@ -46,7 +46,7 @@ def margined_mechanisms(count: int) -> list[dict[str, Any]]:
         adjacency, node_types = links_ray.random_topology(seed)
         for positions in links_ray.sample_positions(adjacency, node_types, count=5, seed=seed):
             mech = {"adjacency": adjacency, "node_types": node_types, "positions": positions}
-            if least_transmission(mech, links_ray.simulate(**mech)) >= DEFAULT_MARGIN_DEG:
+            if least_transmission(mech, links_ray.simulate(**mech)) >= DEFAULT_MIN_TRANSMISSION_DEG:
                 found.append(mech)
                 break
         seed += 1
