@@ -80,7 +80,7 @@ def _read_files(files: list[str], fs: object, base_dir: str) -> ray.data.Dataset
     in threads whose completion signaller can raise InterruptedError when the task finishes
     first (ray.data._internal.dynamic_work_queue: `_signal_completion` puts its sentinels after
     the consumer has set the pool's interrupt), and that thread's traceback reaches the
-    driver's output. tests/test_ray_dataset.py holds the race and this way round it.
+    driver's output. tests/cluster/test_ray_dataset.py holds the race and this way round it.
     """
     context = ray.data.DataContext.get_current()
     before = context.use_datasource_v2

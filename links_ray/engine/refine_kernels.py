@@ -8,7 +8,7 @@ lever of each dyad are functions of the initial positions, so their derivatives 
 branch sign is piecewise constant and contributes none.
 
 The kernels' entry points, called from Python with the caller's buffers, check their shapes
-first (`inputs.check_buffer`): numba checks no bounds.
+first (`buffers.check_buffer`): numba checks no bounds.
 
 Pure numpy/numba, plain-array signatures: no Ray.
 """

@@ -309,7 +309,7 @@ def _trace_joints(
 
 # -- entry points: the kernels above, called from Python with the caller's buffers --------------
 # numba checks no bounds, so each checks its buffers' shapes against the positions and the
-# solution path first (`inputs.check_buffer`). This module's own callers, which make their
+# solution path first (`buffers.check_buffer`). This module's own callers, which make their
 # buffers from the topology they hold, call the kernels directly.
 
 

@@ -274,7 +274,7 @@ def _turn_lock(
 
 
 # -- entry points, called from Python with the caller's buffers: numba checks no bounds, so
-# each checks their shapes first (`inputs.check_buffer`).
+# each checks their shapes first (`buffers.check_buffer`).
 
 
 def turn_lock(

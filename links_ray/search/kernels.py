@@ -27,7 +27,7 @@ without it they wait on memory most of the time.
 
 Each kernel is called from Python through its entry point of the same name without the
 underscore, which checks the buffers' shapes, types and the rows they index first
-(`inputs.check_buffer`): numba checks no bounds.
+(`buffers.check_buffer`): numba checks no bounds.
 """
 
 from __future__ import annotations

@@ -221,7 +221,7 @@ class HealthResponse(BaseModel):
 
 
 class LimitsResponse(BaseModel):
-    """GET /api/limits: `engine.inputs.request_limits()`."""
+    """GET /api/limits: `serve.limits.request_limits()`."""
 
     min_points: int
     max_points: int

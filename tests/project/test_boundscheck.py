@@ -2,7 +2,7 @@
 
 numba checks no bounds by default: a kernel given a buffer too small for what it writes
 corrupts memory silently, and the process may crash much later, elsewhere. The kernels'
-entry points check their buffers' shapes (inputs.check_buffer); this pass catches what those
+entry points check their buffers' shapes (engine.buffers.check_buffer); this pass catches what those
 checks cannot see, a kernel indexing past a buffer it made itself or one whose shape was
 right and whose contents were not. It runs the engine's, refinement's and the search
 kernels' tests in a process of their own (the setting is read when numba is imported), with
