@@ -247,7 +247,7 @@ def test_a_set_curve_frame_depends_on_its_name_and_seed_only() -> None:
     assert not np.allclose(first, placed(curve, name_rng(1, "cam_dwell")))
 
 
-def test_a_bench_row_of_fixed_work_is_reproduced_bit_for_bit(
+def test_a_bench_row_of_counted_work_is_reproduced_bit_for_bit(
     dataset: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Deterministic mode: a row of `links bench synthesize --set --iterations N` is the same

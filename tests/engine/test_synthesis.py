@@ -211,7 +211,7 @@ def synthesis_threads(
     return results, max(seen)
 
 
-def test_fixed_work_is_bit_equal_whatever_the_threads(
+def test_counted_work_is_bit_equal_whatever_the_threads(
     dataset_index: RetrievalIndex, queries: list
 ) -> None:
     """seed + iterations: the same answer, bit for bit, in one thread or two, and again."""
