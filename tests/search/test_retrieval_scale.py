@@ -135,7 +135,7 @@ def test_one_index_finds_the_exact_best_three(
 
 
 @pytest.mark.parametrize("parts", [2, 4])
-def test_shards_are_no_worse_than_one_index(
+def test_partitions_are_no_worse_than_one_index(
     answers: dict[int, list[list[dict]]], truth: list[dict[int, float]], parts: int
 ) -> None:
     """Each merged best is one index's best or better (each part searches fewer paths with

@@ -54,7 +54,7 @@ def _kill_replicas(deployment: str) -> int:
     return killed
 
 
-def test_a_lost_shard_is_503_until_serve_replaces_it(
+def test_a_lost_partition_is_503_until_serve_replaces_it(
     dataset: str, serve_port: int, dataset_index: RetrievalIndex, queries: list[np.ndarray]
 ) -> None:
     """Retrievals while a part is gone are 503 with Retry-After and a JSON error, never a

@@ -1,11 +1,11 @@
-"""Sharded serving (`links serve --shards N`; docs/reference/contract.md, HTTP API) on real Ray
+"""Partitioned serving (`links serve --shards N`; docs/reference/contract.md, HTTP API) on real Ray
 (2 CPUs), real Parquet and real HTTP on loopback.
 
 The index is split into N partitions, each served by its own deployment, and the gateway merges
 their answers. The dataset is small enough that every part's search, and one index's, estimates
 every path: over HTTP the answers must then be one index's exactly (same path ids, same chamfer
 distances, same mechanisms), and the exact brute force's, for N = 1, 2 and 4. Each part builds
-and saves only its own folder under `_links/index/`. Where the searches scan, sharded answers
+and saves only its own folder under `_links/index/`. Where the searches scan, partitioned answers
 are compared with one index's in test_retrieval_scale.py; failures and load are in
 test_serve_load.py.
 """
@@ -37,10 +37,10 @@ SHARD_CPUS = 0.25
 
 
 @pytest.fixture(scope="module")
-def shard_root(dataset: str, tmp_path_factory: pytest.TempPathFactory) -> str:
-    """A copy of the dataset with no saved index (and no leases): what the shards save in it
+def partitioned_root(dataset: str, tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A copy of the dataset with no saved index (and no leases): what the partitions save in it
     is theirs alone."""
-    root = tmp_path_factory.mktemp("shards") / "links"
+    root = tmp_path_factory.mktemp("partitioned") / "links"
     shutil.copytree(dataset, root, ignore=shutil.ignore_patterns("index", "leases"))
     assert not (root / "_links" / "index").exists()
     return str(root)
@@ -54,34 +54,38 @@ def part_rows(root: str, parts: int) -> list[int]:
     return rows
 
 
-@pytest.fixture(scope="module", params=[1, 2, 4], ids=lambda n: f"{n}-shards")
-def sharded(request: pytest.FixtureRequest, shard_root: str, serve_port: int) -> Iterator[Any]:
-    """(N, client) of the app with its index in N shards on `shard_root`."""
-    shards = request.param
-    with serving(build_app(shard_root, shards=shards, shard_cpus=SHARD_CPUS), serve_port) as c:
-        yield shards, c
+@pytest.fixture(scope="module", params=[1, 2, 4], ids=lambda n: f"{n}-partitions")
+def partitioned(
+    request: pytest.FixtureRequest, partitioned_root: str, serve_port: int
+) -> Iterator[Any]:
+    """(N, client) of the app with its index in N partitions on `partitioned_root`."""
+    partitions = request.param
+    with serving(
+        build_app(partitioned_root, shards=partitions, shard_cpus=SHARD_CPUS), serve_port
+    ) as c:
+        yield partitions, c
 
 
 def test_health_reports_the_shards(
-    sharded: Any, dataset_index: RetrievalIndex, shard_root: str
+    partitioned: Any, dataset_index: RetrievalIndex, partitioned_root: str
 ) -> None:
-    shards, client = sharded
-    rows = part_rows(shard_root, shards)
-    assert len(rows) == shards and all(rows), rows  # every part holds curated paths
+    partitions, client = partitioned
+    rows = part_rows(partitioned_root, partitions)
+    assert len(rows) == partitions and all(rows), rows  # every part holds curated paths
     status, data = client.get("/api/health")
     assert status == 200
     assert data == {
         "status": "ok",
         "paths": len(dataset_index),
-        "shards": [{"part": part, "paths": rows[part]} for part in range(shards)],
+        "shards": [{"part": part, "paths": rows[part]} for part in range(partitions)],
     }
 
 
 def test_answers_are_one_index_answers(
-    sharded: Any, dataset_index: RetrievalIndex, queries: list[np.ndarray]
+    partitioned: Any, dataset_index: RetrievalIndex, queries: list[np.ndarray]
 ) -> None:
     """Same results as one index over every path, to the bit, and as the exact brute force."""
-    _, client = sharded
+    _, client = partitioned
     for number, query in enumerate(queries):
         got = retrieved(client, query, K)
         expected = as_served(dataset_index.retrieve(query, K))
@@ -95,13 +99,13 @@ def test_answers_are_one_index_answers(
 
 
 def test_k_beyond_a_part_and_stored_paths(
-    sharded: Any, dataset_index: RetrievalIndex, dataset: str
+    partitioned: Any, dataset_index: RetrievalIndex, dataset: str
 ) -> None:
     """k = 100, more than the finalists a part measures exactly beyond the first few: 100
     distinct results, best first, led by the dataset's own path (at distance 0) and one
     index's best. (Deeper down the parts' answers are better than one index's, whose
     finalists are then about as many as k, so they are not compared there.)"""
-    _, client = sharded
+    _, client = partitioned
     curated = links_ray.load(dataset, "curated", columns=["path_id", "points"], reshape=True)
     for row in (0, 17, len(curated) - 1):
         query = curated.points.iloc[row].astype(np.float64) * 5 + 3
@@ -112,28 +116,28 @@ def test_k_beyond_a_part_and_stored_paths(
         assert got[:K] == as_served(dataset_index.retrieve(query, K))
 
 
-def test_each_shard_wrote_only_its_own_part(sharded: Any, shard_root: str) -> None:
-    shards, _ = sharded
-    folder = Path(shard_root) / "_links" / "index"
+def test_each_partition_wrote_only_its_own_part(partitioned: Any, partitioned_root: str) -> None:
+    partitions, _ = partitioned
+    folder = Path(partitioned_root) / "_links" / "index"
     saved = {entry.name for entry in folder.iterdir() if entry.is_dir()}
     # Parts of the splits served so far in this module, and never the whole index's.
     assert all(re.fullmatch(r"part-\d+-of-[124]", name) for name in saved), saved
-    assert {name for name in saved if name.endswith(f"-of-{shards}")} == {
-        f"part-{part}-of-{shards}" for part in range(shards)
+    assert {name for name in saved if name.endswith(f"-of-{partitions}")} == {
+        f"part-{part}-of-{partitions}" for part in range(partitions)
     }
-    rows = part_rows(shard_root, shards)
-    for part in range(shards):
-        current = json.loads((folder / f"part-{part}-of-{shards}" / "current.json").read_text())
+    rows = part_rows(partitioned_root, partitions)
+    for part in range(partitions):
+        current = json.loads((folder / f"part-{part}-of-{partitions}" / "current.json").read_text())
         assert current["rows"] == rows[part]
 
 
 @pytest.mark.parametrize("option", ["min_transmission", "max_joints"])
 def test_a_filter_is_one_index_answer(
-    sharded: Any, dataset_index: RetrievalIndex, queries: list[np.ndarray], option: str
+    partitioned: Any, dataset_index: RetrievalIndex, queries: list[np.ndarray], option: str
 ) -> None:
     """`min_transmission` and `max_joints` go to every part: the merged answer is one
     index's, every result within the filter."""
-    _, client = sharded
+    _, client = partitioned
     floor = float(np.quantile(dataset_index.transmission, 0.5))
     most = int(np.median(dataset_index.n_joints))
     value = floor if option == "min_transmission" else most
@@ -148,13 +152,13 @@ def test_a_filter_is_one_index_answer(
             assert result["n_joints"] <= most or option != "max_joints"
 
 
-def test_synthesis_refines_what_the_shards_retrieve(
-    sharded: Any, dataset_index: RetrievalIndex, queries: list[np.ndarray]
+def test_synthesis_refines_what_the_partitions_retrieve(
+    partitioned: Any, dataset_index: RetrievalIndex, queries: list[np.ndarray]
 ) -> None:
-    """/api/synthesize on a sharded app starts from the merged retrieval's candidates and
+    """/api/synthesize on a partitioned app starts from the merged retrieval's candidates and
     refines them: each result no worse than its retrieved path, which is among the
     CANDIDATES one index returns."""
-    _, client = sharded
+    _, client = partitioned
     query = queries[0]
     body = {"points": np.asarray(query).tolist(), "k": 2, "seconds": 0.5}
     status, data = client.post("/api/synthesize", body)
