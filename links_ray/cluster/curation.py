@@ -16,22 +16,14 @@ import warnings
 from collections.abc import Callable, Iterable
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 import ray
 from ray.util.annotations import RayDeprecationWarning
 
 from links_ray.cluster.connect import connect
 from links_ray.cluster.progress import Progress
-from links_ray.data.commit import ShardWriter, committed_shards, remove_uncommitted
+from links_ray.data.commit import committed_shards, remove_uncommitted
 from links_ray.data.lease import Lease, LeaseLost, holder_still
-from links_ray.data.pathset import (
-    KEEP_SHARE,
-    arc_circle_counts,
-    curated_mask,
-    path_batches,
-    path_shares,
-)
+from links_ray.data.pathset import KEEP_SHARE, curate_shard, path_shares
 from links_ray.data.schemas import CURATION_TABLES, choose_tables
 from links_ray.data.store import META, Store, StoreError, diagnose, refuse_imported
 from links_ray.engine.inputs import DEFAULT_STEPS
@@ -84,46 +76,27 @@ class ShardCurator:
             "error": np.array(errors, dtype=object),
         }
 
-    def _read(self, relative: str) -> pa.Table:
-        with self.store.fs.open_input_file(self.store.path(relative)) as source:
-            return pq.read_table(source)
-
     def curate(
         self, shard_id: int, n_joints: int, mechanisms_file: str, simulations_file: str
     ) -> dict:
-        """Write one shard's chosen tables, then its marker; returns the marker.
+        """Write one shard's chosen tables, then its marker, while this run holds the root;
+        returns the marker (`data.pathset.curate_shard`)."""
 
-        With no `simulations_file` (generation left the table out) the shard's mechanisms are
-        simulated again, which gives the same rows.
-        """
-        start = time.perf_counter()
-        mechanisms = self._read(mechanisms_file)
-        simulations = self._read(simulations_file) if simulations_file else None
-        writer = ShardWriter(self.store, shard_id, n_joints, stage="curation")
-        try:
-            counts = {"paths": 0, "curated": 0, "arcs": 0, "circles": 0, "both": 0}
-            for paths in path_batches(mechanisms, simulations, n_joints, self.steps):
-                curated = paths.filter(curated_mask(paths, self.seed))
-                for table, rows in (("paths", paths), ("curated", curated)):
-                    if table in self.tables:
-                        for batch in rows.to_batches(max_chunksize=50_000):
-                            writer.write(table, batch)
-                counts["paths"] += len(paths)
-                counts["curated"] += len(curated)
-                for key, count in arc_circle_counts(paths).items():
-                    counts[key] += count
-            stats = {
-                "mechanisms": len(mechanisms),
-                "resimulated": 0 if simulations is not None else len(mechanisms),
-                **counts,
-                "seconds": time.perf_counter() - start,
-            }
+        def still_holder() -> None:
             if not holder_still(self.store, "writer", self.lease_token):
                 raise LeaseLost(f"{self.store.uri}: the run this curator works for lost the root")
-            return writer.commit(stats)
-        except BaseException:
-            writer.abort()
-            raise
+
+        return curate_shard(
+            self.store,
+            shard_id,
+            n_joints,
+            mechanisms_file,
+            simulations_file,
+            self.seed,
+            self.tables,
+            self.steps,
+            before_commit=still_holder,
+        )
 
 
 def curate(

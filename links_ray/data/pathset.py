@@ -11,6 +11,7 @@ of the normalized points' distances from (0.5, 0.5) is below 5e-4. Curation keep
 path and 0.5% of the arcs and circles, by a seeded draw per path: the same seed keeps the same
 paths, wherever and however often it runs. `arc_circle_counts` and `path_shares` are the one
 count and share of arcs and circles, for the curation summary and `links stats` alike.
+`curate_shard` is one generation shard's curation, committed: what a curator actor runs.
 
 ``path_id = 32 * mechanism_id + joint`` (mechanisms have at most 20 joints).
 
@@ -20,12 +21,15 @@ Pure numpy/pyarrow: no Ray.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 import pyarrow as pa
 
+from links_ray.data.commit import ShardWriter
 from links_ray.data.schemas import MAX_LIST_VALUES, SCHEMAS, TRAJECTORY_DTYPE, list_array
+from links_ray.data.store import Store
 from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.mechanism import FIXED, analyze_topology, arc_flags
 from links_ray.engine.paths import CIRCLE_VARIANCE_THRESHOLD, circle_variances, normalize_paths
@@ -217,3 +221,51 @@ def path_shares(paths: int, arcs: int, circles: int, both: int) -> dict[str, flo
         "arc_or_circle": (arcs + circles - both) / total,
         "both": both / total,
     }
+
+
+def curate_shard(
+    store: Store,
+    shard_id: int,
+    n_joints: int,
+    mechanisms_file: str,
+    simulations_file: str | None,
+    seed: int,
+    tables: Iterable[str],
+    steps: int = DEFAULT_STEPS,
+    before_commit: Callable[[], None] | None = None,
+) -> dict:
+    """Curate one committed generation shard: its `paths` and `curated` rows (those named in
+    `tables`) written by a curation-stage `ShardWriter`, then its marker; returns the marker.
+
+    With no `simulations_file` (generation left the table out) the shard's mechanisms are
+    simulated again, which gives the same rows. `before_commit` runs just before the marker is
+    written (a curator checks there that its run still holds the root); whatever it or the
+    writing raises aborts the shard's files."""
+    start = time.perf_counter()
+    mechanisms = store.read_parquet(mechanisms_file)
+    simulations = store.read_parquet(simulations_file) if simulations_file else None
+    writer = ShardWriter(store, shard_id, n_joints, stage="curation")
+    try:
+        counts = {"paths": 0, "curated": 0, "arcs": 0, "circles": 0, "both": 0}
+        for paths in path_batches(mechanisms, simulations, n_joints, steps):
+            curated = paths.filter(curated_mask(paths, seed))
+            for table, rows in (("paths", paths), ("curated", curated)):
+                if table in tables:
+                    for batch in rows.to_batches(max_chunksize=50_000):
+                        writer.write(table, batch)
+            counts["paths"] += len(paths)
+            counts["curated"] += len(curated)
+            for key, count in arc_circle_counts(paths).items():
+                counts[key] += count
+        stats = {
+            "mechanisms": len(mechanisms),
+            "resimulated": 0 if simulations is not None else len(mechanisms),
+            **counts,
+            "seconds": time.perf_counter() - start,
+        }
+        if before_commit is not None:
+            before_commit()
+        return writer.commit(stats)
+    except BaseException:
+        writer.abort()
+        raise
