@@ -96,10 +96,10 @@ def read_curve_text(
     extension) says how to read it and names it in messages, `part` is what `#id` selects.
     For callers that hold the file but not a path to it (the HTTP API's /api/curve)."""
     count = as_int("points", points, MIN_POINTS, MAX_POINTS)
-    return _parse_curve(name, _sized(name, text), part, count)
+    return _parse_curve(name, curve_file_bytes(name, text), part, count)
 
 
-def _sized(name: str, text: str | bytes) -> bytes:
+def curve_file_bytes(name: str, text: str | bytes) -> bytes:
     """A file's contents `text` as bytes, or CurveFileTooLarge past MAX_CURVE_FILE_BYTES."""
     data = text.encode("utf-8") if isinstance(text, str) else bytes(text)
     if len(data) > MAX_CURVE_FILE_BYTES:

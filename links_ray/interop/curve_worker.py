@@ -43,7 +43,7 @@ from links_ray.engine.inputs import MAX_POINTS, MIN_POINTS, as_drawn_points, as_
 from links_ray.interop.curve_files import (
     DEFAULT_CURVE_POINTS,
     Curve,
-    _sized,
+    curve_file_bytes,
     read_curve_text,
 )
 from links_ray.interop.curve_limits import (
@@ -144,7 +144,7 @@ class CurveReaders:
         """The curve in `data`, the contents of the file `name`, read in a reader: see the
         module's docstring for what it raises."""
         count = as_int("points", points, MIN_POINTS, MAX_POINTS)
-        data = _sized(name, data)  # a file too large refused here, not sent
+        data = curve_file_bytes(name, data)  # a file too large refused here, not sent
         request = orjson.dumps({"name": name, "part": part, "points": count})
         if len(request) > _HEADER_BYTES:
             raise ValueError(f"a file's name and id may take {_HEADER_BYTES:,} bytes at most")
