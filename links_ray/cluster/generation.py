@@ -48,6 +48,9 @@ class GeneratorActor:
         self.plan = GenerationPlan(**plan)
         self.lease_token = lease_token
 
+    def ready(self) -> None:
+        """Answers once the actor runs: placed on a CPU, its store open."""
+
     def run_shard(self, shard: Shard) -> dict:
         """Generate, write and commit `shard`; returns its commit marker."""
         return write_shard(self.store, self.plan, shard, fence=self._still_ours)
@@ -146,7 +149,9 @@ def generate(
 
 
 class _Pool:
-    """Generator actors sized to the cluster, each fed up to SHARDS_IN_FLIGHT shards."""
+    """Generator actors sized to the cluster, each fed up to SHARDS_IN_FLIGHT shards once it
+    runs. An actor waiting for a CPU (others' work may hold the cluster's) is given none: its
+    shards would wait with it while the running actors idle."""
 
     def __init__(
         self, uri: str, plan: GenerationPlan, workers: int | None, lease_token: str
@@ -155,7 +160,8 @@ class _Pool:
         self.plan = asdict(plan)
         self.lease_token = lease_token
         self.workers = workers
-        self.load: dict[ray.actor.ActorHandle, int] = {}  # live actors: shards in flight
+        self.load: dict[ray.actor.ActorHandle, int] = {}  # running actors: shards in flight
+        self.starting: dict[ray.ObjectRef, ray.actor.ActorHandle] = {}  # by their ready() call
         self.in_flight: dict[ray.ObjectRef, tuple[ray.actor.ActorHandle, Shard]] = {}
         self.peak = 0
         self.failures: dict[int, int] = {}
@@ -167,22 +173,39 @@ class _Pool:
     def busy(self) -> bool:
         return bool(self.in_flight)
 
+    def size(self) -> int:
+        return len(self.load) + len(self.starting)
+
     def resize(self, work_left: int) -> None:
         """Add actors while the cluster has CPUs for them (it may have grown).
 
-        Actors are only made for CPUs that exist: one waiting for a CPU would hold its shards.
+        Actors are only made for CPUs that exist; one waiting for a CPU that other work holds
+        is given shards once it runs (`submit`).
         """
         now = time.monotonic()
-        if now - self._resized < RESIZE_EVERY_S and self.load:
+        if now - self._resized < RESIZE_EVERY_S and self.size():
             return
         self._resized = now
         cpus = int(ray.cluster_resources().get("CPU", 1))
         wanted = min(self.workers or cpus, cpus, work_left + len(self.in_flight))
-        while len(self.load) < max(wanted, 1 if work_left else 0):
-            self.load[GeneratorActor.remote(self.uri, self.plan, self.lease_token)] = 0
-        self.peak = max(self.peak, len(self.load))
+        while self.size() < max(wanted, 1 if work_left else 0):
+            actor = GeneratorActor.remote(self.uri, self.plan, self.lease_token)
+            self.starting[actor.ready.remote()] = actor
 
     def submit(self, todo: deque[Shard]) -> None:
+        """Queue shards of `todo` on the running actors, after taking in those that started."""
+        if self.starting:
+            started, _ = ray.wait(list(self.starting), num_returns=len(self.starting), timeout=0)
+            for ref in started:
+                actor = self.starting[ref]
+                try:
+                    ray.get(ref)
+                except (RayActorError, ActorDiedError, ActorUnavailableError) as exc:
+                    self._bury(actor, exc)
+                    continue
+                self.load[actor] = 0
+                del self.starting[ref]
+            self.peak = max(self.peak, len(self.load))
         for actor, load in self.load.items():
             while todo and load < SHARDS_IN_FLIGHT:
                 shard = todo.popleft()
@@ -191,10 +214,16 @@ class _Pool:
             self.load[actor] = load
 
     def collect(self, todo: deque[Shard]) -> list[tuple[Shard, dict]]:
-        """Finished shards; shards of dead actors go back to the front of `todo`."""
-        ready, _ = ray.wait(list(self.in_flight), num_returns=1, timeout=1.0)
-        if ready:  # take every shard that has finished, not just the first
+        """Finished shards; shards of dead actors go back to the front of `todo`. Also returns,
+        with none, when an actor starts."""
+        waiting = [*self.in_flight, *self.starting]
+        if not waiting:
+            return []
+        ready, _ = ray.wait(waiting, num_returns=1, timeout=1.0)
+        if ready and self.in_flight:  # take every shard that has finished, not just the first
             ready, _ = ray.wait(list(self.in_flight), num_returns=len(self.in_flight), timeout=0)
+        else:
+            ready = []  # nothing, or an actor started: `submit` takes it in
         done = []
         for ref in ready:
             actor, shard = self.in_flight.pop(ref)
@@ -212,9 +241,14 @@ class _Pool:
 
     def _bury(self, actor: ray.actor.ActorHandle, exc: Exception) -> None:
         """Forget a dead actor; stop the run if actors die again and again with no progress."""
-        if actor not in self.load:
-            return  # its other shards report the same death
-        del self.load[actor]
+        if actor in self.load:
+            del self.load[actor]
+        else:
+            refs = [ref for ref, starting in self.starting.items() if starting == actor]
+            if not refs:
+                return  # its other shards report the same death
+            for ref in refs:
+                del self.starting[ref]
         ray.kill(actor, no_restart=True)
         self.deaths_since_progress += 1
         if self.deaths_since_progress > max(4, 2 * self.peak):
@@ -238,9 +272,10 @@ class _Pool:
         todo.append(shard)
 
     def shutdown(self) -> None:
-        for actor in self.load:
+        for actor in [*self.load, *self.starting.values()]:
             ray.kill(actor, no_restart=True)
         self.load.clear()
+        self.starting.clear()
         # Take the errors of shards still in flight: Ray prints an error nobody took when it
         # drops its reference, after the run's own one-line message.
         refs = list(self.in_flight)

@@ -135,6 +135,44 @@ def test_same_rows_whatever_the_workers_or_shards(
     assert_same_rows(read_all(out), reference_run["tables"])
 
 
+def test_a_run_beside_other_work_takes_the_cpu_left(
+    ray_cluster: str, tmp_path: Path, reference_run: dict
+) -> None:
+    """With one of the cluster's two CPUs held by other work for the whole run (a Serve
+    replica, another job's actor), a run asking for two workers finishes on the CPU left, with
+    the reference's rows: no shard waits on an actor that waits for a CPU."""
+    import ray
+
+    from tests.support.serve_app import stop_shared_app
+
+    stop_shared_app()  # the CPUs are this test's to hold
+
+    @ray.remote(num_cpus=1)
+    class OtherWork:
+        def ready(self) -> None:
+            return None
+
+    other = OtherWork.remote()
+    ray.get(other.ready.remote(), timeout=300)
+    out = str(tmp_path / "beside")
+    finished: dict = {}
+    run = threading.Thread(
+        target=lambda: finished.update(
+            generate(out, 137, seed=3, workers=2, progress=False, topologies_per_shard=2)
+        ),
+        daemon=True,
+    )
+    try:
+        run.start()
+        run.join(timeout=600)
+        assert not run.is_alive(), "the run waited on an actor that has no CPU"
+    finally:
+        ray.kill(other)
+        run.join(timeout=600)
+    assert finished["complete"] and finished["workers"] == 1, finished
+    assert_same_rows(read_all(out), reference_run["tables"])
+
+
 def test_rerun_keeps_committed_shards(
     ray_cluster: str, reference_run: dict, monkeypatch: pytest.MonkeyPatch
 ) -> None:

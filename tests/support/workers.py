@@ -1,0 +1,50 @@
+"""Two test processes at once (pytest-xdist, `tests/run`'s `-n 2`): what keeps them apart.
+
+A pytest plugin (tests/conftest.py lists it). Each xdist worker is a whole session of its own:
+its own S3 server, Ray and datasets (their fixtures are per process). Two things would still
+be shared through the machine, so each worker is given its own:
+
+- Ray's temporary folder (`RAY_TMPDIR`). A plain `ray.init()` joins the cluster whose address
+  is filed in that folder (`ray_current_cluster`, written by `ray start` and by
+  `ray.cluster_utils.Cluster`), so with one folder a worker's Ray, or a command a test runs,
+  could join the other worker's. The folder is short: Ray's socket paths live under it.
+- pytest's own temporary folders are already per worker (xdist names them).
+
+Run alone (no xdist, or `-n 0`), the plugin does nothing.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+
+import pytest
+
+
+def worker_name() -> str | None:
+    """This process's xdist worker ("gw0", "gw1", ...), or None outside xdist."""
+    return os.environ.get("PYTEST_XDIST_WORKER")
+
+
+class _RayFolder:
+    path: str | None = None
+
+
+_FOLDER = _RayFolder()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    worker = worker_name()
+    if worker is None or "RAY_TMPDIR" in os.environ:
+        return
+    # Before any fixture starts Ray: every Ray of this process, and of the commands its tests
+    # run, keeps its files here unless a test names a folder of its own.
+    _FOLDER.path = tempfile.mkdtemp(prefix=f"links-{worker}-", dir="/tmp")
+    os.environ["RAY_TMPDIR"] = _FOLDER.path
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if _FOLDER.path is not None:
+        shutil.rmtree(_FOLDER.path, ignore_errors=True)
+        _FOLDER.path = None
