@@ -23,16 +23,14 @@ import pyarrow.fs as pafs
 
 from links_ray.data.store import Store
 from links_ray.release import opcode_scan
+from links_ray.release.format import RELEASE_FILES
 from links_ray.release.unpickler import RefusedName, ReleaseUnpickler
 
-#: The release's four files by released name, and the prefix the release's generator puts
-#: before its dataset's name (NAME, Solutions_NAME, Normalized_NAME, Curated_Normalized_NAME).
-RELEASE_FILES = {
-    "dataset": "",
-    "simulation_dataset": "Solutions_",
-    "normalized_dataset": "Normalized_",
-    "curated_dataset": "Curated_Normalized_",
-}
+#: The prefix the release's generator puts before its dataset's name in each of the release's
+#: four files (NAME, Solutions_NAME, Normalized_NAME, Curated_Normalized_NAME), by released name.
+GENERATOR_PREFIXES = dict(
+    zip(RELEASE_FILES, ("", "Solutions_", "Normalized_", "Curated_Normalized_"), strict=True)
+)
 #: Bytes read from the store at once.
 READ_BUFFER = 8 * 1024 * 1024
 
@@ -43,7 +41,7 @@ class ReleaseFileError(ValueError):
 
 
 def release_files(store: Store) -> dict[str, str | None]:
-    """The release's files at the root of `store`, by released name (RELEASE_FILES), each
+    """The release's files at the root of `store`, by released name (`RELEASE_FILES`), each
     the path relative to the root or None if absent.
 
     Either released names (`dataset`, `simulation_dataset`, ...) or the generator's (`NAME`,
@@ -60,7 +58,7 @@ def release_files(store: Store) -> dict[str, str | None]:
     if "dataset" in files:
         base = "dataset"
     else:
-        prefix = RELEASE_FILES["simulation_dataset"]
+        prefix = GENERATOR_PREFIXES["simulation_dataset"]
         bases = sorted(
             name[len(prefix) :]
             for name in files
@@ -77,7 +75,7 @@ def release_files(store: Store) -> dict[str, str | None]:
             )
         base = bases[0]
     found: dict[str, str | None] = {}
-    for name, prefix in RELEASE_FILES.items():
+    for name, prefix in GENERATOR_PREFIXES.items():
         there = [
             candidate
             for candidate in dict.fromkeys((name if base == "dataset" else None, prefix + base))
