@@ -1,4 +1,5 @@
-"""Two test processes at once (pytest-xdist, `tests/run`'s `-n 2`): what keeps them apart.
+"""Two test processes at once (pytest-xdist's `-n 2`: `tests/run` runs the engine's tests so,
+and any run may): what keeps them apart.
 
 A pytest plugin (tests/conftest.py lists it). Each xdist worker is a whole session of its own:
 its own S3 server, Ray and datasets (their fixtures are per process). Two things would still
