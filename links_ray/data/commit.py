@@ -171,7 +171,10 @@ def remove_uncommitted(store: Store, stage: str, markers: dict[int, dict]) -> in
 
 class ShardWriter:
     """One attempt at a shard: streams its record batches into hidden files, then commits them
-    together, or learns that another attempt of the shard committed first."""
+    together, or learns that another attempt of the shard committed first.
+
+    Used as a context manager, anything raised inside the block aborts the attempt
+    (`abort`) on its way up."""
 
     def __init__(
         self,
@@ -195,6 +198,13 @@ class ShardWriter:
         self._writers: dict[str, pq.ParquetWriter] = {}
         self._streams: dict[str, pa.NativeFile] = {}
         self._moved: list[str] = []
+
+    def __enter__(self) -> ShardWriter:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, *_: object) -> None:
+        if kind is not None:
+            self.abort()
 
     @property
     def marker(self) -> str:

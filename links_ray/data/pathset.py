@@ -244,8 +244,7 @@ def curate_shard(
     start = time.perf_counter()
     mechanisms = store.read_parquet(mechanisms_file)
     simulations = store.read_parquet(simulations_file) if simulations_file else None
-    writer = ShardWriter(store, shard_id, n_joints, stage="curation")
-    try:
+    with ShardWriter(store, shard_id, n_joints, stage="curation") as writer:
         counts = {"paths": 0, "curated": 0, "arcs": 0, "circles": 0, "both": 0}
         for paths in path_batches(mechanisms, simulations, n_joints, steps):
             curated = paths.filter(curated_mask(paths, seed))
@@ -266,6 +265,3 @@ def curate_shard(
         if before_commit is not None:
             before_commit()
         return writer.commit(stats)
-    except BaseException:
-        writer.abort()
-        raise

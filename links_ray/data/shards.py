@@ -227,15 +227,11 @@ def write_shard(
     `fence` runs just before the commit and raises if this writer may no longer commit. On any
     failure the attempt is aborted (nothing of it stays visible) and the error goes on up.
     """
-    writer = ShardWriter(store, shard.shard_id, shard.n_joints, failpoint=failpoint)
-    try:
+    with ShardWriter(store, shard.shard_id, shard.n_joints, failpoint=failpoint) as writer:
         stats = generate_shard(plan, shard, writer.write)
         if fence is not None:
             fence()
         return writer.commit(stats)
-    except BaseException:
-        writer.abort()
-        raise
 
 
 def _search_topology(

@@ -30,6 +30,7 @@ Pure numpy/pyarrow: no Ray.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import time
 from collections.abc import Callable, Iterator
@@ -241,16 +242,18 @@ def _import_shard(
     """Import the mechanisms of `n` joints of `batch` as shard `shard_id`: its generation
     shard (unless `generated` holds it already), then its curation shard; returns the
     curation marker, after recording the generation marker in `generated`."""
-    writers = {"curation": ShardWriter(store, shard_id, n, stage="curation")}
-    if shard_id not in generated:
-        writers["shards"] = ShardWriter(store, shard_id, n, stage="shards")
+    with contextlib.ExitStack() as aborts:  # whatever is raised aborts both attempts
+        stages = ("curation",) if shard_id in generated else ("curation", "shards")
+        writers = {
+            stage: aborts.enter_context(ShardWriter(store, shard_id, n, stage=stage))
+            for stage in stages
+        }
 
-    def write(table: str, record_batch: pa.RecordBatch) -> None:
-        stage = "curation" if table in ("paths", "curated") else "shards"
-        if stage in writers and record_batch.num_rows:
-            writers[stage].write(table, record_batch)
+        def write(table: str, record_batch: pa.RecordBatch) -> None:
+            stage = "curation" if table in ("paths", "curated") else "shards"
+            if stage in writers and record_batch.num_rows:
+                writers[stage].write(table, record_batch)
 
-    try:
         indices = np.flatnonzero(batch.n_joints == n).astype(np.int64)
         stats, curation = _group_rows(batch, shown, indices, n, seed, write)
         if "shards" in writers:
@@ -258,10 +261,6 @@ def _import_shard(
             generated[shard_id] = writers["shards"].commit(stats)
         fence()
         return writers["curation"].commit(curation)
-    except BaseException:
-        for writer in writers.values():
-            writer.abort()
-        raise
 
 
 def _following(store: Store, relative: str | None) -> Iterator[tuple[int, int, Any]] | None:
