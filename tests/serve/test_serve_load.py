@@ -37,7 +37,7 @@ from tests.support.serving import FOUR_BAR, as_served, retrieved, serving
 K = 5
 #: The load: clients retrieving at once, and for how long (seconds) in each setting.
 LOAD_CLIENTS = 32
-LOAD_SECONDS = 20.0
+LOAD_SECONDS = 10.0
 #: Partition replicas' CPUs, so that the partitions and the gateway (one CPU) fit the 2-CPU cluster.
 SHARD_CPUS = 0.25
 
@@ -143,7 +143,7 @@ def test_under_load(
 
 
 #: Clients posting the largest bodies and simulations at once, and for how long (seconds).
-BIG_CLIENTS, BIG_SECONDS = 8, 20.0
+BIG_CLIENTS, BIG_SECONDS = 8, 10.0
 
 
 def test_health_is_answered_while_the_largest_bodies_and_answers_are_handled(

@@ -30,10 +30,10 @@ SCALE_PATHS, SCALE_LISTED_SPLITS = 40_000, (1, 2)
 
 
 @pytest.fixture(scope="session")
-def scale_root(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> str:
+def scale_root(tmp_path_factory: pytest.TempPathFactory) -> str:
     """A dataset of at least SCALE_PATHS curated paths (mechanisms and curated only), its index
-    saved whole and split in 2 and 4 parts: made once and cached between runs
-    (tests/support/scale_data.py), linked into this session's own folder.
+    saved whole and split in 2 and 4 parts: made once in this process, without Ray, and cached
+    between runs (tests/support/scale_data.py), linked into this session's own folder.
 
     Large enough that the search scans: one index and every part of each split pass on fewer
     candidates than they hold paths (a smaller index estimates every path, in every variant),

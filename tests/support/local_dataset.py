@@ -16,9 +16,14 @@ from links_ray.data.shards import GenerationPlan, write_shard
 from links_ray.data.store import META, Store
 
 
-def generate_and_curate(root: str, plan: GenerationPlan, curation_seed: int = 0) -> str:
-    """Write `plan`'s shards and their curation into `root` (a folder or store URI); returns
-    `root`."""
+def generate_and_curate(
+    root: str,
+    plan: GenerationPlan,
+    curation_seed: int = 0,
+    curation_tables: tuple[str, ...] = CURATION_TABLES,
+) -> str:
+    """Write `plan`'s shards and their curation (`curation_tables`) into `root` (a folder or
+    store URI); returns `root`."""
     store = Store.open(root)
     store.claim(f"{META}/run.json", plan.config())
     for shard in plan.shards():
@@ -32,7 +37,7 @@ def generate_and_curate(root: str, plan: GenerationPlan, curation_seed: int = 0)
             files["mechanisms"],
             files.get("simulations"),
             curation_seed,
-            CURATION_TABLES,
+            curation_tables,
             plan.steps,
         )
     return root

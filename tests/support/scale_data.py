@@ -118,19 +118,18 @@ def cached(name: str, key: str, build: Callable[[Path], None]) -> Iterator[Path]
 
 
 def build_dataset(folder: Path) -> None:
-    """Generate mechanisms and curate paths into `folder` (on the Ray already running)."""
-    from links_ray.cluster.curation import curate
-    from links_ray.cluster.generation import generate
+    """Generate mechanisms and curate paths into `folder`, in this process: the rows of
+    `links generate` and `links curate` with the same plan (tests/support/local_dataset.py)."""
+    from links_ray.data.shards import GenerationPlan
+    from tests.support.local_dataset import generate_and_curate
 
-    generate(
-        str(folder),
-        GENERATION["mechanisms"],
+    plan = GenerationPlan(
         seed=GENERATION["seed"],
-        progress=False,
+        mechanisms=GENERATION["mechanisms"],
         topologies_per_shard=GENERATION["topologies_per_shard"],
-        tables=GENERATION["tables"],
+        tables=tuple(GENERATION["tables"]),
     )
-    curate(str(folder), progress=False, tables=GENERATION["curation_tables"])
+    generate_and_curate(str(folder), plan, curation_tables=tuple(GENERATION["curation_tables"]))
 
 
 def build_indexes(dataset: Path) -> Callable[[Path], None]:
@@ -150,12 +149,12 @@ def build_indexes(dataset: Path) -> Callable[[Path], None]:
 
 def data_key() -> str:
     """The key of the dataset: the code that generates and curates it, and its parameters."""
-    return code_key(("engine", "data", "cluster"), GENERATION)
+    return code_key(("engine", "data"), GENERATION)
 
 
 def index_key() -> str:
     """The key of the dataset with its indexes saved: the dataset's, and the search's code."""
-    return code_key(("engine", "data", "cluster", "search"), {**GENERATION, "splits": SPLITS})
+    return code_key(("engine", "data", "search"), {**GENERATION, "splits": SPLITS})
 
 
 def scale_dataset(target: Path) -> None:
