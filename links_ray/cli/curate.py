@@ -14,6 +14,7 @@ from links_ray.cli.arguments import (
     tables,
 )
 from links_ray.cli.kernels import note_compiling
+from links_ray.data.schemas import PATH_STORES
 
 
 def add_command(commands: argparse._SubParsersAction) -> None:
@@ -29,7 +30,15 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         "--tables",
         default=None,
         metavar="TABLES",
-        help="tables to write, comma-separated: paths, curated or both (default both)",
+        help="tables to write, comma-separated: paths, curated or both (default both; with "
+        "--store ids, curated)",
+    )
+    curate.add_argument(
+        "--store",
+        choices=PATH_STORES,
+        default="points",
+        help="points: the paths with their points (default); ids: ids and flags only, a lean "
+        "root whose readers derive the points from the mechanisms, bit for bit",
     )
     json_option(curate, "the pass's summary")
     curate.set_defaults(run=run)
@@ -45,6 +54,7 @@ def run(args: argparse.Namespace) -> None:
         workers=args.workers,
         address=args.address,
         starting=lambda: note_compiling("curate"),
+        path_store=args.store,
         **tables(args),
     )
     print_result(args, summary, report.format_curate)

@@ -24,7 +24,7 @@ from links_ray.cluster.progress import Progress
 from links_ray.data.commit import committed_shards, remove_uncommitted
 from links_ray.data.lease import Lease, LeaseLost, holder_still
 from links_ray.data.pathset import KEEP_SHARE, curate_shard, path_shares
-from links_ray.data.schemas import CURATION_TABLES, choose_tables
+from links_ray.data.schemas import CURATION_TABLES, check_path_store, choose_tables
 from links_ray.data.store import META, Store, StoreError, diagnose, refuse_imported
 from links_ray.engine.inputs import DEFAULT_STEPS
 
@@ -38,13 +38,20 @@ class ShardCurator:
     """A Ray Data actor: curates the generation shards it is given, one per row."""
 
     def __init__(
-        self, uri: str, seed: int, lease_token: str, tables: tuple[str, ...], steps: int
+        self,
+        uri: str,
+        seed: int,
+        lease_token: str,
+        tables: tuple[str, ...],
+        steps: int,
+        path_store: str = "points",
     ) -> None:
         self.store = Store.open(uri, attempts=10)
         self.seed = seed
         self.lease_token = lease_token
         self.tables = tables
         self.steps = steps
+        self.path_store = path_store
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Curate each shard of the batch; a shard the store refused reports its error as data
@@ -96,6 +103,7 @@ class ShardCurator:
             self.tables,
             self.steps,
             before_commit=still_holder,
+            path_store=self.path_store,
         )
 
 
@@ -105,22 +113,31 @@ def curate(
     workers: int | None = None,
     address: str | None = None,
     progress: bool = True,
-    tables: str | Iterable[str] = CURATION_TABLES,
+    tables: str | Iterable[str] | None = None,
     starting: Callable[[], None] | None = None,
+    path_store: str = "points",
 ) -> dict:
     """Curate every committed generation shard at `root` not curated yet; returns the summary.
 
     `tables` are the tables written: `paths`, `curated` or both (names, or one comma-separated
-    string). `starting` is called just before Ray starts, only when there is work.
+    string; default both, or with `path_store` "ids" the curated set alone). `path_store`
+    "ids" writes them as ids and flags without points, a lean root whose readers derive the
+    points (`links_ray.data.derived`). `starting` is called just before Ray starts, only when
+    there is work.
     """
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     if workers is not None and (isinstance(workers, bool) or workers < 1):
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    check_path_store(path_store)
+    if tables is None:
+        tables = ("curated",) if path_store == "ids" else CURATION_TABLES
     tables = choose_tables(tables, CURATION_TABLES)
     store = Store.open(root)
     with Lease.acquire(store, "writer", "links curate") as lease:
-        summary = _curate_holding(store, lease, seed, tables, workers, address, progress, starting)
+        summary = _curate_holding(
+            store, lease, seed, tables, workers, address, progress, starting, path_store
+        )
     return summary
 
 
@@ -133,6 +150,7 @@ def _curate_holding(
     address: str | None,
     progress: bool,
     starting: Callable[[], None] | None = None,
+    path_store: str = "points",
 ) -> dict:
     """`curate`'s work, done while holding the root's writer lease."""
     run = refuse_imported(store)
@@ -144,9 +162,11 @@ def _curate_holding(
         "keep_share": KEEP_SHARE,
         "format": CURATION_FORMAT,
         "tables": list(tables),
+        "path_store": path_store,
     }
-    # A pass recorded before tables could be chosen wrote them both.
-    store.claim(f"{META}/curation.json", settings, defaults={"tables": list(CURATION_TABLES)})
+    # A pass recorded before tables or the store could be chosen wrote both, with points.
+    defaults = {"tables": list(CURATION_TABLES), "path_store": "points"}
+    store.claim(f"{META}/curation.json", settings, defaults=defaults)
     steps = run.get("steps", DEFAULT_STEPS)  # of shards to simulate again
     curated = committed_shards(store, "curation")
     remove_uncommitted(store, "curation", curated)
@@ -166,7 +186,9 @@ def _curate_holding(
         try:
             for passes in range(1, CURATION_PASSES + 1):
                 try:
-                    _curate_shards(store, lease, todo, seed, tables, steps, workers, meter)
+                    _curate_shards(
+                        store, lease, todo, seed, tables, steps, workers, meter, path_store
+                    )
                     break
                 except ray.exceptions.RayActorError as exc:
                     if passes == CURATION_PASSES:
@@ -185,6 +207,7 @@ def _curate_holding(
         lease.confirm()
         remove_uncommitted(store, "curation", committed_shards(store, "curation"))
     summary = summarize_curation(store, time.perf_counter() - start, curated_now, tables)
+    summary["path_store"] = path_store
     store.write_json(f"{META}/curation_summary.json", summary)
     return summary
 
@@ -198,6 +221,7 @@ def _curate_shards(
     steps: int,
     workers: int | None,
     meter: Progress,
+    path_store: str = "points",
 ) -> None:
     """One Ray Data pass of `ShardCurator` actors over the generation shards of `todo` (their
     markers), each committed as it is done; RayActorError if a curator is lost, StoreError
@@ -228,6 +252,7 @@ def _curate_shards(
                 "lease_token": lease.token,
                 "tables": tables,
                 "steps": steps,
+                "path_store": path_store,
             },
             batch_size=1,
             compute=ray.data.ActorPoolStrategy(size=actors),

@@ -43,7 +43,13 @@ from concurrent.futures import ThreadPoolExecutor
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from links_ray.data.schemas import CURATION_TABLES, GENERATION_TABLES, PARQUET_OPTIONS, SCHEMAS
+from links_ray.data.schemas import (
+    CURATION_TABLES,
+    GENERATION_TABLES,
+    ID_SCHEMAS,
+    PARQUET_OPTIONS,
+    SCHEMAS,
+)
 from links_ray.data.store import META, TEMPORARY_PREFIX, Store
 
 #: Each stage's marker folder (under `ROOT/_links/`) and the tables its shards write.
@@ -227,11 +233,14 @@ class ShardWriter:
         if table not in STAGE_TABLES[self.stage]:
             raise ValueError(f"the {self.stage} stage writes no {table} table")
         if table not in self._writers:
+            # A path table may be stored as ids, without its points (data.derived).
+            if batch.schema not in (SCHEMAS[table], ID_SCHEMAS.get(table)):
+                raise ValueError(f"rows of {table} with columns {batch.schema.names}")
             relative = self._temporary(table)
             self.store._make_parent(relative)
             stream = self.store.fs.open_output_stream(self.store.path(relative))
             self._streams[table] = stream
-            self._writers[table] = pq.ParquetWriter(stream, SCHEMAS[table], **PARQUET_OPTIONS)
+            self._writers[table] = pq.ParquetWriter(stream, batch.schema, **PARQUET_OPTIONS)
         self._writers[table].write_batch(batch)
         self.rows[table] = self.rows.get(table, 0) + batch.num_rows
 

@@ -17,6 +17,7 @@ import pyarrow.dataset as pads
 from numpy.typing import ArrayLike
 
 from links_ray.data.commit import committed_files
+from links_ray.data.derived import DERIVABLE_TABLES, derived_batches, derived_tables
 from links_ray.data.schemas import TABLE_NAMES
 from links_ray.data.splits import check_fractions, check_split, split_mask, with_split_key
 from links_ray.data.store import Store
@@ -73,7 +74,7 @@ def joint_count_filter(n_joints: int | Iterable[int] | None) -> pads.Expression 
     return pads.field("n_joints").isin([int(n) for n in sizes])
 
 
-def check_columns(dataset: pads.Dataset, table: str, columns: list[str] | None) -> None:
+def check_columns(dataset: pads.Dataset | pa.Table, table: str, columns: list[str] | None) -> None:
     """ValueError naming the `columns` that `table` does not have."""
     unknown = sorted(set(columns or ()) - set(dataset.schema.names))
     if unknown:
@@ -104,10 +105,17 @@ def load(
     if split is not None:
         check_split(split)
         check_fractions(split_fractions)
-    dataset = open_table(root, table)
-    check_columns(dataset, table, columns)
-    read = columns if split is None else with_split_key(columns, dataset.schema.names)
-    rows = dataset.to_table(columns=read, filter=joint_count_filter(n_joints))
+    store = root if isinstance(root, Store) else Store.open(root, writable=False)
+    if _derives(store, table, columns):
+        rows = _derived_table(store, table, n_joints)
+        check_columns(rows, table, columns)
+        read = columns if split is None else with_split_key(columns, rows.schema.names)
+        rows = rows if read is None else rows.select(read)
+    else:
+        dataset = open_table(store, table)
+        check_columns(dataset, table, columns)
+        read = columns if split is None else with_split_key(columns, dataset.schema.names)
+        rows = dataset.to_table(columns=read, filter=joint_count_filter(n_joints))
     if split is not None:
         rows = rows.filter(pa.array(split_mask(rows, split, split_fractions)))
         if columns is not None:
@@ -118,6 +126,26 @@ def load(
     if reshape:
         _reshape(frame)
     return frame
+
+
+def _derives(store: Store, table: str, columns: list[str] | None) -> bool:
+    """Whether a read of `columns` of `table` derives rows: the root stores no such rows, or
+    stores them as ids and the read wants their points (`data.derived`)."""
+    if table not in DERIVABLE_TABLES or table not in derived_tables(store):
+        return False
+    stored = committed_files(store, table) if table != "simulations" else []
+    return not stored or columns is None or "points" in columns
+
+
+def _derived_table(store: Store, table: str, n_joints: int | Iterable[int] | None) -> pa.Table:
+    """Every derived row of `table` (of `n_joints` joints, when given), as one table."""
+    sizes = None
+    if n_joints is not None:
+        sizes = [n_joints] if isinstance(n_joints, int | np.integer) else list(n_joints)
+    parts = list(derived_batches(store, table, sizes))
+    if not parts:
+        raise ValueError(f"{store.uri} has no {table} rows to derive")
+    return pa.concat_tables(parts)
 
 
 def _reshape(frame: pd.DataFrame) -> None:

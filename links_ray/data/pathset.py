@@ -28,7 +28,13 @@ import numpy as np
 import pyarrow as pa
 
 from links_ray.data.commit import ShardWriter
-from links_ray.data.schemas import MAX_LIST_VALUES, SCHEMAS, TRAJECTORY_DTYPE, list_array
+from links_ray.data.schemas import (
+    MAX_LIST_VALUES,
+    SCHEMAS,
+    TRAJECTORY_DTYPE,
+    check_path_store,
+    list_array,
+)
 from links_ray.data.store import Store
 from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.mechanism import FIXED, analyze_topology, arc_flags
@@ -233,14 +239,17 @@ def curate_shard(
     tables: Iterable[str],
     steps: int = DEFAULT_STEPS,
     before_commit: Callable[[], None] | None = None,
+    path_store: str = "points",
 ) -> dict:
     """Curate one committed generation shard: its `paths` and `curated` rows (those named in
-    `tables`) written by a curation-stage `ShardWriter`, then its marker; returns the marker.
+    `tables`; with `path_store` "ids", without their points) written by a curation-stage
+    `ShardWriter`, then its marker; returns the marker.
 
     With no `simulations_file` (generation left the table out) the shard's mechanisms are
     simulated again, which gives the same rows. `before_commit` runs just before the marker is
     written (a curator checks there that its run still holds the root); whatever it or the
     writing raises aborts the shard's files."""
+    check_path_store(path_store)
     start = time.perf_counter()
     mechanisms = store.read_parquet(mechanisms_file)
     simulations = store.read_parquet(simulations_file) if simulations_file else None
@@ -250,6 +259,8 @@ def curate_shard(
             curated = paths.filter(curated_mask(paths, seed))
             for table, rows in (("paths", paths), ("curated", curated)):
                 if table in tables:
+                    if path_store == "ids":
+                        rows = rows.drop_columns(["points"])
                     for batch in rows.to_batches(max_chunksize=50_000):
                         writer.write(table, batch)
             counts["paths"] += len(paths)

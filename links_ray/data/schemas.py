@@ -69,9 +69,24 @@ SCHEMAS: dict[str, pa.Schema] = {
     "paths": _PATH_SCHEMA,
     "curated": _PATH_SCHEMA,
 }
+#: How curation stores a path table: with its points, or as ids and flags only (a lean root:
+#: readers derive the points from the mechanisms, `links_ray.data.derived`).
+PATH_STORES = ("points", "ids")
+#: The path tables' columns when stored as ids: all but `points`.
+ID_SCHEMAS: dict[str, pa.Schema] = {
+    table: SCHEMAS[table].remove(SCHEMAS[table].get_field_index("points"))
+    for table in ("paths", "curated")
+}
 #: zstd, no dictionary: floats do not repeat, and dictionary pages only cost time and space.
 PARQUET_OPTIONS = {"compression": "zstd", "use_dictionary": False, "write_statistics": True}
 TABLE_NAMES = GENERATION_TABLES + CURATION_TABLES
+
+
+def check_path_store(path_store: str) -> str:
+    """`path_store` if it is one of PATH_STORES; ValueError naming them otherwise."""
+    if path_store not in PATH_STORES:
+        raise ValueError(f"store must be one of {', '.join(PATH_STORES)}, got {path_store!r}")
+    return path_store
 
 
 def choose_tables(

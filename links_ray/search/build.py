@@ -19,6 +19,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from links_ray.data.dataset import isin, open_table
+from links_ray.data.derived import file_batches
 from links_ray.data.store import Store
 from links_ray.search import kernels
 from links_ray.search.mechanisms import MechanismBank
@@ -80,10 +81,9 @@ class Basis:
 def curated_batches(
     store: Store, files: list[str], columns: list[str], block: int
 ) -> Iterator[pa.RecordBatch]:
-    """Record batches of up to `block` rows of these curated files, in order."""
-    for relative in files:
-        with store.fs.open_input_file(store.path(relative)) as source:
-            yield from pq.ParquetFile(source).iter_batches(batch_size=block, columns=columns)
+    """Record batches of up to `block` rows of these curated files, in order; a lean root's
+    points derived from its mechanisms (`data.derived`)."""
+    yield from file_batches(store, "curated", files, columns, block)
 
 
 def batch_points(batch: pa.RecordBatch) -> np.ndarray:

@@ -155,6 +155,9 @@ def test_bad_arguments_fail_with_one_line(tmp_path: Path) -> None:
         assert result.returncode == 2
         assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
         assert result.stderr.startswith("links serve: error: argument --port: must be a ")
+    result = links("curate", str(tmp_path), "--store", "all")
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert result.stderr.startswith("links curate: error: argument --store: invalid choice: 'all'")
     result = links("generate", "--out", "ftp://host/x", "--mechanisms", "5")
     assert result.returncode == 2
     assert result.stderr == (

@@ -414,6 +414,32 @@ def test_curation_from_mechanisms_alone_on_s3(
     assert rows["paths"] is None and rows["curated"].equals(curated_run["curated"])
 
 
+def test_a_lean_run_on_s3_reads_as_a_stored_one(
+    ray_cluster: str, s3_env: str, curated_run: dict
+) -> None:
+    """`curated_run`'s plan generated as mechanisms alone on S3, curated on Ray as ids: no
+    paths or simulations stored, no points; each table read derives the stored rows."""
+    uri = f"{s3_env}/links-lean"
+    generate(
+        uri,
+        MECHANISMS,
+        seed=7,
+        progress=False,
+        topologies_per_shard=TOPOLOGIES_PER_SHARD,
+        tables="mechanisms",
+    )
+    summary = curate(uri, seed=11, progress=False, path_store="ids")
+    assert summary["path_store"] == "ids" and summary["tables"] == ["curated"]
+    assert summary["curated"] == curated_run["summary"]["curated"]
+    store = Store.open(uri)
+    assert store.list_files("paths") == [] and store.list_files("simulations") == []
+    for table in ("curated", "paths", "simulations"):
+        derived = links_ray.load(uri, table, format="arrow")
+        assert derived.equals(links_ray.load(curated_run["out"], table, format="arrow")), table
+    with pytest.raises(ValueError, match="path_store"):  # a root holds one kind of curated set
+        curate(uri, seed=11, progress=False)
+
+
 def test_load_filters_and_reshapes(curated_run: dict) -> None:
     out = curated_run["out"]
     frame = links_ray.load(out, "mechanisms", n_joints=12, reshape=True)

@@ -21,9 +21,10 @@ def generate_and_curate(
     plan: GenerationPlan,
     curation_seed: int = 0,
     curation_tables: tuple[str, ...] = CURATION_TABLES,
+    path_store: str = "points",
 ) -> str:
-    """Write `plan`'s shards and their curation (`curation_tables`) into `root` (a folder or
-    store URI); returns `root`."""
+    """Write `plan`'s shards and their curation (`curation_tables`, stored as `path_store`)
+    into `root` (a folder or store URI); returns `root`."""
     store = Store.open(root)
     store.claim(f"{META}/run.json", plan.config())
     for shard in plan.shards():
@@ -39,5 +40,6 @@ def generate_and_curate(
             curation_seed,
             curation_tables,
             plan.steps,
+            path_store=path_store,
         )
     return root

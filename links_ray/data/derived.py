@@ -1,0 +1,181 @@
+"""Rows a lean root does not store, derived from its mechanisms, bit for bit.
+
+A lean root keeps what cannot be recomputed: its mechanisms (`links generate --tables
+mechanisms`) and its curated set as ids and flags without points (`links curate --store ids`).
+Every trajectory and path is a pure function of its mechanism: simulated and cast as
+generation casts it (`pathset.simulated_trajectories`), then normalized
+(`pathset.path_batches`). Readers derive them here, one generation shard at a time, with the
+code that writes them, so a derived row equals the stored one of a root curated with points.
+
+Which tables a root derives (`derived_tables`): `simulations` and `paths` when no shard stored
+them, `curated` when its files hold no points. A curated file of ids is checked against its
+shard's derived paths: every id must be among them, in order, or the reader says so.
+
+Memory is bounded by a shard's mechanisms file and `pathset.MECHANISMS_PER_BATCH` mechanisms'
+trajectories at a time, whatever the root's size. Pure numpy/pyarrow: no Ray.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from links_ray.data.commit import SHARD_NAME, committed_files, committed_shards
+from links_ray.data.pathset import (
+    MECHANISMS_PER_BATCH,
+    by_mechanism_id,
+    path_batches,
+    simulated_trajectories,
+)
+from links_ray.data.schemas import SCHEMAS, list_array
+from links_ray.data.store import META, Store
+from links_ray.engine.inputs import DEFAULT_STEPS
+
+__all__ = ["DERIVABLE_TABLES", "derived_batches", "derived_tables", "file_batches"]
+
+#: Tables a lean root may derive instead of storing.
+DERIVABLE_TABLES = ("simulations", "paths", "curated")
+
+
+def has_points(schema: pa.Schema) -> bool:
+    """Whether a path table's files hold their points (a lean root's hold ids and flags)."""
+    return "points" in schema.names
+
+
+def file_schema(store: Store, relative: str) -> pa.Schema:
+    """The columns of one Parquet file of the root."""
+    with store.fs.open_input_file(store.path(relative)) as source:
+        return pq.ParquetFile(source).schema_arrow
+
+
+def derived_tables(store: Store) -> tuple[str, ...]:
+    """The tables `store`'s root derives, once it has generated mechanisms: `simulations` and
+    `paths` when no shard stored them, and `paths` and `curated` when their files hold ids
+    without points."""
+    if not committed_files(store, "mechanisms"):
+        return ()
+    derived = []
+    for table in DERIVABLE_TABLES:
+        files = committed_files(store, table)
+        if files and table != "simulations" and not has_points(file_schema(store, files[0])):
+            derived.append(table)
+        elif not files and table != "curated":  # the curated set is chosen, not derived
+            derived.append(table)
+    return tuple(derived)
+
+
+def _steps(store: Store) -> int:
+    """The steps of the root's simulations, as its run record gives them."""
+    run = store.read_json(f"{META}/run.json") or {}
+    return int(run.get("steps", DEFAULT_STEPS))
+
+
+def _shard_of(relative: str) -> int:
+    found = SHARD_NAME.fullmatch(relative.rsplit("/", 1)[-1])
+    if found is None:
+        raise ValueError(f"{relative} is not a shard file")
+    return int(found.group(2))
+
+
+def _simulation_batches(mechanisms: pa.Table, n_joints: int, steps: int) -> Iterator[pa.Table]:
+    """A shard's `simulations` rows, MECHANISMS_PER_BATCH mechanisms at a time."""
+    mechanisms = by_mechanism_id(mechanisms)
+    for start in range(0, len(mechanisms), MECHANISMS_PER_BATCH):
+        part = mechanisms.slice(start, MECHANISMS_PER_BATCH)
+        trajectories = simulated_trajectories(part, n_joints, steps)
+        schema = SCHEMAS["simulations"]
+        yield pa.table(
+            {
+                "mechanism_id": part.column("mechanism_id"),
+                "steps": np.full(len(part), steps, dtype=np.int16),
+                "trajectories": list_array(
+                    trajectories.reshape(len(part), -1),
+                    schema.field("trajectories").type.value_type,
+                ),
+            },
+            schema=schema,
+        )
+
+
+def _curated_batches(paths: Iterator[pa.Table], ids: np.ndarray, where: str) -> Iterator[pa.Table]:
+    """The rows of `paths` whose path ids are `ids`, checked to be all of them, in order."""
+    found = 0
+    wanted = pa.array(ids)
+    for batch in paths:
+        kept = batch.filter(pc.is_in(batch.column("path_id"), value_set=wanted))
+        got = kept.column("path_id").to_numpy()
+        if not np.array_equal(got, ids[found : found + len(got)]):
+            raise ValueError(f"{where}: its curated ids are not among its mechanisms' paths")
+        found += len(got)
+        yield kept
+    if found != len(ids):
+        raise ValueError(
+            f"{where}: {len(ids) - found} of its curated ids are not among its mechanisms' paths"
+        )
+
+
+def _shard_tables(
+    store: Store, table: str, marker: dict, ids_file: str | None
+) -> Iterator[pa.Table]:
+    """One generation shard's rows of `table`, derived; with `ids_file` (the shard's file of
+    path ids, for `paths` or `curated`), those rows only."""
+    n_joints = int(marker["n_joints"])
+    mechanisms = store.read_parquet(marker["files"]["mechanisms"])
+    steps = _steps(store)
+    if table == "simulations":
+        yield from _simulation_batches(mechanisms, n_joints, steps)
+        return
+    paths = path_batches(mechanisms, None, n_joints, steps)
+    if ids_file is None:
+        yield from paths
+        return
+    ids = store.read_parquet(ids_file, columns=["path_id"]).column("path_id").to_numpy()
+    yield from _curated_batches(paths, ids, f"{store.uri}/{ids_file}")
+
+
+def derived_batches(
+    store: Store, table: str, n_joints: Iterable[int] | None = None
+) -> Iterator[pa.Table]:
+    """Every row of `table` at `store`'s root, derived shard by shard in shard order (only
+    shards of `n_joints` joints, when given), with its `n_joints` as a stored table's read
+    gives it; `table` one of `derived_tables(store)`."""
+    if table not in DERIVABLE_TABLES:
+        raise ValueError(f"table must be one of {', '.join(DERIVABLE_TABLES)}, got {table!r}")
+    wanted = None if n_joints is None else {int(n) for n in n_joints}
+    generated = committed_shards(store, "shards")
+    stored = {} if table == "simulations" else committed_files(store, table)
+    ids_files = {_shard_of(relative): relative for relative in stored}
+    for shard, marker in sorted(generated.items()):
+        if wanted is not None and int(marker["n_joints"]) not in wanted:
+            continue
+        if ids_files and shard not in ids_files:
+            continue  # not curated yet
+        for rows in _shard_tables(store, table, marker, ids_files.get(shard)):
+            # The partition column, typed as a read of the stored table gives it.
+            count = np.full(len(rows), marker["n_joints"], dtype=np.int16)
+            yield rows.append_column("n_joints", pa.array(count))
+
+
+def file_batches(
+    store: Store, table: str, files: list[str], columns: list[str], block: int
+) -> Iterator[pa.RecordBatch]:
+    """Record batches of up to `block` rows of these committed files of a path table, in
+    order, with `columns`: read as stored, or, for a file without the points that `columns`
+    name, derived from its shard's mechanisms."""
+    generated: dict[int, dict] | None = None
+    for relative in files:
+        if "points" not in columns or has_points(file_schema(store, relative)):
+            with store.fs.open_input_file(store.path(relative)) as source:
+                yield from pq.ParquetFile(source).iter_batches(batch_size=block, columns=columns)
+            continue
+        if generated is None:
+            generated = committed_shards(store, "shards")
+        marker = generated.get(_shard_of(relative))
+        if marker is None:
+            raise ValueError(f"{store.uri}/{relative}: its generation shard is not committed")
+        for rows in _shard_tables(store, table, marker, relative):
+            yield from rows.select(columns).to_batches(max_chunksize=block)
