@@ -74,9 +74,12 @@ def joint_count_filter(n_joints: int | Iterable[int] | None) -> pads.Expression 
     return pads.field("n_joints").isin([int(n) for n in sizes])
 
 
-def check_columns(dataset: pads.Dataset | pa.Table, table: str, columns: list[str] | None) -> None:
-    """ValueError naming the `columns` that `table` does not have."""
-    unknown = sorted(set(columns or ()) - set(dataset.schema.names))
+def check_columns(
+    dataset: pads.Dataset | pa.Table | list[str], table: str, columns: list[str] | None
+) -> None:
+    """ValueError naming the `columns` that `table` (its rows, or its column names) lacks."""
+    names = dataset if isinstance(dataset, list) else dataset.schema.names
+    unknown = sorted(set(columns or ()) - set(names))
     if unknown:
         raise ValueError(f"{table} has no column {', '.join(unknown)}")
 
@@ -106,7 +109,7 @@ def load(
         check_split(split)
         check_fractions(split_fractions)
     store = root if isinstance(root, Store) else Store.open(root, writable=False)
-    if _derives(store, table, columns):
+    if derives_rows(store, table, columns):
         rows = _derived_table(store, table, n_joints)
         check_columns(rows, table, columns)
         read = columns if split is None else with_split_key(columns, rows.schema.names)
@@ -128,7 +131,7 @@ def load(
     return frame
 
 
-def _derives(store: Store, table: str, columns: list[str] | None) -> bool:
+def derives_rows(store: Store, table: str, columns: list[str] | None) -> bool:
     """Whether a read of `columns` of `table` derives rows: the root stores no such rows, or
     stores them as ids and the read wants their points (`data.derived`)."""
     if table not in DERIVABLE_TABLES or table not in derived_tables(store):

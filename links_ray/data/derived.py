@@ -35,7 +35,15 @@ from links_ray.data.schemas import SCHEMAS, list_array
 from links_ray.data.store import META, Store
 from links_ray.engine.inputs import DEFAULT_STEPS
 
-__all__ = ["DERIVABLE_TABLES", "derived_batches", "derived_tables", "file_batches"]
+__all__ = [
+    "DERIVABLE_TABLES",
+    "derived_batches",
+    "derived_schema",
+    "derived_shards",
+    "derived_tables",
+    "file_batches",
+    "shard_batches",
+]
 
 #: Tables a lean root may derive instead of storing.
 DERIVABLE_TABLES = ("simulations", "paths", "curated")
@@ -137,27 +145,49 @@ def _shard_tables(
     yield from _curated_batches(paths, ids, f"{store.uri}/{ids_file}")
 
 
+def derived_schema(table: str) -> pa.Schema:
+    """The columns of `table`'s derived rows: the stored table's, and its `n_joints`."""
+    return SCHEMAS[table].append(pa.field("n_joints", pa.int16()))
+
+
+def derived_shards(store: Store, table: str, n_joints: Iterable[int] | None = None) -> list[int]:
+    """The generation shards whose rows of `table` a read derives, in order (only shards of
+    `n_joints` joints, when given; for a table stored as ids, only the shards it holds)."""
+    if table not in DERIVABLE_TABLES:
+        raise ValueError(f"table must be one of {', '.join(DERIVABLE_TABLES)}, got {table!r}")
+    wanted = None if n_joints is None else {int(n) for n in n_joints}
+    stored = [] if table == "simulations" else committed_files(store, table)
+    held = {_shard_of(relative) for relative in stored}
+    return [
+        shard
+        for shard, marker in sorted(committed_shards(store, "shards").items())
+        if (wanted is None or int(marker["n_joints"]) in wanted) and (not held or shard in held)
+    ]
+
+
+def shard_batches(store: Store, table: str, shard: int) -> Iterator[pa.Table]:
+    """One generation shard's derived rows of `table`, with `n_joints` typed as a read of
+    the stored table gives it (`derived_schema`)."""
+    marker = committed_shards(store, "shards").get(shard)
+    if marker is None:
+        raise ValueError(f"{store.uri}: generation shard {shard} is not committed")
+    ids_file = None
+    if table != "simulations":
+        ids_file = next((f for f in committed_files(store, table) if _shard_of(f) == shard), None)
+    count = int(marker["n_joints"])
+    for rows in _shard_tables(store, table, marker, ids_file):
+        n_joints = pa.array(np.full(len(rows), count, dtype=np.int16))
+        yield rows.append_column("n_joints", n_joints)
+
+
 def derived_batches(
     store: Store, table: str, n_joints: Iterable[int] | None = None
 ) -> Iterator[pa.Table]:
     """Every row of `table` at `store`'s root, derived shard by shard in shard order (only
     shards of `n_joints` joints, when given), with its `n_joints` as a stored table's read
     gives it; `table` one of `derived_tables(store)`."""
-    if table not in DERIVABLE_TABLES:
-        raise ValueError(f"table must be one of {', '.join(DERIVABLE_TABLES)}, got {table!r}")
-    wanted = None if n_joints is None else {int(n) for n in n_joints}
-    generated = committed_shards(store, "shards")
-    stored = {} if table == "simulations" else committed_files(store, table)
-    ids_files = {_shard_of(relative): relative for relative in stored}
-    for shard, marker in sorted(generated.items()):
-        if wanted is not None and int(marker["n_joints"]) not in wanted:
-            continue
-        if ids_files and shard not in ids_files:
-            continue  # not curated yet
-        for rows in _shard_tables(store, table, marker, ids_files.get(shard)):
-            # The partition column, typed as a read of the stored table gives it.
-            count = np.full(len(rows), marker["n_joints"], dtype=np.int16)
-            yield rows.append_column("n_joints", pa.array(count))
+    for shard in derived_shards(store, table, n_joints):
+        yield from shard_batches(store, table, shard)
 
 
 def file_batches(
