@@ -30,7 +30,9 @@ from itertools import groupby
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 
+from links_ray.data.derived import file_schema, has_points
 from links_ray.data.pathset import (
     MECHANISMS_PER_BATCH,
     by_mechanism_id,
@@ -252,9 +254,9 @@ def _shard_part(
         trajectories = simulated_trajectories(mechanisms, n, steps)
         resimulated = len(ids)
 
-    if "paths" in curation_files:
+    if "paths" in curation_files and has_points(file_schema(store, curation_files["paths"])):
         paths = _of_mechanisms(store.read_parquet(curation_files["paths"], _CURVE_COLUMNS), ids)
-    else:
+    else:  # not written, or written as ids (a lean root): made from the trajectories
         paths = pa.concat_tables(
             [
                 trajectory_paths(
@@ -265,8 +267,12 @@ def _shard_part(
                 for start in range(0, len(ids), MECHANISMS_PER_BATCH)
             ]
         )
-    if "curated" in curation_files:
-        kept = _of_mechanisms(store.read_parquet(curation_files["curated"], _CURVE_COLUMNS), ids)
+    curated_file = curation_files.get("curated")
+    if curated_file and has_points(file_schema(store, curated_file)):
+        kept = _of_mechanisms(store.read_parquet(curated_file, _CURVE_COLUMNS), ids)
+    elif curated_file:  # a lean root's curated ids: their paths, as curation made them
+        chosen = store.read_parquet(curated_file, ["path_id"]).column("path_id")
+        kept = paths.filter(pc.is_in(paths.column("path_id"), value_set=chosen.combine_chunks()))
     else:
         kept = paths.filter(pa.array(curated_mask(paths, seed)))
 

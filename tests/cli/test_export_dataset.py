@@ -217,3 +217,29 @@ def test_a_root_without_mechanisms_is_a_value_error(tmp_path: Path) -> None:
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="holds no generated shards"):
         export_release(str(tmp_path / "empty"), str(tmp_path / "out"))
+
+
+def test_a_lean_root_exports_the_arrays_of_a_stored_one(tmp_path: Path) -> None:
+    """A root of mechanisms and curated ids (`links curate --store ids`) exports, array by
+    array, what the same run curated with points and stored simulations exports."""
+    from tests.support.local_dataset import generate_and_curate
+
+    plan = {"seed": 4, "mechanisms": 30, "topologies_per_shard": 2}
+    stored = generate_and_curate(str(tmp_path / "stored"), GenerationPlan(**plan))
+    lean = generate_and_curate(
+        str(tmp_path / "lean"),
+        GenerationPlan(**plan, tables=("mechanisms",)),
+        curation_tables=("curated",),
+        path_store="ids",
+    )
+    exports = {}
+    for name, root in (("stored", stored), ("lean", lean)):
+        export_release(root, str(tmp_path / f"{name}-release"), chunk_size=4)
+        exports[name] = read_export(tmp_path / f"{name}-release")
+    (stored_manifest, stored_chunks), (lean_manifest, lean_chunks) = exports.values()
+    assert lean_manifest["chunks"] == stored_manifest["chunks"]
+    assert lean_manifest["resimulated"] == 30 and stored_manifest["resimulated"] == 0
+    for theirs, ours in zip(stored_chunks, lean_chunks, strict=True):
+        assert theirs.keys() == ours.keys() and "curated" in ours
+        for name, array in theirs.items():
+            assert array.dtype == ours[name].dtype and array.tobytes() == ours[name].tobytes()
