@@ -13,6 +13,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
 from links_ray.data.pathset import arc_circle_counts, path_shares
 from links_ray.data.schemas import CURATION_TABLES, TABLE_NAMES
@@ -88,6 +89,29 @@ def _transmission(angles: pa.Table | None) -> dict | None:
     }
 
 
+def _made_paths(store: Store) -> tuple[dict | None, dict | None]:
+    """The counts and shares of every path curation made, from its markers alone: for a root
+    that stores no `paths` table (a lean one), whose curators counted them as they made them."""
+    markers = committed_shards(store, "curation").values()
+    if not markers or any("arcs" not in marker["stats"] for marker in markers):
+        return None, None
+    by_size: dict[int, int] = {}
+    totals = {"paths": 0, "arcs": 0, "circles": 0, "both": 0}
+    for marker in markers:
+        size = int(marker["n_joints"])
+        by_size[size] = by_size.get(size, 0) + int(marker["stats"]["paths"])
+        for key in totals:
+            totals[key] += int(marker["stats"][key])
+    counts = {
+        "rows": totals["paths"],
+        "by_joint_count": {str(size): count for size, count in sorted(by_size.items())},
+    }
+    paths = totals.pop("paths")
+    shares = path_shares(paths, **totals)
+    arc_not_circle = path_shares(paths, totals["arcs"] - totals["both"], 0, 0)["arc"]
+    return counts, {"paths": paths, **shares, "arc_not_circle": arc_not_circle}
+
+
 def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
     """The statistics of the dataset at `root` as one JSON-ready dict."""
     store = Store.open(root, writable=False)
@@ -102,6 +126,9 @@ def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
     counts = {table: _counts(rows) for table, rows in tables.items()}
     if not any(counts.values()):
         raise ValueError(f"{store.uri} holds no dataset tables")
+    shares = {table: _shares(tables[table]) for table in CURATION_TABLES}
+    if counts["paths"] is None:
+        counts["paths"], shares["paths"] = _made_paths(store)
     paths, mechanisms = counts["paths"], counts["mechanisms"]
     paths_per_mechanism = paths and mechanisms and paths["rows"] / mechanisms["rows"]
     # None for a dataset made before the column existed, too (pyarrow's ValueError).
@@ -130,7 +157,7 @@ def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
         "root": store.uri,
         "counts": counts,
         "paths_per_mechanism": paths_per_mechanism,
-        "shares": {table: _shares(tables[table]) for table in CURATION_TABLES},
+        "shares": shares,
         "min_transmission_deg": _transmission(angles),
         "candidates_per_valid": candidates,
         "candidates_per_valid_source": source,

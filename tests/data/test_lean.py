@@ -130,3 +130,16 @@ def test_curate_refuses_an_unknown_store() -> None:
 
     with pytest.raises(ValueError, match="store must be one of points, ids, got 'all'"):
         check_path_store("all")
+
+
+def test_stats_of_a_lean_root_are_those_of_the_stored_one(roots: tuple[str, str]) -> None:
+    """Counts and shares of every path made come from the curation markers when no `paths`
+    table is stored: the figures of the root that stores it."""
+    from links_ray.data.stats import dataset_stats
+
+    stored, lean = (dataset_stats(root, sample_topologies=1) for root in roots)
+    assert lean["counts"]["paths"] == stored["counts"]["paths"] and stored["counts"]["paths"]
+    assert lean["counts"]["curated"] == stored["counts"]["curated"]
+    assert lean["paths_per_mechanism"] == stored["paths_per_mechanism"] > 0
+    assert lean["shares"] == stored["shares"]
+    assert lean["counts"]["simulations"] is None and stored["counts"]["simulations"]
