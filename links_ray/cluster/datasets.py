@@ -7,6 +7,7 @@ than memory streams through `iter_batches` or `iter_torch_batches` without panda
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
@@ -87,10 +88,10 @@ def ray_dataset(
     return rows.map_batches(_keep, fn_kwargs=keep, batch_format="pyarrow")
 
 
-def _derived_rows(uri: str, table: str, shards: list[int]) -> ray.data.Dataset:
-    """The rows of `table` that the generation shards `shards` of the root at `uri` derive, a
-    task a shard, each streaming its blocks as it derives them."""
-    items = ray.data.from_items([{"shard": shard} for shard in shards])
+def _derived_rows(uri: str, table: str, shards: list[dict]) -> ray.data.Dataset:
+    """The rows of `table` that the generation shards `shards` (`derived_shards`) of the root
+    at `uri` derive, a task a shard, each streaming its blocks as it derives them."""
+    items = ray.data.from_items([{"shard": json.dumps(shard)} for shard in shards])
     return items.repartition(len(shards)).map_batches(
         _derive, fn_kwargs={"uri": uri, "table": table}, batch_size=1, batch_format="pyarrow"
     )
@@ -99,7 +100,7 @@ def _derived_rows(uri: str, table: str, shards: list[int]) -> ray.data.Dataset:
 def _derive(batch: pa.Table, uri: str, table: str) -> Iterator[pa.Table]:
     store = Store.open(uri, writable=False)
     for shard in batch.column("shard").to_pylist():
-        for rows in shard_batches(store, table, int(shard)):
+        for rows in shard_batches(store, table, json.loads(shard)):
             # As Ray's Parquet reader types the partition column of a stored table.
             where = rows.schema.get_field_index("n_joints")
             yield rows.set_column(where, "n_joints", rows.column(where).cast(pa.int64()))

@@ -150,32 +150,29 @@ def derived_schema(table: str) -> pa.Schema:
     return SCHEMAS[table].append(pa.field("n_joints", pa.int16()))
 
 
-def derived_shards(store: Store, table: str, n_joints: Iterable[int] | None = None) -> list[int]:
+def derived_shards(store: Store, table: str, n_joints: Iterable[int] | None = None) -> list[dict]:
     """The generation shards whose rows of `table` a read derives, in order (only shards of
-    `n_joints` joints, when given; for a table stored as ids, only the shards it holds)."""
+    `n_joints` joints, when given; for a table stored as ids, only the shards it holds): for
+    each, its generation `marker` and its `ids_file` (None when the table is not stored)."""
     if table not in DERIVABLE_TABLES:
         raise ValueError(f"table must be one of {', '.join(DERIVABLE_TABLES)}, got {table!r}")
     wanted = None if n_joints is None else {int(n) for n in n_joints}
     stored = [] if table == "simulations" else committed_files(store, table)
-    held = {_shard_of(relative) for relative in stored}
+    ids_files = {_shard_of(relative): relative for relative in stored}
     return [
-        shard
+        {"marker": marker, "ids_file": ids_files.get(shard)}
         for shard, marker in sorted(committed_shards(store, "shards").items())
-        if (wanted is None or int(marker["n_joints"]) in wanted) and (not held or shard in held)
+        if (wanted is None or int(marker["n_joints"]) in wanted)
+        and (not ids_files or shard in ids_files)
     ]
 
 
-def shard_batches(store: Store, table: str, shard: int) -> Iterator[pa.Table]:
-    """One generation shard's derived rows of `table`, with `n_joints` typed as a read of
-    the stored table gives it (`derived_schema`)."""
-    marker = committed_shards(store, "shards").get(shard)
-    if marker is None:
-        raise ValueError(f"{store.uri}: generation shard {shard} is not committed")
-    ids_file = None
-    if table != "simulations":
-        ids_file = next((f for f in committed_files(store, table) if _shard_of(f) == shard), None)
+def shard_batches(store: Store, table: str, shard: dict) -> Iterator[pa.Table]:
+    """The derived rows of `table` of one shard of `derived_shards`, with `n_joints` typed as
+    a read of the stored table gives it (`derived_schema`)."""
+    marker = shard["marker"]
     count = int(marker["n_joints"])
-    for rows in _shard_tables(store, table, marker, ids_file):
+    for rows in _shard_tables(store, table, marker, shard["ids_file"]):
         n_joints = pa.array(np.full(len(rows), count, dtype=np.int16))
         yield rows.append_column("n_joints", n_joints)
 
