@@ -143,3 +143,25 @@ def test_stats_of_a_lean_root_are_those_of_the_stored_one(roots: tuple[str, str]
     assert lean["paths_per_mechanism"] == stored["paths_per_mechanism"] > 0
     assert lean["shares"] == stored["shares"]
     assert lean["counts"]["simulations"] is None and stored["counts"]["simulations"]
+
+
+def test_links_retrieve_and_synthesize_answer_on_a_lean_root_as_on_the_stored_one(
+    roots: tuple[str, str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The commands, in this process: the same results (counted work for synthesis)."""
+    import json
+
+    from links_ray.cli.main import main
+
+    curated = links_ray.load(roots[0], "curated", columns=["points"], reshape=True)
+    drawing = tmp_path / "drawing.json"
+    drawing.write_text(json.dumps((curated["points"].iloc[3] * 2.0).tolist()))
+    answers = []
+    for root in roots:
+        for command in (["retrieve", "-k", "4"], ["synthesize", "-k", "2", "--iterations", "2"]):
+            assert main([command[0], root, "--points", str(drawing), *command[1:], "--json"]) == 0
+            answer = json.loads(capsys.readouterr().out)
+            answer.pop("took_ms")
+            answers.append(answer)
+    stored, lean = answers[:2], answers[2:]
+    assert lean == stored and len(stored[0]["results"]) == 4
