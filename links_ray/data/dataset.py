@@ -17,7 +17,7 @@ import pyarrow.dataset as pads
 from numpy.typing import ArrayLike
 
 from links_ray.data.commit import committed_files
-from links_ray.data.derived import DERIVABLE_TABLES, derived_batches, derived_tables
+from links_ray.data.derived import derived_batches, derived_schema, derives
 from links_ray.data.schemas import TABLE_NAMES
 from links_ray.data.splits import check_fractions, check_split, split_mask, with_split_key
 from links_ray.data.store import Store
@@ -110,8 +110,8 @@ def load(
         check_fractions(split_fractions)
     store = root if isinstance(root, Store) else Store.open(root, writable=False)
     if derives_rows(store, table, columns):
+        check_columns(derived_schema(table).names, table, columns)  # before the work
         rows = _derived_table(store, table, n_joints)
-        check_columns(rows, table, columns)
         read = columns if split is None else with_split_key(columns, rows.schema.names)
         rows = rows if read is None else rows.select(read)
     else:
@@ -134,10 +134,12 @@ def load(
 def derives_rows(store: Store, table: str, columns: list[str] | None) -> bool:
     """Whether a read of `columns` of `table` derives rows: the root stores no such rows, or
     stores them as ids and the read wants their points (`data.derived`)."""
-    if table not in DERIVABLE_TABLES or table not in derived_tables(store):
+    if not derives(store, table):
         return False
-    stored = committed_files(store, table) if table != "simulations" else []
-    return not stored or columns is None or "points" in columns
+    if columns is None or "points" in columns:
+        return True
+    # Columns without points: a table stored as ids reads them as stored.
+    return table == "simulations" or not committed_files(store, table)
 
 
 def _derived_table(store: Store, table: str, n_joints: int | Iterable[int] | None) -> pa.Table:

@@ -41,6 +41,7 @@ __all__ = [
     "derived_schema",
     "derived_shards",
     "derived_tables",
+    "derives",
     "file_batches",
     "shard_batches",
 ]
@@ -60,20 +61,27 @@ def file_schema(store: Store, relative: str) -> pa.Schema:
         return pq.ParquetFile(source).schema_arrow
 
 
+def derives(store: Store, table: str) -> bool:
+    """Whether `store`'s root derives `table`: once it has generated mechanisms, `simulations`
+    and `paths` when no shard stored them, and `paths` and `curated` when their files hold ids
+    without points (the curated set is chosen by curation, never derived without it). Reads
+    each stage's markers once."""
+    if table not in DERIVABLE_TABLES:
+        return False
+    generated = committed_shards(store, "shards")
+    if not committed_files(store, "mechanisms", generated):
+        return False
+    if table == "simulations":
+        return not committed_files(store, "simulations", generated)
+    files = committed_files(store, table)
+    if not files:
+        return table == "paths"
+    return not has_points(file_schema(store, files[0]))
+
+
 def derived_tables(store: Store) -> tuple[str, ...]:
-    """The tables `store`'s root derives, once it has generated mechanisms: `simulations` and
-    `paths` when no shard stored them, and `paths` and `curated` when their files hold ids
-    without points."""
-    if not committed_files(store, "mechanisms"):
-        return ()
-    derived = []
-    for table in DERIVABLE_TABLES:
-        files = committed_files(store, table)
-        if files and table != "simulations" and not has_points(file_schema(store, files[0])):
-            derived.append(table)
-        elif not files and table != "curated":  # the curated set is chosen, not derived
-            derived.append(table)
-    return tuple(derived)
+    """The tables `store`'s root derives (`derives`)."""
+    return tuple(table for table in DERIVABLE_TABLES if derives(store, table))
 
 
 def _steps(store: Store) -> int:
