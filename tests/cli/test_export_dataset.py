@@ -222,16 +222,9 @@ def test_a_root_without_mechanisms_is_a_value_error(tmp_path: Path) -> None:
 def test_a_lean_root_exports_the_arrays_of_a_stored_one(tmp_path: Path) -> None:
     """A root of mechanisms and curated ids (`links curate --store ids`) exports, array by
     array, what the same run curated with points and stored simulations exports."""
-    from tests.support.local_dataset import generate_and_curate
+    from tests.support.local_dataset import stored_and_lean
 
-    plan = {"seed": 4, "mechanisms": 30, "topologies_per_shard": 2}
-    stored = generate_and_curate(str(tmp_path / "stored"), GenerationPlan(**plan))
-    lean = generate_and_curate(
-        str(tmp_path / "lean"),
-        GenerationPlan(**plan, tables=("mechanisms",)),
-        curation_tables=("curated",),
-        path_store="ids",
-    )
+    stored, lean = stored_and_lean(str(tmp_path), seed=4, mechanisms=30, topologies_per_shard=2)
     exports = {}
     for name, root in (("stored", stored), ("lean", lean)):
         export_release(root, str(tmp_path / f"{name}-release"), chunk_size=4)

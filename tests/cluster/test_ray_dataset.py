@@ -129,18 +129,10 @@ def test_ray_datas_threaded_listing_still_races() -> None:
 @pytest.fixture(scope="module")
 def lean_and_stored(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, str]:
     """One plan written with every table, and as mechanisms and curated ids (a lean root)."""
-    from links_ray.data.shards import GenerationPlan
-    from tests.support.local_dataset import generate_and_curate
+    from tests.support.local_dataset import stored_and_lean
 
-    folder = tmp_path_factory.mktemp("lean-ray")
-    plan = {"seed": 13, "mechanisms": 40, "topologies_per_shard": 2}
-    stored = generate_and_curate(str(folder / "stored"), GenerationPlan(**plan))
-    lean = generate_and_curate(
-        str(folder / "lean"),
-        GenerationPlan(**plan, tables=("mechanisms",)),
-        curation_tables=("curated",),
-        path_store="ids",
-    )
+    folder = str(tmp_path_factory.mktemp("lean-ray"))
+    stored, lean = stored_and_lean(folder, seed=13, mechanisms=40, topologies_per_shard=2)
     return lean, stored
 
 

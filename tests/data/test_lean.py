@@ -15,10 +15,9 @@ import links_ray
 from links_ray.data.commit import ShardWriter, committed_files
 from links_ray.data.derived import derived_tables
 from links_ray.data.schemas import SCHEMAS
-from links_ray.data.shards import GenerationPlan
 from links_ray.data.store import Store
 from links_ray.search.index import RetrievalIndex
-from tests.support.local_dataset import generate_and_curate
+from tests.support.local_dataset import stored_and_lean
 
 SEED, MECHANISMS = 11, 60
 
@@ -26,16 +25,8 @@ SEED, MECHANISMS = 11, 60
 @pytest.fixture(scope="module")
 def roots(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, str]:
     """(stored, lean): one plan written with every table, and with mechanisms and curated ids."""
-    folder = tmp_path_factory.mktemp("lean")
-    plan = GenerationPlan(seed=SEED, mechanisms=MECHANISMS, topologies_per_shard=3)
-    stored = generate_and_curate(str(folder / "stored"), plan)
-    lean_plan = GenerationPlan(
-        seed=SEED, mechanisms=MECHANISMS, topologies_per_shard=3, tables=("mechanisms",)
-    )
-    lean = generate_and_curate(
-        str(folder / "lean"), lean_plan, curation_tables=("curated",), path_store="ids"
-    )
-    return stored, lean
+    folder = str(tmp_path_factory.mktemp("lean"))
+    return stored_and_lean(folder, seed=SEED, mechanisms=MECHANISMS, topologies_per_shard=3)
 
 
 def folder_bytes(root: str, table: str) -> int:

@@ -43,3 +43,17 @@ def generate_and_curate(
             path_store=path_store,
         )
     return root
+
+
+def stored_and_lean(folder: str, **plan: int) -> tuple[str, str]:
+    """One plan (`GenerationPlan`'s keywords) written twice under `folder`: as "stored", with
+    every table and the path tables with their points, and as "lean", mechanisms alone and the
+    curated set as ids (`links curate --store ids`); their roots."""
+    stored = generate_and_curate(f"{folder}/stored", GenerationPlan(**plan))
+    lean = generate_and_curate(
+        f"{folder}/lean",
+        GenerationPlan(**plan, tables=("mechanisms",)),
+        curation_tables=("curated",),
+        path_store="ids",
+    )
+    return stored, lean
