@@ -43,6 +43,9 @@ __all__ = [
     "derived_tables",
     "derives",
     "file_batches",
+    "file_schema",
+    "has_points",
+    "rows_of_ids",
     "shard_batches",
 ]
 
@@ -117,8 +120,9 @@ def _simulation_batches(mechanisms: pa.Table, n_joints: int, steps: int) -> Iter
         )
 
 
-def _curated_batches(paths: Iterator[pa.Table], ids: np.ndarray, where: str) -> Iterator[pa.Table]:
-    """The rows of `paths` whose path ids are `ids`, checked to be all of them, in order."""
+def rows_of_ids(paths: Iterable[pa.Table], ids: np.ndarray, where: str) -> Iterator[pa.Table]:
+    """The rows of `paths` (one shard's, in order) whose path ids are `ids`, checked to be all
+    of them, in order; `where` names the ids' file in the error."""
     found = 0
     wanted = pa.array(ids)
     for batch in paths:
@@ -135,13 +139,12 @@ def _curated_batches(paths: Iterator[pa.Table], ids: np.ndarray, where: str) -> 
 
 
 def _shard_tables(
-    store: Store, table: str, marker: dict, ids_file: str | None
+    store: Store, table: str, marker: dict, ids_file: str | None, steps: int
 ) -> Iterator[pa.Table]:
-    """One generation shard's rows of `table`, derived; with `ids_file` (the shard's file of
-    path ids, for `paths` or `curated`), those rows only."""
+    """One generation shard's rows of `table` over `steps` steps, derived; with `ids_file` (the
+    shard's file of path ids, for `paths` or `curated`), those rows only."""
     n_joints = int(marker["n_joints"])
     mechanisms = store.read_parquet(marker["files"]["mechanisms"])
-    steps = _steps(store)
     if table == "simulations":
         yield from _simulation_batches(mechanisms, n_joints, steps)
         return
@@ -150,7 +153,7 @@ def _shard_tables(
         yield from paths
         return
     ids = store.read_parquet(ids_file, columns=["path_id"]).column("path_id").to_numpy()
-    yield from _curated_batches(paths, ids, f"{store.uri}/{ids_file}")
+    yield from rows_of_ids(paths, ids, f"{store.uri}/{ids_file}")
 
 
 def derived_schema(table: str) -> pa.Schema:
@@ -161,14 +164,16 @@ def derived_schema(table: str) -> pa.Schema:
 def derived_shards(store: Store, table: str, n_joints: Iterable[int] | None = None) -> list[dict]:
     """The generation shards whose rows of `table` a read derives, in order (only shards of
     `n_joints` joints, when given; for a table stored as ids, only the shards it holds): for
-    each, its generation `marker` and its `ids_file` (None when the table is not stored)."""
+    each, its generation `marker`, its `ids_file` (None when the table is not stored) and the
+    root's `steps`."""
     if table not in DERIVABLE_TABLES:
         raise ValueError(f"table must be one of {', '.join(DERIVABLE_TABLES)}, got {table!r}")
     wanted = None if n_joints is None else {int(n) for n in n_joints}
     stored = [] if table == "simulations" else committed_files(store, table)
     ids_files = {_shard_of(relative): relative for relative in stored}
+    steps = _steps(store)
     return [
-        {"marker": marker, "ids_file": ids_files.get(shard)}
+        {"marker": marker, "ids_file": ids_files.get(shard), "steps": steps}
         for shard, marker in sorted(committed_shards(store, "shards").items())
         if (wanted is None or int(marker["n_joints"]) in wanted)
         and (not ids_files or shard in ids_files)
@@ -180,7 +185,7 @@ def shard_batches(store: Store, table: str, shard: dict) -> Iterator[pa.Table]:
     a read of the stored table gives it (`derived_schema`)."""
     marker = shard["marker"]
     count = int(marker["n_joints"])
-    for rows in _shard_tables(store, table, marker, shard["ids_file"]):
+    for rows in _shard_tables(store, table, marker, shard["ids_file"], shard["steps"]):
         n_joints = pa.array(np.full(len(rows), count, dtype=np.int16))
         yield rows.append_column("n_joints", n_joints)
 
@@ -203,14 +208,15 @@ def file_batches(
     name, derived from its shard's mechanisms."""
     generated: dict[int, dict] | None = None
     for relative in files:
-        if "points" not in columns or has_points(file_schema(store, relative)):
-            with store.fs.open_input_file(store.path(relative)) as source:
-                yield from pq.ParquetFile(source).iter_batches(batch_size=block, columns=columns)
-            continue
-        if generated is None:
-            generated = committed_shards(store, "shards")
+        with store.fs.open_input_file(store.path(relative)) as source:
+            stored = pq.ParquetFile(source)
+            if "points" not in columns or has_points(stored.schema_arrow):
+                yield from stored.iter_batches(batch_size=block, columns=columns)
+                continue
+        if generated is None:  # once, at the first file to derive
+            generated, steps = committed_shards(store, "shards"), _steps(store)
         marker = generated.get(_shard_of(relative))
         if marker is None:
             raise ValueError(f"{store.uri}/{relative}: its generation shard is not committed")
-        for rows in _shard_tables(store, table, marker, relative):
+        for rows in _shard_tables(store, table, marker, relative, steps):
             yield from rows.select(columns).to_batches(max_chunksize=block)

@@ -59,14 +59,16 @@ def _counts(rows: pa.Table | None) -> dict | None:
 
 
 def _shares(flags: pa.Table | None) -> dict | None:
-    if flags is None:
-        return None
-    counts = arc_circle_counts(flags)
-    shares = path_shares(len(flags), **counts)
+    return None if flags is None else _shares_of(len(flags), **arc_circle_counts(flags))
+
+
+def _shares_of(paths: int, arcs: int, circles: int, both: int) -> dict:
+    """The shares of `paths` paths with these counts (`pathset.arc_circle_counts`)."""
+    shares = path_shares(paths, arcs, circles, both)
     # The arc share of only the arcs that are not circles too: the paper's arc share (its
     # circle and arc shares add up to its arc-or-circle share).
-    arc_not_circle = path_shares(len(flags), counts["arcs"] - counts["both"], 0, 0)["arc"]
-    return {"paths": len(flags), **shares, "arc_not_circle": arc_not_circle}
+    arc_not_circle = path_shares(paths, arcs - both, 0, 0)["arc"]
+    return {"paths": paths, **shares, "arc_not_circle": arc_not_circle}
 
 
 def _transmission(angles: pa.Table | None) -> dict | None:
@@ -106,10 +108,7 @@ def _made_paths(store: Store) -> tuple[dict | None, dict | None]:
         "rows": totals["paths"],
         "by_joint_count": {str(size): count for size, count in sorted(by_size.items())},
     }
-    paths = totals.pop("paths")
-    shares = path_shares(paths, **totals)
-    arc_not_circle = path_shares(paths, totals["arcs"] - totals["both"], 0, 0)["arc"]
-    return counts, {"paths": paths, **shares, "arc_not_circle": arc_not_circle}
+    return counts, _shares_of(**totals)
 
 
 def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:

@@ -30,10 +30,10 @@ from itertools import groupby
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 
-from links_ray.data.derived import file_schema, has_points
+from links_ray.data.derived import file_schema, has_points, rows_of_ids
 from links_ray.data.pathset import (
+    JOINT_BITS,
     MECHANISMS_PER_BATCH,
     by_mechanism_id,
     curated_mask,
@@ -271,8 +271,9 @@ def _shard_part(
     if curated_file and has_points(file_schema(store, curated_file)):
         kept = _of_mechanisms(store.read_parquet(curated_file, _CURVE_COLUMNS), ids)
     elif curated_file:  # a lean root's curated ids: their paths, as curation made them
-        chosen = store.read_parquet(curated_file, ["path_id"]).column("path_id")
-        kept = paths.filter(pc.is_in(paths.column("path_id"), value_set=chosen.combine_chunks()))
+        chosen = store.read_parquet(curated_file, ["path_id"]).column("path_id").to_numpy()
+        chosen = chosen[np.isin(chosen >> JOINT_BITS, ids)]  # of the split's mechanisms
+        kept = pa.concat_tables(rows_of_ids([paths], chosen, f"{store.uri}/{curated_file}"))
     else:
         kept = paths.filter(pa.array(curated_mask(paths, seed)))
 

@@ -16,10 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from links_ray.data.dataset import isin, open_table
-from links_ray.data.derived import file_batches
+from links_ray.data.derived import file_batches, file_schema
 from links_ray.data.store import Store
 from links_ray.search import kernels
 from links_ray.search.mechanisms import MechanismBank
@@ -114,7 +113,7 @@ def build_arrays(store: Store, files: list[str], rows: int) -> dict:
     transmission = np.full(rows, np.nan, dtype=np.float32)  # NaN: a dataset made before it
     start = 0
     columns = ["mechanism_id", "joint", "points"]
-    if "min_transmission_deg" in _curated_schema(store, files).names:
+    if "min_transmission_deg" in file_schema(store, files[0]).names:  # all written alike
         columns.append("min_transmission_deg")
     for batch in curated_batches(store, files, columns, BUILD_BLOCK):
         end = start + batch.num_rows
@@ -154,12 +153,6 @@ def build_arrays(store: Store, files: list[str], rows: int) -> dict:
         "basis": basis,
         "bank": bank,
     }
-
-
-def _curated_schema(store: Store, files: list[str]) -> pa.Schema:
-    """The columns of the first curated file (all of a dataset's are written alike)."""
-    with store.fs.open_input_file(store.path(files[0])) as source:
-        return pq.ParquetFile(source).schema_arrow
 
 
 def _centroids(codes: np.ndarray, count: int) -> np.ndarray:
