@@ -25,7 +25,12 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         "generate", help="generate valid mechanisms on Ray into a folder or s3://bucket/prefix"
     )
     generate.add_argument("--out", required=True, help="dataset root: a folder or s3://...")
-    generate.add_argument("--mechanisms", type=positive_int, required=True)
+    generate.add_argument(
+        "--mechanisms",
+        type=positive_int,
+        required=True,
+        help="valid mechanisms the root holds; more than a root holds grows it in place",
+    )
     generate.add_argument("--seed", type=non_negative_int, default=0)
     generate.add_argument(
         "--workers",

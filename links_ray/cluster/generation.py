@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import ray
 from ray.exceptions import ActorDiedError, ActorUnavailableError, RayActorError
@@ -107,9 +107,10 @@ def generate(
             "tables": list(GENERATION_TABLES),
             "topology_rules": "feasible",
             "min_transmission_deg": 0.0,
+            "grown_from": [],
         }
         refuse_imported(store)
-        store.claim(f"{META}/run.json", plan.config(), defaults=before_options)
+        plan = _plan_on_root(store, plan, before_options)
         committed = committed_shards(store, "shards")
         remove_uncommitted(store, "shards", committed)
         todo = deque(shard for shard in plan.shards() if shard.shard_id not in committed)
@@ -146,6 +147,31 @@ def generate(
         summary = summarize(plan, committed, store.uri, time.perf_counter() - start, pool.peak)
         store.write_json(f"{META}/summary.json", summary)
     return summary
+
+
+def _plan_on_root(store: Store, asked: GenerationPlan, defaults: dict) -> GenerationPlan:
+    """The plan a run asking for `asked` carries out at `store`, recorded in `run.json`: `asked`
+    on a new root, the recorded plan to resume it, or the recorded plan grown to
+    `asked.mechanisms` when that is more (StoreError if the root holds another run)."""
+    recorded = store.read_json(f"{META}/run.json")
+    if recorded is not None:
+        recorded = {**defaults, **recorded}
+        try:
+            held = GenerationPlan(**recorded)
+        except (TypeError, ValueError):
+            held = None  # unreadable as a plan: claim names what differs
+        if held is not None and replace(held, mechanisms=asked.mechanisms, grown_from=()) == (
+            replace(asked, grown_from=())
+        ):
+            try:
+                grown = held.grown_to(asked.mechanisms)
+            except ValueError as exc:
+                raise StoreError(f"{store.uri}: {exc}") from None
+            if grown != held:
+                store.write_json(f"{META}/run.json", grown.config())
+            return grown
+    store.claim(f"{META}/run.json", asked.config(), defaults=defaults)
+    return asked
 
 
 class _Pool:

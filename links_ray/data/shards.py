@@ -8,6 +8,11 @@ file per table into a single `n_joints` partition.
 
 Ids: ``mechanism_id = 5 i + variant``; a negative's id is ``NEGATIVE_ID_BASE + 5 i + k``.
 
+A root grows in place: the plan of a grown root lists the sizes it held before
+(`grown_from`), and each growth adds the shards of the mechanism ids it adds, numbered after the
+earlier ones. Earlier shards are never rewritten, so their rows stay bit for bit; a topology
+split by a growth writes its remaining variants in the new shards.
+
 The engine and pyarrow: no Ray.
 """
 
@@ -15,7 +20,8 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
+from itertools import pairwise
 
 import numpy as np
 import pyarrow as pa
@@ -57,12 +63,15 @@ FORMAT_VERSION = 2
 
 @dataclass(frozen=True)
 class Shard:
-    """A work unit: topologies `first`, `first + 13`, ... (`count` of them), all `n_joints`."""
+    """A work unit: topologies `first`, `first + 13`, ... (`count` of them), all `n_joints`,
+    writing those of their mechanisms whose ids are in `[low_id, high_id)` (their growth's)."""
 
     shard_id: int
     n_joints: int
     first: int
     count: int
+    low_id: int
+    high_id: int
 
     def topology_ids(self) -> range:
         """The shard's topology ids: `first`, `first + JOINT_COUNTS`, ... (`count` of them)."""
@@ -78,6 +87,8 @@ class GenerationPlan:
     `topology_rules` picks the topology generator (engine.topology). `min_transmission_deg`
     above 0 rejects valid mechanisms whose least transmission angle is below it, and searches
     on until the topology has its variants (or abandons it when its budget is spent).
+    `grown_from` are the sizes the root held before it grew to `mechanisms`, smallest first
+    (empty for a root made at its size): each growth's shards follow the earlier ones'.
     """
 
     seed: int
@@ -90,6 +101,7 @@ class GenerationPlan:
     tables: tuple[str, ...] = GENERATION_TABLES
     topology_rules: str = TOPOLOGY_RULES[0]
     min_transmission_deg: float = 0.0
+    grown_from: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("seed", "mechanisms", "topologies_per_shard"):
@@ -114,6 +126,7 @@ class GenerationPlan:
         object.__setattr__(self, "min_transmission_deg", degrees)
         tables = choose_tables(self.tables, GENERATION_TABLES, required="mechanisms")
         object.__setattr__(self, "tables", tables)
+        object.__setattr__(self, "grown_from", _checked_sizes(self.grown_from, self.mechanisms))
 
     @property
     def topologies(self) -> int:
@@ -121,24 +134,65 @@ class GenerationPlan:
         return -(-self.mechanisms // self.variants)
 
     def config(self) -> dict:
-        """The plan as `run.json` records it (JSON types: `tables` is a list)."""
-        return {**asdict(self), "tables": list(self.tables)}
+        """The plan as `run.json` records it (JSON types: lists for tuples)."""
+        return {**asdict(self), "tables": list(self.tables), "grown_from": list(self.grown_from)}
+
+    def grown_to(self, mechanisms: int) -> GenerationPlan:
+        """This plan's root grown to `mechanisms`: every row it holds kept, the rest added."""
+        if mechanisms < self.mechanisms:
+            raise ValueError(
+                f"the root holds {self.mechanisms:,} mechanisms: a root grows, it never "
+                f"shrinks (asked for {mechanisms:,}); use a new root for fewer"
+            )
+        if mechanisms == self.mechanisms:
+            return self
+        return replace(self, mechanisms=mechanisms, grown_from=(*self.grown_from, self.mechanisms))
 
     def shards(self) -> list[Shard]:
-        """Every shard of the run, in a fixed order."""
+        """Every shard of the run, in a fixed order: those of the first size, then each
+        growth's."""
+        shards: list[Shard] = []
+        bounds = (0, *self.grown_from, self.mechanisms)
+        for low_id, high_id in pairwise(bounds):
+            shards += self._shards_of_ids(low_id, high_id, first_shard_id=len(shards))
+        return shards
+
+    def _shards_of_ids(self, low_id: int, high_id: int, first_shard_id: int) -> list[Shard]:
+        """The shards writing mechanism ids `[low_id, high_id)`, numbered from
+        `first_shard_id`: those of one joint count together, `topologies_per_shard` a shard."""
         shards = []
+        topologies = range(low_id // self.variants, -(-high_id // self.variants))
         for residue in range(JOINT_COUNTS):
-            members = len(range(residue, self.topologies, JOINT_COUNTS))
+            first = topologies.start + (residue - topologies.start) % JOINT_COUNTS
+            members = len(range(first, topologies.stop, JOINT_COUNTS))
             for start in range(0, members, self.topologies_per_shard):
                 shards.append(
                     Shard(
-                        shard_id=len(shards),
+                        shard_id=first_shard_id + len(shards),
                         n_joints=MIN_DATASET_JOINTS + residue,
-                        first=residue + JOINT_COUNTS * start,
+                        first=first + JOINT_COUNTS * start,
                         count=min(self.topologies_per_shard, members - start),
+                        low_id=low_id,
+                        high_id=high_id,
                     )
                 )
         return shards
+
+
+def _checked_sizes(sizes: object, mechanisms: int) -> tuple[int, ...]:
+    """`grown_from` as a tuple, checked: increasing positive sizes, each below `mechanisms`."""
+    if isinstance(sizes, str) or not isinstance(sizes, tuple | list):
+        raise ValueError(f"grown_from must be a list of sizes, got {sizes!r}")
+    checked = tuple(sizes)
+    for size in checked:
+        if isinstance(size, bool) or not isinstance(size, int | np.integer):
+            raise ValueError(f"grown_from must hold integers, got {size!r}")
+    if any(a >= b for a, b in pairwise((0, *checked, mechanisms))):
+        raise ValueError(
+            f"grown_from must be sizes from 1 up, each below the next and below mechanisms "
+            f"({mechanisms}), got {list(checked)}"
+        )
+    return tuple(int(size) for size in checked)
 
 
 @dataclass
@@ -207,7 +261,7 @@ def generate_shard(
     for chunk in _chunks(shard.topology_ids(), TOPOLOGIES_PER_BATCH):
         rows = {table: _Rows.empty(table) for table in plan.tables}
         for topology_id in chunk:
-            _generate_topology(plan, shard.n_joints, topology_id, rows, stats)
+            _generate_topology(plan, shard, topology_id, rows, stats)
         for table, buffer in rows.items():
             if len(buffer):
                 write(table, buffer.batch(table))
@@ -279,12 +333,19 @@ def _search_topology(
 
 
 def _generate_topology(
-    plan: GenerationPlan, n_joints: int, topology_id: int, rows: dict[str, _Rows], stats: dict
+    plan: GenerationPlan, shard: Shard, topology_id: int, rows: dict[str, _Rows], stats: dict
 ) -> None:
-    topology, found, positions, stored = _search_topology(plan, n_joints, topology_id, stats)
+    """Topology `topology_id`'s rows whose ids are the shard's. A topology split by a growth
+    is searched again for its later variants, its search and negatives counted once: by the
+    shard that writes its first variant."""
+    first_id = plan.variants * topology_id
+    variants = slice(max(shard.low_id - first_id, 0), min(shard.high_id - first_id, plan.variants))
+    counted = stats if variants.start == 0 else dict.fromkeys(stats, 0)
+    n_joints = shard.n_joints
+    topology, found, positions, stored = _search_topology(plan, n_joints, topology_id, counted)
     adjacency, node_types = topology.adjacency, topology.node_types
-    keep = min(plan.variants, plan.mechanisms - plan.variants * topology_id)
-    ids = plan.variants * topology_id + np.arange(keep, dtype=np.int64)
+    ids = first_id + np.arange(variants.start, variants.stop, dtype=np.int64)
+    keep = len(ids)
     shared = {
         "topology_id": np.full(keep, topology_id, dtype=np.int64),
         "adjacency": np.broadcast_to(adjacency.ravel(), (keep, adjacency.size)),
@@ -293,17 +354,20 @@ def _generate_topology(
     # From the trajectories as stored, so curation's per-path angles agree with these.
     rows["mechanisms"].add(
         mechanism_id=ids,
-        variant=np.arange(keep, dtype=np.int8),
-        positions=positions[:keep],
-        min_transmission_deg=mechanism_transmission_deg(topology.order, stored[:keep]),
+        variant=np.arange(variants.start, variants.stop, dtype=np.int8),
+        positions=positions[variants],
+        min_transmission_deg=mechanism_transmission_deg(topology.order, stored[variants]),
         **shared,
     )
     if "simulations" in rows:
         rows["simulations"].add(
             mechanism_id=ids,
             steps=np.full(keep, plan.steps, dtype=np.int16),
-            trajectories=stored[:keep],
+            trajectories=stored[variants],
         )
+    stats["mechanisms"] += keep
+    if variants.start > 0:
+        return
     negatives = len(found.negatives)
     if negatives and "negatives" in rows:
         rows["negatives"].add(
@@ -317,7 +381,6 @@ def _generate_topology(
             locked_node=found.negative_node.astype(np.int16),
         )
     stats["topologies"] += 1
-    stats["mechanisms"] += keep
     stats["negatives"] += negatives
 
 

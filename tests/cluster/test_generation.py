@@ -34,6 +34,7 @@ from links_ray.data.schemas import GENERATION_TABLES as TABLES
 from links_ray.data.shards import NEGATIVE_ID_BASE, GenerationPlan
 from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.mechanism import analyze_topology, dataset_rule_violations
+from tests.support.local_dataset import generate_and_curate
 from tests.support.needs import missing
 
 
@@ -196,6 +197,33 @@ def test_rerun_keeps_committed_shards(
 def test_another_run_in_the_same_place_is_refused(reference_run: dict) -> None:
     with pytest.raises(StoreError, match=r"holds another run.*seed=3"):
         generate(reference_run["out"], 137, seed=4, progress=False, topologies_per_shard=2)
+
+
+def test_a_root_grows_in_place_to_the_rows_of_a_fresh_run(
+    ray_cluster: str, tmp_path: Path, reference_run: dict
+) -> None:
+    """More mechanisms asked of a finished root extend its plan: its files stay as they
+    were, the new shards add the rest, and the rows are those of a fresh run of the larger
+    size (written here without Ray, as each generator actor writes its shards)."""
+    root = tmp_path / "grown"
+    shutil.copytree(reference_run["out"], root)
+    before = {p: p.read_bytes() for p in root.rglob("*.parquet")}
+    summary = generate(str(root), 200, seed=3, progress=False, topologies_per_shard=2)
+    assert summary["complete"] and summary["rows"]["mechanisms"] == 200
+    assert summary["plan"]["grown_from"] == [137]
+    assert all(path.read_bytes() == data for path, data in before.items())
+    fresh = GenerationPlan(seed=3, mechanisms=200, topologies_per_shard=2)
+    generate_and_curate(str(tmp_path / "fresh"), fresh)
+    assert_same_rows(read_all(str(root)), read_all(str(tmp_path / "fresh")))
+    # Fewer mechanisms than the root holds: refused in one line, the root untouched.
+    command = reference_command(str(root), ray_cluster)
+    refused = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert refused.returncode == 2
+    assert refused.stderr == (
+        f"links generate: error: {root}: the root holds 200 mechanisms: a root grows, it never "
+        "shrinks (asked for 137); use a new root for fewer\n"
+    )
+    assert json.loads((root / META / "run.json").read_text())["mechanisms"] == 200
 
 
 def test_bad_out_is_a_clear_error(tmp_path: Path) -> None:

@@ -1,0 +1,135 @@
+"""A root grows in place: the same seed's plan extended, earlier shards kept bit for bit, the
+grown root's rows those of a fresh run of the larger size, and growing deterministic. Shards
+are written as a generator actor writes them (`data.shards.write_shard`), without Ray;
+tests/cluster/test_generation.py grows a root through `links generate` itself."""
+
+from __future__ import annotations
+
+import hashlib
+import shutil
+from pathlib import Path
+
+import pyarrow as pa
+import pytest
+
+import links_ray
+from links_ray.data.commit import committed_shards
+from links_ray.data.pathset import curate_shard
+from links_ray.data.schemas import GENERATION_TABLES
+from links_ray.data.shards import GenerationPlan, write_shard
+from links_ray.data.store import Store
+
+#: 137 and 263 split topologies 27 and 52 between sizes (5 variants a topology).
+FIRST, GROWN = 137, 263
+PLAN = GenerationPlan(seed=5, mechanisms=FIRST, topologies_per_shard=3)
+SORT_KEY = {
+    "mechanisms": "mechanism_id",
+    "simulations": "mechanism_id",
+    "negatives": "mechanism_id",
+    "curated": "path_id",
+}
+
+
+def write_missing(root: str, plan: GenerationPlan) -> None:
+    """Write and curate the shards of `plan` that `root` does not hold yet, as a resumed
+    `links generate` and `links curate` would."""
+    store = Store.open(root)
+    done = committed_shards(store, "shards")
+    for shard in plan.shards():
+        if shard.shard_id not in done:
+            write_shard(store, plan, shard)
+    curated = committed_shards(store, "curation")
+    for shard_id, marker in sorted(committed_shards(store, "shards").items()):
+        if shard_id not in curated:
+            files = marker["files"]
+            curate_shard(
+                store,
+                shard_id,
+                marker["n_joints"],
+                files["mechanisms"],
+                files["simulations"],
+                0,
+                ("curated",),
+                plan.steps,
+            )
+
+
+def rows(root: str, table: str) -> pa.Table:
+    return links_ray.load(root, table, format="arrow").sort_by(SORT_KEY[table])
+
+
+def file_digests(root: str) -> dict[str, str]:
+    return {
+        str(path.relative_to(root)): hashlib.sha256(path.read_bytes()).hexdigest()
+        for path in Path(root).rglob("*.parquet")
+    }
+
+
+@pytest.fixture(scope="module")
+def roots(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """A root of FIRST mechanisms, its copy grown to GROWN, and a fresh root of GROWN."""
+    folder = tmp_path_factory.mktemp("growth")
+    first, grown, fresh = (str(folder / name) for name in ("first", "grown", "fresh"))
+    write_missing(first, PLAN)
+    shutil.copytree(first, grown)
+    write_missing(grown, PLAN.grown_to(GROWN))
+    write_missing(fresh, GenerationPlan(seed=5, mechanisms=GROWN, topologies_per_shard=3))
+    return {"first": first, "grown": grown, "fresh": fresh}
+
+
+def test_a_grown_root_keeps_every_earlier_file_bit_for_bit(roots: dict[str, str]) -> None:
+    before, after = file_digests(roots["first"]), file_digests(roots["grown"])
+    assert before and {name: after.get(name) for name in before} == before
+    assert len(after) > len(before)
+
+
+@pytest.mark.parametrize("table", [*GENERATION_TABLES, "curated"])
+def test_a_grown_root_holds_the_rows_of_a_fresh_run_of_its_size(
+    roots: dict[str, str], table: str
+) -> None:
+    grown, fresh = rows(roots["grown"], table), rows(roots["fresh"], table)
+    assert len(fresh) > 0 and grown.equals(fresh)
+    if table == "mechanisms":
+        assert grown["mechanism_id"].to_pylist() == list(range(GROWN))
+
+
+def test_a_split_topology_is_counted_once(roots: dict[str, str]) -> None:
+    def totals(root: str) -> dict[str, int]:
+        markers = committed_shards(Store.open(root, writable=False), "shards").values()
+        keys = ("topologies", "mechanisms", "candidates", "valid", "negatives", "abandoned")
+        return {key: sum(m["stats"][key] for m in markers) for key in keys}
+
+    assert totals(roots["grown"]) == totals(roots["fresh"])
+
+
+def test_growing_twice_from_copies_gives_the_same_shards(
+    roots: dict[str, str], tmp_path: Path
+) -> None:
+    again, twice = str(tmp_path / "again"), str(tmp_path / "twice")
+    for root in (again, twice):
+        shutil.copytree(roots["first"], root)
+        write_missing(root, PLAN.grown_to(200))
+        write_missing(root, PLAN.grown_to(200).grown_to(GROWN))
+    for table in [*GENERATION_TABLES, "curated"]:
+        assert rows(again, table).equals(rows(twice, table)), table
+    shards = [
+        committed_shards(Store.open(root, writable=False), "shards") for root in (again, twice)
+    ]
+    assert {k: m["rows"] for k, m in shards[0].items()} == {
+        k: m["rows"] for k, m in shards[1].items()
+    }
+    # Two growths make the rows of one: the order of growth changes shards, not rows.
+    assert rows(again, "mechanisms").equals(rows(roots["fresh"], "mechanisms"))
+
+
+def test_a_plan_grows_but_never_shrinks() -> None:
+    grown = PLAN.grown_to(GROWN)
+    assert grown.grown_from == (FIRST,) and grown.mechanisms == GROWN
+    assert PLAN.grown_to(FIRST) is PLAN
+    # The root's shards are the grown plan's first ones, as they were: none is redone.
+    assert grown.shards()[: len(PLAN.shards())] == PLAN.shards()
+    with pytest.raises(ValueError, match="holds 137 mechanisms: a root grows, it never shrinks"):
+        PLAN.grown_to(100)
+    for sizes in ([137, 100], [0], [300], "137", [True]):
+        with pytest.raises(ValueError, match="grown_from must"):
+            GenerationPlan(seed=5, mechanisms=263, grown_from=sizes)
