@@ -6,7 +6,7 @@ joint is solved once exactly two of its neighbours are known; the order in which
 solved is the solution path, found once per topology and reused for every position set. The
 checks of the input's form (shapes, types, limits) are in `links_ray.engine.inputs`.
 
-Pure numpy: no numba, no Ray.
+Numpy, and the compiled path of `engine.solution_path`: no Ray.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ from links_ray.engine.inputs import (
     link_pairs,
 )
 from links_ray.engine.node_kinds import ACTUATED, FIXED, SIMPLE
+from links_ray.engine.solution_path import solution_order
 
 CRANK_CENTER = (0.5, 0.5)
 CRANK_TIP = (0.55, 0.5)
@@ -128,7 +129,9 @@ def analyze_topology(adjacency: ArrayLike, node_types: ArrayLike) -> Topology:
             f"over-constrained: crank joint 1 is also linked to fixed joint {extra[0]}"
         )
 
-    order = _solution_path(adj, types)
+    order = solution_order(adj.astype(np.uint8), types.astype(np.int8))
+    if order is None:
+        order = _solution_path(adj, types)  # raises, saying why there is no path
     return Topology(
         adjacency=adj.astype(np.uint8),
         node_types=types.astype(np.int8),

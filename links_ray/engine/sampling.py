@@ -200,6 +200,20 @@ def _sequential_kernel(
     return found, attempts, kept
 
 
+@njit(cache=True, nogil=True)
+def _complete_negatives(
+    order: np.ndarray, negative_joint: np.ndarray, draws: np.ndarray, negatives: np.ndarray
+) -> None:
+    """Place the joints after `order` row negative_joint[i] of each negative i at the next
+    rows of `draws`, negative by negative and in solving order."""
+    row = 0
+    for i in range(negatives.shape[0]):
+        for k in range(negative_joint[i] + 1, order.shape[0]):
+            negatives[i, order[k, 0], 0] = draws[row, 0]
+            negatives[i, order[k, 0], 1] = draws[row, 1]
+            row += 1
+
+
 class PositionSampler:
     """Draws valid initial positions for one topology; reuses its compiled simulator."""
 
@@ -259,10 +273,12 @@ class PositionSampler:
                 negative_joint,
             )
             negatives = negatives[:kept]
-            # Complete each partial negative with uniform draws for the joints after it.
-            for row, k in zip(negatives, negative_joint[:kept], strict=True):
-                later = topology.order[k + 1 :, 0]
-                row[later] = rng.random((len(later), 2))
+            # Complete each partial negative with uniform draws for the joints after it: one
+            # draw for all, in the order of a draw per negative (the stream is the same).
+            later = len(topology.order) - 1 - negative_joint[:kept]
+            _complete_negatives(
+                topology.order, negative_joint, rng.random((later.sum(), 2)), negatives
+            )
         if found < count:
             raise PositionSearchError(
                 f"found {found} of {count} valid position sets in {candidates} "

@@ -499,12 +499,14 @@ class TopologySimulator:
 
     def lock_check(self, positions: np.ndarray, steps: int) -> tuple[np.ndarray, np.ndarray]:
         """Fast path of `first_lock`: positions as `run` takes them."""
+        # The path and fixed joints are the validated topology's: only positions need a check.
+        check_buffer("positions", positions, (None, self.n_joints, 2))
         batch = positions.shape[0]
         lock_step = np.empty(batch, dtype=np.int64)
         lock_node = np.empty(batch, dtype=np.int64)
         # Scratch per call (it is tiny), so threads may share a simulator.
         scratch = np.empty((1, self.n_joints, CHECK_BLOCK, 2))
-        simulate_candidates(
+        _simulate_candidates(
             self.topology.order,
             self.topology.fixed_joints,
             positions,

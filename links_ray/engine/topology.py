@@ -44,6 +44,7 @@ from links_ray.engine.mechanism import (
     analyze_topology,
     structure_violations,
 )
+from links_ray.engine.solution_path import obeys_structure, solution_order
 
 #: The smallest mechanism the rules allow: crank, floating ground, two simple joints.
 MIN_TOPOLOGY_JOINTS = 5
@@ -201,11 +202,14 @@ def grow_topology(rng: np.random.Generator, n_joints: int, rules: str = "links")
         _grow_links(rng.random(3 * (n_joints - 3)), adjacency, node_types)
     else:
         _grow_feasible(rng.random(2 * (n_joints - 3)), adjacency, node_types)
-    topology = analyze_topology(adjacency, node_types)
-    problems = structure_violations(topology)
-    if problems:  # the construction rules this out; fail loudly rather than emit a bad row
-        raise AssertionError(f"generated topology breaks the dataset rules: {problems}")
-    return topology
+    # The construction makes a valid topology: the compiled path and checks confirm it, and
+    # the Python statements say what went wrong if they ever do not (tests/engine/
+    # test_topology.py holds the two equal on every grown topology it draws).
+    order = solution_order(adjacency, node_types)
+    if order is not None and obeys_structure(adjacency, node_types, order):
+        return Topology(adjacency=adjacency, node_types=node_types, order=order)
+    problems = structure_violations(analyze_topology(adjacency, node_types))
+    raise AssertionError(f"generated topology breaks the dataset rules: {problems}")
 
 
 def random_topology(

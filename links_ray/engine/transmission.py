@@ -49,6 +49,20 @@ def _least_sines(order: np.ndarray, trajectories: np.ndarray, out: np.ndarray) -
             out[i, k] = least
 
 
+@njit(cache=True, nogil=True)
+def _joint_sines(order: np.ndarray, sines: np.ndarray, out: np.ndarray) -> None:
+    """out (B, n): each joint's least sine over its own dyad and its parents' (1 for a joint
+    with no dyad), from each dyad's least sines (B, m); NaN spreads as np.minimum spreads it."""
+    out[:] = 1.0
+    for i in range(sines.shape[0]):
+        for k in range(order.shape[0]):  # parents come before their children
+            least = sines[i, k]
+            for parent in (out[i, order[k, 1]], out[i, order[k, 2]]):
+                if least == least and (parent != parent or parent < least):
+                    least = parent
+            out[i, order[k, 0]] = least
+
+
 def least_sines(order: np.ndarray, trajectories: np.ndarray, out: np.ndarray) -> None:
     """out (B, m): the least sine of each dyad's transmission angle over each mechanism's
     steps, for trajectories (B, n, steps, 2) of one topology (`_least_sines`)."""
@@ -63,11 +77,10 @@ def joint_transmission_deg(order: np.ndarray, trajectories: np.ndarray) -> np.nd
     dyads count), from trajectories (B, n, steps, 2) of one topology."""
     batch, n = trajectories.shape[:2]
     sines = np.empty((batch, len(order)))
-    least_sines(np.asarray(order, dtype=np.int64), trajectories, sines)
-    joint_sines = np.ones((batch, n))
-    for k, (j, a, b) in enumerate(order):  # parents come before their children
-        parents = np.minimum(joint_sines[:, a], joint_sines[:, b])
-        joint_sines[:, j] = np.minimum(sines[:, k], parents)
+    order = np.asarray(order, dtype=np.int64)
+    least_sines(order, trajectories, sines)  # checks order against the trajectories
+    joint_sines = np.empty((batch, n))
+    _joint_sines(order, sines, joint_sines)
     return np.degrees(np.arcsin(np.clip(joint_sines, 0.0, 1.0))).astype(np.float32)
 
 

@@ -93,3 +93,23 @@ def test_sampler_errors_are_clear() -> None:
         PositionSampler(simulator).search(
             5, np.random.default_rng(0), "rejection", max_candidates=3
         )
+
+
+def test_negatives_are_completed_as_by_a_draw_each() -> None:
+    """The joints after a negative's rejected one take uniform draws, negative by negative in
+    solving order: one draw for all gives the values of a draw per negative."""
+    from links_ray.engine.sampling import _complete_negatives
+
+    topology = TopologySimulator(*random_topology(4, n_joints=14)).topology
+    rejected = np.array([0, 3, len(topology.order) - 1, 5], dtype=np.int64)
+    one, each = np.zeros((4, 14, 2)), np.zeros((4, 14, 2))
+    later = len(topology.order) - 1 - rejected
+    _complete_negatives(
+        topology.order, rejected, np.random.default_rng(9).random((later.sum(), 2)), one
+    )
+    rng = np.random.default_rng(9)
+    for row, k in zip(each, rejected, strict=True):
+        joints = topology.order[k + 1 :, 0]
+        row[joints] = rng.random((len(joints), 2))
+    np.testing.assert_array_equal(one, each)
+    assert np.count_nonzero(one) == 2 * later.sum()

@@ -11,7 +11,9 @@ from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.solver import simulate
 from links_ray.engine.transmission import (
     NO_DYAD_DEG,
+    _joint_sines,
     joint_transmission_deg,
+    least_sines,
     mechanism_transmission_deg,
 )
 from tests.support.fourbars import stretched_four_bar
@@ -101,3 +103,29 @@ def test_a_nearest_point_solver_agrees_where_the_angle_is_kept() -> None:
         assert of == 60 and agree == of, floor
     agree, of = tally["all"]
     assert of == 60 and agree < of  # the two solvers do differ, below 10 degrees
+
+
+def test_joint_angles_are_the_least_over_each_joints_dyads() -> None:
+    """Each joint's angle is the least over its own dyad and every dyad it depends on: the
+    compiled pass against a plain loop over the path; NaN spreads as np.minimum spreads it."""
+    rng = np.random.default_rng(8)
+    for case in range(30):
+        topology = analyze_topology(*links_ray.random_topology(rng))
+        n = topology.n_joints
+        trajectories = rng.random((4, n, 12, 2))
+        dyad_sines = np.empty((4, len(topology.order)))
+        least_sines(topology.order, trajectories, dyad_sines)
+        if case % 2:
+            dyad_sines[rng.random(dyad_sines.shape) < 0.1] = np.nan
+        joint_sines = np.ones((4, n))
+        for k, (j, a, b) in enumerate(topology.order):
+            parents = np.minimum(joint_sines[:, a], joint_sines[:, b])
+            joint_sines[:, j] = np.minimum(dyad_sines[:, k], parents)
+        compiled = np.empty((4, n))
+        _joint_sines(topology.order, dyad_sines, compiled)
+        np.testing.assert_array_equal(compiled, joint_sines)
+        if not case % 2:
+            expected = np.degrees(np.arcsin(np.clip(joint_sines, 0, 1))).astype(np.float32)
+            np.testing.assert_array_equal(
+                joint_transmission_deg(topology.order, trajectories), expected
+            )

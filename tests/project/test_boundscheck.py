@@ -39,6 +39,7 @@ KERNEL_TESTS = (
     "tests/engine/test_sampling.py",
     "tests/engine/test_transmission.py",
     "tests/engine/test_topology.py",
+    "tests/engine/test_solution_path.py",
     "tests/engine/test_reduce.py",
     "tests/engine/test_validation.py",
     "tests/engine/test_paths.py",
