@@ -1,4 +1,5 @@
-"""A dependency-free progress meter: a live bar on a terminal, plain lines in logs."""
+"""A dependency-free progress meter: one line updated in place on a terminal (a bar, the count,
+the rate and the time left), and the same line once a minute in logs."""
 
 from __future__ import annotations
 
@@ -6,8 +7,22 @@ import sys
 import time
 from typing import TextIO
 
-#: Seconds between plain progress lines when the output is not a terminal.
-LINE_EVERY_S = 10.0
+#: Seconds between plain progress lines when the output is not a terminal (a log).
+LINE_EVERY_S = 60.0
+#: Seconds between updates of the line on a terminal.
+LIVE_EVERY_S = 0.2
+
+
+def duration(seconds: float) -> str:
+    """`seconds` as a person reads a time left: "42 s", "7 min 05 s", "3 h 02 min"."""
+    whole = round(seconds)
+    hours, rest = divmod(whole, 3600)
+    minutes, secs = divmod(rest, 60)
+    if hours:
+        return f"{hours} h {minutes:02d} min"
+    if minutes:
+        return f"{minutes} min {secs:02d} s"
+    return f"{secs} s"
 
 
 class Progress:
@@ -46,7 +61,7 @@ class Progress:
         """Done of total, the share, the rate in units a second and the seconds left."""
         rate = self._rate()
         left = self.total - self.done
-        eta = f"{left / rate:,.0f} s left" if rate > 0 else "estimating"
+        eta = f"{duration(left / rate)} left" if rate > 0 else "estimating"
         share = self.done / self.total if self.total else 1.0
         return (
             f"{self.done:,}/{self.total:,} {self.unit} ({share:.0%}), "
@@ -58,7 +73,7 @@ class Progress:
             return
         now = time.monotonic()
         if self.live:
-            if force or now - self._shown >= 0.2:
+            if force or now - self._shown >= LIVE_EVERY_S:
                 width = 30
                 filled = int(width * self.done / self.total) if self.total else width
                 bar = "#" * filled + "-" * (width - filled)

@@ -348,8 +348,8 @@ def _generate_topology(
     keep = len(ids)
     shared = {
         "topology_id": np.full(keep, topology_id, dtype=np.int64),
-        "adjacency": np.broadcast_to(adjacency.ravel(), (keep, adjacency.size)),
-        "node_types": np.broadcast_to(node_types, (keep, n_joints)),
+        "adjacency": adjacency.reshape(1, -1).repeat(keep, axis=0),
+        "node_types": node_types.reshape(1, -1).repeat(keep, axis=0),
     }
     # From the trajectories as stored, so curation's per-path angles agree with these.
     rows["mechanisms"].add(
@@ -374,8 +374,8 @@ def _generate_topology(
             mechanism_id=NEGATIVE_ID_BASE + plan.variants * topology_id + np.arange(negatives),
             topology_id=np.full(negatives, topology_id, dtype=np.int64),
             variant=np.arange(negatives, dtype=np.int8),
-            adjacency=np.broadcast_to(adjacency.ravel(), (negatives, adjacency.size)),
-            node_types=np.broadcast_to(node_types, (negatives, n_joints)),
+            adjacency=adjacency.reshape(1, -1).repeat(negatives, axis=0),
+            node_types=node_types.reshape(1, -1).repeat(negatives, axis=0),
             positions=found.negatives,
             locked_step=found.negative_step.astype(np.int16),
             locked_node=found.negative_node.astype(np.int16),
