@@ -4,14 +4,15 @@ Counts per table and joint count, paths per mechanism, the shares of circles and
 and after curation, the distribution of the mechanisms' least transmission angles, candidates
 tried per valid mechanism by joint count (from the run when it used the paper's
 rejection sampler, otherwise measured here on a sample of topologies), and the throughput the
-runs recorded. Reads only small columns; no Ray.
+runs recorded. No Ray, and memory bounded whatever the size: counts come from the commit
+markers, flags are counted a record batch at a time, and only the mechanisms' least
+transmission angles are held whole (4 bytes a mechanism, for exact quantiles).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 
 from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
@@ -37,29 +38,43 @@ TRANSMISSION_QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
 TRANSMISSION_BIN_DEG = 5
 
 
-def _read(store: Store, table: str, columns: list[str]) -> pa.Table | None:
-    """Some columns of a table, or None when the dataset has no such table yet."""
-    try:
-        return open_table(store, table).to_table(columns=columns)
-    except ValueError:
-        return None
+#: The commit stages, and the one whose markers count each table's rows.
+STAGES = ("shards", "curation")
+STAGE_OF_TABLE = {
+    "mechanisms": "shards",
+    "simulations": "shards",
+    "negatives": "shards",
+    "paths": "curation",
+    "curated": "curation",
+}
 
 
-def _counts(rows: pa.Table | None) -> dict | None:
-    if rows is None:
+def _counts(markers: dict[str, list[dict]], table: str) -> dict | None:
+    """A table's rows, in all and by joint count, from its stage's commit markers; None when
+    no committed shard holds the table (a marker leaves out a table it wrote no row of)."""
+    holding = [m for m in markers[STAGE_OF_TABLE[table]] if table in m["rows"]]
+    if not holding:
         return None
-    by_size = pc.value_counts(rows.column("n_joints")).to_pylist()
+    by_size: dict[int, int] = {}
+    for marker in holding:
+        size = int(marker["n_joints"])
+        by_size[size] = by_size.get(size, 0) + int(marker["rows"][table])
     return {
-        "rows": len(rows),
+        "rows": sum(by_size.values()),
         # Keys are strings in JSON; ordered as numbers (8 before 10).
-        "by_joint_count": {
-            str(c["values"]): c["counts"] for c in sorted(by_size, key=lambda c: c["values"])
-        },
+        "by_joint_count": {str(n): rows for n, rows in sorted(by_size.items()) if rows},
     }
 
 
-def _shares(flags: pa.Table | None) -> dict | None:
-    return None if flags is None else _shares_of(len(flags), **arc_circle_counts(flags))
+def _shares(store: Store, table: str, counted: dict | None) -> dict | None:
+    """The circle and arc shares of a path table, counted a record batch at a time."""
+    if counted is None:
+        return None
+    totals = {"arcs": 0, "circles": 0, "both": 0}
+    for batch in open_table(store, table).to_batches(columns=["is_arc", "is_circle"]):
+        for key, count in arc_circle_counts(batch).items():
+            totals[key] += count
+    return _shares_of(counted["rows"], **totals)
 
 
 def _shares_of(paths: int, arcs: int, circles: int, both: int) -> dict:
@@ -71,11 +86,32 @@ def _shares_of(paths: int, arcs: int, circles: int, both: int) -> dict:
     return {"paths": paths, **shares, "arc_not_circle": arc_not_circle}
 
 
-def _transmission(angles: pa.Table | None) -> dict | None:
-    """The distribution of the mechanisms' least transmission angles, in degrees."""
-    if angles is None or len(angles) == 0:
+def _least_angles(store: Store, mechanisms: dict | None) -> np.ndarray | None:
+    """Every mechanism's least transmission angle (float32), read a record batch at a time
+    into one array; None for a dataset without them (made before the column existed)."""
+    if mechanisms is None:
         return None
-    degrees = angles.column("min_transmission_deg").to_numpy()
+    degrees = np.empty(mechanisms["rows"], dtype=np.float32)
+    filled = 0
+    try:
+        batches = open_table(store, "mechanisms").to_batches(columns=["min_transmission_deg"])
+        for batch in batches:
+            part = batch.column(0).to_numpy(zero_copy_only=False)
+            degrees[filled : filled + len(part)] = part
+            filled += len(part)
+    except (ValueError, pa.ArrowInvalid):  # no such column: pyarrow's ValueError
+        return None
+    if filled != len(degrees):
+        raise ValueError(
+            f"{store.uri}: the mechanisms table holds {filled:,} rows, its markers {len(degrees):,}"
+        )
+    return degrees
+
+
+def _transmission(degrees: np.ndarray | None) -> dict | None:
+    """The distribution of the mechanisms' least transmission angles, in degrees."""
+    if degrees is None or len(degrees) == 0:
+        return None
     edges = np.arange(0, 90 + TRANSMISSION_BIN_DEG, TRANSMISSION_BIN_DEG)
     counts, _ = np.histogram(degrees, bins=edges)
     return {
@@ -86,15 +122,17 @@ def _transmission(angles: pa.Table | None) -> dict | None:
                 TRANSMISSION_QUANTILES, np.quantile(degrees, TRANSMISSION_QUANTILES), strict=True
             )
         },
-        "share_below": {str(t): float(np.mean(degrees < t)) for t in TRANSMISSION_THRESHOLDS},
+        "share_below": {
+            str(t): int(np.count_nonzero(degrees < t)) / len(degrees)
+            for t in TRANSMISSION_THRESHOLDS
+        },
         "histogram": {"bin_deg": TRANSMISSION_BIN_DEG, "counts": counts.tolist()},
     }
 
 
-def _made_paths(store: Store) -> tuple[dict | None, dict | None]:
+def _made_paths(markers: list[dict]) -> tuple[dict | None, dict | None]:
     """The counts and shares of every path curation made, from its markers alone: for a root
     that stores no `paths` table (a lean one), whose curators counted them as they made them."""
-    markers = committed_shards(store, "curation").values()
     if not markers or any("arcs" not in marker["stats"] for marker in markers):
         return None, None
     by_size: dict[int, int] = {}
@@ -116,22 +154,16 @@ def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
     store = Store.open(root, writable=False)
     run = store.read_json(f"{META}/summary.json")
     curation = store.read_json(f"{META}/curation_summary.json")
-    tables = {
-        table: _read(store, table, ["n_joints", "is_arc", "is_circle"])
-        if table in CURATION_TABLES
-        else _read(store, table, ["n_joints"])
-        for table in TABLE_NAMES
-    }
-    counts = {table: _counts(rows) for table, rows in tables.items()}
+    markers = {stage: list(committed_shards(store, stage).values()) for stage in STAGES}
+    counts = {table: _counts(markers, table) for table in TABLE_NAMES}
     if not any(counts.values()):
         raise ValueError(f"{store.uri} holds no dataset tables")
-    shares = {table: _shares(tables[table]) for table in CURATION_TABLES}
+    shares = {table: _shares(store, table, counts[table]) for table in CURATION_TABLES}
     if counts["paths"] is None:
-        counts["paths"], shares["paths"] = _made_paths(store)
+        counts["paths"], shares["paths"] = _made_paths(markers["curation"])
     paths, mechanisms = counts["paths"], counts["mechanisms"]
     paths_per_mechanism = paths and mechanisms and paths["rows"] / mechanisms["rows"]
-    # None for a dataset made before the column existed, too (pyarrow's ValueError).
-    angles = _read(store, "mechanisms", ["min_transmission_deg"])
+    angles = _least_angles(store, mechanisms)
 
     if run and run["plan"]["sampler"] == "rejection":
         candidates = {
