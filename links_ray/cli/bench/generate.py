@@ -10,6 +10,7 @@ from links_ray.cli import report
 from links_ray.cli.bench.data import folder_bytes
 from links_ray.cli.bench.machine import machine_info
 from links_ray.data.schemas import GENERATION_TABLES
+from links_ray.data.shards import TOPOLOGIES_PER_SHARD
 
 #: Valid mechanisms a core-second: of a run writing every table, and of a lean run (the
 #: `mechanisms` table alone), whose rate makes 100 million a run of under two hours here.
@@ -21,7 +22,7 @@ def bench_generate(
     mechanisms: int = 50_000,
     rejection_mechanisms: int = 2_000,
     workers: list[int] | None = None,
-    topologies_per_shard: int = 100,
+    topologies_per_shard: int | None = None,
     lean: bool = False,
 ) -> dict:
     """End-to-end generation on the local Ray: valid mechanisms per core-second, by workers.
@@ -30,7 +31,10 @@ def bench_generate(
     200-step simulations and negatives) into a temporary folder. Wall-clock time covers the
     whole `generate` call with Ray already started: new actors loading the compiled kernels,
     scheduling, commits. `lean` writes the `mechanisms` table alone, with the sequential
-    sampler only, and adds where one shard's time goes (`shard_profile`).
+    sampler only, and adds where one shard's time goes (`shard_profile`). Shards hold
+    `topologies_per_shard` topologies: by default 100 (many shards, so that short runs keep
+    every worker busy), and for a lean run the default of `links generate`, as a long lean run
+    has them.
     """
     import tempfile
 
@@ -39,6 +43,8 @@ def bench_generate(
     from links_ray.cluster.generation import generate
 
     tables = ("mechanisms",) if lean else GENERATION_TABLES
+    if topologies_per_shard is None:
+        topologies_per_shard = TOPOLOGIES_PER_SHARD if lean else 100
     profile = profile_shard() if lean else None  # before Ray takes the cores
     connect()
     cpus = os.cpu_count() or 1
