@@ -12,7 +12,6 @@ transmission angles are held whole (4 bytes a mechanism, for exact quantiles).
 from __future__ import annotations
 
 import numpy as np
-import pyarrow as pa
 
 from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
@@ -99,7 +98,7 @@ def _least_angles(store: Store, mechanisms: dict | None) -> np.ndarray | None:
             part = batch.column(0).to_numpy(zero_copy_only=False)
             degrees[filled : filled + len(part)] = part
             filled += len(part)
-    except (ValueError, pa.ArrowInvalid):  # no such column: pyarrow's ValueError
+    except ValueError:  # no such column (pyarrow's ArrowInvalid is a ValueError)
         return None
     if filled != len(degrees):
         raise ValueError(

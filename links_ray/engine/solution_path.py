@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit
 
 from links_ray.engine.buffers import check_buffer
+from links_ray.engine.inputs import MIN_JOINTS
 from links_ray.engine.node_kinds import FIXED, SIMPLE
 
 #: `_solution_order`'s answers when there is no solution path.
@@ -105,6 +106,8 @@ def obeys_structure(adjacency: np.ndarray, node_types: np.ndarray, order: np.nda
     """Whether a topology with solution path `order` obeys the dataset's structure rules."""
     check_buffer("node_types", node_types, (None,), np.int8)
     n = node_types.shape[0]
+    if n < MIN_JOINTS:
+        raise ValueError(f"node_types must hold at least the crank's {MIN_JOINTS} joints, got {n}")
     check_buffer("adjacency", adjacency, (n, n), np.uint8)
     check_buffer("order", order, (None, 3), np.int64)
     if order.size and (order.min() < 0 or order.max() >= n):

@@ -91,3 +91,5 @@ def test_bad_buffers_are_refused_by_name() -> None:
         obeys_structure(adjacency, node_types, order + len(node_types))
     with pytest.raises(ValueError, match=r"adjacency must be a uint8 array of shape \(5, 5\)"):
         obeys_structure(adjacency, node_types[:5], order)
+    with pytest.raises(ValueError, match="at least the crank's 2 joints, got 1"):
+        obeys_structure(adjacency[:1, :1], node_types[:1], order[:0])
