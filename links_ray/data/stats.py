@@ -5,16 +5,19 @@ and after curation, the distribution of the mechanisms' least transmission angle
 tried per valid mechanism by joint count (from the run when it used the paper's
 rejection sampler, otherwise measured here on a sample of topologies), and the throughput the
 runs recorded. No Ray, and memory bounded whatever the size: counts come from the commit
-markers, flags are counted a record batch at a time, and only the mechanisms' least
-transmission angles are held whole (4 bytes a mechanism, for exact quantiles).
+markers, flags and the angles' histogram are counted a file at a time, and only the
+mechanisms' least transmission angles are held whole (4 bytes a mechanism, for exact
+quantiles).
 """
 
 from __future__ import annotations
 
-import numpy as np
+from collections.abc import Iterator
 
-from links_ray.data.commit import committed_shards
-from links_ray.data.dataset import open_table
+import numpy as np
+import pyarrow as pa
+
+from links_ray.data.commit import TABLE_STAGE, committed_files, committed_shards
 from links_ray.data.pathset import arc_circle_counts, path_shares
 from links_ray.data.schemas import CURATION_TABLES, TABLE_NAMES
 from links_ray.data.store import META, Store
@@ -37,21 +40,10 @@ TRANSMISSION_QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
 TRANSMISSION_BIN_DEG = 5
 
 
-#: The commit stages, and the one whose markers count each table's rows.
-STAGES = ("shards", "curation")
-STAGE_OF_TABLE = {
-    "mechanisms": "shards",
-    "simulations": "shards",
-    "negatives": "shards",
-    "paths": "curation",
-    "curated": "curation",
-}
-
-
-def _counts(markers: dict[str, list[dict]], table: str) -> dict | None:
+def _counts(markers: dict[str, dict[int, dict]], table: str) -> dict | None:
     """A table's rows, in all and by joint count, from its stage's commit markers; None when
     no committed shard holds the table (a marker leaves out a table it wrote no row of)."""
-    holding = [m for m in markers[STAGE_OF_TABLE[table]] if table in m["rows"]]
+    holding = [m for m in markers[TABLE_STAGE[table]].values() if table in m["rows"]]
     if not holding:
         return None
     by_size: dict[int, int] = {}
@@ -65,13 +57,24 @@ def _counts(markers: dict[str, list[dict]], table: str) -> dict | None:
     }
 
 
-def _shares(store: Store, table: str, counted: dict | None) -> dict | None:
-    """The circle and arc shares of a path table, counted a record batch at a time."""
+def _file_columns(
+    store: Store, markers: dict[str, dict[int, dict]], table: str, columns: list[str]
+) -> Iterator[pa.Table]:
+    """Some columns of a table's committed files, a file at a time. (A pyarrow dataset scan
+    of the same columns held about 17 bytes a row more at its peak.)"""
+    for relative in committed_files(store, table, markers[TABLE_STAGE[table]]):
+        yield store.read_parquet(relative, columns=columns)
+
+
+def _shares(
+    store: Store, markers: dict[str, dict[int, dict]], table: str, counted: dict | None
+) -> dict | None:
+    """The circle and arc shares of a path table, counted a file at a time."""
     if counted is None:
         return None
     totals = {"arcs": 0, "circles": 0, "both": 0}
-    for batch in open_table(store, table).to_batches(columns=["is_arc", "is_circle"]):
-        for key, count in arc_circle_counts(batch).items():
+    for flags in _file_columns(store, markers, table, ["is_arc", "is_circle"]):
+        for key, count in arc_circle_counts(flags).items():
             totals[key] += count
     return _shares_of(counted["rows"], **totals)
 
@@ -85,46 +88,46 @@ def _shares_of(paths: int, arcs: int, circles: int, both: int) -> dict:
     return {"paths": paths, **shares, "arc_not_circle": arc_not_circle}
 
 
-def _least_angles(store: Store, mechanisms: dict | None) -> np.ndarray | None:
-    """Every mechanism's least transmission angle (float32), read a record batch at a time
-    into one array; None for a dataset without them (made before the column existed)."""
-    if mechanisms is None:
+def _transmission(
+    store: Store, markers: dict[str, dict[int, dict]], mechanisms: dict | None
+) -> dict | None:
+    """The distribution of the mechanisms' least transmission angles, in degrees, read a
+    file at a time: the histogram and the shares below each threshold counted batch by
+    batch, the angles gathered into one float32 array whose quantiles are taken in place (4
+    bytes a mechanism in all). None for a dataset without them (made before the column
+    existed)."""
+    if mechanisms is None or mechanisms["rows"] == 0:
         return None
     degrees = np.empty(mechanisms["rows"], dtype=np.float32)
+    edges = np.arange(0, 90 + TRANSMISSION_BIN_DEG, TRANSMISSION_BIN_DEG)
+    counts = np.zeros(len(edges) - 1, dtype=np.int64)
+    below = dict.fromkeys(TRANSMISSION_THRESHOLDS, 0)
     filled = 0
     try:
-        batches = open_table(store, "mechanisms").to_batches(columns=["min_transmission_deg"])
-        for batch in batches:
-            part = batch.column(0).to_numpy(zero_copy_only=False)
+        angles = _file_columns(store, markers, "mechanisms", ["min_transmission_deg"])
+        for rows in angles:
+            part = rows.column(0).to_numpy()
+            if filled + len(part) > len(degrees):
+                filled += len(part)  # more rows than the markers say: refused below
+                break
             degrees[filled : filled + len(part)] = part
             filled += len(part)
+            counts += np.histogram(part, bins=edges)[0]
+            for threshold in below:
+                below[threshold] += int(np.count_nonzero(part < threshold))
     except ValueError:  # no such column (pyarrow's ArrowInvalid is a ValueError)
         return None
     if filled != len(degrees):
         raise ValueError(
-            f"{store.uri}: the mechanisms table holds {filled:,} rows, its markers {len(degrees):,}"
+            f"{store.uri}: the mechanisms table's rows disagree with its markers' {len(degrees):,}"
         )
-    return degrees
-
-
-def _transmission(degrees: np.ndarray | None) -> dict | None:
-    """The distribution of the mechanisms' least transmission angles, in degrees."""
-    if degrees is None or len(degrees) == 0:
-        return None
-    edges = np.arange(0, 90 + TRANSMISSION_BIN_DEG, TRANSMISSION_BIN_DEG)
-    counts, _ = np.histogram(degrees, bins=edges)
+    quantiles = np.quantile(degrees, TRANSMISSION_QUANTILES, overwrite_input=True)
     return {
         "mechanisms": len(degrees),
         "quantiles": {
-            str(q): float(v)
-            for q, v in zip(
-                TRANSMISSION_QUANTILES, np.quantile(degrees, TRANSMISSION_QUANTILES), strict=True
-            )
+            str(q): float(v) for q, v in zip(TRANSMISSION_QUANTILES, quantiles, strict=True)
         },
-        "share_below": {
-            str(t): int(np.count_nonzero(degrees < t)) / len(degrees)
-            for t in TRANSMISSION_THRESHOLDS
-        },
+        "share_below": {str(t): count / len(degrees) for t, count in below.items()},
         "histogram": {"bin_deg": TRANSMISSION_BIN_DEG, "counts": counts.tolist()},
     }
 
@@ -153,16 +156,15 @@ def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
     store = Store.open(root, writable=False)
     run = store.read_json(f"{META}/summary.json")
     curation = store.read_json(f"{META}/curation_summary.json")
-    markers = {stage: list(committed_shards(store, stage).values()) for stage in STAGES}
+    markers = {stage: committed_shards(store, stage) for stage in set(TABLE_STAGE.values())}
     counts = {table: _counts(markers, table) for table in TABLE_NAMES}
     if not any(counts.values()):
         raise ValueError(f"{store.uri} holds no dataset tables")
-    shares = {table: _shares(store, table, counts[table]) for table in CURATION_TABLES}
+    shares = {table: _shares(store, markers, table, counts[table]) for table in CURATION_TABLES}
     if counts["paths"] is None:
-        counts["paths"], shares["paths"] = _made_paths(markers["curation"])
+        counts["paths"], shares["paths"] = _made_paths(list(markers["curation"].values()))
     paths, mechanisms = counts["paths"], counts["mechanisms"]
     paths_per_mechanism = paths and mechanisms and paths["rows"] / mechanisms["rows"]
-    angles = _least_angles(store, mechanisms)
 
     if run and run["plan"]["sampler"] == "rejection":
         candidates = {
@@ -188,7 +190,7 @@ def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
         "counts": counts,
         "paths_per_mechanism": paths_per_mechanism,
         "shares": shares,
-        "min_transmission_deg": _transmission(angles),
+        "min_transmission_deg": _transmission(store, markers, mechanisms),
         "candidates_per_valid": candidates,
         "candidates_per_valid_source": source,
         "throughput": {
