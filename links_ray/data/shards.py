@@ -57,6 +57,9 @@ TOPOLOGIES_PER_BATCH = 100
 #: exhausts it is replaced by the next one its generator draws, and counted as abandoned.
 SEARCH_BUDGET = {"rejection": 1_000_000, "sequential": 10_000}
 NEGATIVE_ID_BASE = 1 << 62
+#: Growths a root's plan may record: each adds a set of shards, so a run record listing
+#: millions (written by hand, or by a hostile source) would make a plan of millions of shards.
+MAX_GROWTHS = 1000
 #: 2: the `min_transmission_deg` column, the turn checked between steps, `topology_rules`.
 FORMAT_VERSION = 2
 
@@ -184,6 +187,10 @@ def _checked_sizes(sizes: object, mechanisms: int) -> tuple[int, ...]:
     if isinstance(sizes, str) or not isinstance(sizes, tuple | list):
         raise ValueError(f"grown_from must be a list of sizes, got {sizes!r}")
     checked = tuple(sizes)
+    if len(checked) > MAX_GROWTHS:
+        raise ValueError(
+            f"grown_from must hold at most {MAX_GROWTHS:,} sizes, got {len(checked):,}"
+        )
     for size in checked:
         if isinstance(size, bool) or not isinstance(size, int | np.integer):
             raise ValueError(f"grown_from must hold integers, got {size!r}")

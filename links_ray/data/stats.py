@@ -6,8 +6,8 @@ tried per valid mechanism by joint count (from the run when it used the paper's
 rejection sampler, otherwise measured here on a sample of topologies), and the throughput the
 runs recorded. No Ray, and memory bounded whatever the size: counts come from the commit
 markers, flags and the angles' histogram are counted a file at a time, and only the
-mechanisms' least transmission angles are held whole (4 bytes a mechanism, for exact
-quantiles).
+mechanisms' least transmission angles are held whole (4 bytes a mechanism, up to twice that
+while their array grows, for exact quantiles).
 """
 
 from __future__ import annotations
@@ -98,7 +98,9 @@ def _transmission(
     existed)."""
     if mechanisms is None or mechanisms["rows"] == 0:
         return None
-    degrees = np.empty(mechanisms["rows"], dtype=np.float32)
+    # Grown from the rows read, never sized from the markers' word: a marker claiming a
+    # trillion rows must not allocate them.
+    degrees = np.empty(min(mechanisms["rows"], 1 << 20), dtype=np.float32)
     edges = np.arange(0, 90 + TRANSMISSION_BIN_DEG, TRANSMISSION_BIN_DEG)
     counts = np.zeros(len(edges) - 1, dtype=np.int64)
     below = dict.fromkeys(TRANSMISSION_THRESHOLDS, 0)
@@ -107,9 +109,13 @@ def _transmission(
         angles = _file_columns(store, markers, "mechanisms", ["min_transmission_deg"])
         for rows in angles:
             part = rows.column(0).to_numpy()
-            if filled + len(part) > len(degrees):
+            if filled + len(part) > mechanisms["rows"]:
                 filled += len(part)  # more rows than the markers say: refused below
                 break
+            if filled + len(part) > len(degrees):
+                grown = np.empty(min(2 * (filled + len(part)), mechanisms["rows"]), np.float32)
+                grown[:filled] = degrees[:filled]
+                degrees = grown
             degrees[filled : filled + len(part)] = part
             filled += len(part)
             counts += np.histogram(part, bins=edges)[0]
@@ -117,9 +123,10 @@ def _transmission(
                 below[threshold] += int(np.count_nonzero(part < threshold))
     except ValueError:  # no such column (pyarrow's ArrowInvalid is a ValueError)
         return None
-    if filled != len(degrees):
+    if filled != mechanisms["rows"]:
         raise ValueError(
-            f"{store.uri}: the mechanisms table's rows disagree with its markers' {len(degrees):,}"
+            f"{store.uri}: the mechanisms table holds {filled:,} rows, its commit markers "
+            f"say {mechanisms['rows']:,}"
         )
     quantiles = np.quantile(degrees, TRANSMISSION_QUANTILES, overwrite_input=True)
     return {

@@ -130,6 +130,8 @@ def test_a_plan_grows_but_never_shrinks() -> None:
     assert grown.shards()[: len(PLAN.shards())] == PLAN.shards()
     with pytest.raises(ValueError, match="holds 137 mechanisms: a root grows, it never shrinks"):
         PLAN.grown_to(100)
+    with pytest.raises(ValueError, match="grown_from must hold at most 1,000 sizes, got 5,000"):
+        GenerationPlan(seed=5, mechanisms=10**6, grown_from=list(range(1, 5001)))
     for sizes in ([137, 100], [0], [300], "137", [True]):
         with pytest.raises(ValueError, match="grown_from must"):
             GenerationPlan(seed=5, mechanisms=263, grown_from=sizes)

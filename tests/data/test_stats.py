@@ -4,6 +4,8 @@ the transmission quantiles those of numpy on the whole column. Made without Ray.
 
 from __future__ import annotations
 
+import json
+import shutil
 from collections import Counter
 
 import numpy as np
@@ -46,3 +48,18 @@ def test_stats_are_those_of_the_rows(root: str) -> None:
     assert [transmission["quantiles"][str(q)] for q in TRANSMISSION_QUANTILES] == expected.tolist()
     assert transmission["share_below"]["10"] == np.mean(degrees < 10)
     assert sum(transmission["histogram"]["counts"]) == len(degrees) == 263
+
+
+def test_markers_that_claim_more_rows_than_the_files_hold_are_refused(
+    root: str, tmp_path_factory: pytest.TempPathFactory
+) -> None:
+    """A marker's word is not trusted with memory: one claiming a trillion mechanisms is
+    refused in one line, allocating nothing of the sort."""
+    lying = tmp_path_factory.mktemp("lying") / "root"
+    shutil.copytree(root, lying)
+    marker_path = sorted((lying / "_links" / "shards").glob("shard-*.json"))[0]
+    marker = json.loads(marker_path.read_text())
+    marker["rows"]["mechanisms"] = 10**12
+    marker_path.write_text(json.dumps(marker))
+    with pytest.raises(ValueError, match=r"holds 263 rows, its commit markers say 1,000,000,000,2"):
+        dataset_stats(str(lying), sample_topologies=1)
