@@ -575,6 +575,9 @@ def test_ray_dataset_streams_the_imported_root(
     assert sorted(r["mechanism_id"] for r in mechanisms.take_all()) == sorted(six) != []
 
 
+# `links serve` starts a Ray of its own: with the tests that need Ray, one at a time. Beside
+# another test's work (tests/run's second step runs two at once) its shutdown outlasted 120 s.
+@pytest.mark.ray
 def test_links_serve_and_the_studio_work_on_the_imported_root(
     imported: tuple[str, dict], browser: Any, tmp_path: Path
 ) -> None:
