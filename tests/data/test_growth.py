@@ -14,10 +14,10 @@ import pytest
 
 import links_ray
 from links_ray.data.commit import committed_shards
-from links_ray.data.pathset import curate_shard
 from links_ray.data.schemas import GENERATION_TABLES
-from links_ray.data.shards import GenerationPlan, write_shard
+from links_ray.data.shards import GenerationPlan
 from links_ray.data.store import Store
+from tests.support.local_dataset import generate_and_curate
 
 #: 137 and 263 split topologies 27 and 52 between sizes (5 variants a topology).
 FIRST, GROWN = 137, 263
@@ -33,25 +33,7 @@ SORT_KEY = {
 def write_missing(root: str, plan: GenerationPlan) -> None:
     """Write and curate the shards of `plan` that `root` does not hold yet, as a resumed
     `links generate` and `links curate` would."""
-    store = Store.open(root)
-    done = committed_shards(store, "shards")
-    for shard in plan.shards():
-        if shard.shard_id not in done:
-            write_shard(store, plan, shard)
-    curated = committed_shards(store, "curation")
-    for shard_id, marker in sorted(committed_shards(store, "shards").items()):
-        if shard_id not in curated:
-            files = marker["files"]
-            curate_shard(
-                store,
-                shard_id,
-                marker["n_joints"],
-                files["mechanisms"],
-                files["simulations"],
-                0,
-                ("curated",),
-                plan.steps,
-            )
+    generate_and_curate(root, plan, curation_tables=("curated",))
 
 
 def rows(root: str, table: str) -> pa.Table:

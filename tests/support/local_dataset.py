@@ -24,12 +24,19 @@ def generate_and_curate(
     path_store: str = "points",
 ) -> str:
     """Write `plan`'s shards and their curation (`curation_tables`, stored as `path_store`)
-    into `root` (a folder or store URI); returns `root`."""
+    into `root` (a folder or store URI); returns `root`. Shards the root holds already are
+    kept, as a resumed `links generate` and `links curate` keep them: a plan grown from the
+    root's (`GenerationPlan.grown_to`) adds its new shards only."""
     store = Store.open(root)
-    store.claim(f"{META}/run.json", plan.config())
+    store.write_json(f"{META}/run.json", plan.config())
+    generated = committed_shards(store, "shards")
     for shard in plan.shards():
-        write_shard(store, plan, shard)
+        if shard.shard_id not in generated:
+            write_shard(store, plan, shard)
+    curated = committed_shards(store, "curation")
     for shard_id, marker in sorted(committed_shards(store, "shards").items()):
+        if shard_id in curated:
+            continue
         files = marker["files"]
         curate_shard(
             store,
