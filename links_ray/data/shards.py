@@ -297,16 +297,17 @@ def write_shard(
 
 def _search_topology(
     plan: GenerationPlan, n_joints: int, topology_id: int, stats: dict
-) -> tuple[Topology, PositionSearch, np.ndarray, np.ndarray]:
+) -> tuple[Topology, PositionSearch, np.ndarray, np.ndarray, np.ndarray]:
     """A topology with `plan.variants` valid position sets, each at least as far from a dead
     centre as the plan asks: (topology, its first search, the kept positions, their
-    trajectories as stored). Topologies whose search spends its budget are replaced."""
+    trajectories as stored, their least transmission angles). Topologies whose search spends
+    its budget are replaced."""
     rng = topology_rng(plan.seed, topology_id)
     budget = SEARCH_BUDGET[plan.sampler]
     while True:
         topology = grow_topology(rng, n_joints, plan.topology_rules)
         sampler = PositionSampler(TopologySimulator.from_topology(topology), plan.steps)
-        spent, positions, stored, first = 0, [], [], None
+        spent, positions, stored, least, first = 0, [], [], [], None
         try:
             while sum(map(len, positions)) < plan.variants:
                 found = sampler.search(
@@ -320,14 +321,14 @@ def _search_topology(
                     first = found
                 spent += found.candidates
                 trajectories = found.trajectories.astype(TRAJECTORY_DTYPE)
-                passing = np.ones(len(trajectories), dtype=bool)
-                if plan.min_transmission_deg > 0:
-                    angles = mechanism_transmission_deg(topology.order, trajectories)
-                    passing = angles >= plan.min_transmission_deg
-                    stats["below_transmission"] += int((~passing).sum())
+                # From the trajectories as stored, so curation's per-path angles agree.
+                angles = mechanism_transmission_deg(topology.order, trajectories)
+                passing = angles >= plan.min_transmission_deg
+                stats["below_transmission"] += int((~passing).sum())
                 stats["valid"] += len(trajectories)
                 positions.append(found.positions[passing])
                 stored.append(trajectories[passing])
+                least.append(angles[passing])
                 if spent >= budget and sum(map(len, positions)) < plan.variants:
                     raise PositionSearchError(f"budget of {budget} spent")
         except PositionSearchError:
@@ -335,8 +336,14 @@ def _search_topology(
             stats["candidates"] += budget
             continue
         stats["candidates"] += spent
-        keep = plan.variants
-        return topology, first, np.concatenate(positions)[:keep], np.concatenate(stored)[:keep]
+        kept = slice(plan.variants)
+        return (
+            topology,
+            first,
+            np.concatenate(positions)[kept],
+            np.concatenate(stored)[kept],
+            np.concatenate(least)[kept],
+        )
 
 
 def _generate_topology(
@@ -349,7 +356,9 @@ def _generate_topology(
     variants = slice(max(shard.low_id - first_id, 0), min(shard.high_id - first_id, plan.variants))
     counted = stats if variants.start == 0 else dict.fromkeys(stats, 0)
     n_joints = shard.n_joints
-    topology, found, positions, stored = _search_topology(plan, n_joints, topology_id, counted)
+    topology, found, positions, stored, least = _search_topology(
+        plan, n_joints, topology_id, counted
+    )
     adjacency, node_types = topology.adjacency, topology.node_types
     ids = first_id + np.arange(variants.start, variants.stop, dtype=np.int64)
     keep = len(ids)
@@ -358,12 +367,11 @@ def _generate_topology(
         "adjacency": adjacency.reshape(1, -1).repeat(keep, axis=0),
         "node_types": node_types.reshape(1, -1).repeat(keep, axis=0),
     }
-    # From the trajectories as stored, so curation's per-path angles agree with these.
     rows["mechanisms"].add(
         mechanism_id=ids,
         variant=np.arange(variants.start, variants.stop, dtype=np.int8),
         positions=positions[variants],
-        min_transmission_deg=mechanism_transmission_deg(topology.order, stored[variants]),
+        min_transmission_deg=least[variants],
         **shared,
     )
     if "simulations" in rows:
