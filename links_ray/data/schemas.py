@@ -79,8 +79,8 @@ ID_SCHEMAS: dict[str, pa.Schema] = {
 }
 #: zstd, and a dictionary only for the 0/1 and joint-kind values of the graph columns: there
 #: it turns each (n, n) adjacency into a run-length bit stream that zstd folds over a topology's
-#: five variants (mechanisms: 229 to 187 bytes a mechanism); floats do not repeat, and a
-#: dictionary page only costs them time and space.
+#: five variants (docs/benchmarks.md, Sizes on disk); floats do not repeat, and a dictionary
+#: page only costs them time and space.
 PARQUET_OPTIONS = {
     "compression": "zstd",
     "use_dictionary": ["adjacency.list.element", "node_types.list.element"],

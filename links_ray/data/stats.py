@@ -60,8 +60,8 @@ def _counts(markers: dict[str, dict[int, dict]], table: str) -> dict | None:
 def _file_columns(
     store: Store, markers: dict[str, dict[int, dict]], table: str, columns: list[str]
 ) -> Iterator[pa.Table]:
-    """Some columns of a table's committed files, a file at a time. (A pyarrow dataset scan
-    of the same columns held about 17 bytes a row more at its peak.)"""
+    """Some columns of a table's committed files, a file at a time: a pyarrow dataset scan
+    of the same columns holds memory that grows with the table."""
     for relative in committed_files(store, table, markers[TABLE_STAGE[table]]):
         yield store.read_parquet(relative, columns=columns)
 

@@ -129,14 +129,11 @@ def analyze_topology(adjacency: ArrayLike, node_types: ArrayLike) -> Topology:
             f"over-constrained: crank joint 1 is also linked to fixed joint {extra[0]}"
         )
 
-    order = solution_order(adj.astype(np.uint8), types.astype(np.int8))
+    adjacency, node_types = adj.astype(np.uint8), types.astype(np.int8)
+    order = solution_order(adjacency, node_types)
     if order is None:
         order = _solution_path(adj, types)  # raises, saying why there is no path
-    return Topology(
-        adjacency=adj.astype(np.uint8),
-        node_types=types.astype(np.int8),
-        order=order,
-    )
+    return Topology(adjacency=adjacency, node_types=node_types, order=order)
 
 
 def _solution_path(adj: np.ndarray, types: np.ndarray) -> np.ndarray:

@@ -14,6 +14,7 @@ import signal
 import tempfile
 import time
 from collections import Counter
+from dataclasses import replace
 from types import FrameType
 
 #: Stages by the function a sample is inside, innermost first: (stage, function names).
@@ -48,7 +49,7 @@ def profile_shard(topologies: int = 5200, seed: int = 0, interval_s: float = 0.0
     """Write one lean shard of `topologies` topologies (all 13 joint counts) into a temporary
     folder, sampling where its time goes; returns the seconds, the mechanisms a second and
     each stage's share of the samples."""
-    from links_ray.data.shards import JOINT_COUNTS, GenerationPlan, Shard, write_shard
+    from links_ray.data.shards import JOINT_COUNTS, GenerationPlan, write_shard
     from links_ray.data.store import Store
 
     per_size = max(1, topologies // JOINT_COUNTS)
@@ -59,7 +60,7 @@ def profile_shard(topologies: int = 5200, seed: int = 0, interval_s: float = 0.0
         topologies_per_shard=per_size,
     )
     shards = plan.shards()
-    warm = Shard(0, shards[0].n_joints, shards[0].first, 1, 0, plan.mechanisms)
+    warm = replace(shards[0], count=1)
     samples: Counter[str] = Counter()
 
     def sample(signum: int, frame: FrameType | None) -> None:
