@@ -92,10 +92,10 @@ def _transmission(
     store: Store, markers: dict[str, dict[int, dict]], mechanisms: dict | None
 ) -> dict | None:
     """The distribution of the mechanisms' least transmission angles, in degrees, read a
-    file at a time: the histogram and the shares below each threshold counted batch by
-    batch, the angles gathered into one float32 array whose quantiles are taken in place (4
-    bytes a mechanism in all). None for a dataset without them (made before the column
-    existed)."""
+    file at a time: the histogram and the shares below each threshold counted file by file,
+    the angles gathered into one float32 array whose quantiles are taken in place (4 bytes a
+    mechanism, up to twice that while the array grows). None for a dataset without them (made
+    before the column existed)."""
     if mechanisms is None or mechanisms["rows"] == 0:
         return None
     # Grown from the rows read, never sized from the markers' word: a marker claiming a
