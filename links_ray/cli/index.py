@@ -1,5 +1,7 @@
-"""`links index ROOT [--shards N]`: the retrieval index of a curated root built and saved beside
-the data (`_links/index/`), in as many partitions as `links serve --shards N` opens."""
+"""`links index ROOT [--shards N] [--paths N --seed S]`: the retrieval index of a curated root
+built and saved beside the data (`_links/index/`), in as many partitions as `links serve
+--shards N` opens; with `--paths`, over a seeded draw of that many curated paths
+(`data.path_draw`)."""
 
 from __future__ import annotations
 
@@ -25,6 +27,19 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         "(default: one index)",
     )
     index_command.add_argument(
+        "--paths",
+        type=positive_int,
+        default=None,
+        help="index only a seeded draw of this many curated paths (all of them when the root "
+        "holds fewer), saved apart from the full index",
+    )
+    index_command.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="the seed of the draw of --paths (default 0): the same seed, the same paths",
+    )
+    index_command.add_argument(
         "--rebuild",
         action="store_true",
         help="build every part again, even one saved from the same curated shards",
@@ -35,12 +50,14 @@ def add_command(commands: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> None:
     """`links index`: build (or find saved) each part, check it was saved, print the summary."""
+    from links_ray.data.path_draw import PathDraw
     from links_ray.data.store import Store
     from links_ray.search.cache import INDEX_FOLDER, cache_folder
     from links_ray.search.index import RetrievalIndex
     from links_ray.serve.app import check_root  # imports Ray Serve: only when asked for
 
     parts = args.shards or 1
+    draw = None if args.paths is None else PathDraw(args.paths, args.seed)
     check_root(args.root, args.shards)  # what `links serve --shards` would refuse, at once
     # Opened for writing: a root whose keys cannot save the index fails here, not after the
     # builds (`RetrievalIndex.open` on a read-only root builds in memory and saves nothing).
@@ -51,12 +68,13 @@ def run(args: argparse.Namespace) -> None:
     made = []
     for part in range(parts):
         began = time.perf_counter()
-        index = RetrievalIndex.open(store, rebuild=args.rebuild, part=part, parts=parts)
-        saved = store.read_json(f"{cache_folder(part, parts)}/current.json") or {}
+        index = RetrievalIndex.open(store, rebuild=args.rebuild, part=part, parts=parts, draw=draw)
+        folder = cache_folder(part, parts, draw)
+        saved = store.read_json(f"{folder}/current.json") or {}
         if saved.get("fingerprint") != index.fingerprint or saved.get("rows") != len(index):
             raise OSError(
                 f"{store.uri}: part {part} of {parts} of the index was built but not saved "
-                f"under {store.uri}/{cache_folder(part, parts)}/"
+                f"under {store.uri}/{folder}/"
             )
         made.append(
             {
@@ -73,7 +91,8 @@ def run(args: argparse.Namespace) -> None:
         "parts": parts,
         "built": sum(entry["built"] for entry in made),
         "seconds": round(time.perf_counter() - start, 3),
-        "folder": f"{store.uri}/{INDEX_FOLDER}",
+        "folder": f"{store.uri}/{INDEX_FOLDER}" + ("" if draw is None else f"/{draw.name}"),
+        "draw": None if draw is None else {"paths": draw.paths, "seed": draw.seed},
         "by_part": made,
     }
     print_result(args, summary, report.format_index)

@@ -179,8 +179,10 @@ def format_index(summary: dict) -> str:
     parts = summary["parts"]
     built = summary["built"]
     saved = "" if built == parts else f", {parts - built} already saved"
+    draw = summary.get("draw")
+    drawn = "" if draw is None else f" (the draw of seed {draw['seed']})"
     return (
-        f"{summary['root']}: {count(summary['paths'])} paths indexed in {parts} "
+        f"{summary['root']}: {count(summary['paths'])} paths{drawn} indexed in {parts} "
         f"part{'s' if parts != 1 else ''} ({built} built{saved}) under {summary['folder']}/ "
         f"in {duration(summary['seconds'])}"
     )

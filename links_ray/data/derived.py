@@ -17,7 +17,7 @@ trajectories at a time, whatever the root's size. Pure numpy/pyarrow: no Ray.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 import pyarrow as pa
@@ -26,6 +26,7 @@ import pyarrow.parquet as pq
 
 from links_ray.data.commit import SHARD_NAME, committed_files, committed_shards
 from links_ray.data.pathset import (
+    JOINT_BITS,
     MECHANISMS_PER_BATCH,
     by_mechanism_id,
     path_batches,
@@ -37,6 +38,7 @@ from links_ray.engine.inputs import DEFAULT_STEPS
 
 __all__ = [
     "DERIVABLE_TABLES",
+    "PathFilter",
     "derived_batches",
     "derived_schema",
     "derived_shards",
@@ -48,6 +50,9 @@ __all__ = [
     "rows_of_ids",
     "shard_batches",
 ]
+
+#: Which of some path ids (N,) int64 a read keeps: a mask (N,) bool.
+PathFilter = Callable[[np.ndarray], np.ndarray]
 
 #: Tables a lean root may derive instead of storing.
 DERIVABLE_TABLES = ("simulations", "paths", "curated")
@@ -139,20 +144,32 @@ def rows_of_ids(paths: Iterable[pa.Table], ids: np.ndarray, where: str) -> Itera
 
 
 def _shard_tables(
-    store: Store, table: str, marker: dict, ids_file: str | None, steps: int
+    store: Store,
+    table: str,
+    marker: dict,
+    ids_file: str | None,
+    steps: int,
+    keeps: PathFilter | None = None,
 ) -> Iterator[pa.Table]:
     """One generation shard's rows of `table` over `steps` steps, derived; with `ids_file` (the
-    shard's file of path ids, for `paths` or `curated`), those rows only."""
+    shard's file of path ids, for `paths` or `curated`), those rows only, and of those only
+    the ones `keeps` holds, when given: only their mechanisms are simulated."""
     n_joints = int(marker["n_joints"])
     mechanisms = store.read_parquet(marker["files"]["mechanisms"])
     if table == "simulations":
         yield from _simulation_batches(mechanisms, n_joints, steps)
         return
-    paths = path_batches(mechanisms, None, n_joints, steps)
     if ids_file is None:
-        yield from paths
+        yield from path_batches(mechanisms, None, n_joints, steps)
         return
     ids = store.read_parquet(ids_file, columns=["path_id"]).column("path_id").to_numpy()
+    if keeps is not None:
+        ids = ids[keeps(ids)]
+        # A mechanism's paths are simulated and normalized row by row, the same in any
+        # company, so the rows of a few of the shard's mechanisms equal their rows of all.
+        needed = pa.array(np.unique(ids >> JOINT_BITS))
+        mechanisms = mechanisms.filter(pc.is_in(mechanisms.column("mechanism_id"), needed))
+    paths = path_batches(mechanisms, None, n_joints, steps)
     yield from rows_of_ids(paths, ids, f"{store.uri}/{ids_file}")
 
 
@@ -201,22 +218,36 @@ def derived_batches(
 
 
 def file_batches(
-    store: Store, table: str, files: list[str], columns: list[str], block: int
+    store: Store,
+    table: str,
+    files: list[str],
+    columns: list[str],
+    block: int,
+    keeps: PathFilter | None = None,
 ) -> Iterator[pa.RecordBatch]:
     """Record batches of up to `block` rows of these committed files of a path table, in
     order, with `columns`: read as stored, or, for a file without the points that `columns`
-    name, derived from its shard's mechanisms."""
+    name, derived from its shard's mechanisms. With `keeps`, only the rows whose path ids it
+    holds (`keeps(path_ids)` is a mask)."""
     generated: dict[int, dict] | None = None
+    read = columns if keeps is None or "path_id" in columns else [*columns, "path_id"]
     for relative in files:
         with store.fs.open_input_file(store.path(relative)) as source:
             stored = pq.ParquetFile(source)
             if "points" not in columns or has_points(stored.schema_arrow):
-                yield from stored.iter_batches(batch_size=block, columns=columns)
+                for batch in stored.iter_batches(batch_size=block, columns=read):
+                    yield _kept(batch, keeps).select(columns)
                 continue
         if generated is None:  # once, at the first file to derive
             generated, steps = committed_shards(store, "shards"), _steps(store)
         marker = generated.get(_shard_of(relative))
         if marker is None:
             raise ValueError(f"{store.uri}/{relative}: its generation shard is not committed")
-        for rows in _shard_tables(store, table, marker, relative, steps):
+        for rows in _shard_tables(store, table, marker, relative, steps, keeps):
             yield from rows.select(columns).to_batches(max_chunksize=block)
+
+
+def _kept(batch: pa.RecordBatch, keeps: PathFilter | None) -> pa.RecordBatch:
+    if keeps is None:
+        return batch
+    return batch.filter(pa.array(keeps(batch.column("path_id").to_numpy())))

@@ -55,14 +55,19 @@ def path_ids(mechanism_ids: np.ndarray, joints: np.ndarray) -> np.ndarray:
     return (mechanism_ids.astype(np.int64) << JOINT_BITS) | joints.astype(np.int64)
 
 
-def keep_draw(ids: np.ndarray, seed: int) -> np.ndarray:
-    """A uniform number in [0, 1) per id, fixed by (seed, id): splitmix64 of the pair."""
+def splitmix64(ids: np.ndarray, seed: int) -> np.ndarray:
+    """A uint64 per id, fixed by (seed, id): splitmix64 of the pair. For one seed, distinct
+    ids give distinct numbers (each step is a bijection of uint64)."""
     with np.errstate(over="ignore"):
         z = ids.astype(np.uint64) + np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15)
         z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
         z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-        z = z ^ (z >> np.uint64(31))
-    return (z >> np.uint64(11)).astype(np.float64) / float(1 << 53)
+        return z ^ (z >> np.uint64(31))
+
+
+def keep_draw(ids: np.ndarray, seed: int) -> np.ndarray:
+    """A uniform number in [0, 1) per id, fixed by (seed, id): `splitmix64` of the pair."""
+    return (splitmix64(ids, seed) >> np.uint64(11)).astype(np.float64) / float(1 << 53)
 
 
 def list_values(column: pa.ChunkedArray | pa.Array, width: int) -> np.ndarray:

@@ -18,7 +18,7 @@ import numpy as np
 import pyarrow as pa
 
 from links_ray.data.dataset import isin, open_table
-from links_ray.data.derived import file_batches, file_schema
+from links_ray.data.derived import PathFilter, file_batches, file_schema
 from links_ray.data.store import Store
 from links_ray.search import kernels
 from links_ray.search.mechanisms import MechanismBank
@@ -78,11 +78,16 @@ class Basis:
 
 
 def curated_batches(
-    store: Store, files: list[str], columns: list[str], block: int
+    store: Store,
+    files: list[str],
+    columns: list[str],
+    block: int,
+    keeps: PathFilter | None = None,
 ) -> Iterator[pa.RecordBatch]:
-    """Record batches of up to `block` rows of these curated files, in order; a lean root's
-    points derived from its mechanisms (`data.derived`)."""
-    yield from file_batches(store, "curated", files, columns, block)
+    """Record batches of up to `block` rows of these curated files, in order (only the paths
+    `keeps` holds, when given); a lean root's points derived from its mechanisms
+    (`data.derived`)."""
+    yield from file_batches(store, "curated", files, columns, block, keeps)
 
 
 def batch_points(batch: pa.RecordBatch) -> np.ndarray:
@@ -93,14 +98,17 @@ def batch_points(batch: pa.RecordBatch) -> np.ndarray:
     return values.reshape(len(column), -1, 2)
 
 
-def build_arrays(store: Store, files: list[str], rows: int) -> dict:
-    """Sketches, coarse lists and mechanisms of the paths in `files` (`rows` of them),
-    streamed block by block: the keyword arguments of a `RetrievalIndex` besides its place.
+def build_arrays(
+    store: Store, files: list[str], rows: int, keeps: PathFilter | None = None
+) -> dict:
+    """Sketches, coarse lists and mechanisms of the paths in `files` (`rows` of them; only
+    those `keeps` holds, when given), streamed block by block: the keyword arguments of a
+    `RetrievalIndex` besides its place.
 
     Raises ValueError if the files hold more or fewer rows than `rows`, or paths of
     different lengths.
     """
-    sample = _sample_paths(store, files, rows)
+    sample = _sample_paths(store, files, rows, keeps)
     steps = sample.shape[1]
     fields = distance_fields(sample, FIELD_STRIDE)
     basis = Basis.fit(fields)
@@ -115,7 +123,7 @@ def build_arrays(store: Store, files: list[str], rows: int) -> dict:
     columns = ["mechanism_id", "joint", "points"]
     if "min_transmission_deg" in file_schema(store, files[0]).names:  # all written alike
         columns.append("min_transmission_deg")
-    for batch in curated_batches(store, files, columns, BUILD_BLOCK):
+    for batch in curated_batches(store, files, columns, BUILD_BLOCK, keeps):
         end = start + batch.num_rows
         if end > rows:
             raise ValueError(f"{store.uri}: the curated files hold more rows than their markers")
@@ -177,13 +185,15 @@ def _nearest_centroid(points: np.ndarray, centroids: np.ndarray) -> np.ndarray:
     return gaps.argmin(axis=1).astype(np.int32)
 
 
-def _sample_paths(store: Store, files: list[str], rows: int) -> np.ndarray:
+def _sample_paths(
+    store: Store, files: list[str], rows: int, keeps: PathFilter | None
+) -> np.ndarray:
     """Up to SAMPLE paths drawn from files spread evenly over `files` (twice as many paths as
     it needs, when the files hold them), as (P, steps, 2) float32."""
     share = min(1.0, 2 * SAMPLE / max(rows, 1))
     chosen = files[:: max(1, round(1 / share))] if share < 1 else files
     points = np.concatenate(
-        [batch_points(b) for b in curated_batches(store, chosen, ["points"], BUILD_BLOCK)]
+        [batch_points(b) for b in curated_batches(store, chosen, ["points"], BUILD_BLOCK, keeps)]
     )
     picked = np.random.default_rng(0).permutation(len(points))[:SAMPLE]
     return points[np.sort(picked)]

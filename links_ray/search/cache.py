@@ -18,6 +18,7 @@ import uuid
 import numpy as np
 
 from links_ray.data.lease import Lease, LeaseHeld, index_lease_name
+from links_ray.data.path_draw import PathDraw
 from links_ray.data.store import META, Store, StoreError
 from links_ray.search import kernels
 from links_ray.search.build import DIMENSIONS, MAX_LISTS, ROWS_PER_LIST, SAMPLE, Basis
@@ -59,9 +60,11 @@ def check_part(part: int, parts: int) -> None:
         raise ValueError(f"part must be in 0..parts-1 with parts >= 1, got part {part} of {parts}")
 
 
-def cache_folder(part: int, parts: int) -> str:
-    """Where part `part` of an index split in `parts` keeps its arrays."""
-    return f"{INDEX_FOLDER}/part-{part}-of-{parts}"
+def cache_folder(part: int, parts: int, draw: PathDraw | None = None) -> str:
+    """Where part `part` of an index split in `parts` keeps its arrays (an index of a draw of
+    the curated paths, in a folder named after the draw)."""
+    place = INDEX_FOLDER if draw is None else f"{INDEX_FOLDER}/{draw.name}"
+    return f"{place}/part-{part}-of-{parts}"
 
 
 def shards_fingerprint(markers: dict[int, dict]) -> str:
@@ -134,12 +137,19 @@ def load_index(store: Store, folder: str, fingerprint: str, rows: int) -> dict |
 
 
 def build_lease(
-    store: Store, part: int, parts: int, fingerprint: str, rows: int, rebuild: bool, wait_s: float
+    store: Store,
+    part: int,
+    parts: int,
+    folder: str,
+    fingerprint: str,
+    rows: int,
+    rebuild: bool,
+    wait_s: float,
 ) -> Lease | dict | None:
-    """The part's index lease (this process builds), the index another process built while
-    this one waited (not with `rebuild`), or None (build without the lease: the root takes no
-    writes). Raises `LeaseHeld` after `wait_s` seconds, naming the holder."""
-    folder = cache_folder(part, parts)
+    """The part's index lease (this process builds), the index another process saved in
+    `folder` while this one waited (not with `rebuild`), or None (build without the lease: the
+    root takes no writes). Raises `LeaseHeld` after `wait_s` seconds, naming the holder. The
+    full index's part and any draw's share a lease: their builds take turns."""
 
     def saved() -> dict | None:
         return None if rebuild else load_index(store, folder, fingerprint, rows)

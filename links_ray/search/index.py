@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from links_ray.data.commit import committed_files, committed_shards
+from links_ray.data.path_draw import DrawnPaths, PathDraw
 from links_ray.data.store import Store
 from links_ray.engine.inputs import (
     DEFAULT_K,
@@ -95,6 +96,7 @@ class RetrievalIndex:
     parts: int = 1
     build_s: float = 0.0
     fingerprint: str = ""  # of the curated shards indexed (changes when any is redone)
+    drawn: DrawnPaths | None = None  # the seeded draw of curated paths indexed, if not all
     _scan: ScanBuffers = field(init=False, repr=False)  # the scan's, kept between queries
     _n_joints: np.ndarray | None = field(default=None, init=False, repr=False)  # `n_joints`
 
@@ -169,6 +171,7 @@ class RetrievalIndex:
         part: int = 0,
         parts: int = 1,
         wait_s: float = BUILD_WAIT_S,
+        draw: PathDraw | None = None,
     ) -> RetrievalIndex:
         """Load the index of `root`'s curated shards numbered `part` modulo `parts` (all, by
         default) saved beside the data, or build (and save) it; `rebuild`: build it anyway.
@@ -179,39 +182,55 @@ class RetrievalIndex:
         `LeaseHeld` names the holder. A saved index that cannot be read, or was made from other
         curated shards, is rebuilt. Raises ValueError for a bad part or a root with no curated
         table in the part.
+
+        With `draw`, the index holds only the paths of that seeded draw of the whole curated
+        set (`data.path_draw`) that fall in the part, and is saved apart from the full index,
+        under the draw's name.
         """
         check_part(part, parts)
         if not wait_s >= 0:
             raise ValueError(f"wait_s must be zero or more, got {wait_s!r}")
         store = root if isinstance(root, Store) else Store.open(root, writable=False)
-        markers = {
+        curated = {
             shard: marker
             for shard, marker in committed_shards(store, "curation").items()
-            if shard % parts == part and "curated" in marker["files"]
+            if "curated" in marker["files"]
         }
+        markers = {shard: marker for shard, marker in curated.items() if shard % parts == part}
         files = committed_files(store, "curated", markers)
         if not files:
             where = "" if parts == 1 else f" in part {part} of {parts}"
             raise ValueError(f"{store.uri} has no curated table{where} yet")
-        folder = cache_folder(part, parts)
-        fingerprint = shards_fingerprint(markers)
-        rows = sum(marker["rows"].get("curated", 0) for marker in markers.values())
+        folder = cache_folder(part, parts, draw)
+        if draw is None:
+            drawn = None
+            fingerprint = shards_fingerprint(markers)
+            rows = sum(marker["rows"].get("curated", 0) for marker in markers.values())
+        else:  # a draw of the whole curated set: every shard decides what this part holds
+            drawn = DrawnPaths.of(store, committed_files(store, "curated", curated), draw)
+            fingerprint = f"{draw.name} {shards_fingerprint(curated)}"
+            rows = sum(drawn.rows_by_file[relative] for relative in files)
+            if rows == 0:
+                raise ValueError(
+                    f"{store.uri}: the draw {draw.name} holds no path in part {part} of {parts}"
+                )
         common = {
             "store": store,
             "files": files,
             "part": part,
             "parts": parts,
             "fingerprint": fingerprint,
+            "drawn": drawn,
         }
         saved = None if rebuild else load_index(store, folder, fingerprint, rows)
         if saved is not None:
             return cls(**common, **saved)
-        lease = build_lease(store, part, parts, fingerprint, rows, rebuild, wait_s)
+        lease = build_lease(store, part, parts, folder, fingerprint, rows, rebuild, wait_s)
         if isinstance(lease, dict):  # another process built it meanwhile
             return cls(**common, **lease)
         try:
             start = time.perf_counter()
-            arrays = build_arrays(store, files, rows)
+            arrays = build_arrays(store, files, rows, None if drawn is None else drawn.keeps)
             index = cls(**common, **arrays, build_s=time.perf_counter() - start)
             try:
                 save_index(store, folder, fingerprint, arrays, index.build_s)
@@ -227,7 +246,8 @@ class RetrievalIndex:
         files' order (row r of the index is file row `file_row[r]`), read from Parquet: the
         index holds no points."""
         start = 0
-        for batch in curated_batches(self.store, self.files, ["points"], block):
+        keeps = None if self.drawn is None else self.drawn.keeps
+        for batch in curated_batches(self.store, self.files, ["points"], block, keeps):
             points = batch_points(batch)
             yield start, points
             start += len(points)
