@@ -78,7 +78,9 @@ def _generate_arguments(parser: argparse.ArgumentParser) -> None:
 def _retrieve(args: argparse.Namespace) -> Measured:
     from links_ray.cli.bench import retrieve
 
-    result = retrieve.bench_retrieve(paths=args.paths, rebuild=not args.reuse_index)
+    result = retrieve.bench_retrieve(
+        paths=args.paths, rebuild=not args.reuse_index, root=args.root, seed=args.seed
+    )
     return result, retrieve.format_retrieve
 
 
@@ -141,6 +143,18 @@ def _retrieve_arguments(command: argparse.ArgumentParser) -> None:
         "--reuse-index",
         action="store_true",
         help="load the saved index and report its recorded build time instead of rebuilding",
+    )
+    command.add_argument(
+        "--root",
+        default=None,
+        help="measure the index of a seeded draw of --paths curated paths of this root (a "
+        "folder), in process, instead of the benchmark's own dataset",
+    )
+    command.add_argument(
+        "--seed",
+        type=non_negative_int,
+        default=0,
+        help="the seed of the draw with --root (default 0), as `links index --seed`",
     )
 
 

@@ -1,5 +1,6 @@
 """`links bench retrieve`: index build, load and memory, latency in process and over HTTP, and
-recall@3 against exact brute force, on the cached benchmark dataset (`bench.data`)."""
+recall@3 against exact brute force, on the cached benchmark dataset (`bench.data`); or, with
+`--root`, on a seeded draw of a root's curated paths (`data.path_draw`), in process only."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import numpy as np
 
 from links_ray.cli.bench.data import folder_bytes, retrieval_dataset
 from links_ray.cli.bench.machine import machine_info
+from links_ray.data.path_draw import PathDraw
 from links_ray.engine.paths import normalize_path
 from links_ray.search.held_out import held_out_queries
 
@@ -22,27 +24,42 @@ _RESIDENT_PROBE = """
 import json, sys
 def rss():
     return int(open("/proc/self/status").read().split("VmRSS:")[1].split()[0]) * 1024
+from links_ray.data.path_draw import PathDraw
 from links_ray.search.index import RetrievalIndex
 before = rss()
-index = RetrievalIndex.open(sys.argv[1])
+draw = None if sys.argv[2] == "all" else PathDraw(int(sys.argv[2]), int(sys.argv[3]))
+index = RetrievalIndex.open(sys.argv[1], draw=draw)
 index.warm(seconds=1.0)
 print(json.dumps({"resident": rss() - before, "held": index.nbytes, "paths": len(index)}))
 """
 
 
-def _resident_bytes(root: str) -> dict:
-    """`_RESIDENT_PROBE`'s record for the index of `root`."""
+def _resident_bytes(root: str, draw: PathDraw | None) -> dict:
+    """`_RESIDENT_PROBE`'s record for the index of `root` (of the draw, when given)."""
+    drawn = ["all", "0"] if draw is None else [str(draw.paths), str(draw.seed)]
     done = subprocess.run(
-        [sys.executable, "-c", _RESIDENT_PROBE, root], capture_output=True, text=True, check=True
+        [sys.executable, "-c", _RESIDENT_PROBE, root, *drawn],
+        capture_output=True,
+        text=True,
+        check=True,
     )
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def bench_retrieve(
-    paths: int = 1_000_000, queries: int = 1000, recall_queries: int = 100, rebuild: bool = True
+    paths: int = 1_000_000,
+    queries: int = 1000,
+    recall_queries: int = 100,
+    rebuild: bool = True,
+    root: str | None = None,
+    seed: int = 0,
 ) -> dict:
     """Index build, load and memory; latency in process and over HTTP; recall@3 against
     exact brute force.
+
+    With `root`, the index is of the seeded draw of `paths` of its curated paths
+    (`PathDraw(paths, seed)`) and latency is measured in process only: `links serve` opens a
+    root's whole index.
 
     Queries are paths of mechanisms drawn afresh (held out of the dataset), neither arcs nor
     circles, given in a random frame: moved, turned, scaled and sometimes mirrored. Latency
@@ -55,24 +72,25 @@ def bench_retrieve(
     from links_ray.search.index import RetrievalIndex
 
     start = time.perf_counter()
-    root = retrieval_dataset(paths)
+    draw = None if root is None else PathDraw(paths, seed)
+    root = retrieval_dataset(paths) if root is None else root
     dataset_s = time.perf_counter() - start
     disk = {
         table: folder_bytes(os.path.join(root, table))
-        for table in sorted(os.listdir(root))
+        for table in (sorted(os.listdir(root)) if os.path.isdir(root) else [])
         if not table.startswith("_")
     }
     start = time.perf_counter()
-    index = RetrievalIndex.open(root, rebuild=rebuild)
+    index = RetrievalIndex.open(root, rebuild=rebuild, draw=draw)
     build_s = time.perf_counter() - start
     if not index.build_s:  # loaded: the saved index's own build time
-        saved = Store.open(root).read_json(f"{cache_folder(0, 1)}/current.json") or {}
+        saved = Store.open(root).read_json(f"{cache_folder(0, 1, draw)}/current.json") or {}
         build_s = float(saved.get("build_s", float("nan")))
     del index
     start = time.perf_counter()
-    index = RetrievalIndex.open(root)
+    index = RetrievalIndex.open(root, draw=draw)
     load_s = time.perf_counter() - start
-    resident = _resident_bytes(root)
+    resident = _resident_bytes(root, draw)
     held_out = held_out_queries(max(queries, recall_queries), seed=99)
     index.warm()
     in_process = []
@@ -87,7 +105,49 @@ def bench_retrieve(
         found = {row for row, _, _ in index.ranked(normalize_path(query))}
         hits += len(found & {row for row, _, _ in exact})
     probing = _probing(index, held_out[:recall_queries], truth)
+    over_http = [] if draw is not None else _over_http(root, held_out, queries)
+    large = len(index) >= 5_000_000
+    return {
+        "benchmark": "retrieve",
+        "machine": machine_info(),
+        "paths": len(index),
+        "draw": None if draw is None else {"paths": draw.paths, "seed": draw.seed},
+        "dataset_s": dataset_s,
+        "disk_bytes": disk,
+        "build_s": build_s,
+        "load_s": load_s,
+        "index_bytes": index.nbytes,
+        "resident_bytes": resident["resident"],
+        **_percentiles("", over_http),
+        **_percentiles("in_process_", in_process),
+        "recall_at_3": hits / (3 * recall_queries),
+        "recall_queries": recall_queries,
+        "brute_force_s": brute_force_s,
+        "probing": probing,
+        "queries": queries,
+        "targets": {
+            "p50_ms": 100 if large else 50,
+            "p99_ms": 300 if large else 200,
+            "recall_at_3": 0.95,
+            "resident_bytes_per_path": 600,
+        },
+    }
 
+
+def _percentiles(prefix: str, seconds: list[float]) -> dict:
+    """p50, p99 and the slowest of these times in ms, keyed with `prefix` (None without any)."""
+    if not seconds:
+        return {f"{prefix}p50_ms": None, f"{prefix}p99_ms": None, f"{prefix}max_ms": None}
+    return {
+        f"{prefix}p50_ms": float(np.percentile(seconds, 50) * 1e3),
+        f"{prefix}p99_ms": float(np.percentile(seconds, 99) * 1e3),
+        f"{prefix}max_ms": float(np.max(seconds) * 1e3),
+    }
+
+
+def _over_http(root: str, held_out: list[np.ndarray], queries: int) -> list[float]:
+    """Seconds each of `queries` retrievals took over HTTP, `root` served as `links serve`
+    serves it (after one untimed request)."""
     # Served as `links serve` serves: Ray started for it, the replica answering HTTP itself.
     import ray
     from ray import serve
@@ -112,36 +172,7 @@ def bench_retrieve(
             over_http.append(time.perf_counter() - start)
     finally:
         serve.shutdown()
-    over_http = over_http[1:]
-    large = len(index) >= 5_000_000
-    return {
-        "benchmark": "retrieve",
-        "machine": machine_info(),
-        "paths": len(index),
-        "dataset_s": dataset_s,
-        "disk_bytes": disk,
-        "build_s": build_s,
-        "load_s": load_s,
-        "index_bytes": index.nbytes,
-        "resident_bytes": resident["resident"],
-        "p50_ms": float(np.percentile(over_http, 50) * 1e3),
-        "p99_ms": float(np.percentile(over_http, 99) * 1e3),
-        "in_process_p50_ms": float(np.percentile(in_process, 50) * 1e3),
-        "in_process_p99_ms": float(np.percentile(in_process, 99) * 1e3),
-        "max_ms": float(np.max(over_http) * 1e3),
-        "in_process_max_ms": float(np.max(in_process) * 1e3),
-        "recall_at_3": hits / (3 * recall_queries),
-        "recall_queries": recall_queries,
-        "brute_force_s": brute_force_s,
-        "probing": probing,
-        "queries": queries,
-        "targets": {
-            "p50_ms": 100 if large else 50,
-            "p99_ms": 300 if large else 200,
-            "recall_at_3": 0.95,
-            "resident_bytes_per_path": 600,
-        },
-    }
+    return over_http[1:]
 
 
 def exact_truth(index: object, queries: list[np.ndarray]) -> tuple[list[list], float]:
@@ -219,16 +250,23 @@ def format_retrieve(result: dict) -> str:
     """Retrieval latency, recall and memory beside the targets."""
     targets, paths = result["targets"], result["paths"]
     disk = ", ".join(f"{t} {b / 1e9:.1f} GB" for t, b in result["disk_bytes"].items())
+    draw = result.get("draw")
+    drawn = "" if draw is None else f", the draw of seed {draw['seed']}"
+    over_http = (
+        "over HTTP: not measured (`links serve` serves a root's whole index, not a draw)"
+        if result["p50_ms"] is None
+        else f"over HTTP: p50 {result['p50_ms']:.1f} ms, p99 {result['p99_ms']:.1f} ms, "
+        f"slowest {result['max_ms']:.0f} ms of {result['queries']} "
+        f"(targets {targets['p50_ms']} / {targets['p99_ms']} ms)"
+    )
     return "\n".join(
         [
-            f"{paths:,} curated paths ({disk}); index built in {result['build_s']:.0f} s, "
+            f"{paths:,} curated paths{drawn} ({disk}); index built in {result['build_s']:.0f} s, "
             f"loaded in {result['load_s']:.1f} s",
             f"memory: {result['resident_bytes'] / paths:.0f} bytes resident per path "
             f"(target {targets['resident_bytes_per_path']}), "
             f"{result['index_bytes'] / paths:.0f} held by the index arrays",
-            f"over HTTP: p50 {result['p50_ms']:.1f} ms, p99 {result['p99_ms']:.1f} ms, "
-            f"slowest {result['max_ms']:.0f} ms of {result['queries']} "
-            f"(targets {targets['p50_ms']} / {targets['p99_ms']} ms)",
+            over_http,
             f"in process: p50 {result['in_process_p50_ms']:.1f} ms, "
             f"p99 {result['in_process_p99_ms']:.1f} ms, "
             f"slowest {result['in_process_max_ms']:.0f} ms",
