@@ -27,7 +27,7 @@ from links_ray.engine.inputs import (
     link_pairs,
 )
 from links_ray.engine.node_kinds import ACTUATED, FIXED, SIMPLE
-from links_ray.engine.solution_path import solution_order
+from links_ray.engine.solution_path import passes_graph_checks, solution_order
 
 CRANK_CENTER = (0.5, 0.5)
 CRANK_TIP = (0.55, 0.5)
@@ -100,6 +100,16 @@ def analyze_topology(adjacency: ArrayLike, node_types: ArrayLike) -> Topology:
 
     Raises `InvalidMechanismError` naming the first problem found.
     """
+    if passes_graph_checks(adjacency, node_types):  # compiled: what readers of a root meet
+        checked = adjacency.astype(np.uint8), node_types.astype(np.int8)
+        order = solution_order(*checked)
+        if order is not None:
+            return Topology(adjacency=checked[0], node_types=checked[1], order=order)
+    return checked_topology(adjacency, node_types)
+
+
+def checked_topology(adjacency: ArrayLike, node_types: ArrayLike) -> Topology:
+    """`analyze_topology` by Python statements alone, each failure named."""
     adj, types = as_graph(adjacency, node_types)
     if types[0] != FIXED:
         raise InvalidMechanismError(

@@ -1,8 +1,10 @@
 """The dyadic solution path and the dataset's structure rules, compiled.
 
 `engine.mechanism` states both in Python with a message for every failure; these kernels give
-the same answers on a checked topology in a few microseconds, for the generator, which grows
-and checks one topology per five mechanisms. A topology they reject goes back to the Python
+the same answers in a few microseconds, for the generator, which grows and checks one topology
+per five mechanisms, and for every reader that simulates a root's mechanisms again, which
+checks each topology it meets (`passes_graph_checks` is every check of `mechanism.as_graph` and
+`analyze_topology` before the solution path). A topology they reject goes back to the Python
 statements, which say why.
 
 Pure numpy/numba: no Ray.
@@ -14,8 +16,8 @@ import numpy as np
 from numba import njit
 
 from links_ray.engine.buffers import check_buffer
-from links_ray.engine.inputs import MIN_JOINTS
-from links_ray.engine.node_kinds import FIXED, SIMPLE
+from links_ray.engine.inputs import MAX_JOINTS, MIN_JOINTS
+from links_ray.engine.node_kinds import ACTUATED, FIXED, SIMPLE
 
 #: `_solution_order`'s answers when there is no solution path.
 OVER_CONSTRAINED = -1
@@ -88,6 +90,54 @@ def _obeys_structure(adjacency: np.ndarray, node_types: np.ndarray, order: np.nd
         if not needed[j]:
             return False
     return True
+
+
+@njit(cache=True, nogil=True)
+def _passes_graph_checks(adjacency: np.ndarray, node_types: np.ndarray) -> bool:
+    """Whether an integer (n, n) adjacency and (n,) node types pass every check that
+    `mechanism.analyze_topology` makes before its solution path: the form of the graph, the
+    crank and the ground."""
+    n = node_types.shape[0]
+    if adjacency.shape[0] != n or adjacency.shape[1] != n or n < MIN_JOINTS or n > MAX_JOINTS:
+        return False
+    for j in range(n):
+        if node_types[j] < FIXED or node_types[j] > ACTUATED:
+            return False
+        if adjacency[j, j] != 0:
+            return False
+        for k in range(n):
+            value = adjacency[j, k]
+            if (value != 0 and value != 1) or value != adjacency[k, j]:
+                return False
+    if node_types[0] != FIXED or node_types[1] != ACTUATED or adjacency[0, 1] == 0:
+        return False
+    for j in range(2, n):
+        if node_types[j] == ACTUATED:
+            return False
+    for j in range(n):
+        for k in range(n):
+            if adjacency[j, k] != 0 and node_types[j] == FIXED and node_types[k] == FIXED:
+                return False  # a link joins two fixed joints
+    for k in range(2, n):
+        if adjacency[1, k] != 0 and node_types[k] == FIXED:
+            return False  # the crank joint is also linked to a fixed joint
+    return True
+
+
+def passes_graph_checks(adjacency: np.ndarray, node_types: np.ndarray) -> bool:
+    """Whether a topology given as integer arrays, adjacency (n, n) and node_types (n,),
+    passes the checks of `mechanism.analyze_topology` before its solution path (False also
+    for arrays of another form, which those checks refuse or convert)."""
+    if (
+        not isinstance(adjacency, np.ndarray)
+        or not isinstance(node_types, np.ndarray)
+        or adjacency.ndim != 2
+        or node_types.ndim != 1
+        or adjacency.dtype.kind not in "iu"
+        or node_types.dtype.kind not in "iu"
+    ):
+        return False
+    return bool(_passes_graph_checks(adjacency, node_types))
 
 
 def solution_order(adjacency: np.ndarray, node_types: np.ndarray) -> np.ndarray | None:

@@ -13,9 +13,10 @@ from links_ray.engine.mechanism import (
     Topology,
     _solution_path,
     analyze_topology,
+    checked_topology,
     structure_violations,
 )
-from links_ray.engine.solution_path import obeys_structure, solution_order
+from links_ray.engine.solution_path import obeys_structure, passes_graph_checks, solution_order
 from links_ray.engine.topology import TOPOLOGY_RULES, grow_topology
 
 
@@ -52,6 +53,63 @@ def test_the_compiled_path_is_the_python_path() -> None:
         assert np.array_equal(compiled, expected)
         solved += 1
     assert solved > 300 and refused > 100  # both ways are tried, often
+
+
+def broken_forms(seed: int, count: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Grown topologies broken in the graph's form, the crank or the ground: an entry of 2 or
+    256, a one-way link, a self-link, a kind out of range, a second actuated joint, a fixed
+    crank tip, a ground link, the crank tip grounded twice, a cut crank; in several dtypes."""
+    rng = np.random.default_rng(seed)
+    found = []
+    for i in range(count):
+        adjacency, node_types = random_topology(rng)
+        adjacency, node_types = adjacency.astype(np.int64), node_types.astype(np.int64)
+        n = len(node_types)
+        a, b = (int(x) for x in rng.choice(n, 2, replace=False))
+        fixed = np.flatnonzero(node_types == 0)
+        kind = i % 10
+        if kind == 0:
+            adjacency[a, b] = adjacency[b, a] = 2 if i % 20 else 256
+        elif kind == 1:
+            adjacency[a, b] = 1 - adjacency[a, b]
+        elif kind == 2:
+            adjacency[a, a] = 1
+        elif kind == 3:
+            node_types[a] = 3 if i % 20 else -1
+        elif kind == 4:
+            node_types[max(a, 2)] = 2
+        elif kind == 5:
+            node_types[1] = 0
+        elif kind == 6 and len(fixed) > 1:
+            adjacency[fixed[0], fixed[1]] = adjacency[fixed[1], fixed[0]] = 1
+        elif kind == 7 and len(fixed) > 1:
+            adjacency[1, fixed[1]] = adjacency[fixed[1], 1] = 1
+        elif kind == 8:
+            adjacency[0, 1] = adjacency[1, 0] = 0
+        dtype = (np.int64, np.uint8, np.int16, np.int8)[i % 4]
+        found.append((adjacency.astype(dtype), node_types.astype(dtype)))
+    return found
+
+
+def test_the_compiled_topology_checks_are_the_python_checks() -> None:
+    """`analyze_topology`'s compiled way gives `checked_topology`'s answer, or none, on every
+    graph; a graph it does not take, the Python statements refuse."""
+    passed = refused = 0
+    for adjacency, node_types in graphs(seed=4, count=300) + broken_forms(seed=5, count=400):
+        try:
+            expected = checked_topology(adjacency, node_types)
+        except InvalidMechanismError:
+            with pytest.raises(InvalidMechanismError):
+                analyze_topology(adjacency, node_types)
+            refused += 1
+            continue
+        assert passes_graph_checks(adjacency, node_types)
+        got = analyze_topology(adjacency, node_types)
+        for name in ("adjacency", "node_types", "order"):
+            ours, theirs = getattr(got, name), getattr(expected, name)
+            assert ours.dtype == theirs.dtype and np.array_equal(ours, theirs), name
+        passed += 1
+    assert passed > 250 and refused > 350
 
 
 def test_the_compiled_structure_rules_are_the_python_rules() -> None:
