@@ -18,8 +18,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import asdict, replace
 
 import ray
-from ray.exceptions import ActorDiedError, ActorUnavailableError, RayActorError
 
+from links_ray.cluster.actor_pool import ShardPool
 from links_ray.cluster.connect import connect
 from links_ray.cluster.progress import Progress
 from links_ray.data.commit import committed_shards, remove_uncommitted
@@ -29,14 +29,8 @@ from links_ray.data.shards import GenerationPlan, Shard, write_shard
 from links_ray.data.store import META, Store, StoreError, refuse_imported
 from links_ray.engine.topology import TOPOLOGY_RULES
 
-#: Shards queued on an actor at once: one running, one ready, so no actor waits on the driver.
-SHARDS_IN_FLIGHT = 2
-#: How often the driver looks for new CPUs in the cluster.
-RESIZE_EVERY_S = 2.0
 #: Tries of each S3 request inside a shard, to ride out a store's brief refusals.
 WRITE_ATTEMPTS = 10
-#: Times a shard may fail with a storage error before the run stops.
-SHARD_ATTEMPTS = 3
 
 
 @ray.remote(num_cpus=1, max_restarts=0)
@@ -129,7 +123,10 @@ def generate(
             unit="mechanisms",
             enabled=progress,
         )
-        pool = _Pool(out, plan, workers, lease.token)
+        config = asdict(plan)
+        pool = ShardPool(
+            lambda: GeneratorActor.remote(out, config, lease.token), workers, role="generator"
+        )
         try:
             while todo or pool.busy():
                 if lease.lost:
@@ -172,158 +169,6 @@ def _plan_on_root(store: Store, asked: GenerationPlan, defaults: dict) -> Genera
             return grown
     store.claim(f"{META}/run.json", asked.config(), defaults=defaults)
     return asked
-
-
-class _Pool:
-    """Generator actors sized to the cluster, each fed up to SHARDS_IN_FLIGHT shards once it
-    runs. An actor waiting for a CPU (others' work may hold the cluster's) is given none: its
-    shards would wait with it while the running actors idle."""
-
-    def __init__(
-        self, uri: str, plan: GenerationPlan, workers: int | None, lease_token: str
-    ) -> None:
-        self.uri = uri
-        self.plan = asdict(plan)
-        self.lease_token = lease_token
-        self.workers = workers
-        self.load: dict[ray.actor.ActorHandle, int] = {}  # running actors: shards in flight
-        self.starting: dict[ray.ObjectRef, ray.actor.ActorHandle] = {}  # by their ready() call
-        self.in_flight: dict[ray.ObjectRef, tuple[ray.actor.ActorHandle, Shard]] = {}
-        self.peak = 0
-        self.failures: dict[int, int] = {}
-        self.deaths_since_progress = 0
-        self._resized = 0.0
-        if workers:
-            _request_cpus(workers)  # lets an autoscaling cluster grow towards `workers`
-
-    def busy(self) -> bool:
-        return bool(self.in_flight)
-
-    def size(self) -> int:
-        return len(self.load) + len(self.starting)
-
-    def resize(self, work_left: int) -> None:
-        """Add actors while the cluster has CPUs for them (it may have grown).
-
-        Actors are only made for CPUs that exist; one waiting for a CPU that other work holds
-        is given shards once it runs (`submit`).
-        """
-        now = time.monotonic()
-        if now - self._resized < RESIZE_EVERY_S and self.size():
-            return
-        self._resized = now
-        cpus = int(ray.cluster_resources().get("CPU", 1))
-        wanted = min(self.workers or cpus, cpus, work_left + len(self.in_flight))
-        while self.size() < max(wanted, 1 if work_left else 0):
-            actor = GeneratorActor.remote(self.uri, self.plan, self.lease_token)
-            self.starting[actor.ready.remote()] = actor
-
-    def submit(self, todo: deque[Shard]) -> None:
-        """Queue shards of `todo` on the running actors, after taking in those that started."""
-        if self.starting:
-            started, _ = ray.wait(list(self.starting), num_returns=len(self.starting), timeout=0)
-            for ref in started:
-                actor = self.starting[ref]
-                try:
-                    ray.get(ref)
-                except (RayActorError, ActorDiedError, ActorUnavailableError) as exc:
-                    self._bury(actor, exc)
-                    continue
-                self.load[actor] = 0
-                del self.starting[ref]
-            self.peak = max(self.peak, len(self.load))
-        for actor, load in self.load.items():
-            while todo and load < SHARDS_IN_FLIGHT:
-                shard = todo.popleft()
-                self.in_flight[actor.run_shard.remote(shard)] = (actor, shard)
-                load += 1
-            self.load[actor] = load
-
-    def collect(self, todo: deque[Shard]) -> list[tuple[Shard, dict]]:
-        """Finished shards; shards of dead actors go back to the front of `todo`. Also returns,
-        with none, when an actor starts."""
-        waiting = [*self.in_flight, *self.starting]
-        if not waiting:
-            return []
-        ready, _ = ray.wait(waiting, num_returns=1, timeout=1.0)
-        if ready and self.in_flight:  # take every shard that has finished, not just the first
-            ready, _ = ray.wait(list(self.in_flight), num_returns=len(self.in_flight), timeout=0)
-        else:
-            ready = []  # nothing, or an actor started: `submit` takes it in
-        done = []
-        for ref in ready:
-            actor, shard = self.in_flight.pop(ref)
-            try:
-                done.append((shard, ray.get(ref)))
-                self.load[actor] -= 1
-                self.deaths_since_progress = 0
-            except (RayActorError, ActorDiedError, ActorUnavailableError) as exc:
-                todo.appendleft(shard)
-                self._bury(actor, exc)
-            except ray.exceptions.RayTaskError as exc:
-                self.load[actor] -= 1
-                self._retry(shard, exc, todo)
-        return done
-
-    def _bury(self, actor: ray.actor.ActorHandle, exc: Exception) -> None:
-        """Forget a dead actor; stop the run if actors die again and again with no progress."""
-        if actor in self.load:
-            del self.load[actor]
-        else:
-            refs = [ref for ref, starting in self.starting.items() if starting == actor]
-            if not refs:
-                return  # its other shards report the same death
-            for ref in refs:
-                del self.starting[ref]
-        ray.kill(actor, no_restart=True)
-        self.deaths_since_progress += 1
-        if self.deaths_since_progress > max(4, 2 * self.peak):
-            reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise RuntimeError(
-                f"{self.deaths_since_progress} generator actors died without finishing a shard; "
-                f"last: {reason}"
-            )
-
-    def _retry(self, shard: Shard, exc: ray.exceptions.RayTaskError, todo: deque[Shard]) -> None:
-        """Queue a shard again after a storage error; a bug or repeated failure ends the run."""
-        cause = exc.cause
-        if not isinstance(cause, OSError):
-            raise exc
-        failures = self.failures[shard.shard_id] = self.failures.get(shard.shard_id, 0) + 1
-        if failures >= SHARD_ATTEMPTS:
-            raise StoreError(
-                f"shard {shard.shard_id} failed {failures} times writing to the store; "
-                f"last: {str(cause).splitlines()[0]}"
-            ) from None
-        todo.append(shard)
-
-    def shutdown(self) -> None:
-        for actor in [*self.load, *self.starting.values()]:
-            ray.kill(actor, no_restart=True)
-        self.load.clear()
-        self.starting.clear()
-        # Take the errors of shards still in flight: Ray prints an error nobody took when it
-        # drops its reference, after the run's own one-line message.
-        refs = list(self.in_flight)
-        self.in_flight.clear()
-        ready, _ = ray.wait(refs, num_returns=len(refs), timeout=5.0) if refs else ([], [])
-        for ref in ready:
-            try:
-                ray.get(ref)
-            except Exception:  # the run is over; its error is already on its way up
-                pass
-        if self.workers:
-            _request_cpus(0)
-
-
-def _request_cpus(cpus: int) -> None:
-    """Ask the cluster's autoscaler, if it has one, for `cpus` CPUs in all."""
-    try:
-        from ray.autoscaler.sdk import request_resources
-
-        request_resources(num_cpus=cpus)
-    except Exception:  # no autoscaler here: the request has no one to read it
-        pass
 
 
 #: The counts each shard's marker holds (data.shards.generate_shard), summed by joint count.

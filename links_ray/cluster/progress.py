@@ -26,17 +26,19 @@ def duration(seconds: float) -> str:
 
 
 class Progress:
-    """Counts work done towards `total` and shows the rate and the time left."""
+    """Counts work done towards `total` and shows the rate and the time left. A total known
+    only as the work goes (`estimate`) is None until there is one, then shown with a "~"."""
 
     def __init__(
         self,
-        total: int,
+        total: int | None,
         done: int = 0,
         unit: str = "items",
         enabled: bool = True,
         stream: TextIO | None = None,
     ) -> None:
         self.total = total
+        self.exact = True
         self.done = done
         self.unit = unit
         self.stream = stream or sys.stderr
@@ -53,6 +55,12 @@ class Progress:
         self.done += amount
         self._show()
 
+    def estimate(self, total: int | None, exact: bool = False) -> None:
+        """Set the total as far as it is known: None while it is not, an estimate, or (with
+        `exact`) the total."""
+        self.total = total
+        self.exact = exact
+
     def _rate(self) -> float:
         elapsed = time.monotonic() - self._start
         return (self.done - self._start_done) / elapsed if elapsed > 0 else 0.0
@@ -60,11 +68,14 @@ class Progress:
     def line(self) -> str:
         """Done of total, the share, the rate in units a second and the seconds left."""
         rate = self._rate()
-        left = self.total - self.done
+        if self.total is None:
+            return f"{self.done:,} {self.unit}, {rate:,.0f} {self.unit}/s, total not yet known"
+        left = max(self.total - self.done, 0)
         eta = f"{duration(left / rate)} left" if rate > 0 else "estimating"
-        share = self.done / self.total if self.total else 1.0
+        share = min(self.done / self.total, 1.0) if self.total else 1.0
+        about = "" if self.exact else "~"
         return (
-            f"{self.done:,}/{self.total:,} {self.unit} ({share:.0%}), "
+            f"{self.done:,}/{about}{self.total:,} {self.unit} ({share:.0%}), "
             f"{rate:,.0f} {self.unit}/s, {eta}"
         )
 
@@ -75,7 +86,12 @@ class Progress:
         if self.live:
             if force or now - self._shown >= LIVE_EVERY_S:
                 width = 30
-                filled = int(width * self.done / self.total) if self.total else width
+                if self.total is None:
+                    filled = 0  # no total yet: an empty bar
+                elif self.total:
+                    filled = min(int(width * self.done / self.total), width)
+                else:
+                    filled = width
                 bar = "#" * filled + "-" * (width - filled)
                 self.stream.write(f"\r[{bar}] {self.line()}\033[K")
                 self.stream.flush()
@@ -85,11 +101,13 @@ class Progress:
             self.stream.flush()
             self._shown = now
 
-    def close(self) -> None:
-        """Show the final count and end a live bar's line."""
+    def close(self, final: bool = True) -> None:
+        """Show the final count (unless not `final`: a run that failed says why instead) and
+        end a live bar's line."""
         if not self.enabled:
             return
-        self._show(force=True)
+        if final:
+            self._show(force=True)
         if self.live:
             self.stream.write("\n")
             self.stream.flush()

@@ -9,6 +9,7 @@ Pure numpy: no Ray.
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import numpy as np
@@ -35,6 +36,8 @@ VERDICTS = tuple(VERDICT_STATS)
 #: The dtypes a release trajectory (`x_sol`) or curve may have: the release's files hold
 #: float32, but its own numpy solver (`sim.solve_rev_vectorized`) makes float64.
 FLOAT_DTYPES = ("float16", "float32", "float64")
+#: One entry of a batch of `simulation_dataset`: (its index k in the batch, x_sol, j).
+Solution = tuple[int, Any, int]
 
 
 def _entries(value: Any, shown: str, width: int) -> list:
@@ -107,9 +110,10 @@ class CheckedBatch:
                 f"{shown} batch {batch} holds {len(entries)} mechanisms; at most {BATCH_STRIDE}"
             )
         self.size = len(entries)
-        self.adjacency: list[np.ndarray] = []
-        self.fixed: list[np.ndarray] = []
-        self.x0: list[np.ndarray] = []
+        # By index in the batch: lists of the whole batch, dicts in a part of it (`part`).
+        self.adjacency: list[np.ndarray] | dict[int, np.ndarray] = []
+        self.fixed: list[np.ndarray] | dict[int, np.ndarray] = []
+        self.x0: list[np.ndarray] | dict[int, np.ndarray] = []
         for index, (a, x0, fixed) in enumerate(entries):
             where = f"{shown} batch {batch} index {index}"
             n = len(fixed) if isinstance(fixed, np.ndarray) and fixed.ndim == 1 else -1
@@ -127,10 +131,9 @@ class CheckedBatch:
             self.adjacency.append(_array(a, where, "A", (n, n), np.bool_))
             self.x0.append(_array(x0, where, "x0", (n, 2), np.float32))
         self.n_joints = np.array([len(f) for f in self.fixed], dtype=np.int64)
-        #: Each mechanism's check against the release (an index of VERDICTS, -1 until checked)
-        #: and its error there.
-        self.verdicts = np.full(self.size, -1, dtype=np.int8)
-        self.errors = np.zeros(self.size)
+        #: Each checked mechanism's check against the release (one of VERDICTS) and its error
+        #: there, by index in the batch.
+        self.checks: dict[int, tuple[str, float]] = {}
         self.curated: set[tuple[int, int]] | None = None
         self._shown = shown
         self._topologies: dict[tuple[bytes, bytes], Topology] = {}
@@ -150,13 +153,37 @@ class CheckedBatch:
             self._topologies[key] = found
         return found
 
-    def check_solutions(self, shown: str, value: Any) -> None:
-        """Check every mechanism the release simulated against its trajectory in `value` (the
-        batch of `simulation_dataset`), keeping only the verdicts: a batch's trajectories are
-        its largest part, and are dropped with `value`."""
+    def part(self, n: int) -> CheckedBatch:
+        """The mechanisms of `n` joints of this batch, with their batch indices, checks so far
+        and curated pairs: what one shard of the import reads, without the rest of the batch
+        (small enough to hand to another process)."""
+        indices = np.flatnonzero(self.n_joints == n).tolist()
+        part = copy.copy(self)
+        part.adjacency = {j: self.adjacency[j] for j in indices}
+        part.fixed = {j: self.fixed[j] for j in indices}
+        part.x0 = {j: self.x0[j] for j in indices}
+        part.checks = {j: check for j, check in self.checks.items() if j in part.x0}
+        if self.curated is not None:
+            part.curated = {(j, node) for j, node in self.curated if self.n_joints[j] == n}
+        part._topologies = {}
+        return part
+
+    def solutions_by_joints(self, shown: str, value: Any) -> dict[int, list[Solution]]:
+        """The entries of `value` (the batch of `simulation_dataset`) as (k, x_sol, j), by the
+        joint count of mechanism j, each j checked to be an index of the batch; `x_sol` is
+        checked by `check_solutions`, in the part of the batch that holds j."""
+        grouped: dict[int, list[Solution]] = {}
         for k, (x_sol, j) in enumerate(_entries(value, f"{shown} batch {self.batch}", 2)):
+            j = _index(j, f"{shown} batch {self.batch} index {k}", self.size)
+            grouped.setdefault(int(self.n_joints[j]), []).append((k, x_sol, j))
+        return grouped
+
+    def check_solutions(self, shown: str, solutions: list[Solution]) -> None:
+        """Check each mechanism the release simulated against its trajectory, given as
+        `solutions_by_joints` gives them (from the file `shown`), keeping only the verdicts: a
+        batch's trajectories are its largest part, and are dropped with `solutions`."""
+        for k, x_sol, j in solutions:
             where = f"{shown} batch {self.batch} index {k}"
-            j = _index(j, where, self.size)
             n = int(self.n_joints[j])
             _floats(x_sol, where, "x_sol", (n, RELEASE_STEPS, 2))
             self._check(j, x_sol)
@@ -164,14 +191,12 @@ class CheckedBatch:
     def verdict(self, j: int) -> tuple[str, float]:
         """Mechanism `j`'s check (VERDICTS) and error; one the release has no trajectory of is
         checked only for locking at the release's angles."""
-        if self.verdicts[j] < 0:
+        if j not in self.checks:
             self._check(j, None)
-        return VERDICTS[self.verdicts[j]], float(self.errors[j])
+        return self.checks[j]
 
     def _check(self, j: int, solution: np.ndarray | None) -> None:
-        verdict, error = release_check(self.topology(j), self.x0[j].astype(np.float64), solution)
-        self.verdicts[j] = VERDICTS.index(verdict)
-        self.errors[j] = error
+        self.checks[j] = release_check(self.topology(j), self.x0[j].astype(np.float64), solution)
 
     def add_curated(self, shown: str, value: Any) -> None:
         """Keep the release's curated (j, node) pairs of this batch from `value` (the batch of

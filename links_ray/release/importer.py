@@ -2,11 +2,12 @@
 (docs/guides/importing-the-release.md).
 
 The release's files are read by `release.pickles`, one batch at a time, and one file's batch at
-a time: a batch's mechanisms stay in memory while its simulations are checked and dropped
-(`release.checked_batch`), then its curated (j, node) pairs are read. Each batch is
-split by joint count into shards committed by the commit protocol (`data.commit`) under the
-root's writer lease, so an interrupted import resumes where it stopped and every shard is
-committed exactly once, under ids that say where each row came from (`release.ids`):
+a time: a batch's mechanisms stay in memory while its simulations are grouped by joint count,
+then its curated (j, node) pairs are read. Each batch is split by joint count into shards
+(`release.import_shards.ShardPart`), each checked against the release's trajectories and
+committed on its own by the commit protocol (`data.commit`) under the root's writer lease, so
+an interrupted import resumes where it stopped and every shard is committed exactly once, under
+ids that say where each row came from (`release.ids`):
 
     shard_id = SHARDS_PER_BATCH * release_batch + n_joints
     mechanism_id = BATCH_STRIDE * release_batch + release_index
@@ -25,242 +26,49 @@ where one that locks goes to `negatives`. `paths` are links-ray's curation of th
 (`pathset.trajectory_paths`); `curated` are the paths the release curated when it has
 `curated_dataset`, else curation's seeded choice (`pathset.curated_mask`).
 
+A pickled file can only be read from its start: a batch's length is known once it is read, so
+no reader can seek to batch b without reading the batches before it. One reader
+(`ReleaseParts`) therefore reads the files, in this process, and hands out the shards' parts;
+they are imported here, one after another, or by a `runner` given them (`links import-release`
+passes `cluster.release_import.import_on_ray`, which streams them to Ray actors through the
+object store). The rows are the same either way.
+
 Pure numpy/pyarrow: no Ray.
 """
 
 from __future__ import annotations
 
-import contextlib
-import itertools
+import functools
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 import numpy as np
-import pyarrow as pa
 
-from links_ray.data.commit import ShardWriter, committed_shards, remove_uncommitted
+from links_ray.data.commit import committed_shards, remove_uncommitted
 from links_ray.data.lease import Lease
-from links_ray.data.pathset import (
-    KEEP_SHARE,
-    MECHANISMS_PER_BATCH,
-    arc_circle_counts,
-    curated_mask,
-    path_ids,
-    path_shares,
-    trajectory_paths,
-)
-from links_ray.data.schemas import SCHEMAS, TRAJECTORY_DTYPE, list_array
-from links_ray.data.shards import NEGATIVE_ID_BASE, VARIANTS
+from links_ray.data.pathset import KEEP_SHARE, path_shares
+from links_ray.data.schemas import CURATION_TABLES, GENERATION_TABLES
 from links_ray.data.store import IMPORTED_SOURCE, META, Store
-from links_ray.engine.inputs import (
-    DEFAULT_STEPS,
-    InvalidMechanismError,
-    as_positions,
-    check_positions,
-)
-from links_ray.engine.solver import TopologySimulator
-from links_ray.engine.transmission import mechanism_transmission_deg
-from links_ray.release.checked_batch import (
-    AGREEMENT_TOLERANCE,
-    VERDICT_STATS,
-    CheckedBatch,
-    node_types_of,
-)
-from links_ray.release.ids import BATCH_STRIDE, SHARDS_PER_BATCH
+from links_ray.engine.inputs import DEFAULT_STEPS
+from links_ray.release.checked_batch import AGREEMENT_TOLERANCE, CheckedBatch
+from links_ray.release.ids import SHARDS_PER_BATCH
+from links_ray.release.import_shards import ImportOptions, ShardPart, import_part
 from links_ray.release.pickles import ReleaseFileError, read_batches, release_files
 
-__all__ = ["import_release", "summarize_import"]
+__all__ = ["ReleaseParts", "Runner", "import_release", "summarize_import"]
 
 #: Disagreeing mechanisms named in the import summary (every shard's marker names all of its).
 SHOWN_DISAGREEING = 100
 IMPORT_FORMAT = 1
 #: Called with "batch <b> committed" after each release batch's shards are all committed:
-#: the fault tests' way to stop an import between batches.
+#: the fault tests' way to stop an import between batches (of an import in this process).
 Failpoint = Callable[[str], None]
-
-
-def _rows(table: str, columns: dict[str, np.ndarray]) -> pa.RecordBatch:
-    arrays = []
-    for field in SCHEMAS[table]:
-        values = columns[field.name]
-        if pa.types.is_list(field.type):
-            arrays.append(list_array(values.reshape(len(values), -1), field.type.value_type))
-        else:
-            arrays.append(pa.array(values, type=field.type))
-    return pa.RecordBatch.from_arrays(arrays, schema=SCHEMAS[table])
-
-
-def _group_rows(
-    batch: CheckedBatch,
-    shown: str,
-    indices: np.ndarray,
-    n: int,
-    seed: int,
-    write: Callable[[str, pa.RecordBatch], None],
-) -> tuple[dict, dict]:
-    """Hand the rows of one joint count of a batch to `write(table, record_batch)`
-    (`mechanisms`, `negatives`, `paths`, `curated`), MECHANISMS_PER_BATCH mechanisms at a time;
-    returns the generation stats and the curation stats."""
-    start = time.perf_counter()
-    stats: dict[str, Any] = {
-        "release_batch": batch.batch,
-        "mechanisms": 0,
-        "negatives": 0,
-        "topologies": 0,
-        "agreeing": 0,
-        "disagreeing": 0,
-        "locking_at_release_angles": 0,
-        "unchecked": 0,
-        "worst_error": 0.0,
-        "disagreeing_ids": [],
-    }
-    curation = {
-        "mechanisms": 0,
-        "resimulated": 0,
-        "paths": 0,
-        "curated": 0,
-        "arcs": 0,
-        "circles": 0,
-        "both": 0,
-        "release_curated_unmatched": 0,
-    }
-    ids_all = BATCH_STRIDE * batch.batch + indices
-    stats["topologies"] = len(np.unique(ids_all // VARIANTS))
-    released_curated = None
-    if batch.curated is not None:
-        wanted = [(j, node) for j, node in batch.curated if batch.n_joints[j] == n]
-        released_curated = path_ids(
-            BATCH_STRIDE * batch.batch + np.array([j for j, _ in wanted], dtype=np.int64),
-            np.array([node for _, node in wanted], dtype=np.int64),
-        )
-        matched = 0
-    for lo in range(0, len(indices), MECHANISMS_PER_BATCH):
-        part = indices[lo : lo + MECHANISMS_PER_BATCH]
-        ids = ids_all[lo : lo + MECHANISMS_PER_BATCH]
-        adjacency = np.stack([batch.adjacency[j] for j in part]).astype(np.uint8)
-        node_types = np.stack([node_types_of(batch.fixed[j]) for j in part])
-        positions = np.stack([batch.x0[j] for j in part]).astype(np.float64)
-        trajectories = np.empty((len(part), n, DEFAULT_STEPS, 2), dtype=TRAJECTORY_DTYPE)
-        lock_step = np.empty(len(part), dtype=np.int64)
-        lock_node = np.empty(len(part), dtype=np.int64)
-        min_deg = np.empty(len(part), dtype=np.float32)
-        changes = np.any(adjacency[1:] != adjacency[:-1], axis=(1, 2))
-        changes |= np.any(node_types[1:] != node_types[:-1], axis=1)
-        starts = [0, *(np.flatnonzero(changes) + 1).tolist(), len(part)]
-        for first, stop in itertools.pairwise(starts):
-            where = f"{shown} batch {batch.batch} index {int(part[first])}"
-            topology = batch.topology(int(part[first]))
-            try:
-                group = as_positions(positions[first:stop], n, batch=True)
-                check_positions(topology.adjacency, group, topology.links)
-            except InvalidMechanismError as exc:
-                raise ReleaseFileError(f"{where}: {exc}") from None
-            for k in range(first, stop):
-                verdict, error = batch.verdict(int(part[k]))
-                stats[VERDICT_STATS[verdict]] += 1
-                if verdict in ("agree", "disagree"):
-                    stats["worst_error"] = max(stats["worst_error"], error)
-                if verdict == "disagree":
-                    stats["disagreeing_ids"].append(int(ids[k]))
-            simulator = TopologySimulator.from_topology(topology)
-            turned, steps_locked, nodes_locked = simulator.run(positions[first:stop], DEFAULT_STEPS)
-            trajectories[first:stop] = turned.astype(TRAJECTORY_DTYPE)
-            lock_step[first:stop] = steps_locked
-            lock_node[first:stop] = nodes_locked
-            valid = steps_locked < 0
-            min_deg[first:stop] = 0.0
-            if valid.any():
-                min_deg[first:stop][valid] = mechanism_transmission_deg(
-                    topology.order, trajectories[first:stop][valid]
-                )
-        valid = lock_step < 0
-        shared = {
-            "topology_id": ids // VARIANTS,
-            "variant": (ids % VARIANTS).astype(np.int8),
-            "adjacency": adjacency.reshape(len(part), -1),
-            "node_types": node_types,
-            "positions": positions.reshape(len(part), -1),
-        }
-        if valid.any():
-            chosen = {key: value[valid] for key, value in shared.items()}
-            mechanisms = _rows(
-                "mechanisms",
-                {"mechanism_id": ids[valid], "min_transmission_deg": min_deg[valid], **chosen},
-            )
-            write("mechanisms", mechanisms)
-            paths = trajectory_paths(pa.Table.from_batches([mechanisms]), trajectories[valid], n)
-            if released_curated is None:
-                keep = curated_mask(paths, seed)
-            else:
-                keep = np.isin(paths.column("path_id").to_numpy(), released_curated)
-                matched += int(keep.sum())
-            curated = paths.filter(keep)
-            for table, rows in (("paths", paths), ("curated", curated)):
-                for record_batch in rows.to_batches():
-                    write(table, record_batch)
-            curation["mechanisms"] += int(valid.sum())
-            curation["paths"] += len(paths)
-            curation["curated"] += len(curated)
-            for key, count in arc_circle_counts(paths).items():
-                curation[key] += count
-        if not valid.all():
-            locked = ~valid
-            chosen = {key: value[locked] for key, value in shared.items()}
-            write(
-                "negatives",
-                _rows(
-                    "negatives",
-                    {
-                        "mechanism_id": NEGATIVE_ID_BASE + ids[locked],
-                        "locked_step": lock_step[locked].astype(np.int16),
-                        "locked_node": lock_node[locked].astype(np.int16),
-                        **chosen,
-                    },
-                ),
-            )
-        stats["mechanisms"] += int(valid.sum())
-        stats["negatives"] += int((~valid).sum())
-    if released_curated is not None:
-        curation["release_curated_unmatched"] = len(released_curated) - matched
-    seconds = time.perf_counter() - start
-    stats["seconds"] = seconds
-    curation["seconds"] = 0.0  # the group's time is counted once, in the generation stats
-    return stats, curation
-
-
-def _import_shard(
-    store: Store,
-    batch: CheckedBatch,
-    shown: str,
-    n: int,
-    seed: int,
-    shard_id: int,
-    generated: dict[int, dict],
-    fence: Callable[[], None],
-) -> dict:
-    """Import the mechanisms of `n` joints of `batch` as shard `shard_id`: its generation
-    shard (unless `generated` holds it already), then its curation shard; returns the
-    curation marker, after recording the generation marker in `generated`."""
-    with contextlib.ExitStack() as aborts:  # whatever is raised aborts both attempts
-        stages = ("curation",) if shard_id in generated else ("curation", "shards")
-        writers = {
-            stage: aborts.enter_context(ShardWriter(store, shard_id, n, stage=stage))
-            for stage in stages
-        }
-
-        def write(table: str, record_batch: pa.RecordBatch) -> None:
-            stage = "curation" if table in ("paths", "curated") else "shards"
-            if stage in writers and record_batch.num_rows:
-                writers[stage].write(table, record_batch)
-
-        indices = np.flatnonzero(batch.n_joints == n).astype(np.int64)
-        stats, curation = _group_rows(batch, shown, indices, n, seed, write)
-        if "shards" in writers:
-            fence()
-            generated[shard_id] = writers["shards"].commit(stats)
-        fence()
-        return writers["curation"].commit(curation)
+#: Imports one part and returns its markers: `import_part` with the run's options.
+PartImport = Callable[[Store, ShardPart, Callable[[], None]], dict]
+#: Imports every part of `ReleaseParts` at the store, under the lease, with the `PartImport`
+#: given; returns the markers of the parts, and the most processes that imported at once.
+Runner = Callable[[Store, Lease, "ReleaseParts", PartImport], tuple[list[dict], int]]
 
 
 def _following(store: Store, relative: str | None) -> Iterator[tuple[int, int, Any]] | None:
@@ -274,30 +82,146 @@ def _next_batch(batches: Iterator[tuple[int, int, Any]], shown: str, batch: int)
     return found[2]
 
 
+class ReleaseParts:
+    """The parts an import has left to do, read from the release's files at `source`
+    (`release_files`), batch by batch: the shards neither stage has committed (`generated`,
+    `curated`: the markers as the run found them) or only generation has.
+
+    `total` is the release's mechanisms (valid or not) as far as they are known: None until the
+    dataset file's second batch is read, then estimated from its size and the bytes read,
+    exact (`exact`) once it is read to its end. `done` is the mechanisms of the shards that
+    both stages had committed when the run began."""
+
+    def __init__(
+        self,
+        source: Store,
+        files: dict[str, str | None],
+        generated: dict[int, dict],
+        curated: dict[int, dict],
+    ) -> None:
+        self.source = source
+        self.files = files
+        self.generated = generated
+        self.curated = curated
+        self.total: int | None = None
+        self.exact = False
+        self.done = sum(
+            marker["stats"]["mechanisms"] + marker["stats"]["negatives"]
+            for shard, marker in generated.items()
+            if shard in curated
+        )
+
+    def batches(self) -> Iterator[tuple[int, list[ShardPart]]]:
+        """(release batch, its parts left to do) of each batch of the release, in order;
+        ReleaseFileError in one line at the first batch that cannot be read (the parts of the
+        batches before it have been handed out)."""
+        source, files = self.source, self.files
+        data_file = files["dataset"]
+        sims_file, curated_file = files["simulation_dataset"], files["curated_dataset"]
+        sims_shown = f"{source.uri}/{sims_file}"
+        sims = _following(source, sims_file)
+        chosen = _following(source, curated_file)
+        shown = f"{source.uri}/{data_file}"
+        size = source.fs.get_file_info(source.path(data_file)).size
+        read = 0  # the mechanisms of the batches read so far
+        for number, offset, value in read_batches(source, data_file):
+            if offset:
+                self.total = round(read * size / offset)
+            batch = CheckedBatch(shown, number, value)
+            del value
+            read += batch.size
+            shards = [
+                (n, SHARDS_PER_BATCH * number + n) for n in np.unique(batch.n_joints).tolist()
+            ]
+            pending = [
+                (n, i) for n, i in shards if i not in self.generated or i not in self.curated
+            ]
+            # One file's batch in memory at a time: each is reduced to what the parts keep
+            # (trajectories by joint count, curated pairs) before the next is read. A batch an
+            # earlier run committed is read only to reach the next.
+            grouped = None
+            if sims is not None:
+                solutions = _next_batch(sims, sims_shown, number)
+                if pending:
+                    grouped = batch.solutions_by_joints(sims_shown, solutions)
+                del solutions
+            if chosen is not None:
+                batch.add_curated(
+                    f"{source.uri}/{curated_file}",
+                    _next_batch(chosen, f"{source.uri}/{curated_file}", number),
+                )
+            parts = [
+                ShardPart(
+                    shard_id=shard_id,
+                    n_joints=n,
+                    batch=batch.part(n),
+                    shown=shown,
+                    solutions=None if grouped is None else grouped.get(n, []),
+                    solutions_shown=sims_shown,
+                    generated=self.generated.get(shard_id),
+                )
+                for n, shard_id in pending
+            ]
+            del batch, grouped
+            yield number, parts
+        self.total, self.exact = read, True
+
+    def __iter__(self) -> Iterator[ShardPart]:
+        """Every part left to do, batch by batch (`batches`)."""
+        for _, parts in self.batches():
+            yield from parts
+
+
+def _import_here(
+    store: Store,
+    lease: Lease,
+    parts: ReleaseParts,
+    work: PartImport,
+    failpoint: Failpoint | None,
+) -> list[dict]:
+    """Import every part in this process, batch by batch; returns their markers."""
+    done = []
+    for number, batch_parts in parts.batches():
+        # A batch's trajectories are all checked before any of its shards commits.
+        for part in batch_parts:
+            part.check_solutions()
+        for part in batch_parts:
+            done.append(work(store, part, lease.confirm))
+        del batch_parts
+        if failpoint is not None:
+            failpoint(f"batch {number} committed")
+    return done
+
+
 def import_release(
     src: str,
     out: str,
     seed: int = 0,
     failpoint: Failpoint | None = None,
+    tables: str | Iterable[str] | None = None,
+    path_store: str = "points",
+    runner: Runner | None = None,
 ) -> dict:
     """Import the LINKS release's files at `src` (a folder or s3://) into the root `out`;
     returns the import summary (also saved as `_links/import_summary.json`).
 
-    `seed` draws the curated set when the release has no `curated_dataset`. Resumable: the
-    shards an earlier import of the same release committed are kept. Raises ValueError
-    (ReleaseFileError, StoreError) in one line for a file that cannot be read as the release
-    writes it; the batches before the one at fault are committed.
+    `seed` draws the curated set when the release has no `curated_dataset`. `tables` are the
+    tables written, of mechanisms, negatives, paths and curated (names, or one comma-separated
+    string; default all four, or with `path_store` "ids" mechanisms and curated); `path_store`
+    "ids" writes the path tables as ids and flags without points, a lean root whose readers
+    derive the points (`links_ray.data.derived`), as `links generate --tables mechanisms` then
+    `links curate --store ids` leave one. The parts are imported in this process, or by
+    `runner` (`Runner`). Resumable: the shards an earlier import of the same release with the
+    same options committed are kept. Raises ValueError (ReleaseFileError, StoreError) in one
+    line for a bad option or a file that cannot be read as the release writes it; the batches
+    before the one at fault are committed.
     """
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    options = ImportOptions.checked(seed, tables, path_store)
     source = Store.open(src, writable=False)
     files = release_files(source)
-    data_file = files["dataset"]
-    if data_file is None:  # release_files refuses a folder without one
+    if files["dataset"] is None:  # release_files refuses a folder without one
         raise ReleaseFileError(f"{source.uri} holds no release dataset")
-    sims_file = files["simulation_dataset"]
-    curated_file = files["curated_dataset"]
-    curated_from = "release" if curated_file is not None else "seed"
+    curated_from = "release" if files["curated_dataset"] is not None else "seed"
     store = Store.open(out)
     start = time.perf_counter()
     with Lease.acquire(store, "writer", "links import-release") as lease:
@@ -308,72 +232,51 @@ def import_release(
                 "release": source.uri,
                 "format": IMPORT_FORMAT,
                 "steps": DEFAULT_STEPS,
-                "tables": ["mechanisms", "negatives"],
+                "tables": options.stage_tables(GENERATION_TABLES),
             },
         )
         store.claim(
             f"{META}/curation.json",
             {
-                "seed": seed,
+                "seed": options.seed,
                 "keep_share": KEEP_SHARE,
-                "tables": ["paths", "curated"],
+                "tables": options.stage_tables(CURATION_TABLES),
                 "curated_from": curated_from,
+                "path_store": options.path_store,
             },
+            # An import recorded before the path tables' store could be chosen wrote points.
+            defaults={"path_store": "points"},
         )
         generated = committed_shards(store, "shards")
         curated = committed_shards(store, "curation")
         remove_uncommitted(store, "shards", generated)
         remove_uncommitted(store, "curation", curated)
-
-        def fence() -> None:
-            lease.confirm()
-
-        sims = _following(source, sims_file)
-        chosen = _following(source, curated_file)
-        shown = f"{source.uri}/{data_file}"
-        imported_now = 0  # valid mechanisms whose shards this run committed
-        for number, _, value in read_batches(source, data_file):
-            batch = CheckedBatch(shown, number, value)
-            del value
-            shards = [
-                (n, SHARDS_PER_BATCH * number + n) for n in np.unique(batch.n_joints).tolist()
-            ]
-            pending = [(n, i) for n, i in shards if i not in generated or i not in curated]
-            # One file's batch in memory at a time: each is reduced to what the import keeps
-            # (verdicts, curated pairs) before the next is read. A batch an earlier run
-            # committed is read only to reach the next.
-            if sims is not None:
-                solutions = _next_batch(sims, f"{source.uri}/{sims_file}", number)
-                if pending:
-                    batch.check_solutions(f"{source.uri}/{sims_file}", solutions)
-                del solutions
-            if chosen is not None:
-                batch.add_curated(
-                    f"{source.uri}/{curated_file}",
-                    _next_batch(chosen, f"{source.uri}/{curated_file}", number),
-                )
-            for n, shard_id in pending:
-                curated[shard_id] = _import_shard(
-                    store, batch, shown, n, seed, shard_id, generated, fence
-                )
-                imported_now += curated[shard_id]["stats"]["mechanisms"]
-            del batch
-            if failpoint is not None:
-                failpoint(f"batch {number} committed")
+        parts = ReleaseParts(source, files, generated, curated)
+        work = functools.partial(import_part, options=options)
+        if runner is None:
+            done, workers = _import_here(store, lease, parts, work, failpoint), 1
+        else:
+            done, workers = runner(store, lease, parts, work)
         lease.confirm()
-        remove_uncommitted(store, "shards", generated)
-        remove_uncommitted(store, "curation", curated)
+        remove_uncommitted(store, "shards", committed_shards(store, "shards"))
+        remove_uncommitted(store, "curation", committed_shards(store, "curation"))
         seconds = time.perf_counter() - start
+        imported_now = sum(markers["curation"]["stats"]["mechanisms"] for markers in done)
+        core_seconds = sum(markers["shards"]["stats"]["seconds"] for markers in done)
         summary = summarize_import(store, source.uri, curated_from, seconds, imported_now)
+        summary.update(workers=workers, tables=list(options.tables), path_store=path_store)
         store.write_json(f"{META}/import_summary.json", summary)
         store.write_json(
             f"{META}/curation_summary.json",
             {
                 "out": store.uri,
-                "tables": ["paths", "curated"],
+                "tables": options.stage_tables(CURATION_TABLES),
+                "path_store": options.path_store,
                 "shards": summary["shards"],
                 "seconds": summary["seconds"],
-                "mechanisms_per_core_second": summary["mechanisms_per_second"],  # one process
+                "mechanisms_per_core_second": (
+                    imported_now / core_seconds if imported_now and core_seconds else None
+                ),
                 **{key: summary[key] for key in ("paths", "curated", "arcs", "circles", "both")},
                 "shares": path_shares(
                     summary["paths"], summary["arcs"], summary["circles"], summary["both"]

@@ -60,3 +60,31 @@ def test_a_terminal_gets_one_line_updated_in_place(clock: list[float]) -> None:
 )
 def test_durations_read_as_a_person_reads_them(seconds: float, text: str) -> None:
     assert duration(seconds) == text
+
+
+def test_a_total_known_as_the_work_goes_is_shown_as_an_estimate(clock: list[float]) -> None:
+    """An import of the release learns its total as it reads: none at first, then estimates
+    ("~"), then the total; a failed run ends its line without a final count."""
+    log = io.StringIO()
+    meter = Progress(total=None, unit="mechanisms", stream=log)
+    clock[0] += 2.0
+    meter.advance(1_000)
+    meter.estimate(9_000)
+    clock[0] += LINE_EVERY_S
+    meter.advance(2_000)
+    meter.estimate(6_000, exact=True)
+    meter.close()
+    assert log.getvalue().splitlines() == [
+        "1,000 mechanisms, 500 mechanisms/s, total not yet known",
+        "3,000/~9,000 mechanisms (33%), 48 mechanisms/s, 2 min 04 s left",
+        "3,000/6,000 mechanisms (50%), 48 mechanisms/s, 1 min 02 s left",
+    ]
+    screen = Terminal()
+    failed = Progress(total=None, unit="mechanisms", stream=screen)
+    clock[0] += 1.0
+    failed.advance(10)
+    failed.close(final=False)
+    assert screen.getvalue() == (
+        "\r[------------------------------] 10 mechanisms, 10 mechanisms/s, total not yet known"
+        "\033[K\n"
+    )

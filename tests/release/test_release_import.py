@@ -27,7 +27,7 @@ from links_ray.data.store import Store, StoreError
 from links_ray.engine.sampling import PositionSampler
 from links_ray.engine.solver import TopologySimulator
 from links_ray.engine.topology import grow_topology
-from links_ray.release import importer
+from links_ray.release import import_shards
 from links_ray.release.ids import BATCH_STRIDE, SHARDS_PER_BATCH, release_location
 from links_ray.release.importer import import_release
 from links_ray.release.pickles import ReleaseFileError, read_batches, release_files
@@ -110,24 +110,28 @@ class RunsACommand:
         return (os.system, (f"touch {self.marker}",))
 
 
-def test_a_pickle_that_would_run_a_command_is_refused_and_never_runs(tmp_path: Path) -> None:
+def test_a_pickle_that_would_run_a_command_is_refused_and_never_runs(
+    ray_cluster: str, tmp_path: Path
+) -> None:
     release = tmp_path / "release"
     write_release(release, BATCHES[:2])
     marker = tmp_path / "ran"
     with open(release / "dataset", "ab") as out:
         pickle.dump([RunsACommand(marker)], out)
     root = str(tmp_path / "root")
+    command = ["import-release", str(release), "--out", root, "--address", ray_cluster]
     result = subprocess.run(
-        [sys.executable, "-m", "links_ray.cli", "import-release", str(release), "--out", root],
-        capture_output=True,
-        text=True,
+        [sys.executable, "-m", "links_ray.cli", *command], capture_output=True, text=True
     )
     assert result.returncode == 2
     name = f"{os.system.__module__}.system"
-    assert result.stderr == (
+    # The import on Ray finishes the batches before it, whose progress lines come first.
+    *progress, error = result.stderr.splitlines()
+    assert error == (
         f"links import-release: error: {release}/dataset batch 2 names {name}; "
-        "only numpy arrays and lists are read\n"
+        "only numpy arrays and lists are read"
     )
+    assert all(re.fullmatch(r"[\d,]+/~?[\d,]+ mechanisms \(.*", line) for line in progress)
     assert not marker.exists()
     # The batches before it were imported and committed.
     rows = read_table(root, "mechanisms")
@@ -440,7 +444,7 @@ def test_resume_after_a_failure_inside_a_shard_gives_the_same_rows(
                 raise OSError("the store went away")
             return super().commit(stats)
 
-    monkeypatch.setattr(importer, "ShardWriter", FailingWriter)
+    monkeypatch.setattr(import_shards, "ShardWriter", FailingWriter)
     with pytest.raises(OSError, match="the store went away"):
         import_release(str(release), root)
     monkeypatch.undo()
@@ -629,9 +633,12 @@ def test_links_serve_and_the_studio_work_on_the_imported_root(
             assert studio.mechanism() == expected["results"][0]["mechanism"]
 
 
-def test_the_command_prints_its_summary(tmp_path: Path) -> None:
+def test_the_command_prints_its_summary(ray_cluster: str, tmp_path: Path) -> None:
     write_release(tmp_path / "release", BATCHES[:1])
-    command = [sys.executable, "-m", "links_ray.cli", "import-release", str(tmp_path / "release")]
+    command = [
+        *(sys.executable, "-m", "links_ray.cli", "import-release", str(tmp_path / "release")),
+        *("--address", ray_cluster),
+    ]
     line = subprocess.run(
         [*command, "--out", str(tmp_path / "a")], capture_output=True, text=True, check=True
     ).stdout
