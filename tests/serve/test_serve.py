@@ -70,6 +70,18 @@ def _post(client: Client, path: str, body: Any) -> tuple[int, Any]:
 # -- routes ---------------------------------------------------------------------------------
 
 
+def test_the_app_serves_the_lean_twin_of_the_stored_dataset(
+    lean_dataset: str, dataset: str
+) -> None:
+    """Every test here talks to a root of mechanisms and curated ids, and compares what it
+    answers with `dataset`, which stores every table."""
+    from links_ray.data.derived import derived_tables
+    from links_ray.data.store import Store
+
+    assert derived_tables(Store.open(lean_dataset)) == ("simulations", "paths", "curated")
+    assert derived_tables(Store.open(dataset)) == ()
+
+
 def test_health_counts_the_curated_paths(client: Client, curated: Any) -> None:
     assert client.get("/api/health") == (200, {"status": "ok", "paths": len(curated)})
 

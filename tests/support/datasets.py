@@ -1,8 +1,9 @@
 """The datasets the tests read, generated and curated on the session's Ray cluster.
 
-A pytest plugin (tests/conftest.py lists it): fixtures `dataset` (300 mechanisms), `curated`,
-`reference` (its index), `queries` and `scale_root` (40,000 curated paths, cached between
-runs). tests/engine/conftest.py gives the engine's tests the same dataset made without Ray.
+A pytest plugin (tests/conftest.py lists it): fixtures `dataset` (300 mechanisms), its lean
+twin `lean_dataset` (the Serve app's root), `curated`, `reference` (its index), `queries` and
+`scale_root` (40,000 curated paths, cached between runs). tests/engine/conftest.py gives the
+engine's tests the same dataset made without Ray.
 """
 
 from __future__ import annotations
@@ -22,6 +23,21 @@ def dataset(ray_cluster: str, tmp_path_factory: pytest.TempPathFactory) -> str:
     generate(out, 300, seed=5, progress=False, topologies_per_shard=10)
     curate(out, progress=False)
     return out
+
+
+@pytest.fixture(scope="session")
+def lean_dataset(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """`dataset`'s plan written lean: mechanisms alone and the curated set as ids, the rows of
+    `links generate --tables mechanisms` and `links curate --store ids` (made without Ray:
+    tests/support/local_dataset.py). The Serve app the HTTP tests talk to serves it, and they
+    check its answers against `dataset`'s, which stores every table: HTTP over a lean root
+    answers as over a stored one."""
+    from links_ray.data.shards import GenerationPlan
+    from tests.support.local_dataset import generate_and_curate
+
+    out = str(tmp_path_factory.mktemp("serve-lean") / "links")
+    plan = GenerationPlan(seed=5, mechanisms=300, topologies_per_shard=10, tables=("mechanisms",))
+    return generate_and_curate(out, plan, curation_tables=("curated",), path_store="ids")
 
 
 #: Curated paths the large dataset holds at least, and the splits whose every part must

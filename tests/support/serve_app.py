@@ -1,7 +1,8 @@
 """The links Serve app the HTTP tests talk to.
 
 A pytest plugin (tests/conftest.py lists it): fixture `client`, the app answering on
-`serve_port` (tests/support/cluster.py).
+`serve_port` (tests/support/cluster.py), serving `lean_dataset`: the lean twin of the tests'
+`dataset`, whose index and points the tests compare the answers with.
 """
 
 from __future__ import annotations
@@ -71,10 +72,10 @@ def links_app(ray_cluster: str) -> Iterator[_SharedApp]:
 
 
 @pytest.fixture(scope="module")
-def client(links_app: _SharedApp, dataset: str, serve_port: int) -> Client:
+def client(links_app: _SharedApp, lean_dataset: str, serve_port: int) -> Client:
     """The links app, answering on `serve_port` from its replica as under `links serve`
     (`client.proxy`: the same app through Serve's HTTP proxy). Shared by the modules that ask
     for it, one after another (`_SharedApp`); started again after a test ran its own app."""
     if links_app.client is None:
-        links_app.client = _start_shared_app(dataset, serve_port)
+        links_app.client = _start_shared_app(lean_dataset, serve_port)
     return links_app.client
