@@ -25,11 +25,13 @@ import numpy as np
 from links_ray.data.pathset import splitmix64
 from links_ray.data.store import Store
 
-__all__ = ["DRAW_SALT", "MAX_DRAW_SEED", "DrawnPaths", "PathDraw"]
+__all__ = ["DRAW_SALT", "MAX_DRAW_PATHS", "MAX_DRAW_SEED", "DrawnPaths", "PathDraw"]
 
 #: Added to the seed: the draw's keys are their own stream, apart from curation's.
 DRAW_SALT = 0x6C696E6B7364726177  # "linksdraw"
 MAX_DRAW_SEED = 2**32 - 1
+#: More paths than any root holds (LINKS has about 1.1e9 paths): a draw's name stays short.
+MAX_DRAW_PATHS = 2**40
 
 
 @dataclass(frozen=True)
@@ -43,8 +45,8 @@ class PathDraw:
         for name, value in (("paths", self.paths), ("seed", self.seed)):
             if isinstance(value, bool) or not isinstance(value, int | np.integer):
                 raise ValueError(f"the draw's {name} must be an integer, got {value!r}")
-        if self.paths < 1:
-            raise ValueError(f"the draw's paths must be 1 or more, got {self.paths}")
+        if not 1 <= self.paths <= MAX_DRAW_PATHS:
+            raise ValueError(f"the draw's paths must be in 1..{MAX_DRAW_PATHS}, got {self.paths}")
         if not 0 <= self.seed <= MAX_DRAW_SEED:
             raise ValueError(f"the draw's seed must be in 0..{MAX_DRAW_SEED}, got {self.seed}")
 

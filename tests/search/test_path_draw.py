@@ -13,7 +13,7 @@ import pytest
 
 import links_ray
 from links_ray.data.commit import committed_files
-from links_ray.data.path_draw import MAX_DRAW_SEED, DrawnPaths, PathDraw
+from links_ray.data.path_draw import MAX_DRAW_PATHS, MAX_DRAW_SEED, DrawnPaths, PathDraw
 from links_ray.data.pathset import keep_draw
 from links_ray.data.store import Store
 from links_ray.search.cache import cache_folder
@@ -63,7 +63,7 @@ def test_a_draw_holds_exactly_the_paths_of_smallest_key(
     )
     assert one != other  # the seed decides
     # A draw of more paths than the root holds is all of them.
-    assert DrawnPaths.of(store, files, PathDraw(10**15)).rows == len(ids)
+    assert DrawnPaths.of(store, files, PathDraw(MAX_DRAW_PATHS)).rows == len(ids)
 
 
 def test_the_draw_is_apart_from_curations_own_seeded_choice(
@@ -149,6 +149,8 @@ def test_a_drawn_index_is_saved_apart_from_the_full_one(roots: tuple[str, str]) 
         (-5, 0, "paths"),
         (True, 0, "paths"),
         (10.0, 0, "paths"),
+        (MAX_DRAW_PATHS + 1, 0, "paths"),
+        (10**300, 0, "paths"),
         (10, -1, "seed"),
         (10, MAX_DRAW_SEED + 1, "seed"),
         (10, "1", "seed"),
