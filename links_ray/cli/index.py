@@ -50,7 +50,8 @@ def add_command(commands: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> None:
     """`links index`: build (or find saved) each part, check it was saved, print the summary."""
-    from links_ray.data.path_draw import PathDraw
+    from links_ray.data.commit import committed_files
+    from links_ray.data.path_draw import DrawnPaths, PathDraw
     from links_ray.data.store import Store
     from links_ray.search.cache import INDEX_FOLDER, cache_folder
     from links_ray.search.index import RetrievalIndex
@@ -65,10 +66,12 @@ def run(args: argparse.Namespace) -> None:
     # over a long build.
     store = Store.open(args.root, attempts=10)
     start = time.perf_counter()
+    # The draw is of the whole curated set: found once, whatever the parts.
+    drawn = None if draw is None else DrawnPaths.of(store, committed_files(store, "curated"), draw)
     made = []
     for part in range(parts):
         began = time.perf_counter()
-        index = RetrievalIndex.open(store, rebuild=args.rebuild, part=part, parts=parts, draw=draw)
+        index = RetrievalIndex.open(store, rebuild=args.rebuild, part=part, parts=parts, draw=drawn)
         folder = cache_folder(part, parts, draw)
         saved = store.read_json(f"{folder}/current.json") or {}
         if saved.get("fingerprint") != index.fingerprint or saved.get("rows") != len(index):

@@ -171,7 +171,7 @@ class RetrievalIndex:
         part: int = 0,
         parts: int = 1,
         wait_s: float = BUILD_WAIT_S,
-        draw: PathDraw | None = None,
+        draw: PathDraw | DrawnPaths | None = None,
     ) -> RetrievalIndex:
         """Load the index of `root`'s curated shards numbered `part` modulo `parts` (all, by
         default) saved beside the data, or build (and save) it; `rebuild`: build it anyway.
@@ -185,7 +185,8 @@ class RetrievalIndex:
 
         With `draw`, the index holds only the paths of that seeded draw of the whole curated
         set (`data.path_draw`) that fall in the part, and is saved apart from the full index,
-        under the draw's name.
+        under the draw's name. A `DrawnPaths` found on this root already (`DrawnPaths.of`)
+        spares reading the curated ids again, part after part.
         """
         check_part(part, parts)
         if not wait_s >= 0:
@@ -201,13 +202,16 @@ class RetrievalIndex:
         if not files:
             where = "" if parts == 1 else f" in part {part} of {parts}"
             raise ValueError(f"{store.uri} has no curated table{where} yet")
+        if isinstance(draw, DrawnPaths):
+            draw, drawn = draw.draw, draw
+        elif draw is not None:  # a draw of the whole curated set: every shard decides
+            drawn = DrawnPaths.of(store, committed_files(store, "curated", curated), draw)
         folder = cache_folder(part, parts, draw)
         if draw is None:
             drawn = None
             fingerprint = shards_fingerprint(markers)
             rows = sum(marker["rows"].get("curated", 0) for marker in markers.values())
-        else:  # a draw of the whole curated set: every shard decides what this part holds
-            drawn = DrawnPaths.of(store, committed_files(store, "curated", curated), draw)
+        else:
             fingerprint = f"{draw.name} {shards_fingerprint(curated)}"
             rows = sum(drawn.rows_by_file[relative] for relative in files)
             if rows == 0:
