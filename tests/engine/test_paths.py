@@ -265,6 +265,29 @@ def test_normalize_paths_equals_normalize_path() -> None:
         np.testing.assert_array_equal(row, normalize_path(path))
 
 
+def test_normalize_paths_ignores_exact_powers_of_two() -> None:
+    """Scaling by 2**k rounds nothing, so the normalized rows are the same bits, at the
+    extremes of the exponent range too (where the kernel scales another way)."""
+    batch = coupler_curves(20, seed=4)
+    batch[3] = np.random.default_rng(6).integers(0, 4, (200, 2))  # many tied chords
+    # Every coordinate in [0.5, 1): scaled by 2**-1021 they stay normal numbers.
+    low, high = batch.min(axis=(1, 2), keepdims=True), batch.max(axis=(1, 2), keepdims=True)
+    batch = 0.5 + 0.4 * (batch - low) / (high - low)
+    reference = normalize_paths(batch)
+    for k in (-1021, -600, -1, 1, 600, 1021, 1022):
+        np.testing.assert_array_equal(normalize_paths(batch * 2.0**k), reference)
+
+
+def test_normalize_paths_places_the_brute_force_chord() -> None:
+    """The batch kernel's chord (pruned by box bounds) is every-pair search's: its ends land
+    1 apart on one horizontal line."""
+    rng = np.random.default_rng(9)
+    batch = np.concatenate([coupler_curves(40, seed=8), rng.integers(-3, 4, (20, 200, 2))])
+    for path, row in zip(batch, normalize_paths(batch), strict=True):
+        i, j, _ = brute_chord(path.astype(np.float64))
+        assert row[j, 1] == row[i, 1] and row[j, 0] - row[i, 0] == pytest.approx(1.0, abs=1e-12)
+
+
 def test_normalize_paths_no_extent_gives_nan_rows() -> None:
     batch = coupler_curves(3)
     batch[1] = [2.5, -1.0]
