@@ -1,6 +1,7 @@
 """The curve set of `links bench synthesize --set` (links_ray.cli.bench.curve_set): its size, names,
 families, halves fixed by name, even spacing, closure, letters read from two different fonts,
-random curves that never cross themselves, and determinism."""
+random curves that never cross themselves, self-crossing curves that cross as their kind says,
+traced curves that their mechanisms trace again, GCP-HOLO's curves held out, and determinism."""
 
 from __future__ import annotations
 
@@ -25,7 +26,21 @@ from links_ray.cli.bench.curve_set import (
 from links_ray.cli.bench.targets import target_curves
 from links_ray.engine.paths import chamfer
 
-FAMILIES = {"letter_outline", "letter_stroke", "gait", "cam", "random_smooth"}
+FAMILIES = {
+    "letter_outline",
+    "letter_stroke",
+    "gait",
+    "cam",
+    "random_smooth",
+    "self_crossing",
+    "traced",
+    "gcp_holo_test",
+    "gcp_holo_gait",
+}
+#: The families drawn from the seed.
+SEEDED = {"random_smooth", "self_crossing", "traced"}
+#: The set's own closed curves that never cross themselves, drawn counter-clockwise.
+SIMPLE_CLOSED = {"letter_outline", "gait", "cam", "random_smooth"}
 
 
 @pytest.fixture(scope="module")
@@ -72,8 +87,8 @@ def brute_force_crosses(loop: np.ndarray) -> bool:
     return False
 
 
-def test_set_holds_sixty_named_finite_curves_of_five_families(curves: list[SetCurve]) -> None:
-    assert len(curves) >= 60
+def test_set_holds_named_finite_curves_of_nine_families(curves: list[SetCurve]) -> None:
+    assert len(curves) >= 100
     names = [curve.name for curve in curves]
     assert len(set(names)) == len(names)
     assert {curve.family for curve in curves} == FAMILIES
@@ -86,11 +101,16 @@ def test_set_holds_sixty_named_finite_curves_of_five_families(curves: list[SetCu
     assert counts["letter_outline"] == counts["letter_stroke"] == len(FONTS) * len(LETTERS)
 
 
-def test_every_family_is_in_both_halves(curves: list[SetCurve]) -> None:
-    for family in FAMILIES:
+def test_every_family_is_in_both_halves_but_the_fields_benchmark(
+    curves: list[SetCurve],
+) -> None:
+    for family in FAMILIES - {"gcp_holo_test", "gcp_holo_gait"}:
         halves = Counter(curve.half for curve in curves if curve.family == family)
         assert halves["tuning"] > 0 and halves["held-out"] > 0, (family, halves)
         assert set(halves) == {"tuning", "held-out"}
+    # The field's benchmark is never tuned on.
+    field = [curve for curve in curves if curve.family.startswith("gcp_holo")]
+    assert len(field) == 12 and {curve.half for curve in field} == {"held-out"}
 
 
 def test_half_is_fixed_by_name_whatever_the_order_or_seed(curves: list[SetCurve]) -> None:
@@ -132,9 +152,10 @@ def test_closed_curves_close_and_strokes_stay_open(curves: list[SetCurve]) -> No
             assert ends > 10 * np.median(step), curve.name
         else:
             assert ends <= 1.001 * np.median(step), curve.name
-            x, y = curve.points[:, 0], curve.points[:, 1]
-            area = np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))
-            assert area > 0, f"{curve.name} is not counter-clockwise"
+            if curve.family in SIMPLE_CLOSED:
+                x, y = curve.points[:, 0], curve.points[:, 1]
+                area = np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))
+                assert area > 0, f"{curve.name} is not counter-clockwise"
 
 
 def test_random_smooth_curves_never_cross_themselves(curves: list[SetCurve]) -> None:
@@ -190,7 +211,7 @@ def test_same_seed_same_arrays_and_seed_moves_only_random_curves(
         assert first.name == second.name
         assert np.array_equal(first.points, second.points), first.name
         moved = not np.array_equal(first.points, other[first.name])
-        assert moved == (first.family == "random_smooth"), first.name
+        assert moved == (first.family in SEEDED), first.name
 
 
 def test_missing_font_names_the_package(tmp_path: Path) -> None:
@@ -274,3 +295,100 @@ def test_a_bench_row_of_counted_work_is_reproduced_bit_for_bit(
     assert all(row["refined"] < row["retrieved"] for row in together.values())
     with pytest.raises(ValueError, match="no curve named nope"):
         bench_synthesize(root=dataset, use_set=True, only=("nope",), iterations=1)
+
+
+def brute_force_crossings(loop: np.ndarray) -> int:
+    """How many pairs of non-adjacent edges of the closed polyline `loop` share a point."""
+    n = len(loop)
+    return sum(
+        segments_cross(loop[i], loop[(i + 1) % n], loop[j], loop[(j + 1) % n])
+        for i in range(n)
+        for j in range(i + 2, n)
+        if not (i == 0 and j == n - 1)
+    )
+
+
+def test_self_crossing_curves_cross_as_often_as_their_kind(curves: list[SetCurve]) -> None:
+    """Counted on the set's evenly spaced points, pair by pair, apart from the generator's own
+    count: an eight, a dual loop and an hourglass cross once, a trefoil three times."""
+    from links_ray.cli.bench.crossing_curves import KIND_CROSSINGS, crossings
+
+    crossing = [curve for curve in curves if curve.family == "self_crossing"]
+    assert {curve.name.rsplit("_", 1)[0] for curve in crossing} == {
+        f"crossing_{kind}" for kind in KIND_CROSSINGS
+    }
+    for curve in crossing:
+        kind = curve.name.removeprefix("crossing_").rsplit("_", 1)[0]
+        assert brute_force_crossings(curve.points) == KIND_CROSSINGS[kind], curve.name
+        assert crossings(curve.points) == KIND_CROSSINGS[kind], curve.name
+    # And the generator's count is the brute force's on shapes known by heart.
+    bowtie = np.array([[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]])
+    pentagram = np.exp(2j * np.pi * np.arange(5) * 2 / 5)
+    star = np.column_stack([pentagram.real, pentagram.imag])
+    assert crossings(bowtie) == brute_force_crossings(bowtie) == 1
+    assert crossings(star) == brute_force_crossings(star) == 5
+
+
+def test_traced_curves_are_traced_again_by_their_mechanisms() -> None:
+    """Each traced curve is the path of a valid mechanism of 6-12 joints: simulated again, the
+    mechanism draws it exactly; the joint is not linked to a fixed one (no arc), and the curve
+    is neither a circle nor a swing to and fro."""
+    from links_ray.cli.bench.traced_curves import TRACED_JOINTS, retraces, traced_curves
+    from links_ray.engine.mechanism import FIXED
+    from links_ray.engine.paths import is_circle, normalize_path
+    from links_ray.engine.solver import simulate
+
+    traced = traced_curves(seed=0, count=6)
+    assert list(traced) == [f"traced_{i:02d}" for i in range(6)]
+    for name, curve in traced.items():
+        n = len(curve.node_types)
+        assert TRACED_JOINTS[0] <= n <= TRACED_JOINTS[1], name
+        again = simulate(curve.adjacency, curve.node_types, curve.positions)[curve.joint]
+        np.testing.assert_array_equal(again, curve.points, err_msg=name)
+        neighbours = np.flatnonzero(curve.adjacency[curve.joint])
+        assert curve.node_types[curve.joint] != FIXED, name
+        assert np.all(curve.node_types[neighbours] != FIXED), name
+        normalized = normalize_path(curve.points)
+        assert not is_circle(normalized) and not retraces(normalized), name
+    # Curve i depends on (seed, i) alone.
+    assert np.array_equal(
+        traced_curves(seed=0, count=3)["traced_02"].points, traced["traced_02"].points
+    )
+    # A swing to and fro is caught: an arc out and back.
+    angle = np.concatenate([np.linspace(0, 1, 100), np.linspace(1, 0, 100)])
+    assert retraces(normalize_path(np.column_stack([np.cos(angle), np.sin(angle)])))
+
+
+def test_gcp_holo_curves_are_stored_with_their_source() -> None:
+    """The field's benchmark: GCP-HOLO's eight test curves (as many points as published) and
+    four foot paths, closed, their source named."""
+    from links_ray.cli.bench.gcp_holo import gcp_holo_curves, gcp_holo_source
+
+    curves = gcp_holo_curves()
+    sizes = {name: len(points) for name, points in curves["test"].items()}
+    assert sizes == {
+        "holo_dualloop": 86,
+        "holo_eight": 50,
+        "holo_hourglass": 93,
+        "holo_letterB": 74,
+        "holo_moon": 62,
+        "holo_outerTrifoil": 77,
+        "holo_triangle": 55,
+        "holo_trifoil": 96,
+    }
+    assert sorted(curves["gait"]) == [
+        f"holo_gait_{g}" for g in ("jansen", "klann", "strider", "trot")
+    ]
+    for family in curves.values():
+        for name, points in family.items():
+            steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+            # Closed, the first point not repeated: the closing step is an ordinary one.
+            assert 0 < np.linalg.norm(points[-1] - points[0]) < 2 * steps.max(), name
+    source = gcp_holo_source()
+    assert source["repository"].endswith("gcp_holo") and len(source["commit"]) == 40
+    assert "noncommercial" in source["license"]
+    # The eight, the hourglass, the trefoils and the dual loop cross themselves; the moon not.
+    from links_ray.cli.bench.crossing_curves import crossings
+
+    assert crossings(curves["test"]["holo_eight"]) >= 1
+    assert crossings(curves["test"]["holo_moon"]) == 0

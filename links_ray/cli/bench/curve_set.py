@@ -1,4 +1,4 @@
-"""The curve set of `links bench synthesize --set`: named target curves in five families, split
+"""The curve set of `links bench synthesize --set`: named target curves in nine families, split
 into a tuning half and a held-out half by name.
 
 | family | what it is | closed |
@@ -8,15 +8,21 @@ into a tuning half and a held-out half by name.
 | `gait` | a foot's path: a flat stride, a lifted return of varied height and lean | yes |
 | `cam` | a cam's profile in polar form: dwells joined by cycloidal rises and returns | yes |
 | `random_smooth` | a few Fourier harmonics, decaying, seeded, never crossing itself | yes |
+| `self_crossing` | eights, dual loops, trefoils, hourglasses, seeded (`crossing_curves`) | yes |
+| `traced` | the path of a random valid mechanism of 6-12 joints, seeded (`traced_curves`) | yes |
+| `gcp_holo_test` | GCP-HOLO's eight path-synthesis test curves (`gcp_holo_curves`) | yes |
+| `gcp_holo_gait` | GCP-HOLO's four walking-mechanism foot paths | yes |
 
 The letters are read at run time from the TrueType files of the Debian package
 `fonts-liberation` (with fontTools, the `bench` extra). Each curve is `CURVE_POINTS` points
-evenly spaced by arc length, centred on its bounding box, the box's longer side 2, closed
-curves counter-clockwise and not repeating their first point.
+evenly spaced by arc length, centred on its bounding box, the box's longer side 2. The set's
+own simple closed curves run counter-clockwise; the others keep the order they were drawn,
+traced or published in. No closed curve repeats its first point.
 
 A curve's half is fixed by its name alone (`half_of`): the parity of the first byte of a
 SHA-256 digest, of the letter for a letter's four curves (so no letter is seen in tuning and
-held out), else of the name. Adding, dropping or reordering curves never moves another one.
+held out), else of the name. GCP-HOLO's curves are the field's benchmark and are all held out:
+nothing is tuned on them. Adding, dropping or reordering curves never moves another one.
 """
 
 from __future__ import annotations
@@ -27,7 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
+from links_ray.cli.bench.crossing_curves import crossing_curves
+from links_ray.cli.bench.gcp_holo import FIELD_PREFIX, gcp_holo_curves
 from links_ray.cli.bench.targets import TARGET_POINTS
+from links_ray.cli.bench.traced_curves import traced_curves
 from links_ray.engine.paths import even_along
 
 #: Points per curve, as for the shipped targets.
@@ -69,7 +78,10 @@ def half_of(name: str) -> str:
     """The half (`tuning` or `held-out`) a curve of this name belongs to: by the parity of the
     first byte of the SHA-256 digest of its shape's key, which for a letter's curves
     (`sans_E_outline`) is the letter (`letter E`), so that a letter is in one half in both
-    fonts, outline and stroke alike, and for any other curve its name."""
+    fonts, outline and stroke alike, and for any other curve its name. A curve of GCP-HOLO's
+    (named `holo_...`) is held out."""
+    if name.startswith(FIELD_PREFIX):
+        return HALVES[1]
     parts = name.split("_")
     letter = len(parts) == 3 and parts[0] in FONTS and parts[2] in ("outline", "stroke")
     key = f"letter {parts[1]}" if letter else name
@@ -79,8 +91,8 @@ def half_of(name: str) -> str:
 def curve_set(
     seed: int = RANDOM_SEED, font_dirs: tuple[Path, ...] = FONT_DIRS, points: int = CURVE_POINTS
 ) -> list[SetCurve]:
-    """Every curve of the set, letters first; `seed` draws the random smooth curves. Raises
-    ValueError when a font file is not found in `font_dirs`."""
+    """Every curve of the set, letters first; `seed` draws the random smooth, self-crossing and
+    traced curves. Raises ValueError when a font file is not found in `font_dirs`."""
     shapes: list[tuple[str, str, bool, np.ndarray]] = []
     for font, filename in FONTS.items():
         for letter, loop in letter_outlines(font_file(filename, font_dirs)).items():
@@ -89,6 +101,10 @@ def curve_set(
     shapes += [(name, "gait", False, loop) for name, loop in gait_curves().items()]
     shapes += [(name, "cam", False, loop) for name, loop in cam_curves().items()]
     shapes += [(name, "random_smooth", False, loop) for name, loop in random_smooth(seed).items()]
+    shapes += [(name, "self_crossing", False, loop) for name, loop in crossing_curves(seed).items()]
+    shapes += [(name, "traced", False, curve.points) for name, curve in traced_curves(seed).items()]
+    for family, curves in gcp_holo_curves().items():
+        shapes += [(name, f"gcp_holo_{family}", False, loop) for name, loop in curves.items()]
     return [
         SetCurve(
             name, family, partial, half_of(name), _framed(even_along(line, points, not partial))
