@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
-from links_ray.data.dataset import isin, open_table
+from links_ray.data.commit import committed_files
 from links_ray.data.derived import PathFilter, file_batches, file_schema
 from links_ray.data.store import Store
 from links_ray.search import kernels
@@ -141,17 +141,19 @@ def build_arrays(
         start = end
     if start != rows:
         raise ValueError(f"{store.uri}: the curated files hold fewer rows than their markers")
-    bank = MechanismBank.from_table(_source_mechanisms(store, mechanism_id))
+    bank = MechanismBank.from_tables(_source_mechanisms(store, np.unique(mechanism_id)))
     by_row = {
         "mechanism_row": bank.rows_of(mechanism_id),
         "joint": joint,
         "sketches": sketches,
         "transmission": transmission,
     }
+    del mechanism_id, joint, sketches, transmission  # by_row holds the only references
     file_row = np.argsort(lists, kind="stable").astype(np.int32 if rows < 2**31 else np.int64)
     list_start = np.searchsorted(lists[file_row], np.arange(len(centroids) + 1)).astype(np.int64)
     if len(centroids) > 1:  # rows grouped by list: a list is scanned in one sweep
-        by_row = {name: array[file_row] for name, array in by_row.items()}
+        for name in by_row:  # one at a time: a single array is held twice at once
+            by_row[name] = by_row[name][file_row]
     return {
         **by_row,
         "steps": steps,
@@ -199,11 +201,14 @@ def _sample_paths(
     return points[np.sort(picked)]
 
 
-def _source_mechanisms(store: Store, mechanism_ids: np.ndarray) -> pa.Table:
-    """The mechanisms with these ids (each once). The filter holds the ids in Arrow's memory
-    (`dataset.isin`): a command that stops right after building an index would otherwise
-    abort now and then at exit."""
-    return open_table(store, "mechanisms").to_table(
-        columns=["mechanism_id", "adjacency", "node_types", "positions"],
-        filter=isin("mechanism_id", mechanism_ids),
-    )
+def _source_mechanisms(store: Store, wanted: np.ndarray) -> Iterator[pa.Table]:
+    """The rows of the mechanisms with these ids (ascending, distinct), file by file: one
+    file's rows are held at a time, however many mechanisms the root holds."""
+    columns = ["mechanism_id", "adjacency", "node_types", "positions"]
+    for relative in committed_files(store, "mechanisms"):
+        table = store.read_parquet(relative, columns)
+        ids = table.column("mechanism_id").to_numpy()
+        at = np.minimum(np.searchsorted(wanted, ids), max(len(wanted) - 1, 0))
+        keep = wanted[at] == ids if len(wanted) else np.zeros(len(ids), dtype=bool)
+        if keep.any():
+            yield table.filter(pa.array(keep))

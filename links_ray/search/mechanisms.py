@@ -12,6 +12,7 @@ Pure numpy/numba: no Ray, no files.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -47,39 +48,34 @@ class MechanismBank:
     @classmethod
     def from_table(cls, table: pa.Table) -> MechanismBank:
         """Pack mechanisms given as the `mechanisms` table's columns `mechanism_id`,
-        `adjacency`, `node_types` and `positions`. Each distinct topology is analyzed once
-        (the five position variants of a topology share it)."""
-        table = table.sort_by("mechanism_id").combine_chunks()
-        ids = table.column("mechanism_id").to_numpy()
+        `adjacency`, `node_types` and `positions`, in any row order (`from_tables` of one)."""
+        return cls.from_tables([table])
+
+    @classmethod
+    def from_tables(cls, tables: Iterable[pa.Table]) -> MechanismBank:
+        """Pack mechanisms given as tables like `from_table`'s, one table at a time: each is
+        packed into NumPy arrays before the next is read, so the Arrow rows of only one table
+        are held at once. Raises ValueError if a mechanism_id comes twice."""
+        parts = [_pack(table) for table in tables]
+        ids = np.concatenate([part.ids for part in parts] or [np.empty(0, np.int64)])
+        joints = np.concatenate([part.joints for part in parts] or [np.empty(0, np.int64)])
+        steps = np.concatenate([part.steps for part in parts] or [np.empty(0, np.int64)])
+        positions = np.concatenate([part.positions for part in parts] or [np.empty((0, 2))])
+        orders = np.concatenate([part.orders for part in parts] or [np.empty((0, 3), np.uint8)])
+        del parts
+        order = np.argsort(ids, kind="stable")
+        if np.any(order[1:] < order[:-1]):  # tables given out of id order: reorder the rows
+            positions = _take_runs(positions, joints, order)
+            orders = _take_runs(orders, steps, order)
+            ids, joints, steps = ids[order], joints[order], steps[order]
         if len(ids) and np.any(ids[1:] == ids[:-1]):
             raise ValueError("the mechanisms table holds a mechanism_id twice")
-        node_types = table.column("node_types").combine_chunks()
-        joint_start = node_types.offsets.to_numpy().astype(np.int64)
-        types_flat = node_types.flatten().to_numpy()
-        adjacency = table.column("adjacency").combine_chunks()
-        adjacency_start = adjacency.offsets.to_numpy()
-        adjacency_flat = adjacency.flatten().to_numpy()
-        positions = table.column("positions").combine_chunks().flatten().to_numpy()
-        orders: list[np.ndarray] = []
-        known: dict[bytes, np.ndarray] = {}
-        for m in range(len(ids)):
-            types = types_flat[joint_start[m] : joint_start[m + 1]]
-            graph = adjacency_flat[adjacency_start[m] : adjacency_start[m + 1]]
-            key = types.tobytes() + graph.tobytes()
-            order = known.get(key)
-            if order is None:
-                n = len(types)
-                order = analyze_topology(graph.reshape(n, n), types).order.astype(np.uint8)
-                known[key] = order
-            orders.append(order)
-        order_start = np.zeros(len(ids) + 1, dtype=np.int64)
-        np.cumsum([len(o) for o in orders], out=order_start[1:])
         return cls(
-            ids=np.ascontiguousarray(ids, dtype=np.int64),
-            joint_start=joint_start,
-            positions=np.ascontiguousarray(positions, dtype=np.float64).reshape(-1, 2),
-            order_start=order_start,
-            orders=np.concatenate(orders) if orders else np.empty((0, 3), np.uint8),
+            ids=ids,
+            joint_start=_offsets(joints),
+            positions=positions,
+            order_start=_offsets(steps),
+            orders=orders,
         )
 
     def rows_of(self, mechanism_ids: np.ndarray) -> np.ndarray:
@@ -130,3 +126,62 @@ class MechanismBank:
             adjacency[joint, b] = adjacency[b, joint] = 1
             node_types[joint] = SIMPLE
         return adjacency, node_types, positions
+
+
+@dataclass
+class _Packed:
+    """One table's mechanisms, packed in its row order."""
+
+    ids: np.ndarray  # (M,) int64
+    joints: np.ndarray  # (M,) int64: joints of each mechanism
+    steps: np.ndarray  # (M,) int64: rows of each solution path
+    positions: np.ndarray  # (J, 2) float64
+    orders: np.ndarray  # (R, 3) uint8
+
+
+def _pack(table: pa.Table) -> _Packed:
+    """Pack one table's mechanisms. A topology is analyzed once per table: the five position
+    variants of a topology are rows of one generation shard."""
+    ids = table.column("mechanism_id").to_numpy().astype(np.int64)
+    node_types = table.column("node_types").combine_chunks()
+    joint_start = node_types.offsets.to_numpy().astype(np.int64)
+    types_flat = node_types.flatten().to_numpy()
+    adjacency = table.column("adjacency").combine_chunks()
+    adjacency_start = adjacency.offsets.to_numpy()
+    adjacency_flat = adjacency.flatten().to_numpy()
+    positions = table.column("positions").combine_chunks().flatten().to_numpy()
+    orders: list[np.ndarray] = []
+    known: dict[bytes, np.ndarray] = {}
+    for m in range(len(ids)):
+        types = types_flat[joint_start[m] : joint_start[m + 1]]
+        graph = adjacency_flat[adjacency_start[m] : adjacency_start[m + 1]]
+        key = types.tobytes() + graph.tobytes()
+        order = known.get(key)
+        if order is None:
+            n = len(types)
+            order = analyze_topology(graph.reshape(n, n), types).order.astype(np.uint8)
+            known[key] = order
+        orders.append(order)
+    return _Packed(
+        ids=ids,
+        joints=np.diff(joint_start),
+        steps=np.array([len(order) for order in orders], dtype=np.int64),
+        positions=np.ascontiguousarray(positions, dtype=np.float64).reshape(-1, 2),
+        orders=np.concatenate(orders) if orders else np.empty((0, 3), np.uint8),
+    )
+
+
+def _offsets(counts: np.ndarray) -> np.ndarray:
+    """(M + 1,) int64 offsets of runs of these lengths."""
+    out = np.zeros(len(counts) + 1, dtype=np.int64)
+    np.cumsum(counts, out=out[1:])
+    return out
+
+
+def _take_runs(values: np.ndarray, counts: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """The runs of `values` (consecutive, of lengths `counts`) in the order `order`."""
+    starts = _offsets(counts)[:-1]
+    taken = counts[order]
+    gather = np.repeat(starts[order] - _offsets(taken)[:-1], taken)
+    gather += np.arange(len(gather), dtype=np.int64)
+    return values[gather]

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -737,3 +738,41 @@ def test_packed_mechanisms_trace_as_the_simulator_does_bit_for_bit() -> None:
         np.testing.assert_array_equal(unpacked[2], positions)
     with pytest.raises(ValueError, match="mechanism 5 is not in the mechanisms table"):
         bank.rows_of(np.array([5]))
+
+
+def test_a_bank_packed_table_by_table_is_the_bank_of_their_rows() -> None:
+    """`MechanismBank.from_tables` packs tables one at a time, in any order of ids within and
+    across them; the bank is the one packed from all their rows at once, array for array."""
+    import pyarrow as pa
+
+    from links_ray.engine.sampling import PositionSampler
+    from links_ray.engine.solver import TopologySimulator
+    from links_ray.engine.topology import random_topology
+    from links_ray.search.mechanisms import MechanismBank
+
+    rng = np.random.default_rng(23)
+    rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    while len(rows) < 30:
+        adjacency, node_types = random_topology(rng)
+        simulator = TopologySimulator(adjacency, node_types)
+        found = PositionSampler(simulator).search(3, rng, "sequential")
+        rows += [(adjacency, node_types, positions) for positions in found.positions]
+    ids = rng.permutation(10_000)[: len(rows)]
+    table = pa.table(
+        {
+            "mechanism_id": ids,
+            "adjacency": [row[0].ravel().tolist() for row in rows],
+            "node_types": [row[1].tolist() for row in rows],
+            "positions": [row[2].ravel().tolist() for row in rows],
+        }
+    )
+    whole = MechanismBank.from_table(table.sort_by("mechanism_id"))
+    cuts = [0, 4, 5, 17, 29, len(rows)]
+    tables = [table.slice(a, b - a) for a, b in itertools.pairwise(cuts)]
+    parted = MechanismBank.from_tables(tables[::-1])
+    for name, array in whole.arrays().items():
+        np.testing.assert_array_equal(parted.arrays()[name], array, err_msg=name)
+        assert parted.arrays()[name].dtype == array.dtype, name
+    assert len(MechanismBank.from_tables([])) == 0
+    with pytest.raises(ValueError, match="holds a mechanism_id twice"):
+        MechanismBank.from_tables([tables[1], tables[2], tables[1]])
