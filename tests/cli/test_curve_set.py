@@ -333,7 +333,12 @@ def test_traced_curves_are_traced_again_by_their_mechanisms() -> None:
     """Each traced curve is the path of a valid mechanism of 6-12 joints: simulated again, the
     mechanism draws it exactly; the joint is not linked to a fixed one (no arc), and the curve
     is neither a circle nor a swing to and fro."""
-    from links_ray.cli.bench.traced_curves import TRACED_JOINTS, retraces, traced_curves
+    from links_ray.cli.bench.traced_curves import (
+        TRACED_JOINTS,
+        TRACED_STEPS,
+        retraces,
+        traced_curves,
+    )
     from links_ray.engine.mechanism import FIXED
     from links_ray.engine.paths import is_circle, normalize_path
     from links_ray.engine.solver import simulate
@@ -343,7 +348,8 @@ def test_traced_curves_are_traced_again_by_their_mechanisms() -> None:
     for name, curve in traced.items():
         n = len(curve.node_types)
         assert TRACED_JOINTS[0] <= n <= TRACED_JOINTS[1], name
-        again = simulate(curve.adjacency, curve.node_types, curve.positions)[curve.joint]
+        again = simulate(curve.adjacency, curve.node_types, curve.positions, TRACED_STEPS)
+        again = again[curve.joint]
         np.testing.assert_array_equal(again, curve.points, err_msg=name)
         neighbours = np.flatnonzero(curve.adjacency[curve.joint])
         assert curve.node_types[curve.joint] != FIXED, name

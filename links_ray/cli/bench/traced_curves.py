@@ -5,9 +5,12 @@ A curve is drawn from its own seed: a random topology of 6 to 12 joints (the dat
 one valid set of initial positions found by the engine's sequential sampler, simulated over a
 crank turn. The curve is the path of the joint solved last (the one that hangs on the most
 links) among those that draw neither an arc nor a circle, nor go back over themselves: none of
-those is the kind of curve a designer brings. A mechanism with no such joint is
-drawn again. The seeds are apart from any dataset's (`TRACED_SALT`), and a
-random position is never drawn twice, so no curve is a dataset path.
+those is the kind of curve a designer brings. A mechanism with no such joint is drawn again.
+The path is traced at TRACED_STEPS steps. The seeds are apart from any dataset's
+(`TRACED_SALT`), and a random position is never drawn twice, so no curve is a dataset path.
+
+The bench measures these curves by `synthesis.dense_score` as well: the sampled chamfer of a
+result keeps a floor of a few thousandths even for the mechanism that drew the curve.
 
 Pure numpy and the engine.
 """
@@ -18,11 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from links_ray.engine.inputs import DEFAULT_STEPS
+from links_ray.engine.inputs import DEFAULT_STEPS, REFINE_CHECK_STEPS
 from links_ray.engine.mechanism import analyze_topology, arc_flags
 from links_ray.engine.paths import is_circle, normalize_path
 from links_ray.engine.sampling import PositionSampler, PositionSearchError
-from links_ray.engine.solver import TopologySimulator
+from links_ray.engine.solver import TopologySimulator, simulate
 from links_ray.engine.topology import random_topology
 
 #: Curves drawn, and the default seed of their generator.
@@ -33,6 +36,8 @@ TRACED_JOINTS = (6, 12)
 #: A path whose points mostly lie this near (of its longest chord) to another part of it
 #: goes back over itself (`retraces`).
 RETRACE_GAP = 0.01
+#: Steps the curve is traced at.
+TRACED_STEPS = REFINE_CHECK_STEPS
 #: Mixed into every curve's seed, so no dataset seed draws the same mechanisms.
 TRACED_SALT = 0x7472_6163_6564
 
@@ -41,7 +46,7 @@ TRACED_SALT = 0x7472_6163_6564
 class TracedCurve:
     """A curve and the mechanism that traces it."""
 
-    points: np.ndarray  # (DEFAULT_STEPS, 2): the joint's path over a crank turn
+    points: np.ndarray  # (TRACED_STEPS, 2): the joint's path over a crank turn
     adjacency: np.ndarray  # (n, n) uint8
     node_types: np.ndarray  # (n,) int8
     positions: np.ndarray  # (n, 2) initial positions
@@ -71,7 +76,11 @@ def traced_curve(seed: int, index: int) -> TracedCurve:
             path = trajectories[joint]
             normalized = normalize_path(path)
             if not (is_arc[joint] or is_circle(normalized) or retraces(normalized)):
-                return TracedCurve(path, adjacency, node_types, found.positions[0], int(joint))
+                positions = found.positions[0]
+                # Dense, so that the curve's polyline is the mechanism's curve to within a
+                # hair: a mechanism that traces it scores near 0 however the set spaces it.
+                dense = simulate(adjacency, node_types, positions, TRACED_STEPS)[joint]
+                return TracedCurve(dense, adjacency, node_types, positions, int(joint))
 
 
 def retraces(normalized: np.ndarray) -> bool:
