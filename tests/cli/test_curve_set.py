@@ -398,3 +398,37 @@ def test_gcp_holo_curves_are_stored_with_their_source() -> None:
 
     assert crossings(curves["test"]["holo_eight"]) >= 1
     assert crossings(curves["test"]["holo_moon"]) == 0
+
+
+def test_the_time_dial_reports_each_family_at_each_budget(dataset: str) -> None:
+    """`bench_dial` runs the set at every budget and gives each half and family's mean and
+    median at each: the same figures as the run at that budget."""
+    from links_ray.cli.bench.synthesis import bench_dial, format_dial
+
+    names = ("cam_dwell", "crossing_eight_0")
+    result = bench_dial(budgets=(0.2, 0.5), root=dataset, use_set=True, only=names)
+    assert result["budgets_s"] == [0.2, 0.5] and len(result["runs"]) == 2
+    entries = {(e["half"], e["family"]): e for e in result["dial"]}
+    assert {("tuning", "self_crossing"), ("tuning", "cam"), ("all", "all")} <= set(entries)
+    for run, budget in zip(result["runs"], ("0.2", "0.5"), strict=True):
+        assert run["budget_s"] == float(budget)
+        for group in run["groups"]:
+            at = entries[group["half"], group["family"]]["by_budget"][budget]
+            assert at["mean_refined"] == group["mean_refined"]
+            assert at["median_refined"] == group["median_refined"]
+    table = format_dial(result)
+    assert "| 0.2 s | 0.5 s |" in table and "self_crossing" in table
+
+
+def test_the_dial_refuses_its_own_budget_in_one_line() -> None:
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", "links_ray.cli", "bench", "synthesize", "--dial", "--seconds", "3"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode != 0
+    assert done.stderr.strip().count("\n") == 0 and "--dial runs its own budgets" in done.stderr

@@ -90,13 +90,20 @@ def _synthesize(args: argparse.Namespace) -> Measured:
     if args.design:
         from links_ray.cli.bench import design
 
-        if args.set or args.curve or args.iterations is not None or args.figure:
+        if args.set or args.curve or args.iterations is not None or args.figure or args.dial:
             raise ValueError(
                 "--design runs the 8 targets at a time budget: no --set, --curve, "
-                "--iterations or --figure"
+                "--iterations, --figure or --dial"
             )
         result = design.bench_design(seconds=args.seconds, paths=args.paths, seed=args.seed)
         return result, design.format_design
+    if args.dial:
+        if args.iterations is not None or args.figure or args.seconds is not None:
+            raise ValueError("--dial runs its own budgets: no --seconds, --iterations or --figure")
+        result = synthesis.bench_dial(
+            paths=args.paths, seed=args.seed, use_set=args.set, only=tuple(args.curve or ())
+        )
+        return result, synthesis.format_dial
     result = synthesis.bench_synthesize(
         seconds=args.seconds,
         paths=args.paths,
@@ -196,6 +203,12 @@ def _synthesize_arguments(command: argparse.ArgumentParser) -> None:
         help="buildable answers instead: per target, the plain best, the front (simplest "
         "first), a pivot region and footprint kept, and the timed error, each at the budget "
         "(default the synthesis default)",
+    )
+    command.add_argument(
+        "--dial",
+        action="store_true",
+        help="the time dial: the same run at 1, 3, 10 and 30 s a curve, and each family's "
+        "mean (median) chamfer at each budget",
     )
     command.add_argument(
         "--curve",

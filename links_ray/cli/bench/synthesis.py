@@ -45,6 +45,8 @@ BENCH_SECONDS = 4.5
 #: What the bench is asked to show: refined mean at most this share of retrieval-only, and
 #: below MEAN_GOAL; median seconds at most MEDIAN_SECONDS_GOAL.
 RATIO_GOAL, MEAN_GOAL, MEDIAN_SECONDS_GOAL = 1 / 3, 0.010, 5.0
+#: The time dial's budgets, in seconds a curve (`bench_dial`).
+DIAL_SECONDS = (1.0, 3.0, 10.0, 30.0)
 #: The most any curve's answer may come past its budget, in milliseconds.
 OVERRUN_GOAL_MS = 50.0
 #: The curve set's goals, each on the held-out half's mean refined chamfer: over all of it,
@@ -332,6 +334,75 @@ def bench_synthesize(
         "goals": goals,
         "machine": machine_info(),
     }
+
+
+def bench_dial(
+    budgets: tuple[float, ...] = DIAL_SECONDS,
+    paths: int = 1_000_000,
+    seed: int = 0,
+    use_set: bool = False,
+    only: tuple[str, ...] = (),
+    root: str | None = None,
+) -> dict:
+    """The time dial: `bench_synthesize` at each of `budgets` seconds a curve, and per half
+    and family (the set's groups; the targets as one group) the mean and median refined
+    chamfer at each budget."""
+    runs = [
+        bench_synthesize(seconds, paths, seed, use_set=use_set, only=only, root=root)
+        for seconds in budgets
+    ]
+    dial: dict[tuple[str, str], dict] = {}
+    for seconds, run in zip(budgets, runs, strict=True):
+        groups = run["groups"] or [
+            {
+                "half": "all",
+                "family": "all",
+                "curves": len(run["curves"]),
+                "mean_refined": run["mean_refined"],
+                "median_refined": statistics.median(row["refined"] for row in run["curves"]),
+                "median_seconds": run["median_seconds"],
+            }
+        ]
+        for group in groups:
+            key = (group["half"], group["family"])
+            entry = dial.setdefault(
+                key, {"half": key[0], "family": key[1], "curves": group["curves"], "by_budget": {}}
+            )
+            entry["by_budget"][f"{seconds:g}"] = {
+                "mean_refined": group["mean_refined"],
+                "median_refined": group["median_refined"],
+                "median_seconds": group["median_seconds"],
+            }
+    return {
+        "paths": runs[0]["paths"],
+        "budgets_s": list(budgets),
+        "seed": seed,
+        "curve_set": use_set,
+        "dial": list(dial.values()),
+        "runs": runs,
+        "machine": machine_info(),
+    }
+
+
+def format_dial(result: dict) -> str:
+    """The time dial as a Markdown table: mean (median) refined chamfer at each budget."""
+    budgets = [f"{seconds:g}" for seconds in result["budgets_s"]]
+    lines = [
+        f"Synthesis at {', '.join(budgets)} s a curve over {result['paths']:,} curated paths, "
+        f"frames of seed {result['seed']}: mean (median) chamfer / longest chord",
+        "",
+        "| half | family | curves | " + " | ".join(f"{b} s" for b in budgets) + " |",
+        "|---|---|---|" + "---|" * len(budgets),
+    ]
+    for entry in result["dial"]:
+        at = entry["by_budget"]
+        cells = [f"{at[b]['mean_refined']:.4f} ({at[b]['median_refined']:.4f})" for b in budgets]
+        lines.append(
+            f"| {entry['half']} | {entry['family']} | {entry['curves']} | "
+            + " | ".join(cells)
+            + " |"
+        )
+    return "\n".join(lines)
 
 
 def format_synthesize(result: dict) -> str:
