@@ -147,6 +147,10 @@ def _active_set(
             trial = np.zeros(len(c))
             index = np.flatnonzero(on)
             trial[index] = np.linalg.solve(q[np.ix_(index, index)], c[index])
+            if not np.all(np.isfinite(trial[index])):
+                # An overflowed solve has no multiplier to move toward: the step it gives is
+                # not finite, and `guarded_step` refuses it (a more damped one comes next).
+                return np.full(len(c), np.nan)
             if np.all(trial[index] > 0.0):
                 mu = trial
                 break

@@ -511,6 +511,20 @@ def test_guarded_step_is_the_constrained_optimum() -> None:
     assert bound > 50  # most draws have a binding constraint: the test exercises the guard
 
 
+def test_a_guard_solve_that_overflows_refuses_the_step() -> None:
+    """Guards whose system overflows (a nearly singular system, huge rows: met when a grown
+    mechanism's new joint sat on its link) give no finite multiplier: the step is refused
+    (None, so a more damped one is tried), where the active set used to raise numpy's
+    ValueError out of `refine`."""
+    from links_ray.engine.refine_step import guarded_step
+
+    system = np.diag([1e-308, 1e-308])
+    rows = np.array([[1e155, 1e155], [1e155, -1e155]])
+    with np.errstate(all="ignore"):
+        step = guarded_step(np.zeros((1, 2)), system, np.ones(2), (rows, np.ones(2)), 1.0)
+    assert step is None
+
+
 def test_nearest_pairs_equal_brute_force() -> None:
     """Each side's nearest point on the other, by the sorted sweep, equals comparing every pair
     (ties aside: random points have none)."""
