@@ -17,6 +17,8 @@ import numpy as np
 #: Curves of each kind, and the default seed.
 PER_KIND = 3
 CROSSING_SEED = 0
+#: Draws of one curve before the generator gives up (a handful suffice).
+MAX_DRAWS = 1000
 #: Points a curve is drawn with (the set re-spaces them evenly by arc length).
 POINTS = 600
 #: The crossings each kind has.
@@ -34,10 +36,12 @@ def crossing_curves(seed: int = CROSSING_SEED, per_kind: int = PER_KIND) -> dict
     for kind_index, (kind, expected) in enumerate(KIND_CROSSINGS.items()):
         for i in range(per_kind):
             rng = np.random.default_rng([seed, kind_index, i])
-            while True:
+            for _ in range(MAX_DRAWS):
                 loop = _wobbled(_base(kind, rng), rng)
                 if crossings(loop) == expected and _strands_apart(loop):
                     break
+            else:
+                raise ValueError(f"no {kind} of seed {seed} kept in {MAX_DRAWS} draws")
             curves[f"crossing_{kind}_{i}"] = loop
     return curves
 

@@ -36,6 +36,8 @@ TRACED_JOINTS = (6, 12)
 #: A path whose points mostly lie this near (of its longest chord) to another part of it
 #: goes back over itself (`retraces`).
 RETRACE_GAP = 0.01
+#: Mechanisms drawn for one curve before the generator gives up (a few suffice).
+MAX_DRAWS = 1000
 #: Steps the curve is traced at.
 TRACED_STEPS = REFINE_CHECK_STEPS
 #: Mixed into every curve's seed, so no dataset seed draws the same mechanisms.
@@ -62,7 +64,7 @@ def traced_curves(seed: int = TRACED_SEED, count: int = TRACED_CURVES) -> dict[s
 def traced_curve(seed: int, index: int) -> TracedCurve:
     """Curve `index` of the traced curves of `seed` (see the module's docstring)."""
     rng = np.random.default_rng([TRACED_SALT, seed, index])
-    while True:
+    for _ in range(MAX_DRAWS):
         n_joints = int(rng.integers(TRACED_JOINTS[0], TRACED_JOINTS[1] + 1))
         adjacency, node_types = random_topology(rng, n_joints)
         simulator = TopologySimulator(adjacency, node_types)
@@ -81,6 +83,7 @@ def traced_curve(seed: int, index: int) -> TracedCurve:
                 # hair: a mechanism that traces it scores near 0 however the set spaces it.
                 dense = simulate(adjacency, node_types, positions, TRACED_STEPS)[joint]
                 return TracedCurve(dense, adjacency, node_types, positions, int(joint))
+    raise ValueError(f"no traced curve {index} of seed {seed} kept in {MAX_DRAWS} draws")
 
 
 def retraces(normalized: np.ndarray) -> bool:
