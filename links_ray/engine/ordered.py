@@ -9,8 +9,7 @@ squared distance is least; the ordered distance is the root of that mean. Where 
 crosses itself or two strands pass close, nearest neighbours pair points of different
 strands; matched in order, strands pair with strands.
 
-`arc_positions` gives where on the path's steps each resampled point lies (step and share of
-the way to the next). `links bench synthesize` reports the ordered distance beside the chamfer:
+`links bench synthesize` reports the ordered distance beside the chamfer:
 a path can lie on a drawing's strands (a small chamfer) yet run along them in another order.
 
 Pure numpy/numba: no Ray.
@@ -24,7 +23,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["OVERSAMPLE", "OrderedMatch", "arc_positions", "ordered_match"]
+from links_ray.engine.paths import even_along
+
+__all__ = ["OVERSAMPLE", "OrderedMatch", "ordered_match"]
 
 #: Path points per drawn point: the match's start moves in steps of 1 / OVERSAMPLE of the
 #: drawing's spacing, so rounding the start costs little.
@@ -33,38 +34,11 @@ OVERSAMPLE = 4
 
 @dataclass(frozen=True)
 class OrderedMatch:
-    """The best ordered match of a drawing's T points to a path's steps."""
+    """The best ordered match of a drawing's T points to a path."""
 
     distance: float  # root mean squared distance of the matched pairs
-    step: np.ndarray  # (T,) int64: drawn point i lies matched between path step[i] ...
-    share: np.ndarray  # (T,) float64: ... and the next step (cyclically), this share along
     start: int  # the first drawn point's match, among the T * OVERSAMPLE resampled points
     direction: int  # +1: the drawing runs along the path; -1: against it
-
-
-@numba.njit(cache=True, nogil=True)
-def _arc_positions(path: np.ndarray, count: int, step: np.ndarray, share: np.ndarray) -> None:
-    """`count` positions evenly spaced by arc length round the closed polyline `path`, starting
-    at its first point: the step each falls after, and its share of the way to the next."""
-    steps = path.shape[0]
-    total = 0.0
-    for k in range(steps):
-        total += math.hypot(
-            path[(k + 1) % steps, 0] - path[k, 0], path[(k + 1) % steps, 1] - path[k, 1]
-        )
-    k = 0
-    before = 0.0  # arc length at the start of segment k
-    length = math.hypot(path[1 % steps, 0] - path[0, 0], path[1 % steps, 1] - path[0, 1])
-    for i in range(count):
-        at = total * i / count
-        while k < steps - 1 and before + length <= at:
-            before += length
-            k += 1
-            length = math.hypot(
-                path[(k + 1) % steps, 0] - path[k, 0], path[(k + 1) % steps, 1] - path[k, 1]
-            )
-        step[i] = k
-        share[i] = min(1.0, (at - before) / length) if length > 0 else 0.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -97,23 +71,6 @@ def _best_match(drawn: np.ndarray, even: np.ndarray, out: np.ndarray) -> None:
     out[2] = best_direction
 
 
-def arc_positions(path: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """(step (count,) int64, share (count,) float64): `count` points evenly spaced by arc length
-    round the closed polyline `path` (S, 2), from its first point, each between step[i] and the
-    next step (cyclically), share[i] of the way. ValueError for a bad path or count."""
-    path = np.ascontiguousarray(path, dtype=np.float64)
-    if path.ndim != 2 or path.shape[1] != 2 or len(path) < 2:
-        raise ValueError(f"path must have shape (S, 2) with S >= 2, got {path.shape}")
-    if not np.isfinite(path).all():
-        raise ValueError("path must be finite")
-    if not 1 <= count <= 1 << 24:
-        raise ValueError(f"count must be from 1 to {1 << 24}, got {count}")
-    step = np.empty(count, dtype=np.int64)
-    share = np.empty(count, dtype=np.float64)
-    _arc_positions(path, count, step, share)
-    return step, share
-
-
 def ordered_match(drawn: np.ndarray, path: np.ndarray) -> OrderedMatch:
     """The best ordered match of the closed drawing's points `drawn` (T, 2), evenly spaced by
     arc length, to the closed path `path` (S, 2) (see the module's docstring). ValueError for
@@ -123,19 +80,12 @@ def ordered_match(drawn: np.ndarray, path: np.ndarray) -> OrderedMatch:
         raise ValueError(f"drawn must have shape (T, 2) with T >= 3, got {drawn.shape}")
     if not np.isfinite(drawn).all():
         raise ValueError("drawn must be finite")
-    count = len(drawn) * OVERSAMPLE
-    step, share = arc_positions(path, count)
-    path = np.ascontiguousarray(path, dtype=np.float64)
-    following = path[(step + 1) % len(path)]
-    even = (1.0 - share)[:, None] * path[step] + share[:, None] * following
+    path = np.asarray(path, dtype=np.float64)
+    if path.ndim != 2 or path.shape[1] != 2 or len(path) < 2:
+        raise ValueError(f"path must have shape (S, 2) with S >= 2, got {path.shape}")
+    if not np.isfinite(path).all():
+        raise ValueError("path must be finite")
+    even = np.ascontiguousarray(even_along(path, len(drawn) * OVERSAMPLE, closed=True))
     out = np.empty(3)
     _best_match(drawn, even, out)
-    start, direction = int(out[1]), int(out[2])
-    chosen = (start + direction * OVERSAMPLE * np.arange(len(drawn))) % count
-    return OrderedMatch(
-        distance=math.sqrt(out[0]),
-        step=step[chosen],
-        share=share[chosen],
-        start=start,
-        direction=direction,
-    )
+    return OrderedMatch(distance=math.sqrt(out[0]), start=int(out[1]), direction=int(out[2]))

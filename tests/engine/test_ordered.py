@@ -1,12 +1,12 @@
 """The ordered distance (links_ray.engine.ordered) against brute force: every start and both
-directions tried in numpy, arc positions against `even_along`, and the cases it is for."""
+directions tried in numpy, and the cases it is for."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from links_ray.engine.ordered import OVERSAMPLE, arc_positions, ordered_match
+from links_ray.engine.ordered import OVERSAMPLE, ordered_match
 from links_ray.engine.paths import chamfer, even_along
 
 
@@ -30,15 +30,6 @@ def eight(count: int, phase: float = 0.0) -> np.ndarray:
     return np.column_stack([np.sin(t), 0.6 * np.sin(2 * t)])
 
 
-def test_arc_positions_are_even_along_the_path() -> None:
-    rng = np.random.default_rng(3)
-    path = np.cumsum(rng.normal(size=(37, 2)), axis=0)
-    step, share = arc_positions(path, 120)
-    placed = (1 - share)[:, None] * path[step] + share[:, None] * path[(step + 1) % len(path)]
-    np.testing.assert_allclose(placed, even_along(path, 120, closed=True), atol=1e-9)
-    assert np.all((share >= 0) & (share <= 1)) and np.all(np.diff(step) >= 0)
-
-
 @pytest.mark.parametrize("seed", range(6))
 def test_ordered_match_is_brute_forces(seed: int) -> None:
     rng = np.random.default_rng(seed)
@@ -51,10 +42,6 @@ def test_ordered_match_is_brute_forces(seed: int) -> None:
     assert match.distance == pytest.approx(rms, rel=1e-9)
     assert (match.start, match.direction) == (start, direction)
     assert match.direction == (-1 if seed % 2 else 1)
-    # The matched points are where the pairs say.
-    matched = (1 - match.share)[:, None] * path[match.step]
-    matched += match.share[:, None] * path[(match.step + 1) % len(path)]
-    assert np.sqrt(np.mean(np.sum((drawn - matched) ** 2, axis=1))) == pytest.approx(rms)
 
 
 def test_order_tells_a_figure_eight_from_its_outline() -> None:
@@ -75,5 +62,3 @@ def test_bad_input_is_refused_by_name() -> None:
         ordered_match(np.zeros((2, 2)), eight(10))
     with pytest.raises(ValueError, match="path must be finite"):
         ordered_match(eight(10), np.full((10, 2), np.nan))
-    with pytest.raises(ValueError, match="count must be"):
-        arc_positions(eight(10), 0)

@@ -38,7 +38,8 @@ def crossing_curves(seed: int = CROSSING_SEED, per_kind: int = PER_KIND) -> dict
             rng = np.random.default_rng([seed, kind_index, i])
             for _ in range(MAX_DRAWS):
                 loop = _wobbled(_base(kind, rng), rng)
-                if crossings(loop) == expected and _strands_apart(loop):
+                crossed = crossing_segments(loop)
+                if len(crossed) == expected and _strands_apart(loop, crossed):
                     break
             else:
                 raise ValueError(f"no {kind} of seed {seed} kept in {MAX_DRAWS} draws")
@@ -119,15 +120,16 @@ def _side(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
     )
 
 
-def _strands_apart(loop: np.ndarray) -> bool:
+def _strands_apart(loop: np.ndarray, crossed: list[tuple[int, int]]) -> bool:
     """Whether points of `loop` more than a tenth of it apart along the curve are at least
-    MIN_STRAND_GAP of its size apart, but near its crossings (where strands meet by design)."""
+    MIN_STRAND_GAP of its size apart, but near its crossings `crossed` (where strands meet by
+    design)."""
     n = len(loop)
     size = float(np.ptp(loop, axis=0).max())
     gaps = np.linalg.norm(loop[:, None, :] - loop[None, :, :], axis=-1)
     along = np.abs(np.arange(n)[:, None] - np.arange(n)[None, :])
     close = (gaps < MIN_STRAND_GAP * size) & (np.minimum(along, n - along) > n // 10)
-    where = np.array([loop[i] for i, _ in crossing_segments(loop)]).reshape(-1, 2)
+    where = np.array([loop[i] for i, _ in crossed]).reshape(-1, 2)
     near = np.linalg.norm(loop[:, None, :] - where[None, :, :], axis=-1) < 3 * MIN_STRAND_GAP * size
     near = near.any(axis=1)
     return not np.any(close & ~near[:, None] & ~near[None, :])

@@ -66,19 +66,22 @@ SET_DENSE_GOALS = {"traced": 0.001}
 SMOOTH_CLOSED = ("gait", "cam", "random_smooth")
 
 
+def chord_length(points: np.ndarray) -> float:
+    """The drawing's longest chord, which every score here is divided by."""
+    i, j = longest_chord(points)
+    return float(np.hypot(*(points[j] - points[i])))
+
+
 def even_reference(points: np.ndarray, steps: int = DEFAULT_STEPS, closed: bool = True) -> float:
     """Chamfer, divided by the longest chord, between `points` and `steps` points evenly
     spaced along their own polyline (closed or open)."""
-    even = even_along(points, steps, closed)
-    i, j = longest_chord(points)
-    return chamfer(points, even) / float(np.hypot(*(points[j] - points[i])))
+    return chamfer(points, even_along(points, steps, closed)) / chord_length(points)
 
 
 def ordered_score(points: np.ndarray, path: np.ndarray) -> float:
     """The ordered distance (`engine.ordered`) from a closed drawing's `points`, evenly spaced,
     to a traced `path`, divided by the drawing's longest chord."""
-    i, j = longest_chord(points)
-    return ordered_match(points, path).distance / float(np.hypot(*(points[j] - points[i])))
+    return ordered_match(points, path).distance / chord_length(points)
 
 
 def dense_score(points: np.ndarray, result: dict, steps: int = REFINE_CHECK_STEPS) -> float:
@@ -91,9 +94,8 @@ def dense_score(points: np.ndarray, result: dict, steps: int = REFINE_CHECK_STEP
     traced = simulate(
         mechanism["adjacency"], mechanism["node_types"], mechanism["positions"], steps
     )[result["mechanism_joint"]]
-    i, j = longest_chord(points)
     gap = _to_polyline(points, traced).mean() + _to_polyline(traced, points).mean()
-    return float(gap) / float(np.hypot(*(points[j] - points[i])))
+    return float(gap) / chord_length(points)
 
 
 def _to_polyline(points: np.ndarray, loop: np.ndarray, block: int = 256) -> np.ndarray:
