@@ -45,6 +45,7 @@ KERNEL_TESTS = (
     "tests/engine/test_paths.py",
     "tests/engine/test_refine.py",
     "tests/engine/test_synthesis.py",
+    "tests/engine/test_collisions.py",
     "tests/search/test_retrieval.py",
     "tests/release/test_release_scan.py",
 )

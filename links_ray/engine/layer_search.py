@@ -1,0 +1,338 @@
+"""The searches for a layer plan (`engine.layers` says what a plan is, and how these serve
+it): the rules checked, greedy placements, whether any order keeps the pin rule, and the
+fewest layers as a mixed-integer program (`scipy.optimize.milp`, HiGHS).
+
+Arrays throughout: `links` (L, 2) joint pairs, `link_conflicts` (L, L) and `pin_conflicts`
+(L, n) bool (`collisions.Collisions`), `posts` (n,) bool the joints whose pins stand on the
+base plate, a plan (L,) the links' layers.
+
+Numpy and scipy: no numba of its own, no Ray.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from scipy.optimize import Bounds, LinearConstraint, milp
+from scipy.sparse import coo_array
+
+#: Orders the greedy placement tries, the fewest layers kept.
+GREEDY_ORDERS = 16
+
+Rows = list[tuple[list[tuple[int, float]], float, float]]
+
+
+def _pin_spans(links: np.ndarray, layer: np.ndarray, n: int, posts: np.ndarray) -> np.ndarray:
+    """(n, 2) each joint's lowest and highest layer of its links; from 0 at `posts` (n,)
+    bool; (-1, -1) for a joint without links."""
+    spans = np.full((n, 2), -1, dtype=np.int64)
+    for joint in range(n):
+        at = layer[(links == joint).any(axis=1)]
+        if len(at):
+            spans[joint] = (0 if posts[joint] else at.min(), at.max())
+    return spans
+
+
+def _broken_rule(
+    links: np.ndarray,
+    layer: np.ndarray,
+    link_conflicts: np.ndarray,
+    pin_conflicts: np.ndarray,
+    posts: np.ndarray,
+) -> str | None:
+    """The first rule (`engine.layers`) the plan `layer` (L,) breaks, said, else None."""
+    same = link_conflicts & (layer[:, None] == layer[None, :])
+    if same.any():
+        first, second = np.argwhere(same)[0]
+        return f"links {links[first].tolist()} and {links[second].tolist()} share a layer"
+    spans = _pin_spans(links, layer, pin_conflicts.shape[1], posts)
+    inside = (spans[None, :, 0] <= layer[:, None]) & (layer[:, None] <= spans[None, :, 1])
+    crossing = pin_conflicts & inside
+    if crossing.any():
+        link, joint = np.argwhere(crossing)[0]
+        return f"link {links[link].tolist()} lies within the span of pin {joint}"
+    return None
+
+
+def _first_plan(
+    links: np.ndarray, link_conflicts: np.ndarray, pin_conflicts: np.ndarray, posts: np.ndarray
+) -> np.ndarray | None:
+    """The greedy plan of fewest layers over `GREEDY_ORDERS` orders (the busiest links
+    first, then shuffles seeded alike at every call, so plans repeat), or None."""
+    busy = link_conflicts.sum(axis=1) + pin_conflicts.sum(axis=1)
+    rng = np.random.default_rng(0)
+    orders = [np.argsort(-busy, kind="stable")]
+    orders += [rng.permutation(len(links)) for _ in range(GREEDY_ORDERS - 1)]
+    best = None
+    for order in orders:
+        plan = _greedy_layers(links, link_conflicts, pin_conflicts, posts, order)
+        if plan is not None and (best is None or plan.max() < best.max()):
+            best = plan
+    return best
+
+
+def _greedy_layers(
+    links: np.ndarray,
+    link_conflicts: np.ndarray,
+    pin_conflicts: np.ndarray,
+    posts: np.ndarray,
+    order: np.ndarray,
+) -> np.ndarray | None:
+    """A plan (L,) by the greedy placement (`engine.layers`), the links placed in `order`,
+    or None if it fails."""
+    count = len(links)
+    # Positions in the order of layers so far: placed links hold whole numbers, and a new
+    # layer inserted below layer g is tried at g - 0.5 (the numbers are made whole after).
+    position = np.full(count, np.nan)
+    for link in order:
+        placed = ~np.isnan(position)
+        used = np.unique(position[placed])
+        top = len(used)
+        candidates = [float(k) for k in range(top)] + [g - 0.5 for g in range(top, -1, -1)]
+        for spot in candidates:
+            if _fits(link, spot, links, position, placed, link_conflicts, pin_conflicts, posts):
+                break
+        else:
+            return None
+        position[link] = spot
+        if spot != int(spot):  # a new layer: renumber so the layers are 0, 1, ... again
+            position[~np.isnan(position)] = np.unique(
+                position[~np.isnan(position)], return_inverse=True
+            )[1]
+    return position.astype(np.int64)
+
+
+def _fits(
+    link: int,
+    spot: float,
+    links: np.ndarray,
+    position: np.ndarray,
+    placed: np.ndarray,
+    link_conflicts: np.ndarray,
+    pin_conflicts: np.ndarray,
+    posts: np.ndarray,
+) -> bool:
+    """Whether `link` at `spot` keeps the rules among the links `placed` at `position`."""
+    if (placed & link_conflicts[link] & (position == spot)).any():
+        return False
+    # Outside the span, so far, of every pin it comes near: a post's span is from the bottom.
+    for joint in np.flatnonzero(pin_conflicts[link]):
+        at = position[placed & (links == joint).any(axis=1)]
+        if len(at) and (posts[joint] or at.min() <= spot) and spot <= at.max():
+            return False
+    # Its own pins' spans, grown to take it, must not take in a link that comes near them.
+    for joint in links[link]:
+        at = position[placed & (links == joint).any(axis=1)]
+        low = -np.inf if posts[joint] else min(at.min(initial=spot), spot)
+        high = max(at.max(initial=spot), spot)
+        near = placed & pin_conflicts[:, joint]
+        if (near & (low <= position) & (position <= high)).any():
+            return False
+    return True
+
+
+def _merged(
+    plan: np.ndarray,
+    links: np.ndarray,
+    link_conflicts: np.ndarray,
+    pin_conflicts: np.ndarray,
+    posts: np.ndarray,
+) -> np.ndarray:
+    """`plan` with neighbouring layers merged, lowest first, wherever the rules still hold."""
+    plan = np.unique(plan, return_inverse=True)[1]
+    k = 0
+    while k < plan.max():
+        merged = np.where(plan > k, plan - 1, plan)
+        if _broken_rule(links, merged, link_conflicts, pin_conflicts, posts) is None:
+            plan = merged
+        else:
+            k += 1
+    return plan
+
+
+def _feasible_order(
+    links: np.ndarray, pin_conflicts: np.ndarray, posts: np.ndarray, deadline: float
+) -> tuple[np.ndarray | None, str]:
+    """(a plan (L,) of one layer per link, or None; "feasible", "infeasible" or "time limit"
+    if `deadline` (time.monotonic) passed first): whether any plan keeps the pin rule.
+
+    A plan exists if one with no two links on a layer does (a shared layer split in two
+    keeps every span's ends on the same sides of every other link), and conflicting links
+    differ then anyway. So each link and pin it conflicts with choose: the link above every
+    link of the pin, or below every one (above, at a post); the choices must leave "below"
+    without a cycle. Searched depth first, each choice's consequences carried through the
+    transitive closure (bitsets), a choice left with one way taken at once."""
+    count = len(links)
+    groups = []
+    for m, p in np.argwhere(pin_conflicts):
+        own = np.flatnonzero((links == p).any(axis=1))
+        groups.append((int(m), sum(1 << int(o) for o in own), bool(posts[p])))
+    # below[i] and above[i]: bitsets of the links certainly below and above link i.
+    start = ([0] * count, [0] * count, [-1] * len(groups))
+
+    def put_below(first: int, second: int, below: list[int], above: list[int]) -> bool:
+        """Put `first` below `second`, closing the relation; False on a cycle."""
+        if first == second or (below[first] >> second) & 1:
+            return False
+        lower = below[first] | (1 << first)
+        upper = above[second] | (1 << second)
+        for i in _members(upper):
+            below[i] |= lower
+        for i in _members(lower):
+            above[i] |= upper
+        return True
+
+    def choose(state: tuple[list[int], list[int], list[int]], g: int, up: bool) -> bool:
+        below, above, chosen = state
+        m, own, _ = groups[g]
+        chosen[g] = up
+        return all(
+            put_below(o, m, below, above) if up else put_below(m, o, below, above)
+            for o in _members(own)
+        )
+
+    def settle(state: tuple[list[int], list[int], list[int]]) -> int | None:
+        """Take every forced choice; the group to branch on next, -1 if none is left, None
+        if a group has no way left."""
+        below, above, chosen = state
+        while True:
+            forced, branch = False, -1
+            for g, (m, own, post) in enumerate(groups):
+                if chosen[g] != -1:
+                    continue
+                can_up = not above[m] & own
+                can_down = not post and not below[m] & own
+                if not (can_up or can_down):
+                    return None
+                if can_up != can_down:
+                    if not choose(state, g, can_up):
+                        return None
+                    forced = True
+                elif branch == -1:
+                    branch = g
+            if not forced:
+                return branch
+
+    stack = [start]
+    while stack:
+        if time.monotonic() > deadline:
+            return None, "time limit"
+        state = stack.pop()
+        branch = settle(state)
+        if branch is None:
+            continue
+        if branch == -1:
+            below = state[0]
+            # Each link's rank among the others: below[j] grows strictly along the order.
+            sizes = np.array([bin(bits).count("1") for bits in below])
+            return np.argsort(np.argsort(sizes, kind="stable")), "feasible"
+        for up in (False, True):
+            child = ([*state[0]], [*state[1]], [*state[2]])
+            if choose(child, branch, up):
+                stack.append(child)
+    return None, "infeasible"
+
+
+def _members(bits: int) -> list[int]:
+    """The members of the bitset `bits`."""
+    members = []
+    while bits:
+        low = bits & -bits
+        members.append(low.bit_length() - 1)
+        bits ^= low
+    return members
+
+
+def _solve(
+    cost: np.ndarray,
+    integral: np.ndarray,
+    upper: np.ndarray,
+    rows: Rows,
+    seconds: float,
+) -> tuple[np.ndarray | None, str, float]:
+    """(x or None, status, the solver's lower bound) of a program over variables from 0 to
+    `upper`, `integral` where marked, each of `rows` (terms, lower, upper) holding; "optimal",
+    "infeasible" or "time limit" (any other stop counts as the time limit's: its best x, if
+    any, not proven optimal)."""
+    index, cols, values, low, high = [], [], [], [], []
+    for number, (terms, lower, upper_row) in enumerate(rows):
+        for col, value in terms:
+            index.append(number)
+            cols.append(col)
+            values.append(value)
+        low.append(lower)
+        high.append(upper_row)
+    matrix = coo_array((values, (index, cols)), shape=(len(rows), len(cost))).tocsr()
+    result = milp(
+        cost,
+        integrality=integral,
+        bounds=Bounds(0.0, upper),
+        constraints=LinearConstraint(matrix, low, high),
+        options={"time_limit": max(seconds, 0.01), "disp": False},
+    )
+    bound = getattr(result, "mip_dual_bound", None)
+    bound = float(bound) if bound is not None and np.isfinite(bound) else 0.0
+    if result.status == 2:
+        return None, "infeasible", bound
+    return result.x, "optimal" if result.status == 0 else "time limit", bound
+
+
+def _exact_layers(
+    links: np.ndarray,
+    link_conflicts: np.ndarray,
+    pin_conflicts: np.ndarray,
+    posts: np.ndarray,
+    most: int,
+    least: int,
+    seconds: float,
+) -> tuple[np.ndarray | None, str, float]:
+    """(plan (L,) or None, status, the solver's lower bound) of the fewest layers' program
+    (`engine.layers`), on at most `most` layers and at least `least`; "optimal", "time
+    limit" or "infeasible" (none on `most` layers)."""
+    count, layers = len(links), most
+    x_count = count * layers
+    choices = int((pin_conflicts & ~posts[None, :]).sum())
+
+    def x(link: int, k: int) -> int:
+        return int(link) * layers + k
+
+    def height(link: int, sign: float) -> list[tuple[int, float]]:
+        return [(x(link, k), sign * k) for k in range(1, layers)]
+
+    used = [x_count + k for k in range(layers)]
+    rows = [([(x(link, k), 1.0) for k in range(layers)], 1.0, 1.0) for link in range(count)]
+    # The links of a joint, and two conflicting links, at most one to a used layer.
+    for joint in np.unique(links):
+        at = np.flatnonzero((links == joint).any(axis=1))
+        for k in range(layers):
+            rows.append(([(x(link, k), 1.0) for link in at] + [(used[k], -1.0)], -np.inf, 0.0))
+    shared = (links[:, None, :, None] == links[None, :, None, :]).any(axis=(2, 3))
+    for first, second in np.argwhere(np.triu(link_conflicts & ~shared, 1)):
+        for k in range(layers):
+            terms = [(x(first, k), 1.0), (x(second, k), 1.0), (used[k], -1.0)]
+            rows.append((terms, -np.inf, 0.0))
+    rows += [([(used[k], 1.0), (used[k + 1], -1.0)], 0.0, np.inf) for k in range(layers - 1)]
+    rows.append(([(u, 1.0) for u in used], float(least), np.inf))
+    if not posts.any():  # a plan upside down is a plan: keep link 0 in the lower half
+        rows.append(
+            ([(x(0, k), 2.0 * k) for k in range(layers)] + [(u, -1.0) for u in used], -np.inf, -1.0)
+        )
+    # Per link m and pin p it conflicts with, and per link o of p: m above o (z = 1) or
+    # below it (z = 0), big-M on the layers' numbers; at a post, m above.
+    z = x_count + layers
+    for m, p in np.argwhere(pin_conflicts):
+        for o in np.flatnonzero((links == p).any(axis=1)):
+            if posts[p]:
+                rows.append((height(m, 1.0) + height(o, -1.0), 1.0, np.inf))
+                continue
+            rows.append((height(m, 1.0) + height(o, -1.0) + [(z, -layers)], 1.0 - layers, np.inf))
+            rows.append((height(o, 1.0) + height(m, -1.0) + [(z, layers)], 1.0, np.inf))
+        z += not posts[p]
+    width = x_count + layers + choices
+    cost = np.zeros(width)
+    cost[used] = 1.0
+    solution, status, bound = _solve(cost, np.ones(width), np.ones(width), rows, seconds)
+    if solution is None:
+        return None, status, bound
+    return solution[:x_count].reshape(count, layers).argmax(axis=1), status, bound

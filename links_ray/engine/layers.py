@@ -1,0 +1,235 @@
+"""Layers for a mechanism built as bars: each link on a layer, each pin through a span of layers,
+so that nothing collides over a crank turn, in as few layers as can be.
+
+The rules. A link lies on one layer (an integer from 0 up). A joint's pin runs through the
+span [lo, hi] of the layers of its links, lowest to highest. Over the whole turn
+(`engine.collisions`):
+
+- links that conflict (their bodies come within the clearance, or they share a joint) lie on
+  different layers;
+- a link that comes within the clearance of a pin, and is not one of that pin's links, lies
+  outside the pin's span: below all of the pin's links or above them all.
+
+Pins clear each other too. Two pins whose spans share a layer share one that holds a link of
+one of them: the higher of the spans' bottoms (a span's bottom is a layer of its links, but
+at a post, below), or for two posts the lower of their tops. That link holds its own pin
+whole (a pin is narrower than its bar, `inputs.as_bar_sizes`), so if the pins came closer
+than D + C the link would come within W / 2 + D / 2 + C of the other pin, and the second
+rule keeps it out of that pin's span. Pin heads, nuts and washers beyond a span are the
+builder's business.
+
+With `ground_on_base`, every fixed joint's pin is a post standing on a base plate under layer
+0: its span starts at layer 0, whatever the layers of its links, so a link that comes within
+the clearance of a fixed pin lies above the post's top (its highest link). The base plate is
+not one of the layers. The engine refuses links between two fixed joints, so the frame has
+no bars of its own: the plate is the frame. Without it, a fixed pin spans its links' layers
+as a moving one does, and how the frame holds it is left to the builder.
+
+Finding a plan (`engine.layer_search`). First a greedy one: the links placed one by one,
+each on the lowest layer where the rules hold among the links placed so far, else on a new
+layer inserted where they hold (the highest such place); inserting a layer keeps the
+others' order, so the rules that held still hold. Several orders are tried (the busiest
+links first, then seeded shuffles), the fewest layers kept. It can fail where a plan exists.
+Then whether any plan exists is decided on its own: one exists if one with no two links on a
+layer does (a shared layer split in two keeps every span's ends on the same sides of every
+other link), and conflicting links are apart then anyway; so each link and pin it conflicts
+with choose, the link above all of the pin's links or below them all, and the choices must
+leave "below" without a cycle: a depth-first search, each choice carried through the
+transitive closure. None: `LayeringError`, naming the pins in the way. Else that order, one
+layer per link, its neighbouring layers merged where the rules allow, is the first plan.
+Random mechanisms of the dataset often have none: their links sweep over each other's joints.
+
+Then the fewest layers, exactly, as a mixed-integer program (`scipy.optimize.milp`, HiGHS),
+on at most the first plan's layers: binaries x[l, k] (link l on layer k) and u[k] (layer k
+used, u[k] >= u[k + 1]); the links of a joint, and two conflicting links, at most one to a
+used layer; per link m and pin p it conflicts with, a binary z saying whether m lies above
+or below every link of p (big-M on the layers' numbers); the layers used, summed, as few as
+can be. Skipped when the first plan already meets the lower bound, and past
+`MAX_EXACT_LINKS` links (the first plan taken). The solves together stop at `MILP_SECONDS`,
+the best plan so far taken, not proven optimal.
+
+The lower bound is the most links at one joint, a greedy clique of conflicting links, and the
+solver's own bound.
+
+Numpy and scipy: no numba of its own, no Ray.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from links_ray.engine.collisions import Collisions, find_collisions
+from links_ray.engine.inputs import DEFAULT_COLLISION_STEPS, as_flag
+from links_ray.engine.layer_search import (
+    _broken_rule,
+    _exact_layers,
+    _feasible_order,
+    _first_plan,
+    _merged,
+    _pin_spans,
+)
+from links_ray.engine.node_kinds import FIXED
+from links_ray.engine.solver import topology_cache
+
+__all__ = [
+    "MAX_EXACT_LINKS",
+    "MILP_SECONDS",
+    "STATUSES",
+    "LayerPlan",
+    "LayeringError",
+    "plan_layers",
+]
+
+#: The most links whose fewest layers the exact solver seeks; past it, the first plan.
+MAX_EXACT_LINKS = 60
+#: Seconds the solves of one plan may take together; then the best plan so far is taken.
+MILP_SECONDS = 10.0
+#: How a plan was found: "optimal", its layers the lower bound (the solver proved it, or the
+#: first plan met it); "time limit", the solver stopped at MILP_SECONDS, its best plan taken
+#: (the first one if it had none); "heuristic", past MAX_EXACT_LINKS, the first plan.
+STATUSES = ("optimal", "time limit", "heuristic")
+
+
+class LayeringError(ValueError):
+    """No layer plan keeps every pin clear of the links that pass it (or none was found)."""
+
+
+@dataclass(frozen=True, eq=False)
+class LayerPlan:
+    """Each link's layer and each pin's span of layers, for a mechanism built as bars.
+
+    `links` (L, 2) holds each link's joints as `collisions.links` does; `link_layer` (L,)
+    their layers, from 0; `pin_span` (n, 2) each joint's lowest and highest layer (from 0
+    for a fixed joint with `ground_on_base`; (-1, -1) for a joint without links, which has
+    no pin). `layers` is how many layers the plan uses, `lower_bound` the fewest any plan
+    could, `optimal` whether the two meet, `status` one of STATUSES. `collisions` holds the
+    conflicts the plan obeys and the least distances found.
+    """
+
+    links: np.ndarray
+    link_layer: np.ndarray
+    pin_span: np.ndarray
+    layers: int
+    lower_bound: int
+    optimal: bool
+    status: str
+    ground_on_base: bool
+    collisions: Collisions
+
+
+def _lower_bound(links: np.ndarray, link_conflicts: np.ndarray) -> int:
+    """The fewest layers any plan could use: the most links at one joint, or a clique of
+    conflicting links grown greedily from each link, whichever is larger."""
+    best = int(np.bincount(links.ravel()).max()) if len(links) else 0
+    degree = link_conflicts.sum(axis=1)
+    for start in range(len(links)):
+        clique = [start]
+        candidates = np.flatnonzero(link_conflicts[start])
+        for other in candidates[np.argsort(-degree[candidates], kind="stable")]:
+            if link_conflicts[other, clique].all():
+                clique.append(int(other))
+        best = max(best, len(clique))
+    return best
+
+
+def _no_plan(found: Collisions, pin_conflicts: np.ndarray, ground_on_base: bool) -> str:
+    """Why no layer plan exists, for LayeringError: the pins in the way, closest first."""
+    near = np.argwhere(pin_conflicts)
+    closest = near[np.argsort(found.pin_distance[pin_conflicts], kind="stable")][:3]
+    named = ", ".join(
+        f"link {found.links[link].tolist()} passes {found.pin_distance[link, joint]:.3g} "
+        f"from pin {joint}"
+        for link, joint in closest
+    )
+    posts = " (with ground_on_base, fixed pins are posts from layer 0)" if ground_on_base else ""
+    return (
+        f"no layer plan keeps every pin clear of the links that pass it{posts}: "
+        f"{len(near)} link-pin pairs come within {found.pin_threshold:g} of each other "
+        f"(closest: {named})"
+    )
+
+
+def plan_layers(
+    adjacency: ArrayLike,
+    node_types: ArrayLike,
+    positions: ArrayLike,
+    *,
+    bar_width: float,
+    clearance: float,
+    pin_diameter: float,
+    ground_on_base: bool = False,
+    steps: int = DEFAULT_COLLISION_STEPS,
+) -> LayerPlan:
+    """The layers of a mechanism built as bars `bar_width` wide with pins `pin_diameter`
+    across, nothing within `clearance` of what it may collide with at any crank angle
+    (`collisions.find_collisions`, at `steps` steps and between them), in as few layers as
+    can be (the module's docstring); lengths in the unit of `positions`.
+
+    Raises `ValueError` naming the problem: what `find_collisions` refuses (a malformed
+    mechanism, sizes or step count, a mechanism that locks), a `ground_on_base` that is not
+    true or false, or `LayeringError` when no plan keeps every pin clear (or none was found
+    in time).
+    """
+    ground_on_base = as_flag(ground_on_base, "ground_on_base")
+    found = find_collisions(
+        adjacency,
+        node_types,
+        positions,
+        bar_width=bar_width,
+        clearance=clearance,
+        pin_diameter=pin_diameter,
+        steps=steps,
+    )
+    links, link_conflicts, pin_conflicts = found.links, found.link_conflicts, found.pin_conflicts
+    topology = topology_cache.simulator(adjacency, node_types).topology  # kept by the check
+    posts = (topology.node_types == FIXED) & ground_on_base
+    lower = _lower_bound(links, link_conflicts)
+    deadline = time.monotonic() + MILP_SECONDS
+    plan, status = _first_plan(links, link_conflicts, pin_conflicts, posts), "heuristic"
+    if plan is None:
+        plan, status = _feasible_order(links, pin_conflicts, posts, deadline)
+        if status == "infeasible":
+            raise LayeringError(_no_plan(found, pin_conflicts, ground_on_base))
+        if plan is None:
+            raise LayeringError(
+                f"no layer plan found in {MILP_SECONDS:g} s, nor shown that none exists"
+            )
+        plan, status = _merged(plan, links, link_conflicts, pin_conflicts, posts), "heuristic"
+    most = int(plan.max()) + 1
+    if most > lower and len(links) <= MAX_EXACT_LINKS:
+        exact, status, bound = _exact_layers(
+            links,
+            link_conflicts,
+            pin_conflicts,
+            posts,
+            most,
+            lower,
+            deadline - time.monotonic(),
+        )
+        if status == "infeasible":
+            raise AssertionError(f"the solver found no plan on {most} layers, which has one")
+        lower = max(lower, math.ceil(bound - 1e-6))
+        if exact is not None:  # on no more layers than `plan`
+            plan = exact
+    # Layers the solver left empty are dropped: the order, and so the rules, stay.
+    layer = np.unique(plan, return_inverse=True)[1].astype(np.int64)
+    broken = _broken_rule(links, layer, link_conflicts, pin_conflicts, posts)
+    if broken is not None:
+        raise AssertionError(f"the layer plan breaks its own rules: {broken}")
+    layers = int(layer.max()) + 1
+    return LayerPlan(
+        links=links,
+        link_layer=layer,
+        pin_span=_pin_spans(links, layer, topology.n_joints, posts),
+        layers=layers,
+        lower_bound=lower,
+        optimal=layers == lower,
+        status="optimal" if layers == lower else status,
+        ground_on_base=ground_on_base,
+        collisions=found,
+    )
