@@ -1,6 +1,6 @@
 """The searches for a layer plan (`engine.layers` says what a plan is, and how these serve
-it): the rules checked, greedy placements, whether any order keeps the pin rule, and the
-fewest layers as a mixed-integer program (`scipy.optimize.milp`, HiGHS).
+it): the rules checked, greedy placements, whether any order keeps the pin rule, and whether
+a plan fits on so many layers, as a mixed-integer program (`scipy.optimize.milp`, HiGHS).
 
 Arrays throughout: `links` (L, 2) joint pairs, `link_conflicts` (L, L) and `pin_conflicts`
 (L, n) bool (`collisions.Collisions`), `posts` (n,) bool the joints whose pins stand on the
@@ -17,8 +17,9 @@ import numpy as np
 from scipy.optimize import Bounds, LinearConstraint, milp
 from scipy.sparse import coo_array
 
-#: Orders the greedy placement tries, the fewest layers kept.
-GREEDY_ORDERS = 16
+#: Orders the greedy placement tries, the fewest layers kept; then rounds of it placing the
+#: best plan's layers anew, in shuffled order (iterated greedy, as for graph colouring).
+GREEDY_ORDERS, GREEDY_ROUNDS = 16, 48
 
 Rows = list[tuple[list[tuple[int, float]], float, float]]
 
@@ -56,19 +57,34 @@ def _broken_rule(
 
 
 def _first_plan(
-    links: np.ndarray, link_conflicts: np.ndarray, pin_conflicts: np.ndarray, posts: np.ndarray
+    links: np.ndarray,
+    link_conflicts: np.ndarray,
+    pin_conflicts: np.ndarray,
+    posts: np.ndarray,
+    least: int,
 ) -> np.ndarray | None:
     """The greedy plan of fewest layers over `GREEDY_ORDERS` orders (the busiest links
-    first, then shuffles seeded alike at every call, so plans repeat), or None."""
+    first, then shuffles), then `GREEDY_ROUNDS` rounds placing the best plan's layers anew,
+    a layer's links together, the layers shuffled (kept when no worse); None if no order
+    gives a plan. Stops at `least` layers. Seeded alike at every call, so plans repeat."""
     busy = link_conflicts.sum(axis=1) + pin_conflicts.sum(axis=1)
     rng = np.random.default_rng(0)
-    orders = [np.argsort(-busy, kind="stable")]
-    orders += [rng.permutation(len(links)) for _ in range(GREEDY_ORDERS - 1)]
     best = None
-    for order in orders:
+    for attempt in range(GREEDY_ORDERS):
+        order = np.argsort(-busy, kind="stable") if attempt == 0 else rng.permutation(len(links))
         plan = _greedy_layers(links, link_conflicts, pin_conflicts, posts, order)
         if plan is not None and (best is None or plan.max() < best.max()):
             best = plan
+        if best is not None and best.max() + 1 <= least:
+            return best
+    for _ in range(GREEDY_ROUNDS if best is not None else 0):
+        layers = rng.permutation(int(best.max()) + 1)
+        order = np.concatenate([np.flatnonzero(best == k) for k in layers])
+        plan = _greedy_layers(links, link_conflicts, pin_conflicts, posts, order)
+        if plan is not None and plan.max() <= best.max():
+            best = plan
+        if best.max() + 1 <= least:
+            break
     return best
 
 
@@ -244,53 +260,22 @@ def _members(bits: int) -> list[int]:
     return members
 
 
-def _solve(
-    cost: np.ndarray,
-    integral: np.ndarray,
-    upper: np.ndarray,
-    rows: Rows,
-    seconds: float,
-) -> tuple[np.ndarray | None, str, float]:
-    """(x or None, status, the solver's lower bound) of a program over variables from 0 to
-    `upper`, `integral` where marked, each of `rows` (terms, lower, upper) holding; "optimal",
-    "infeasible" or "time limit" (any other stop counts as the time limit's: its best x, if
-    any, not proven optimal)."""
-    index, cols, values, low, high = [], [], [], [], []
-    for number, (terms, lower, upper_row) in enumerate(rows):
-        for col, value in terms:
-            index.append(number)
-            cols.append(col)
-            values.append(value)
-        low.append(lower)
-        high.append(upper_row)
-    matrix = coo_array((values, (index, cols)), shape=(len(rows), len(cost))).tocsr()
-    result = milp(
-        cost,
-        integrality=integral,
-        bounds=Bounds(0.0, upper),
-        constraints=LinearConstraint(matrix, low, high),
-        options={"time_limit": max(seconds, 0.01), "disp": False},
-    )
-    bound = getattr(result, "mip_dual_bound", None)
-    bound = float(bound) if bound is not None and np.isfinite(bound) else 0.0
-    if result.status == 2:
-        return None, "infeasible", bound
-    return result.x, "optimal" if result.status == 0 else "time limit", bound
-
-
-def _exact_layers(
+def _plan_on(
     links: np.ndarray,
     link_conflicts: np.ndarray,
     pin_conflicts: np.ndarray,
     posts: np.ndarray,
-    most: int,
-    least: int,
+    layers: int,
     seconds: float,
-) -> tuple[np.ndarray | None, str, float]:
-    """(plan (L,) or None, status, the solver's lower bound) of the fewest layers' program
-    (`engine.layers`), on at most `most` layers and at least `least`; "optimal", "time
-    limit" or "infeasible" (none on `most` layers)."""
-    count, layers = len(links), most
+) -> tuple[np.ndarray | None, str]:
+    """(a plan (L,) on at most `layers` layers, or None; "feasible", "infeasible" or "time
+    limit"), as a mixed-integer program (`scipy.optimize.milp`, HiGHS) stopped after
+    `seconds`: binaries x[l, k] (link l on layer k), each link on one layer; the links of a
+    joint, and two conflicting links, not two on a layer; per link m and pin p it conflicts
+    with, a binary z: m above every link of p (z = 1) or below every one (z = 0), big-M on
+    the layers' numbers (at a post, m above). Any other stop of the solver counts as the time
+    limit's."""
+    count = len(links)
     x_count = count * layers
     choices = int((pin_conflicts & ~posts[None, :]).sum())
 
@@ -298,41 +283,46 @@ def _exact_layers(
         return int(link) * layers + k
 
     def height(link: int, sign: float) -> list[tuple[int, float]]:
+        """sign * the layer of `link`, as terms."""
         return [(x(link, k), sign * k) for k in range(1, layers)]
 
-    used = [x_count + k for k in range(layers)]
-    rows = [([(x(link, k), 1.0) for k in range(layers)], 1.0, 1.0) for link in range(count)]
-    # The links of a joint, and two conflicting links, at most one to a used layer.
+    rows: Rows = [([(x(link, k), 1.0) for k in range(layers)], 1.0, 1.0) for link in range(count)]
     for joint in np.unique(links):
         at = np.flatnonzero((links == joint).any(axis=1))
-        for k in range(layers):
-            rows.append(([(x(link, k), 1.0) for link in at] + [(used[k], -1.0)], -np.inf, 0.0))
+        rows += [([(x(link, k), 1.0) for link in at], -np.inf, 1.0) for k in range(layers)]
     shared = (links[:, None, :, None] == links[None, :, None, :]).any(axis=(2, 3))
     for first, second in np.argwhere(np.triu(link_conflicts & ~shared, 1)):
-        for k in range(layers):
-            terms = [(x(first, k), 1.0), (x(second, k), 1.0), (used[k], -1.0)]
-            rows.append((terms, -np.inf, 0.0))
-    rows += [([(used[k], 1.0), (used[k + 1], -1.0)], 0.0, np.inf) for k in range(layers - 1)]
-    rows.append(([(u, 1.0) for u in used], float(least), np.inf))
+        rows += [([(x(first, k), 1.0), (x(second, k), 1.0)], -np.inf, 1.0) for k in range(layers)]
     if not posts.any():  # a plan upside down is a plan: keep link 0 in the lower half
-        rows.append(
-            ([(x(0, k), 2.0 * k) for k in range(layers)] + [(u, -1.0) for u in used], -np.inf, -1.0)
-        )
-    # Per link m and pin p it conflicts with, and per link o of p: m above o (z = 1) or
-    # below it (z = 0), big-M on the layers' numbers; at a post, m above.
-    z = x_count + layers
+        rows.append((height(0, 2.0), -np.inf, layers - 1.0))
+    z = x_count
     for m, p in np.argwhere(pin_conflicts):
         for o in np.flatnonzero((links == p).any(axis=1)):
             if posts[p]:
                 rows.append((height(m, 1.0) + height(o, -1.0), 1.0, np.inf))
                 continue
-            rows.append((height(m, 1.0) + height(o, -1.0) + [(z, -layers)], 1.0 - layers, np.inf))
-            rows.append((height(o, 1.0) + height(m, -1.0) + [(z, layers)], 1.0, np.inf))
+            rows.append(([*height(m, 1.0), *height(o, -1.0), (z, -layers)], 1.0 - layers, np.inf))
+            rows.append(([*height(o, 1.0), *height(m, -1.0), (z, layers)], 1.0, np.inf))
         z += not posts[p]
-    width = x_count + layers + choices
-    cost = np.zeros(width)
-    cost[used] = 1.0
-    solution, status, bound = _solve(cost, np.ones(width), np.ones(width), rows, seconds)
-    if solution is None:
-        return None, status, bound
-    return solution[:x_count].reshape(count, layers).argmax(axis=1), status, bound
+    width = x_count + choices
+    index, cols, values, low, high = [], [], [], [], []
+    for number, (terms, lower, upper) in enumerate(rows):
+        for col, value in terms:
+            index.append(number)
+            cols.append(col)
+            values.append(value)
+        low.append(lower)
+        high.append(upper)
+    matrix = coo_array((values, (index, cols)), shape=(len(rows), width)).tocsr()
+    result = milp(
+        np.zeros(width),
+        integrality=np.ones(width),
+        bounds=Bounds(0.0, 1.0),
+        constraints=LinearConstraint(matrix, low, high),
+        options={"time_limit": max(seconds, 0.01), "disp": False},
+    )
+    if result.status == 2:
+        return None, "infeasible"
+    if result.status != 0 or result.x is None:
+        return None, "time limit"
+    return result.x[:x_count].reshape(count, layers).argmax(axis=1), "feasible"

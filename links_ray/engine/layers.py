@@ -29,7 +29,10 @@ Finding a plan (`engine.layer_search`). First a greedy one: the links placed one
 each on the lowest layer where the rules hold among the links placed so far, else on a new
 layer inserted where they hold (the highest such place); inserting a layer keeps the
 others' order, so the rules that held still hold. Several orders are tried (the busiest
-links first, then seeded shuffles), the fewest layers kept. It can fail where a plan exists.
+links first, then seeded shuffles), then the best plan's layers placed anew, a layer's links
+together, in shuffled orders (iterated greedy); the fewest layers kept, the search stopped at
+the lower bound. It can fail where a plan exists.
+
 Then whether any plan exists is decided on its own: one exists if one with no two links on a
 layer does (a shared layer split in two keeps every span's ends on the same sides of every
 other link), and conflicting links are apart then anyway; so each link and pin it conflicts
@@ -39,24 +42,21 @@ transitive closure. None: `LayeringError`, naming the pins in the way. Else that
 layer per link, its neighbouring layers merged where the rules allow, is the first plan.
 Random mechanisms of the dataset often have none: their links sweep over each other's joints.
 
-Then the fewest layers, exactly, as a mixed-integer program (`scipy.optimize.milp`, HiGHS),
-on at most the first plan's layers: binaries x[l, k] (link l on layer k) and u[k] (layer k
-used, u[k] >= u[k + 1]); the links of a joint, and two conflicting links, at most one to a
-used layer; per link m and pin p it conflicts with, a binary z saying whether m lies above
-or below every link of p (big-M on the layers' numbers); the layers used, summed, as few as
-can be. Skipped when the first plan already meets the lower bound, and past
-`MAX_EXACT_LINKS` links (the first plan taken). The solves together stop at `MILP_SECONDS`,
-the best plan so far taken, not proven optimal.
+Then the fewest layers, exactly: is there a plan on as many layers as the lower bound? A
+mixed-integer program says (`scipy.optimize.milp`, HiGHS; `layer_search._plan_on` states
+it): if so, that plan, optimal; if not, the bound rises by one and the question is asked
+again, until the bound meets the first plan, which is then optimal. Skipped past
+`MAX_EXACT_LINKS` links (the first plan taken). The searches of one plan together stop at
+`MILP_SECONDS`: the best plan so far taken, and the bound proven so far reported with it.
 
-The lower bound is the most links at one joint, a greedy clique of conflicting links, and the
-solver's own bound.
+The lower bound starts at the most links at one joint or a greedy clique of conflicting
+links, whichever is larger (each needs a layer of its own), and rises with each "no".
 
 Numpy and scipy: no numba of its own, no Ray.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 
@@ -67,11 +67,11 @@ from links_ray.engine.collisions import Collisions, find_collisions
 from links_ray.engine.inputs import DEFAULT_COLLISION_STEPS, as_flag
 from links_ray.engine.layer_search import (
     _broken_rule,
-    _exact_layers,
     _feasible_order,
     _first_plan,
     _merged,
     _pin_spans,
+    _plan_on,
 )
 from links_ray.engine.node_kinds import FIXED
 from links_ray.engine.solver import topology_cache
@@ -85,13 +85,13 @@ __all__ = [
     "plan_layers",
 ]
 
-#: The most links whose fewest layers the exact solver seeks; past it, the first plan.
+#: The most links whose fewest layers are sought exactly; past it, the first plan is taken.
 MAX_EXACT_LINKS = 60
-#: Seconds the solves of one plan may take together; then the best plan so far is taken.
+#: Seconds the searches of one plan may take together; then the best plan so far is taken.
 MILP_SECONDS = 10.0
-#: How a plan was found: "optimal", its layers the lower bound (the solver proved it, or the
-#: first plan met it); "time limit", the solver stopped at MILP_SECONDS, its best plan taken
-#: (the first one if it had none); "heuristic", past MAX_EXACT_LINKS, the first plan.
+#: How a plan was found: "optimal", its layers the lower bound (proven fewest); "time limit",
+#: the searches stopped at MILP_SECONDS with the first plan above the bound proven so far;
+#: "heuristic", past MAX_EXACT_LINKS, the first plan, above the starting bound.
 STATUSES = ("optimal", "time limit", "heuristic")
 
 
@@ -190,32 +190,30 @@ def plan_layers(
     posts = (topology.node_types == FIXED) & ground_on_base
     lower = _lower_bound(links, link_conflicts)
     deadline = time.monotonic() + MILP_SECONDS
-    plan, status = _first_plan(links, link_conflicts, pin_conflicts, posts), "heuristic"
+    plan = _first_plan(links, link_conflicts, pin_conflicts, posts, lower)
     if plan is None:
-        plan, status = _feasible_order(links, pin_conflicts, posts, deadline)
-        if status == "infeasible":
+        plan, found_one = _feasible_order(links, pin_conflicts, posts, deadline)
+        if found_one == "infeasible":
             raise LayeringError(_no_plan(found, pin_conflicts, ground_on_base))
         if plan is None:
             raise LayeringError(
                 f"no layer plan found in {MILP_SECONDS:g} s, nor shown that none exists"
             )
-        plan, status = _merged(plan, links, link_conflicts, pin_conflicts, posts), "heuristic"
-    most = int(plan.max()) + 1
-    if most > lower and len(links) <= MAX_EXACT_LINKS:
-        exact, status, bound = _exact_layers(
-            links,
-            link_conflicts,
-            pin_conflicts,
-            posts,
-            most,
-            lower,
-            deadline - time.monotonic(),
+        plan = _merged(plan, links, link_conflicts, pin_conflicts, posts)
+    # Fewer layers, if any: a plan on as many as the lower bound, else the bound is one more.
+    status = "heuristic"
+    while lower < int(plan.max()) + 1 and len(links) <= MAX_EXACT_LINKS:
+        fewer, answer = _plan_on(
+            links, link_conflicts, pin_conflicts, posts, lower, deadline - time.monotonic()
         )
-        if status == "infeasible":
-            raise AssertionError(f"the solver found no plan on {most} layers, which has one")
-        lower = max(lower, math.ceil(bound - 1e-6))
-        if exact is not None:  # on no more layers than `plan`
-            plan = exact
+        if answer == "infeasible":
+            lower += 1
+            continue
+        if fewer is not None:
+            plan = fewer
+        else:
+            status = "time limit"
+        break
     # Layers the solver left empty are dropped: the order, and so the rules, stay.
     layer = np.unique(plan, return_inverse=True)[1].astype(np.int64)
     broken = _broken_rule(links, layer, link_conflicts, pin_conflicts, posts)
