@@ -2,10 +2,13 @@
 
 The mechanism comes from a JSON file (the API's `{"adjacency", "node_types", "positions"}`,
 or what `links retrieve` and `links synthesize --json` print, picking result N), from stdin
-(`-`), or from a dataset (`ROOT --mechanism-id ID`). It goes out in millimetres, its crank
-`--crank-mm` long (`engine.fabrication`): as SVG or DXF (`interop.drawings`), a table of link
-lengths and ground pivots (`--json` for the table as JSON), or a Python script that builds it
-with pylinkage.
+(`-`), or from a dataset (`ROOT --mechanism-id ID`). It goes out in millimetres
+(`engine.fabrication`): its crank `--crank-mm` long with joint 0 at the origin, or without
+`--crank-mm` a result where its curve was drawn, the drawing's unit read as a millimetre (a
+result's mechanism lies in the drawing's frame; any other mechanism's positions have no unit,
+and its crank is made DEFAULT_CRANK_MM long). As SVG or DXF (`interop.drawings`), a table of
+link lengths and ground pivots (`--json` for the table as JSON), or a Python script that
+builds it with pylinkage.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -62,9 +66,12 @@ def add_command(commands: argparse._SubParsersAction) -> None:
     command.add_argument(
         "--crank-mm",
         type=float,
-        default=DEFAULT_CRANK_MM,
+        default=None,
         metavar="MM",
-        help="the crank's length (joint 0 to joint 1) in millimetres; sets the scale",
+        help="the crank's length (joint 0 to joint 1) in millimetres: sets the scale, joint 0 "
+        "at the origin (default: a result of links retrieve or synthesize keeps the drawing's "
+        f"frame, its unit read as a millimetre; any other mechanism a {DEFAULT_CRANK_MM:g} mm "
+        "crank)",
     )
     command.add_argument(
         "--path-joint",
@@ -90,23 +97,26 @@ def run(args: argparse.Namespace) -> None:
         chosen = SUFFIXES.get(suffix, "table")
     if args.json and chosen != "table":
         raise ValueError(f"--json applies to --format table, not {chosen}")
-    as_crank_mm(args.crank_mm, "--crank-mm")  # named as the user typed it, before any reading
-    mechanism, own_joint = read_mechanism(args.source, args.mechanism_id, args.result)
+    if args.crank_mm is not None:
+        as_crank_mm(args.crank_mm, "--crank-mm")  # named as the user typed it, before reading
+    source = read_mechanism(args.source, args.mechanism_id, args.result)
+    mechanism = source.mechanism
     drawing = fabrication(
         mechanism["adjacency"],
         mechanism["node_types"],
         mechanism["positions"],
-        crank_mm=args.crank_mm,
-        path_joint=_path_joint(args.path_joint, own_joint),
+        crank_mm=source.crank_mm(args.crank_mm),
+        path_joint=_path_joint(args.path_joint, source.own_joint),
     )
     text = render(drawing, mechanism, chosen, args.json)
     if args.out is None:
         sys.stdout.write(text)
         return
     Path(args.out).write_text(text, encoding="utf-8")
+    frame = " (the drawing's frame)" if drawing.frame == "drawing" else ""
     print(
         f"wrote {args.out}: {chosen}, {len(drawing.node_types)} joints, "
-        f"{len(drawing.links)} links, crank {drawing.crank_mm:g} mm"
+        f"{len(drawing.links)} links, crank {drawing.crank_mm:g} mm{frame}"
     )
 
 
@@ -142,13 +152,29 @@ def _path_joint(option: str, own_joint: int | None) -> int | None:
         ) from None
 
 
-def read_mechanism(
-    source: str, mechanism_id: int | None, result: int
-) -> tuple[dict[str, Any], int | None]:
-    """The mechanism to export and its own path joint (a result's `mechanism_joint`, else
-    None), from a JSON file, stdin (`-`) or a dataset root with `mechanism_id`."""
+@dataclass(frozen=True)
+class Source:
+    """The mechanism to export (`adjacency`, `node_types`, `positions`), its own path joint (a
+    result's `mechanism_joint`, else None), and whether it is a result's: placed in the frame
+    of the curve it was found for."""
+
+    mechanism: dict[str, Any]
+    own_joint: int | None
+    drawn: bool
+
+    def crank_mm(self, given: float | None) -> float | None:
+        """The crank length to scale to: the one given, else None (the drawing's frame) for a
+        result and DEFAULT_CRANK_MM for a mechanism whose positions have no unit."""
+        if given is not None:
+            return given
+        return None if self.drawn else DEFAULT_CRANK_MM
+
+
+def read_mechanism(source: str, mechanism_id: int | None, result: int) -> Source:
+    """The mechanism to export, from a JSON file, stdin (`-`) or a dataset root with
+    `mechanism_id`."""
     if mechanism_id is not None:
-        return dataset_mechanism(source, mechanism_id), None
+        return Source(dataset_mechanism(source, mechanism_id), None, drawn=False)
     where = "stdin" if source == "-" else source
     try:
         text = sys.stdin.read() if source == "-" else Path(source).read_text()
@@ -158,12 +184,12 @@ def read_mechanism(
     return mechanism_in(data, result, where)
 
 
-def mechanism_in(data: object, result: int, where: str) -> tuple[dict[str, Any], int | None]:
+def mechanism_in(data: object, result: int, where: str) -> Source:
     """The mechanism in parsed JSON: a mechanism itself, a result holding one, or result
     `result` (from 1) of `{"results": [...]}` or a list of results."""
     fields = ("adjacency", "node_types", "positions")
     if isinstance(data, dict) and all(name in data for name in fields):
-        return {name: data[name] for name in fields}, None
+        return Source({name: data[name] for name in fields}, None, drawn=False)
     if isinstance(data, dict) and "results" in data:
         data = data["results"]
     if isinstance(data, list) and all(isinstance(r, dict) for r in data):
@@ -175,7 +201,7 @@ def mechanism_in(data: object, result: int, where: str) -> tuple[dict[str, Any],
         mechanism = data["mechanism"]
         if all(name in mechanism for name in fields):
             joint = data.get("mechanism_joint")
-            return {name: mechanism[name] for name in fields}, joint
+            return Source({name: mechanism[name] for name in fields}, joint, drawn=True)
     raise ValueError(
         f"{where} holds no mechanism: expected adjacency, node_types and positions, or the "
         "results of links retrieve or links synthesize --json"

@@ -1,11 +1,12 @@
 """A mechanism's fabrication drawing (`engine.fabrication.Fabrication`) as SVG and DXF text.
 
-Both hold the same parts in millimetres, joint 0 at the origin and y up, one layer (an SVG
-group) per kind of part: `LAYERS`. The SVG is written here as text, its user unit one
-millimetre; the DXF is built with ezdxf (imported when one is written) as an R2010 file that
-declares millimetres (`$INSUNITS` 4, `$MEASUREMENT` metric). The traced path is a closed
-polygon (SVG, id `PATH_ID`) or a closed LWPOLYLINE (DXF, layer PATH), so `read_curve` reads it
-back from either file (`drawing.svg#traced-path`, `drawing.dxf#PATH`).
+Both hold the same parts in millimetres, y up (joint 0 at the origin, or the drawing's own
+frame: `engine.fabrication.FRAMES`), one layer (an SVG group) per kind of part: `LAYERS`. The
+SVG is written here as text, its user unit one millimetre; the DXF is built with ezdxf
+(imported when one is written) as an R2010 file that declares millimetres (`$INSUNITS` 4,
+`$MEASUREMENT` metric). The traced path is a closed polygon (SVG, id `PATH_ID`) or a closed
+LWPOLYLINE (DXF, layer PATH), so `read_curve` reads it back from either file
+(`drawing.svg#traced-path`, `drawing.dxf#PATH`).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ def svg_drawing(drawing: Fabrication) -> str:
         f'{_num(height)}">',
         f"<title>links-ray mechanism: {len(drawing.node_types)} joints, crank "
         f"{drawing.crank_mm:g} mm</title>",
-        "<desc>1 user unit = 1 mm; y up; joint 0, the crank's pivot, at the origin</desc>",
+        f"<desc>1 user unit = 1 mm; y up; {_origin_words(drawing)}</desc>",
         '<g id="drawing" transform="scale(1 -1)" fill="none" stroke="#000000" '
         f'stroke-width="{_num(STROKE_MM / 2)}" stroke-linecap="round">',
     ]
@@ -113,6 +114,13 @@ def dxf_drawing(drawing: Fabrication) -> str:
     stream = io.StringIO()
     doc.write(stream)
     return stream.getvalue()
+
+
+def _origin_words(drawing: Fabrication) -> str:
+    """Where the drawing's origin is, for the SVG's description."""
+    if drawing.frame == "drawing":
+        return "the drawing's own frame, a unit a millimetre"
+    return "joint 0, the crank's pivot, at the origin"
 
 
 def _num(value: float) -> str:

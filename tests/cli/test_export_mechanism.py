@@ -148,6 +148,49 @@ def test_a_result_of_retrieve_or_synthesize_with_its_path(tmp_path: Path) -> Non
     assert ok(alone, "--format", "svg", "--crank-mm", "15") == svg
 
 
+def synthesis_output() -> dict[str, Any]:
+    """What `links synthesize --json` prints, one result: a four-bar where a curve was drawn,
+    in a drawing's units (its crank 7.5 long, joint 0 at (40, -12))."""
+    positions = np.asarray(FOUR_BAR["positions"]) * 150 + [-35, -87]
+    mechanism = {**FOUR_BAR, "positions": positions.tolist()}
+    result = {"path_id": 7, "mechanism_id": 1, "mechanism": mechanism, "mechanism_joint": 3}
+    return {"results": [{**result, "chamfer": 0.01, "retrieved_chamfer": 0.02}], "took_ms": 9.0}
+
+
+def test_a_result_keeps_the_drawings_frame_unless_given_a_crank(tmp_path: Path) -> None:
+    """Without --crank-mm a result's mechanism is drawn where its curve was, the drawing's unit
+    a millimetre, in every format; with it, scaled from joint 0 at the origin. A mechanism
+    that is not a result still gets a 20 mm crank."""
+    output = synthesis_output()
+    source = write_json(tmp_path / "found.json", output)
+    positions = np.asarray(output["results"][0]["mechanism"]["positions"])
+    table = json.loads(ok(source, "--json"))
+    assert table["frame"] == "drawing" and table["mm_per_unit"] == 1.0
+    assert table["crank_mm"] == pytest.approx(7.5)
+    kept = np.array([[joint["x_mm"], joint["y_mm"]] for joint in table["joints"]])
+    np.testing.assert_array_equal(kept, positions)
+    assert "positions in the drawing's own frame" in ok(source)
+    svg = ok(source, "--format", "svg")
+    root = ET.fromstring(svg)
+    assert "the drawing's own frame" in root.find(f"{SVG}desc").text
+    crank = root.find(f".//{SVG}line[@data-joints='0 1']")
+    ends = [float(crank.get(k)) for k in ("x1", "y1", "x2", "y2")]
+    np.testing.assert_allclose(ends, positions[:2].ravel(), atol=1e-9)
+    out = tmp_path / "found.dxf"
+    said = ok(source, "--out", str(out))
+    frame = "crank 7.5 mm (the drawing's frame)"
+    assert said.strip() == f"wrote {out}: dxf, 4 joints, 3 links, {frame}"
+    circles = [d for kind, _, d in dxf_parts(read_dxf(out.read_bytes())) if kind == "CIRCLE"]
+    np.testing.assert_allclose([c[:2] for c in circles], positions, atol=1e-9)
+    # --crank-mm scales it as before; a bare mechanism keeps the 20 mm default.
+    scaled = json.loads(ok(source, "--json", "--crank-mm", "30"))
+    assert scaled["frame"] == "crank" and scaled["crank_mm"] == 30
+    assert [scaled["joints"][0]["x_mm"], scaled["joints"][0]["y_mm"]] == [0.0, 0.0]
+    assert scaled["links"][0]["length_mm"] == pytest.approx(30)
+    bare = write_json(tmp_path / "bare.json", output["results"][0]["mechanism"])
+    assert json.loads(ok(bare, "--json"))["crank_mm"] == pytest.approx(20)
+
+
 def test_a_mechanism_of_a_dataset(tmp_path: Path) -> None:
     root = tmp_path / "data"
     plan = GenerationPlan(seed=3, mechanisms=10, topologies_per_shard=1)

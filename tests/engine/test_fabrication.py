@@ -258,6 +258,27 @@ def test_table_of_a_four_bar_in_closed_form() -> None:
     assert ["2", "120.000", "0.000"] in rows
 
 
+def test_the_drawings_own_frame_keeps_the_positions_as_millimetres() -> None:
+    """crank_mm=None: every position as it is, a unit a millimetre, joint 0 where it lies; the
+    path in the same frame; the SVG and the table say so."""
+    mech = MECHANISMS[1]
+    pos = np.asarray(mech["positions"]) * 300 + [12.5, -40]
+    joint = int(np.flatnonzero(np.asarray(mech["node_types"]) != 0)[-1])
+    drawing = fabrication(**{**mech, "positions": pos}, crank_mm=None, path_joint=joint)
+    assert (drawing.frame, drawing.scale) == ("drawing", 1.0)
+    np.testing.assert_array_equal(drawing.joints_mm, pos)
+    assert drawing.crank_mm == pytest.approx(math.dist(pos[0], pos[1]))
+    truth = links_ray.simulate(mech["adjacency"], mech["node_types"], pos)[joint]
+    np.testing.assert_allclose(drawing.path_mm, truth, atol=1e-9)
+    assert "the drawing's own frame" in ET.fromstring(svg_drawing(drawing)).find(f"{SVG}desc").text
+    assert "positions in the drawing's own frame" in drawing.table_text().splitlines()[0]
+    assert drawing.table()["frame"] == "drawing"
+    assert fabrication(**mech).table()["frame"] == "crank"
+    far = {**FOUR_BAR, "positions": np.asarray(FOUR_BAR["positions"]) * 1e7}
+    with pytest.raises(ValueError, match="read as millimetres; choose a crank_mm"):
+        fabrication(**far, crank_mm=None)
+
+
 # -- bad input ----------------------------------------------------------------------------------
 
 
