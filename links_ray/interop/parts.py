@@ -1,0 +1,240 @@
+"""An assembly's parts (`engine.assembly`) as meshes: an STL file a part to print, the whole
+assembly as one glTF binary, the bill of materials beside them; written to a folder, or held
+in memory (and zipped) for the HTTP API.
+
+The solids are made by manifold3d, whose booleans and extrusions give closed, manifold meshes
+(each part watertight by construction), and written by trimesh (binary STL, and glTF 2.0's
+binary GLB). Circles are polygons of `CIRCLE_SEGMENTS` sides: a polygon inscribed in a circle
+misses (2 pi / n)^2 / 6 of its area, 0.04% at 128, and a hole drawn so is that much smaller.
+
+A link's part lies along +x from its lower joint, at the origin, z from 0 up; a pin's and a
+spacer's stand on the origin; the base plate is made where it goes. The assembly places each
+as `Assembly.placements` says, in a node named after it (`link-I-J`, `pin-J`,
+`spacer-J-A-B`, `base`) under one root node, `assembly`, that turns the assembly's z up into
+glTF's y up and its millimetres into glTF's metres: a viewer shows it upright at its size.
+
+manifold3d and trimesh are the `build` extra's (`pip install 'links-ray[build]'`), imported
+here only when a part is made.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from pathlib import Path, PurePosixPath
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from links_ray.engine.assembly import (
+    ASSEMBLY_FILE,
+    BOM_FILE,
+    PARTS_FOLDER,
+    Assembly,
+    AssemblyOptions,
+    link_name,
+    part_file,
+    plan_assembly,
+)
+
+if TYPE_CHECKING:  # only types here: the libraries are imported when a part is made
+    import manifold3d
+    import trimesh
+
+__all__ = [
+    "CIRCLE_SEGMENTS",
+    "assembly_files",
+    "assembly_glb",
+    "assembly_zip",
+    "export_assembly",
+    "part_meshes",
+]
+
+#: Sides of every circle's polygon: bar ends, holes, pins, spacers.
+CIRCLE_SEGMENTS = 128
+#: The root node's matrix: z up to glTF's y up ((x, y, z) -> (x, z, -y)), millimetres to metres.
+GLTF_ROOT = np.array(
+    [[1e-3, 0, 0, 0], [0, 0, 1e-3, 0], [0, -1e-3, 0, 0], [0, 0, 0, 1.0]], dtype=np.float64
+)
+
+
+def _libraries() -> tuple[Any, Any]:
+    """(manifold3d, trimesh), or ImportError saying how to install them."""
+    try:
+        import manifold3d
+        import trimesh
+    except ImportError as exc:
+        raise ImportError(
+            f"3D parts need manifold3d and trimesh ({exc.name} is missing): "
+            "pip install 'links-ray[build]'"
+        ) from None
+    return manifold3d, trimesh
+
+
+def _disc(radius: float, x: float = 0.0, y: float = 0.0) -> manifold3d.CrossSection:
+    manifold3d, _ = _libraries()
+    return manifold3d.CrossSection.circle(radius, CIRCLE_SEGMENTS).translate((x, y))
+
+
+def link_solid(length: float, options: AssemblyOptions) -> manifold3d.Manifold:
+    """A link's bar: the stadium `bar_width_mm` wide around (0, 0)-(length, 0), less a hole
+    at each end, `layer_thickness_mm` thick."""
+    manifold3d, _ = _libraries()
+    radius, hole = options.bar_width_mm / 2, options.hole_diameter_mm / 2
+    bar = manifold3d.CrossSection.batch_hull([_disc(radius), _disc(radius, length)])
+    return (bar - _disc(hole) - _disc(hole, length)).extrude(options.layer_thickness_mm)
+
+
+def tube_solid(outer: float, inner: float | None, height: float) -> manifold3d.Manifold:
+    """A cylinder `outer` across (a tube with a bore `inner` across), `height` tall, on the
+    origin."""
+    section = _disc(outer / 2)
+    if inner is not None:
+        section = section - _disc(inner / 2)
+    return section.extrude(height)
+
+
+def base_solid(assembly: Assembly) -> manifold3d.Manifold:
+    """The base plate over its extent, a hole the pins' diameter at each post, a layer thick,
+    its bottom at z = 0."""
+    manifold3d, _ = _libraries()
+    if assembly.base is None:
+        raise ValueError("the assembly has no base plate: it was planned without ground_on_base")
+    low_x, low_y, high_x, high_y = assembly.base.extent_mm
+    plate = manifold3d.CrossSection.square((high_x - low_x, high_y - low_y)).translate(
+        (low_x, low_y)
+    )
+    radius = assembly.options.pin_diameter_mm / 2
+    for joint in assembly.base.posts:
+        x, y = assembly.drawing.joints_mm[joint]
+        plate = plate - _disc(radius, float(x), float(y))
+    return plate.extrude(assembly.options.layer_thickness_mm)
+
+
+def part_solids(assembly: Assembly) -> dict[str, manifold3d.Manifold]:
+    """Every part's solid in its own frame, by part name (`Placement.part`)."""
+    options = assembly.options
+    lengths = {link.joints: link.length_mm for link in assembly.drawing.links}
+    solids = {}
+    for i, j in assembly.plan.links.tolist():
+        solids[link_name(i, j)] = link_solid(lengths[(i, j)], options)
+    for pin in assembly.pins:
+        solids[pin.node] = tube_solid(options.pin_diameter_mm, None, pin.length_mm)
+    for spacer in assembly.spacers:
+        if spacer.part not in solids:
+            solids[spacer.part] = tube_solid(
+                options.spacer_diameter_mm, options.hole_diameter_mm, spacer.length_mm
+            )
+    if assembly.base is not None:
+        solids["base"] = base_solid(assembly)
+    return solids
+
+
+def part_meshes(assembly: Assembly) -> dict[str, trimesh.Trimesh]:
+    """Every part's mesh in its own frame, in millimetres, by part name."""
+    _, trimesh = _libraries()
+    meshes = {}
+    for name, solid in part_solids(assembly).items():
+        mesh = solid.to_mesh64()
+        meshes[name] = trimesh.Trimesh(
+            vertices=np.asarray(mesh.vert_properties)[:, :3],
+            faces=np.asarray(mesh.tri_verts),
+            process=False,  # manifold3d's mesh is closed and shares its vertices already
+        )
+    return meshes
+
+
+def assembly_glb(assembly: Assembly, meshes: dict[str, trimesh.Trimesh]) -> bytes:
+    """The assembly at its starting pose as a glTF binary: each part's mesh placed in its
+    node (the module's docstring), under the root node `assembly`."""
+    _, trimesh = _libraries()
+    scene = trimesh.Scene()
+    scene.graph.update(frame_from=scene.graph.base_frame, frame_to="assembly", matrix=GLTF_ROOT)
+    for placement in assembly.placements():
+        scene.add_geometry(
+            meshes[placement.part],
+            node_name=placement.node,
+            geom_name=placement.part,
+            parent_node_name="assembly",
+            transform=placement.matrix,
+        )
+    return scene.export(file_type="glb")
+
+
+def assembly_files(assembly: Assembly) -> dict[str, bytes]:
+    """The build's files by path in its folder: `bom.json`, `assembly.glb` and
+    `parts/<part>.stl`, each part once."""
+    meshes = part_meshes(assembly)
+    files = {BOM_FILE: (json.dumps(assembly.bom(), indent=1) + "\n").encode()}
+    files[ASSEMBLY_FILE] = assembly_glb(assembly, meshes)
+    for name, mesh in sorted(meshes.items()):
+        files[part_file(name)] = mesh.export(file_type="stl")
+    return files
+
+
+def assembly_zip(files: dict[str, bytes], folder: str = "assembly") -> bytes:
+    """`files` (`assembly_files`) as a zip archive, in `folder`."""
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        for name, data in files.items():
+            archive.writestr(f"{folder}/{name}", data)
+    return buffer.getvalue()
+
+
+def export_assembly(
+    adjacency: ArrayLike,
+    node_types: ArrayLike,
+    positions: ArrayLike,
+    out_dir: str | Path,
+    options: AssemblyOptions | None = None,
+) -> dict[str, Any]:
+    """Plan the mechanism as printed parts (`engine.assembly.plan_assembly`) and write
+    `bom.json`, `assembly.glb` and `parts/*.stl` into the folder `out_dir`; the bill of
+    materials, as written.
+
+    `out_dir` is made if missing; one that holds files must hold an earlier build (a
+    `bom.json`), whose parts are replaced. Raises `ValueError` naming the problem (what
+    `plan_assembly` refuses, `LayeringError` among it, or a folder it may not write into),
+    `OSError` if a file cannot be written, before any file is written for the former.
+    """
+    assembly = plan_assembly(adjacency, node_types, positions, options)
+    files = assembly_files(assembly)
+    write_files(files, Path(out_dir))
+    return assembly.bom()
+
+
+def write_files(files: dict[str, bytes], out: Path) -> None:
+    """Write `files` (`assembly_files`) into `out`, after removing the parts an earlier build
+    there listed (and only those: a file is never removed that a bill did not name)."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out} is not a folder")
+    stale = _earlier_parts(out) if out.exists() and any(out.iterdir()) else set()
+    (out / PARTS_FOLDER).mkdir(parents=True, exist_ok=True)
+    for name in stale - set(files):
+        (out / name).unlink(missing_ok=True)
+    for name, data in files.items():
+        (out / name).write_bytes(data)
+
+
+def _earlier_parts(out: Path) -> set[str]:
+    """The part files the bill of an earlier build in `out` names, or ValueError if `out`
+    holds no earlier build."""
+    bill = out / BOM_FILE
+    refusal = f"{out} holds files but no earlier build ({BOM_FILE}): give a new or empty folder"
+    try:
+        parts = json.loads(bill.read_text())["parts"]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise ValueError(refusal) from None
+    if not isinstance(parts, list):
+        raise ValueError(refusal)
+    # Only names this module writes: a bill edited by hand cannot point outside `parts/`.
+    return {
+        name
+        for name in parts
+        if isinstance(name, str)
+        and PurePosixPath(name).parent == PurePosixPath(PARTS_FOLDER)
+        and name.endswith(".stl")
+        and ".." not in name
+    }
