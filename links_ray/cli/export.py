@@ -8,23 +8,58 @@ or what `links retrieve` and `links synthesize --json` print, picking result N),
 result's mechanism lies in the drawing's frame; any other mechanism's positions have no unit,
 and its crank is made DEFAULT_CRANK_MM long). As SVG or DXF (`interop.drawings`), a table of
 link lengths and ground pivots (`--json` for the table as JSON), or a Python script that
-builds it with pylinkage.
+builds it with pylinkage. Or, with `--format 3d`, as printable parts
+(`engine.assembly`, `interop.parts`): a folder of `bom.json`, `assembly.glb` and
+`parts/*.stl`, the sizes from the options of `ASSEMBLY_FLAGS`.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from links_ray.engine import assembly
+from links_ray.engine.assembly import AssemblyOptions
 from links_ray.engine.fabrication import Fabrication, fabrication
 from links_ray.engine.inputs import DEFAULT_CRANK_MM, as_crank_mm, as_int
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
 
-FORMATS = ("svg", "dxf", "table", "pylinkage")
+FORMATS = ("svg", "dxf", "table", "pylinkage", "3d")
+#: The options of `--format 3d`: flag, `AssemblyOptions` field, its default (mm), what it sets.
+ASSEMBLY_FLAGS = (
+    ("--bar-width-mm", "bar_width_mm", assembly.DEFAULT_BAR_WIDTH_MM, "each link's bar width"),
+    ("--hole-diameter-mm", "hole_diameter_mm", assembly.DEFAULT_HOLE_DIAMETER_MM, "its holes"),
+    ("--pin-diameter-mm", "pin_diameter_mm", assembly.DEFAULT_PIN_DIAMETER_MM, "the pins"),
+    (
+        "--spacer-diameter-mm",
+        "spacer_diameter_mm",
+        assembly.DEFAULT_SPACER_DIAMETER_MM,
+        "the spacers' outside (the pins' width in the layer plan)",
+    ),
+    (
+        "--clearance-mm",
+        "clearance_mm",
+        assembly.DEFAULT_CLEARANCE_MM,
+        "the least gap between parts on a layer over the turn",
+    ),
+    (
+        "--layer-thickness-mm",
+        "layer_thickness_mm",
+        assembly.DEFAULT_LAYER_THICKNESS_MM,
+        "each bar's thickness",
+    ),
+    (
+        "--layer-gap-mm",
+        "layer_gap_mm",
+        assembly.DEFAULT_LAYER_GAP_MM,
+        "between layers, kept by washers",
+    ),
+)
 #: The format an output file's suffix implies when --format is not given.
 SUFFIXES = {".svg": "svg", ".dxf": "dxf", ".py": "pylinkage", ".txt": "table", ".json": "table"}
 
@@ -33,10 +68,12 @@ def add_command(commands: argparse._SubParsersAction) -> None:
     """Register `links export` on the `links` command's subparsers."""
     command = commands.add_parser(
         "export",
-        help="a mechanism as SVG, DXF or a table in millimetres, or as a pylinkage script",
+        help="a mechanism as SVG, DXF or a table in millimetres, a pylinkage script, or "
+        "printable 3D parts",
         description="Export one mechanism for fabrication: SVG and DXF at 1:1 in millimetres "
-        "(joint 0, the crank's pivot, at the origin, y up), a table of its link lengths and "
-        "ground pivots, or a Python script that builds it with pylinkage.",
+        "(y up), a table of its link lengths and ground pivots, a Python script that builds it "
+        "with pylinkage, or (--format 3d) a folder of printable parts: a bill of materials, "
+        "an STL file a part and the assembly as glTF.",
     )
     command.add_argument(
         "source",
@@ -81,10 +118,27 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         "auto: a result's own joint, else none)",
     )
     command.add_argument(
-        "--out", default=None, metavar="FILE", help="output file (default: stdout)"
+        "--out",
+        default=None,
+        metavar="FILE",
+        help="output file (default: stdout); with --format 3d a folder, new, empty or holding "
+        "an earlier build",
     )
     command.add_argument(
         "--json", action="store_true", help="with --format table: the table as JSON"
+    )
+    for flag, _, default, what in ASSEMBLY_FLAGS:
+        command.add_argument(
+            flag,
+            type=float,
+            default=None,
+            metavar="MM",
+            help=f"with --format 3d: {what} (default {default:g})",
+        )
+    command.add_argument(
+        "--ground-on-base",
+        action="store_true",
+        help="with --format 3d: fixed joints' pins stand on a base plate under the layers",
     )
     command.set_defaults(run=run)
 
@@ -97,9 +151,22 @@ def run(args: argparse.Namespace) -> None:
         chosen = SUFFIXES.get(suffix, "table")
     if args.json and chosen != "table":
         raise ValueError(f"--json applies to --format table, not {chosen}")
+    given = [flag for flag, field, _, _ in ASSEMBLY_FLAGS if getattr(args, field) is not None]
+    given += ["--ground-on-base"] if args.ground_on_base else []
+    if chosen != "3d" and given:
+        raise ValueError(f"{given[0]} applies to --format 3d, not {chosen}")
+    if chosen == "3d" and (args.out is None or args.path_joint != "auto"):
+        raise ValueError(
+            "--format 3d writes a folder: give it with --out DIR"
+            if args.out is None
+            else "--path-joint applies to the drawings, not --format 3d"
+        )
     if args.crank_mm is not None:
         as_crank_mm(args.crank_mm, "--crank-mm")  # named as the user typed it, before reading
     source = read_mechanism(args.source, args.mechanism_id, args.result)
+    if chosen == "3d":
+        write_assembly(args, source)
+        return
     mechanism = source.mechanism
     drawing = fabrication(
         mechanism["adjacency"],
@@ -117,6 +184,40 @@ def run(args: argparse.Namespace) -> None:
     print(
         f"wrote {args.out}: {chosen}, {len(drawing.node_types)} joints, "
         f"{len(drawing.links)} links, crank {drawing.crank_mm:g} mm{frame}"
+    )
+
+
+def write_assembly(args: argparse.Namespace, source: Source) -> None:
+    """`--format 3d`: the mechanism's printable parts written into the folder `--out`, and a
+    line saying what was written; ValueError (with the flags named as typed) if it cannot be
+    built."""
+    from links_ray.interop.parts import export_assembly  # loads the 3D libraries
+
+    fields = {field: getattr(args, field) for _, field, _, _ in ASSEMBLY_FLAGS}
+    try:
+        options = AssemblyOptions(
+            crank_mm=source.crank_mm(args.crank_mm),
+            ground_on_base=args.ground_on_base,
+            **{field: value for field, value in fields.items() if value is not None},
+        )
+        mechanism = source.mechanism
+        bom = export_assembly(
+            mechanism["adjacency"],
+            mechanism["node_types"],
+            mechanism["positions"],
+            args.out,
+            options,
+        )
+    except ValueError as exc:
+        message = str(exc)
+        for flag, field, _, _ in (*ASSEMBLY_FLAGS, ("--crank-mm", "crank_mm", 0, "")):
+            message = re.sub(rf"\b{field}\b", flag, message)
+        raise ValueError(message) from None
+    frame = " (the drawing's frame)" if bom["frame"] == "drawing" else ""
+    print(
+        f"wrote {args.out}: 3d, {len(bom['joints'])} joints, {len(bom['links'])} links on "
+        f"{bom['layers']} layers ({bom['status']}), {len(bom['parts'])} parts, crank "
+        f"{bom['crank_mm']:g} mm{frame}"
     )
 
 

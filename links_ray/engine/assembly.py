@@ -53,7 +53,7 @@ from links_ray.engine.inputs import (
     as_real,
     positive_at_most,
 )
-from links_ray.engine.layers import LayerPlan, plan_layers
+from links_ray.engine.layers import LayeringError, LayerPlan, plan_layers
 from links_ray.engine.node_kinds import FIXED
 from links_ray.engine.solver import simulate
 
@@ -370,23 +370,40 @@ def plan_assembly(
     says (default `AssemblyOptions()`: a 20 mm crank), its layers planned over a turn of
     `steps` steps and proven between them.
 
-    Raises `ValueError` naming the problem: what `fabrication` and `plan_layers` refuse, and
-    `LayeringError` when no stacking keeps every pin clear.
+    Raises `ValueError` naming the problem: what `fabrication` and `plan_layers` refuse, a
+    link too short to hold its two holes, and `LayeringError` when no stacking keeps every pin
+    clear.
     """
     options = AssemblyOptions() if options is None else options
     if not isinstance(options, AssemblyOptions):
         raise ValueError(f"options must be an AssemblyOptions, got {type(options).__name__}")
     drawing = fabrication(adjacency, node_types, positions, crank_mm=options.crank_mm)
-    plan = plan_layers(
-        adjacency,
-        node_types,
-        drawing.joints_mm,
-        bar_width=options.bar_width_mm,
-        clearance=options.clearance_mm,
-        pin_diameter=options.spacer_diameter_mm,  # the widest a pin is within its span
-        ground_on_base=options.ground_on_base,
-        steps=steps,
-    )
+    shortest = min(drawing.links, key=lambda link: link.length_mm)
+    if shortest.length_mm <= options.hole_diameter_mm:
+        scale = "a longer crank_mm" if drawing.frame == "crank" else "a crank_mm to scale it"
+        raise ValueError(
+            f"link {list(shortest.joints)} is {shortest.length_mm:.3g} mm long: its holes, "
+            f"{options.hole_diameter_mm:g} mm across, would meet; give {scale}, or smaller holes"
+        )
+    try:
+        plan = plan_layers(
+            adjacency,
+            node_types,
+            drawing.joints_mm,
+            bar_width=options.bar_width_mm,
+            clearance=options.clearance_mm,
+            pin_diameter=options.spacer_diameter_mm,  # the widest a pin is within its span
+            ground_on_base=options.ground_on_base,
+            steps=steps,
+        )
+    except LayeringError as exc:
+        if options.bar_width_mm < drawing.crank_mm:
+            raise
+        # Bars as wide as the crank is long: the sizes, not the mechanism, are what is wrong.
+        raise LayeringError(
+            f"{exc}; the bars are {options.bar_width_mm:g} mm wide beside a crank "
+            f"{drawing.crank_mm:.3g} mm long: give a longer crank_mm, or smaller sizes"
+        ) from None
     posts = (drawing.node_types == FIXED) & options.ground_on_base
     pins, spacers = _pins_and_spacers(plan, posts, options)
     base = None

@@ -199,28 +199,29 @@ def export_assembly(
     `plan_assembly` refuses, `LayeringError` among it, or a folder it may not write into),
     `OSError` if a file cannot be written, before any file is written for the former.
     """
+    out = Path(out_dir)
+    stale = earlier_parts(out)  # before the plan, which may take seconds
     assembly = plan_assembly(adjacency, node_types, positions, options)
     files = assembly_files(assembly)
-    write_files(files, Path(out_dir))
-    return assembly.bom()
-
-
-def write_files(files: dict[str, bytes], out: Path) -> None:
-    """Write `files` (`assembly_files`) into `out`, after removing the parts an earlier build
-    there listed (and only those: a file is never removed that a bill did not name)."""
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"{out} is not a folder")
-    stale = _earlier_parts(out) if out.exists() and any(out.iterdir()) else set()
     (out / PARTS_FOLDER).mkdir(parents=True, exist_ok=True)
+    # Only the parts an earlier build's bill named: no other file is ever removed.
     for name in stale - set(files):
         (out / name).unlink(missing_ok=True)
     for name, data in files.items():
         (out / name).write_bytes(data)
+    return assembly.bom()
 
 
-def _earlier_parts(out: Path) -> set[str]:
-    """The part files the bill of an earlier build in `out` names, or ValueError if `out`
-    holds no earlier build."""
+def earlier_parts(out: Path) -> set[str]:
+    """The part files the bill of an earlier build in the folder `out` names (none for a
+    folder that is missing or empty), or ValueError if `out` is no folder, or holds files but
+    no earlier build."""
+    if not out.exists():
+        return set()
+    if not out.is_dir():
+        raise ValueError(f"{out} is not a folder")
+    if not any(out.iterdir()):
+        return set()
     bill = out / BOM_FILE
     refusal = f"{out} holds files but no earlier build ({BOM_FILE}): give a new or empty folder"
     try:

@@ -324,6 +324,8 @@ def test_an_unbuildable_mechanism_and_bad_options_are_refused(tmp_path: Path) ->
     for change, words in refused:
         with pytest.raises(ValueError, match=re.escape(words)):
             AssemblyOptions(**change)
+    with pytest.raises(ValueError, match=re.escape("link [0, 1] is 0.05 mm long: its holes")):
+        plan_assembly(**FOUR_BAR, options=AssemblyOptions(crank_mm=None))
     with pytest.raises(ValueError, match="options must be an AssemblyOptions"):
         plan_assembly(**FOUR_BAR, options={"bar_width_mm": 8})  # type: ignore[arg-type]
 
