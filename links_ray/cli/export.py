@@ -9,8 +9,8 @@ result's mechanism lies in the drawing's frame; any other mechanism's positions 
 and its crank is made DEFAULT_CRANK_MM long). As SVG or DXF (`interop.drawings`), a table of
 link lengths and ground pivots (`--json` for the table as JSON), or a Python script that
 builds it with pylinkage. Or, with `--format 3d`, as printable parts
-(`engine.assembly`, `interop.parts`): a folder of `bom.json`, `assembly.glb` and
-`parts/*.stl`, the sizes from the options of `ASSEMBLY_FLAGS`.
+(`engine.kit`, `interop.parts`): a folder of `bom.json`, `assembly.glb` and
+`parts/*.stl`, the sizes from the options of `KIT_FLAGS`.
 """
 
 from __future__ import annotations
@@ -23,40 +23,40 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from links_ray.engine import assembly
-from links_ray.engine.assembly import AssemblyOptions
+from links_ray.engine import kit
 from links_ray.engine.fabrication import Fabrication, fabrication
 from links_ray.engine.inputs import DEFAULT_CRANK_MM, as_crank_mm, as_int
+from links_ray.engine.kit import KitOptions
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
 
 FORMATS = ("svg", "dxf", "table", "pylinkage", "3d")
-#: The options of `--format 3d`: flag, `AssemblyOptions` field, its default (mm), what it sets.
-ASSEMBLY_FLAGS = (
-    ("--bar-width-mm", "bar_width_mm", assembly.DEFAULT_BAR_WIDTH_MM, "each link's bar width"),
-    ("--hole-diameter-mm", "hole_diameter_mm", assembly.DEFAULT_HOLE_DIAMETER_MM, "its holes"),
-    ("--pin-diameter-mm", "pin_diameter_mm", assembly.DEFAULT_PIN_DIAMETER_MM, "the pins"),
+#: The options of `--format 3d`: flag, `KitOptions` field, its default (mm), what it sets.
+KIT_FLAGS = (
+    ("--bar-width-mm", "bar_width_mm", kit.DEFAULT_BAR_WIDTH_MM, "each link's bar width"),
+    ("--hole-diameter-mm", "hole_diameter_mm", kit.DEFAULT_HOLE_DIAMETER_MM, "its holes"),
+    ("--pin-diameter-mm", "pin_diameter_mm", kit.DEFAULT_PIN_DIAMETER_MM, "the pins"),
     (
         "--spacer-diameter-mm",
         "spacer_diameter_mm",
-        assembly.DEFAULT_SPACER_DIAMETER_MM,
+        kit.DEFAULT_SPACER_DIAMETER_MM,
         "the spacers' outside (the pins' width in the layer plan)",
     ),
     (
         "--clearance-mm",
         "clearance_mm",
-        assembly.DEFAULT_CLEARANCE_MM,
+        kit.DEFAULT_CLEARANCE_MM,
         "the least gap between parts on a layer over the turn",
     ),
     (
         "--layer-thickness-mm",
         "layer_thickness_mm",
-        assembly.DEFAULT_LAYER_THICKNESS_MM,
+        kit.DEFAULT_LAYER_THICKNESS_MM,
         "each bar's thickness",
     ),
     (
         "--layer-gap-mm",
         "layer_gap_mm",
-        assembly.DEFAULT_LAYER_GAP_MM,
+        kit.DEFAULT_LAYER_GAP_MM,
         "between layers, kept by washers",
     ),
 )
@@ -127,7 +127,7 @@ def add_command(commands: argparse._SubParsersAction) -> None:
     command.add_argument(
         "--json", action="store_true", help="with --format table: the table as JSON"
     )
-    for flag, _, default, what in ASSEMBLY_FLAGS:
+    for flag, _, default, what in KIT_FLAGS:
         command.add_argument(
             flag,
             type=float,
@@ -151,7 +151,7 @@ def run(args: argparse.Namespace) -> None:
         chosen = SUFFIXES.get(suffix, "table")
     if args.json and chosen != "table":
         raise ValueError(f"--json applies to --format table, not {chosen}")
-    given = [flag for flag, field, _, _ in ASSEMBLY_FLAGS if getattr(args, field) is not None]
+    given = [flag for flag, field, _, _ in KIT_FLAGS if getattr(args, field) is not None]
     given += ["--ground-on-base"] if args.ground_on_base else []
     if chosen != "3d" and given:
         raise ValueError(f"{given[0]} applies to --format 3d, not {chosen}")
@@ -165,7 +165,7 @@ def run(args: argparse.Namespace) -> None:
         as_crank_mm(args.crank_mm, "--crank-mm")  # named as the user typed it, before reading
     source = read_mechanism(args.source, args.mechanism_id, args.result)
     if chosen == "3d":
-        write_assembly(args, source)
+        write_kit(args, source)
         return
     mechanism = source.mechanism
     drawing = fabrication(
@@ -187,21 +187,21 @@ def run(args: argparse.Namespace) -> None:
     )
 
 
-def write_assembly(args: argparse.Namespace, source: Source) -> None:
+def write_kit(args: argparse.Namespace, source: Source) -> None:
     """`--format 3d`: the mechanism's printable parts written into the folder `--out`, and a
     line saying what was written; ValueError (with the flags named as typed) if it cannot be
     built."""
-    from links_ray.interop.parts import export_assembly  # loads the 3D libraries
+    from links_ray.interop.parts import export_kit  # loads the 3D libraries
 
-    fields = {field: getattr(args, field) for _, field, _, _ in ASSEMBLY_FLAGS}
+    fields = {field: getattr(args, field) for _, field, _, _ in KIT_FLAGS}
     try:
-        options = AssemblyOptions(
+        options = KitOptions(
             crank_mm=source.crank_mm(args.crank_mm),
             ground_on_base=args.ground_on_base,
             **{field: value for field, value in fields.items() if value is not None},
         )
         mechanism = source.mechanism
-        bom = export_assembly(
+        bom = export_kit(
             mechanism["adjacency"],
             mechanism["node_types"],
             mechanism["positions"],
@@ -210,7 +210,7 @@ def write_assembly(args: argparse.Namespace, source: Source) -> None:
         )
     except ValueError as exc:
         message = str(exc)
-        for flag, field, _, _ in (*ASSEMBLY_FLAGS, ("--crank-mm", "crank_mm", 0, "")):
+        for flag, field, _, _ in (*KIT_FLAGS, ("--crank-mm", "crank_mm", 0, "")):
             message = re.sub(rf"\b{field}\b", flag, message)
         raise ValueError(message) from None
     frame = " (the drawing's frame)" if bom["frame"] == "drawing" else ""

@@ -1,6 +1,6 @@
-"""An assembly's parts (`engine.assembly`) as meshes: an STL file a part to print, the whole
-assembly as one glTF binary, the bill of materials beside them; written to a folder, or held
-in memory (and zipped) for the HTTP API.
+"""A kit's parts (`engine.kit`) as meshes: an STL file a part to print, the whole assembly as
+one glTF binary, the bill of materials beside them; written to a folder, or held in memory
+(and zipped) for the HTTP API.
 
 The solids are made by manifold3d, whose booleans and extrusions give closed, manifold meshes
 (each part watertight by construction), and written by trimesh (binary STL, and glTF 2.0's
@@ -9,7 +9,7 @@ misses (2 pi / n)^2 / 6 of its area, 0.04% at 128, and a hole drawn so is that m
 
 A link's part lies along +x from its lower joint, at the origin, z from 0 up; a pin's and a
 spacer's stand on the origin; the base plate is made where it goes. The assembly places each
-as `Assembly.placements` says, in a node named after it (`link-I-J`, `pin-J`,
+as `Kit.placements` says, in a node named after it (`link-I-J`, `pin-J`,
 `spacer-J-A-B`, `base`) under one root node, `assembly`, that turns the assembly's z up into
 glTF's y up and its millimetres into glTF's metres: a viewer shows it upright at its size.
 
@@ -28,15 +28,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from links_ray.engine.assembly import (
+from links_ray.engine.kit import (
     ASSEMBLY_FILE,
     BOM_FILE,
     PARTS_FOLDER,
-    Assembly,
-    AssemblyOptions,
+    Kit,
+    KitOptions,
     link_name,
     part_file,
-    plan_assembly,
+    plan_kit,
 )
 
 if TYPE_CHECKING:  # only types here: the libraries are imported when a part is made
@@ -45,10 +45,10 @@ if TYPE_CHECKING:  # only types here: the libraries are imported when a part is 
 
 __all__ = [
     "CIRCLE_SEGMENTS",
-    "assembly_files",
     "assembly_glb",
-    "assembly_zip",
-    "export_assembly",
+    "export_kit",
+    "kit_files",
+    "kit_zip",
     "part_meshes",
 ]
 
@@ -78,7 +78,7 @@ def _disc(radius: float, x: float = 0.0, y: float = 0.0) -> manifold3d.CrossSect
     return manifold3d.CrossSection.circle(radius, CIRCLE_SEGMENTS).translate((x, y))
 
 
-def link_solid(length: float, options: AssemblyOptions) -> manifold3d.Manifold:
+def link_solid(length: float, options: KitOptions) -> manifold3d.Manifold:
     """A link's bar: the stadium `bar_width_mm` wide around (0, 0)-(length, 0), less a hole
     at each end, `layer_thickness_mm` thick."""
     manifold3d, _ = _libraries()
@@ -96,63 +96,71 @@ def tube_solid(outer: float, inner: float | None, height: float) -> manifold3d.M
     return section.extrude(height)
 
 
-def base_solid(assembly: Assembly) -> manifold3d.Manifold:
+def base_solid(kit: Kit) -> manifold3d.Manifold:
     """The base plate over its extent, a hole the pins' diameter at each post, a layer thick,
     its bottom at z = 0."""
     manifold3d, _ = _libraries()
-    if assembly.base is None:
-        raise ValueError("the assembly has no base plate: it was planned without ground_on_base")
-    low_x, low_y, high_x, high_y = assembly.base.extent_mm
+    if kit.base is None:
+        raise ValueError("the kit has no base plate: it was planned without ground_on_base")
+    low_x, low_y, high_x, high_y = kit.base.extent_mm
     plate = manifold3d.CrossSection.square((high_x - low_x, high_y - low_y)).translate(
         (low_x, low_y)
     )
-    radius = assembly.options.pin_diameter_mm / 2
-    for joint in assembly.base.posts:
-        x, y = assembly.drawing.joints_mm[joint]
+    radius = kit.options.pin_diameter_mm / 2
+    for joint in kit.base.posts:
+        x, y = kit.drawing.joints_mm[joint]
         plate = plate - _disc(radius, float(x), float(y))
-    return plate.extrude(assembly.options.layer_thickness_mm)
+    return plate.extrude(kit.options.layer_thickness_mm)
 
 
-def part_solids(assembly: Assembly) -> dict[str, manifold3d.Manifold]:
+def part_solids(kit: Kit) -> dict[str, manifold3d.Manifold]:
     """Every part's solid in its own frame, by part name (`Placement.part`)."""
-    options = assembly.options
-    lengths = {link.joints: link.length_mm for link in assembly.drawing.links}
+    options = kit.options
+    lengths = {link.joints: link.length_mm for link in kit.drawing.links}
     solids = {}
-    for i, j in assembly.plan.links.tolist():
+    for i, j in kit.plan.links.tolist():
         solids[link_name(i, j)] = link_solid(lengths[(i, j)], options)
-    for pin in assembly.pins:
+    for pin in kit.pins:
         solids[pin.node] = tube_solid(options.pin_diameter_mm, None, pin.length_mm)
-    for spacer in assembly.spacers:
+    for spacer in kit.spacers:
         if spacer.part not in solids:
             solids[spacer.part] = tube_solid(
                 options.spacer_diameter_mm, options.hole_diameter_mm, spacer.length_mm
             )
-    if assembly.base is not None:
-        solids["base"] = base_solid(assembly)
+    if kit.base is not None:
+        solids["base"] = base_solid(kit)
     return solids
 
 
-def part_meshes(assembly: Assembly) -> dict[str, trimesh.Trimesh]:
-    """Every part's mesh in its own frame, in millimetres, by part name."""
+def part_meshes(kit: Kit) -> dict[str, trimesh.Trimesh]:
+    """Every part's mesh in its own frame, in millimetres, by part name; ValueError if one
+    cannot be made closed."""
     _, trimesh = _libraries()
     meshes = {}
-    for name, solid in part_solids(assembly).items():
+    for name, solid in part_solids(kit).items():
         mesh = solid.to_mesh64()
-        meshes[name] = trimesh.Trimesh(
+        made = trimesh.Trimesh(
             vertices=np.asarray(mesh.vert_properties)[:, :3],
             faces=np.asarray(mesh.tri_verts),
             process=False,  # manifold3d's mesh is closed and shares its vertices already
         )
+        # Sizes far apart (a bar a billionth of its length wide) leave float64 no room.
+        if solid.is_empty() or not made.is_watertight:
+            raise ValueError(
+                f"part {name} cannot be made as a closed solid at these sizes: they differ "
+                "too much from each other or from the links' lengths"
+            )
+        meshes[name] = made
     return meshes
 
 
-def assembly_glb(assembly: Assembly, meshes: dict[str, trimesh.Trimesh]) -> bytes:
+def assembly_glb(kit: Kit, meshes: dict[str, trimesh.Trimesh]) -> bytes:
     """The assembly at its starting pose as a glTF binary: each part's mesh placed in its
     node (the module's docstring), under the root node `assembly`."""
     _, trimesh = _libraries()
     scene = trimesh.Scene()
     scene.graph.update(frame_from=scene.graph.base_frame, frame_to="assembly", matrix=GLTF_ROOT)
-    for placement in assembly.placements():
+    for placement in kit.placements():
         scene.add_geometry(
             meshes[placement.part],
             node_name=placement.node,
@@ -163,19 +171,19 @@ def assembly_glb(assembly: Assembly, meshes: dict[str, trimesh.Trimesh]) -> byte
     return scene.export(file_type="glb")
 
 
-def assembly_files(assembly: Assembly) -> dict[str, bytes]:
-    """The build's files by path in its folder: `bom.json`, `assembly.glb` and
+def kit_files(kit: Kit) -> dict[str, bytes]:
+    """The kit's files by path in its folder: `bom.json`, `assembly.glb` and
     `parts/<part>.stl`, each part once."""
-    meshes = part_meshes(assembly)
-    files = {BOM_FILE: (json.dumps(assembly.bom(), indent=1) + "\n").encode()}
-    files[ASSEMBLY_FILE] = assembly_glb(assembly, meshes)
+    meshes = part_meshes(kit)
+    files = {BOM_FILE: (json.dumps(kit.bom(), indent=1) + "\n").encode()}
+    files[ASSEMBLY_FILE] = assembly_glb(kit, meshes)
     for name, mesh in sorted(meshes.items()):
         files[part_file(name)] = mesh.export(file_type="stl")
     return files
 
 
-def assembly_zip(files: dict[str, bytes], folder: str = "assembly") -> bytes:
-    """`files` (`assembly_files`) as a zip archive, in `folder`."""
+def kit_zip(files: dict[str, bytes], folder: str = "kit") -> bytes:
+    """`files` (`kit_files`) as a zip archive, in `folder`."""
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
         for name, data in files.items():
@@ -183,39 +191,39 @@ def assembly_zip(files: dict[str, bytes], folder: str = "assembly") -> bytes:
     return buffer.getvalue()
 
 
-def export_assembly(
+def export_kit(
     adjacency: ArrayLike,
     node_types: ArrayLike,
     positions: ArrayLike,
     out_dir: str | Path,
-    options: AssemblyOptions | None = None,
+    options: KitOptions | None = None,
 ) -> dict[str, Any]:
-    """Plan the mechanism as printed parts (`engine.assembly.plan_assembly`) and write
+    """Plan the mechanism as printed parts (`engine.kit.plan_kit`) and write
     `bom.json`, `assembly.glb` and `parts/*.stl` into the folder `out_dir`; the bill of
     materials, as written.
 
-    `out_dir` is made if missing; one that holds files must hold an earlier build (a
+    `out_dir` is made if missing; one that holds files must hold an earlier kit (a
     `bom.json`), whose parts are replaced. Raises `ValueError` naming the problem (what
-    `plan_assembly` refuses, `LayeringError` among it, or a folder it may not write into),
+    `plan_kit` refuses, `LayeringError` among it, or a folder it may not write into),
     `OSError` if a file cannot be written, before any file is written for the former.
     """
     out = Path(out_dir)
     stale = earlier_parts(out)  # before the plan, which may take seconds
-    assembly = plan_assembly(adjacency, node_types, positions, options)
-    files = assembly_files(assembly)
+    kit = plan_kit(adjacency, node_types, positions, options)
+    files = kit_files(kit)
     (out / PARTS_FOLDER).mkdir(parents=True, exist_ok=True)
-    # Only the parts an earlier build's bill named: no other file is ever removed.
+    # Only the parts an earlier kit's bill named: no other file is ever removed.
     for name in stale - set(files):
         (out / name).unlink(missing_ok=True)
     for name, data in files.items():
         (out / name).write_bytes(data)
-    return assembly.bom()
+    return kit.bom()
 
 
 def earlier_parts(out: Path) -> set[str]:
-    """The part files the bill of an earlier build in the folder `out` names (none for a
+    """The part files the bill of an earlier kit in the folder `out` names (none for a
     folder that is missing or empty), or ValueError if `out` is no folder, or holds files but
-    no earlier build."""
+    no earlier kit."""
     if not out.exists():
         return set()
     if not out.is_dir():
@@ -223,7 +231,7 @@ def earlier_parts(out: Path) -> set[str]:
     if not any(out.iterdir()):
         return set()
     bill = out / BOM_FILE
-    refusal = f"{out} holds files but no earlier build ({BOM_FILE}): give a new or empty folder"
+    refusal = f"{out} holds files but no earlier kit ({BOM_FILE}): give a new or empty folder"
     try:
         parts = json.loads(bill.read_text())["parts"]
     except (OSError, ValueError, KeyError, TypeError):

@@ -9,6 +9,7 @@
 | `POST /api/analyze` | 200 the studio's analysis: mobility, dyadic solvability, where it locks |
 | `POST /api/export` | 200 the mechanism as an SVG, DXF or table file in mm (an attachment) |
 | `POST /api/curve` | 200 `{"points", "closed"}`: a drawing's curve, read in a reader process |
+| `POST /api/kit` | 200 a mechanism's printable parts: its bill (JSON), GLB or a zip |
 | `GET /api/limits` | the limits a request meets (`serve.limits.request_limits`) |
 | `GET /openapi.json` | the API described, bodies and bounds included (`serve.openapi`) |
 | `GET /` | the web studio (`links_ray/serve/studio/index.html`) |
@@ -19,7 +20,8 @@ takes in; the gateway deployment `LinksApi` (`serve.deployments`) inherits them 
 index or its partitions' handles, and the admission (`serve.admission`) whose places these
 routes claim and release. This module imports neither: the assembly imports the routes, never
 the other way. Bodies are read and checked by `serve.parsing`; simulations, analyses and
-exports run in the default thread pool.
+exports run in the default thread pool, builds of parts in one thread of their own
+(`serve.kits`).
 """
 
 import asyncio
@@ -51,14 +53,17 @@ from links_ray.engine.synthesis_plan import retrievals
 from links_ray.engine.synthesis_results import SynthesisResults
 from links_ray.interop.curve_worker import CurveReadersBusy, read_curve_isolated
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
-from links_ray.serve import models
+from links_ray.serve import kit_models, models
 from links_ray.serve.admission import Admission, Place, RetrievalSlot
+from links_ray.serve.kits import answer_kit
 from links_ray.serve.limits import request_limits
 from links_ray.serve.models import request_body
 from links_ray.serve.parsing import (
     EXPORT_FORMATS,
+    KIT_FORMATS,
     curve_args,
     export_args,
+    kit_args,
     read_json_object,
     retrieve_args,
     simulate_args,
@@ -304,6 +309,32 @@ class LinksApiRoutes:
             )
         except ValueError as exc:  # the engine's message: the mechanism, the scale, path_joint
             raise ApiError(400, str(exc)) from None
+
+    @router.post(
+        "/api/kit",
+        response_model=kit_models.KitResponse,
+        responses={
+            200: {
+                "description": 'format "bom": the bill of materials; "glb", "zip": the file, '
+                "as an attachment",
+                "content": {media: {} for media, _ in KIT_FORMATS.values()},
+            },
+            422: {
+                "model": models.ErrorResponse,
+                "description": "no stacking of layers keeps every pin clear; or it locks "
+                "(with step and node)",
+            },
+            **models.error_responses(400, 413, 415, 501, 503),
+        },
+        openapi_extra=request_body("/api/kit"),
+    )
+    async def api_kit(self, request: Request) -> Response:
+        """The mechanism as printable parts in millimetres, its crank `crank_mm` long (default
+        20): the bill of materials as JSON, the assembly as GLB or the whole build as a zip
+        (`format`); 422 when no stacking of layers keeps every pin clear (or it locks), other
+        4xx JSON for bad input, 503 with `Retry-After` when MAX_KITS are under way."""
+        args = kit_args(await read_json_object(request, "/api/kit"))
+        return await answer_kit(*args)
 
     @router.post(
         "/api/curve",

@@ -18,6 +18,7 @@ from links_ray.engine.inputs import (
     MAX_COORDINATE,
     MAX_CRANK_MM,
     MAX_DATASET_JOINTS,
+    MAX_DRAWING_MM,
     MAX_K,
     MAX_POINTS,
     MAX_STEPS,
@@ -26,6 +27,15 @@ from links_ray.engine.inputs import (
     MIN_K,
     MIN_POINTS,
     MIN_STEPS,
+)
+from links_ray.engine.kit import (
+    DEFAULT_BAR_WIDTH_MM,
+    DEFAULT_CLEARANCE_MM,
+    DEFAULT_HOLE_DIAMETER_MM,
+    DEFAULT_LAYER_GAP_MM,
+    DEFAULT_LAYER_THICKNESS_MM,
+    DEFAULT_PIN_DIAMETER_MM,
+    DEFAULT_SPACER_DIAMETER_MM,
 )
 from links_ray.engine.synthesis_options import (
     DEFAULT_SYNTHESIS_SECONDS,
@@ -355,6 +365,39 @@ class ExportRequest(Request, Mechanism):
     path_joint: int | None = Field(None, description="a moving joint whose path is drawn too")
 
 
+class KitRequest(Request, Mechanism):
+    """POST /api/kit: the mechanism as printable parts, in millimetres (engine.kit;
+    docs/guides/building.md): the pin narrower than the hole, the hole than the spacer, the
+    spacer than the bar."""
+
+    format: Literal["bom", "glb", "zip"] = Field(
+        "bom", description="bom: the bill as JSON; glb: the assembly; zip: the whole kit"
+    )
+    crank_mm: float = Field(
+        DEFAULT_CRANK_MM, gt=0, le=MAX_CRANK_MM, description="the crank's length in mm"
+    )
+    bar_width_mm: float = Field(DEFAULT_BAR_WIDTH_MM, gt=0, le=MAX_DRAWING_MM)
+    hole_diameter_mm: float = Field(DEFAULT_HOLE_DIAMETER_MM, gt=0, le=MAX_DRAWING_MM)
+    pin_diameter_mm: float = Field(DEFAULT_PIN_DIAMETER_MM, gt=0, le=MAX_DRAWING_MM)
+    spacer_diameter_mm: float = Field(
+        DEFAULT_SPACER_DIAMETER_MM,
+        gt=0,
+        le=MAX_DRAWING_MM,
+        description="the spacers' outside: the pins' width in the layer plan",
+    )
+    clearance_mm: float = Field(
+        DEFAULT_CLEARANCE_MM,
+        ge=0,
+        le=MAX_DRAWING_MM,
+        description="the least gap between parts on one layer over the whole turn",
+    )
+    layer_thickness_mm: float = Field(DEFAULT_LAYER_THICKNESS_MM, gt=0, le=MAX_DRAWING_MM)
+    layer_gap_mm: float = Field(
+        DEFAULT_LAYER_GAP_MM, ge=0, le=MAX_DRAWING_MM, description="kept by washers"
+    )
+    ground_on_base: bool = Field(False, description="fixed pins stand on a base plate")
+
+
 def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
     """OpenAPI `responses` entries: ErrorResponse for each status."""
     return {status: {"model": ErrorResponse} for status in statuses}
@@ -368,6 +411,7 @@ REQUEST_MODELS: dict[str, type[BaseModel]] = {
     "/api/synthesize": SynthesizeRequest,
     "/api/export": ExportRequest,
     "/api/curve": CurveFileRequest,
+    "/api/kit": KitRequest,
 }
 
 

@@ -15,6 +15,7 @@ import asyncio
 import json
 import math
 from collections.abc import Callable
+from dataclasses import fields
 from typing import Any
 
 import numpy as np
@@ -33,6 +34,7 @@ from links_ray.engine.inputs import (
     as_transmission_deg,
     validate_query,
 )
+from links_ray.engine.kit import KitOptions
 from links_ray.engine.synthesis_options import SynthesisOptions
 from links_ray.serve.limits import (
     BODY_TIMEOUT_S,
@@ -365,6 +367,32 @@ def export_args(body: dict[str, Any]) -> tuple[list, list, list, str, float, Any
     crank_mm = DEFAULT_CRANK_MM if crank is None else _checked(as_crank_mm, crank)
     # The engine checks path_joint: an integer naming a moving joint.
     return adjacency, node_types, positions, chosen, crank_mm, body.get("path_joint")
+
+
+#: /api/kit's formats: (media type, file suffix) of each; "bom" answers JSON.
+KIT_FORMATS = {
+    "bom": ("application/json", "json"),
+    "glb": ("model/gltf-binary", "glb"),
+    "zip": ("application/zip", "zip"),
+}
+#: The sizes and flags of an /api/kit body: `KitOptions`' fields but the crank's.
+KIT_OPTIONS = tuple(field.name for field in fields(KitOptions) if field.name != "crank_mm")
+
+
+def kit_args(body: dict[str, Any]) -> tuple[list, list, list, KitOptions, str]:
+    """(adjacency, node_types, positions, options, format) of a /api/kit body, or
+    ApiError naming the problem: the options checked once (`KitOptions`), the crank
+    DEFAULT_CRANK_MM long when not given; the engine checks the mechanism itself."""
+    adjacency, node_types = topology_args(body)
+    positions = _pairs("positions", _required(body, "positions"), count=len(adjacency))
+    chosen = body.get("format", "bom")
+    if not isinstance(chosen, str) or chosen not in KIT_FORMATS:
+        raise ApiError(400, f"format must be one of {', '.join(KIT_FORMATS)}, got {_kind(chosen)}")
+    crank = body.get("crank_mm")
+    given = {name: body[name] for name in KIT_OPTIONS if body.get(name) is not None}
+    crank_mm = DEFAULT_CRANK_MM if crank is None else crank
+    options = _checked(lambda: KitOptions(crank_mm=crank_mm, **given))
+    return adjacency, node_types, positions, options, chosen
 
 
 def curve_args(body: dict[str, Any]) -> tuple[str, str, str | None]:

@@ -68,7 +68,7 @@ def test_errors_end_in_one_line(tmp_path: Path) -> None:
             "--pin-diameter-mm must be less than --hole-diameter-mm (the pin turns in the hole)",
         ),
         ([source, "--out", "x", "--layer-gap-mm", "-1"], "--layer-gap-mm must be from 0"),
-        ([source, "--out", str(tmp_path / "full")], "holds files but no earlier build"),
+        ([source, "--out", str(tmp_path / "full")], "holds files but no earlier kit"),
     ]
     for args, words in cases:
         done = links(args[0], "--format", "3d", *args[1:])

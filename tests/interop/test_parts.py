@@ -1,4 +1,4 @@
-"""Printable parts and the assembly (engine/assembly.py, interop/parts.py): every part a closed
+"""A kit of printable parts and its assembly (engine/kit.py, interop/parts.py): every part a closed
 solid of the size its outline says, the bill of materials the layer plan, and no two parts
 nearer than the clearance at 360 poses of a turn.
 
@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 
 import links_ray
-from links_ray.engine.assembly import AssemblyOptions, plan_assembly
+from links_ray.engine.kit import KitOptions, plan_kit
 from links_ray.engine.layers import LayeringError, plan_layers
 from links_ray.engine.topology import random_topology
-from links_ray.interop.parts import GLTF_ROOT, assembly_zip, export_assembly
+from links_ray.interop.parts import GLTF_ROOT, export_kit, kit_files, kit_zip
 from tests.support.needs import need_module
 from tests.support.serving import FOUR_BAR
 
@@ -42,11 +42,11 @@ def random_mechanism(seed: int, joints: int) -> dict[str, Any]:
 #: (mechanism, options): a four-bar; 12 joints standing on a base plate; 11 joints, narrower
 #: bars, no layer gap; each builds in under a second.
 BUILDS = {
-    "four-bar": (FOUR_BAR, AssemblyOptions(crank_mm=25)),
-    "12 joints on a base": (random_mechanism(4, 12), AssemblyOptions(ground_on_base=True)),
+    "four-bar": (FOUR_BAR, KitOptions(crank_mm=25)),
+    "12 joints on a base": (random_mechanism(4, 12), KitOptions(ground_on_base=True)),
     "11 joints, no gap": (
         random_mechanism(13, 11),
-        AssemblyOptions(bar_width_mm=7, spacer_diameter_mm=5.5, layer_gap_mm=0, clearance_mm=0.5),
+        KitOptions(bar_width_mm=7, spacer_diameter_mm=5.5, layer_gap_mm=0, clearance_mm=0.5),
     ),
 }
 #: No order of layers keeps every pin clear (with the default sizes, a 20 mm crank).
@@ -59,7 +59,7 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, dic
     found = {}
     for name, (mechanism, options) in BUILDS.items():
         folder = tmp_path_factory.mktemp("build")
-        found[name] = (folder, export_assembly(**mechanism, out_dir=folder, options=options))
+        found[name] = (folder, export_kit(**mechanism, out_dir=folder, options=options))
     return found
 
 
@@ -223,7 +223,7 @@ def test_no_two_parts_come_within_the_clearance_over_a_turn(
     post in the base plate (a press fit). Parts whose heights do not overlap cannot meet."""
     folder, bom = built[name]
     mechanism, options = BUILDS[name]
-    assembly = plan_assembly(**mechanism, options=options)
+    kit = plan_kit(**mechanism, options=options)
     sections = {}
     for file in (folder / "parts").glob("*.stl"):
         mesh = trimesh.load(file)
@@ -231,11 +231,11 @@ def test_no_two_parts_come_within_the_clearance_over_a_turn(
     joint_of = {item["node"]: item.get("joint") for item in bom["pins"] + bom["spacers"]}
     links_at = {link["node"]: set(link["joints"]) for link in bom["links"]}
     turn = links_ray.simulate(
-        mechanism["adjacency"], mechanism["node_types"], assembly.drawing.joints_mm, 720
+        mechanism["adjacency"], mechanism["node_types"], kit.drawing.joints_mm, 720
     )
     checked = 0
     for step in range(1, 720, 2):
-        placed = assembly.placements(turn[:, step])
+        placed = kit.placements(turn[:, step])
         outlines, heights = [], []
         for placement in placed:
             outline, low, high = sections[placement.part]
@@ -281,7 +281,7 @@ def test_no_two_parts_come_within_the_clearance_over_a_turn(
 
 def test_without_a_crank_length_the_positions_are_the_millimetres(tmp_path: Path) -> None:
     mechanism = {**FOUR_BAR, "positions": (np.asarray(FOUR_BAR["positions"]) * 600).tolist()}
-    bom = export_assembly(**mechanism, out_dir=tmp_path, options=AssemblyOptions(crank_mm=None))
+    bom = export_kit(**mechanism, out_dir=tmp_path, options=KitOptions(crank_mm=None))
     assert (bom["frame"], bom["mm_per_unit"], bom["origin"]) == ("drawing", 1.0, [0.0, 0.0])
     kept = [[joint["x_mm"], joint["y_mm"]] for joint in bom["joints"]]
     assert kept == mechanism["positions"]
@@ -292,24 +292,24 @@ def test_a_folder_with_other_files_is_refused_and_an_earlier_build_replaced(
     tmp_path: Path,
 ) -> None:
     (tmp_path / "notes.txt").write_text("mine")
-    with pytest.raises(ValueError, match="holds files but no earlier build"):
-        export_assembly(**FOUR_BAR, out_dir=tmp_path)
+    with pytest.raises(ValueError, match="holds files but no earlier kit"):
+        export_kit(**FOUR_BAR, out_dir=tmp_path)
     assert sorted(path.name for path in tmp_path.iterdir()) == ["notes.txt"]
     folder = tmp_path / "build"
-    big = export_assembly(**random_mechanism(4, 12), out_dir=folder)
+    big = export_kit(**random_mechanism(4, 12), out_dir=folder)
     (folder / "parts" / "mine.stl").write_text("not a part of a build")
-    small = export_assembly(**FOUR_BAR, out_dir=folder)
+    small = export_kit(**FOUR_BAR, out_dir=folder)
     left = sorted(f"parts/{path.name}" for path in (folder / "parts").iterdir())
     assert left == sorted([*small["parts"], "parts/mine.stl"])  # the earlier parts are gone
     assert len(big["parts"]) > len(small["parts"])
     (folder / "bom.json").write_text(json.dumps({"parts": ["../notes.txt", "parts/../x.stl"]}))
-    export_assembly(**FOUR_BAR, out_dir=folder)
+    export_kit(**FOUR_BAR, out_dir=folder)
     assert (tmp_path / "notes.txt").read_text() == "mine"  # a bill cannot name files outside
 
 
 def test_an_unbuildable_mechanism_and_bad_options_are_refused(tmp_path: Path) -> None:
     with pytest.raises(LayeringError, match="no layer plan keeps every pin clear"):
-        export_assembly(**UNBUILDABLE, out_dir=tmp_path / "none")
+        export_kit(**UNBUILDABLE, out_dir=tmp_path / "none")
     assert not (tmp_path / "none").exists()  # nothing is written
     refused = [
         ({"bar_width_mm": 0}, "bar_width_mm must be more than 0"),
@@ -323,26 +323,28 @@ def test_an_unbuildable_mechanism_and_bad_options_are_refused(tmp_path: Path) ->
     ]
     for change, words in refused:
         with pytest.raises(ValueError, match=re.escape(words)):
-            AssemblyOptions(**change)
+            KitOptions(**change)
     with pytest.raises(ValueError, match=re.escape("link [0, 1] is 0.05 mm long: its holes")):
-        plan_assembly(**FOUR_BAR, options=AssemblyOptions(crank_mm=None))
-    with pytest.raises(ValueError, match="options must be an AssemblyOptions"):
-        plan_assembly(**FOUR_BAR, options={"bar_width_mm": 8})  # type: ignore[arg-type]
+        plan_kit(**FOUR_BAR, options=KitOptions(crank_mm=None))
+    tiny = {"bar_width_mm": 1e-10, "spacer_diameter_mm": 9e-11, "hole_diameter_mm": 8e-11}
+    tiny_kit = plan_kit(**FOUR_BAR, options=KitOptions(**tiny, pin_diameter_mm=7e-11))
+    with pytest.raises(ValueError, match="link-0-1 cannot be made as a closed solid"):
+        kit_files(tiny_kit)
+    with pytest.raises(ValueError, match="options must be a KitOptions"):
+        plan_kit(**FOUR_BAR, options={"bar_width_mm": 8})  # type: ignore[arg-type]
 
 
 def test_the_zip_holds_the_folder(built: dict[str, tuple[Path, dict[str, Any]]]) -> None:
     import io
     import zipfile
 
-    from links_ray.interop.parts import assembly_files
-
     mechanism, options = BUILDS["four-bar"]
-    files = assembly_files(plan_assembly(**mechanism, options=options))
+    files = kit_files(plan_kit(**mechanism, options=options))
     folder, bom = built["four-bar"]
-    with zipfile.ZipFile(io.BytesIO(assembly_zip(files))) as archive:
+    with zipfile.ZipFile(io.BytesIO(kit_zip(files))) as archive:
         names = archive.namelist()
         assert sorted(names) == sorted(
-            f"assembly/{name}" for name in ["bom.json", "assembly.glb", *bom["parts"]]
+            f"kit/{name}" for name in ["bom.json", "assembly.glb", *bom["parts"]]
         )
         for name in bom["parts"]:
-            assert archive.read(f"assembly/{name}") == (folder / name).read_bytes()
+            assert archive.read(f"kit/{name}") == (folder / name).read_bytes()

@@ -58,6 +58,8 @@ FORBIDDEN_IN = {
     "links_ray.serve.guards": ("ray",),
     "links_ray.serve.admission": ("ray",),
     "links_ray.serve.handlers": ("ray",),
+    "links_ray.serve.kits": ("ray",),
+    "links_ray.serve.kit_models": ("ray",),
     "links_ray.serve.openapi": ("ray",),
     "links_ray.serve.api": ("ray",),
 }

@@ -34,6 +34,7 @@ VALID = {
     "/api/curve": {"name": "curve.csv", "text": "0,0\n1,1\n2,0\n3,1\n"},
     "/api/retrieve": {"points": POINTS, "k": 2},
     "/api/synthesize": {"points": POINTS, "k": 1, "iterations": 2},
+    "/api/kit": {**FOUR_BAR, "format": "bom"},
 }
 
 NUMBERS = st.one_of(

@@ -1,5 +1,5 @@
-"""A mechanism built from printed parts: the options of a build, where every part goes, and the
-bill of materials.
+"""A mechanism as a kit of printed parts: the options of a kit, where every part goes in the
+assembly, and the bill of materials.
 
 The parts. Every link is a bar `bar_width_mm` wide around its centre line with rounded ends
 and a hole `hole_diameter_mm` across at each joint, `layer_thickness_mm` thick, on the layer
@@ -27,7 +27,7 @@ within it of that pin or its spacers. The parts of different layers are apart by
 Frames. With `crank_mm`, the positions are scaled so that the crank is that long, joint 0 at
 the origin (`engine.fabrication`); with None, they are kept as they are, their unit read as a
 millimetre: the sizes are then in that unit. Each link's part is made along +x from its lower
-joint at the origin (`Assembly.bom` says where it goes: that joint's position and the link's
+joint at the origin (`Kit.bom` says where it goes: that joint's position and the link's
 angle, at its layer's height).
 
 Pure numpy: no numba of its own, no Ray, no files (`interop.parts` makes the meshes).
@@ -60,13 +60,13 @@ from links_ray.engine.solver import simulate
 __all__ = [
     "ASSEMBLY_FILE",
     "BOM_FILE",
-    "Assembly",
-    "AssemblyOptions",
     "BasePlate",
+    "Kit",
+    "KitOptions",
     "Pin",
     "Placement",
     "Spacer",
-    "plan_assembly",
+    "plan_kit",
 ]
 
 #: The defaults, in millimetres: an 8 mm bar 3 mm thick is stiff for a few hundred millimetres
@@ -81,13 +81,13 @@ DEFAULT_SPACER_DIAMETER_MM = 6.0
 DEFAULT_CLEARANCE_MM = 1.0
 DEFAULT_LAYER_THICKNESS_MM = 3.0
 DEFAULT_LAYER_GAP_MM = 0.5
-#: The files of a build, beside its parts' folder.
+#: The files of a kit's folder, beside its parts' folder.
 BOM_FILE, ASSEMBLY_FILE, PARTS_FOLDER = "bom.json", "assembly.glb", "parts"
 
 
 @dataclass(frozen=True)
-class AssemblyOptions:
-    """What a build is asked for, checked when made (ValueError naming a bad field).
+class KitOptions:
+    """What a kit is asked for, checked when made (ValueError naming a bad field).
 
     `crank_mm`: the crank's length, joint 0 at the origin; None keeps the positions' frame,
     their unit read as a millimetre (the sizes are then in that unit). The sizes, each more
@@ -145,7 +145,7 @@ class AssemblyOptions:
 
 
 def _size(name: str, value: object, zero: bool = False) -> float:
-    """A length of a build in millimetres: more than 0 (or 0 with `zero`), at most
+    """A length of a kit in millimetres: more than 0 (or 0 with `zero`), at most
     MAX_DRAWING_MM; else ValueError naming `name`."""
     if not zero:
         return positive_at_most(value, name, MAX_DRAWING_MM, "a number of millimetres", " mm")
@@ -222,11 +222,12 @@ class Placement:
 
 
 @dataclass(frozen=True, eq=False)
-class Assembly:
-    """A mechanism as printed parts: its drawing in millimetres (`engine.fabrication`), its
-    layer plan (`engine.layers`), its pins, spacers and base plate, and the options."""
+class Kit:
+    """A mechanism as a kit of printed parts: its drawing in millimetres
+    (`engine.fabrication`), its layer plan (`engine.layers`), its pins, spacers and base
+    plate, and the options."""
 
-    options: AssemblyOptions
+    options: KitOptions
     drawing: Fabrication
     plan: LayerPlan
     pins: tuple[Pin, ...]
@@ -346,7 +347,7 @@ def link_name(i: int, j: int) -> str:
 
 
 def part_file(name: str) -> str:
-    """The file of the part named `name`, relative to the build's folder."""
+    """The file of the part named `name`, relative to the kit's folder."""
     return f"{PARTS_FOLDER}/{name}.stl"
 
 
@@ -358,25 +359,25 @@ def _moved(x: float, y: float, z: float, angle: float = 0.0) -> np.ndarray:
     )
 
 
-def plan_assembly(
+def plan_kit(
     adjacency: ArrayLike,
     node_types: ArrayLike,
     positions: ArrayLike,
-    options: AssemblyOptions | None = None,
+    options: KitOptions | None = None,
     *,
     steps: int = DEFAULT_COLLISION_STEPS,
-) -> Assembly:
-    """The mechanism as printed parts (the module's docstring): in millimetres as `options`
-    says (default `AssemblyOptions()`: a 20 mm crank), its layers planned over a turn of
+) -> Kit:
+    """The mechanism as a kit of printed parts (the module's docstring): in millimetres as `options`
+    says (default `KitOptions()`: a 20 mm crank), its layers planned over a turn of
     `steps` steps and proven between them.
 
     Raises `ValueError` naming the problem: what `fabrication` and `plan_layers` refuse, a
     link too short to hold its two holes, and `LayeringError` when no stacking keeps every pin
     clear.
     """
-    options = AssemblyOptions() if options is None else options
-    if not isinstance(options, AssemblyOptions):
-        raise ValueError(f"options must be an AssemblyOptions, got {type(options).__name__}")
+    options = KitOptions() if options is None else options
+    if not isinstance(options, KitOptions):
+        raise ValueError(f"options must be a KitOptions, got {type(options).__name__}")
     drawing = fabrication(adjacency, node_types, positions, crank_mm=options.crank_mm)
     shortest = min(drawing.links, key=lambda link: link.length_mm)
     if shortest.length_mm <= options.hole_diameter_mm:
@@ -417,11 +418,11 @@ def plan_assembly(
             z_mm=(bottom, bottom + options.layer_thickness_mm),
             posts=tuple(int(j) for j in np.flatnonzero(posts)),
         )
-    return Assembly(options, drawing, plan, pins, spacers, base)
+    return Kit(options, drawing, plan, pins, spacers, base)
 
 
 def _pins_and_spacers(
-    plan: LayerPlan, posts: np.ndarray, options: AssemblyOptions
+    plan: LayerPlan, posts: np.ndarray, options: KitOptions
 ) -> tuple[tuple[Pin, ...], tuple[Spacer, ...]]:
     """Every joint's pin and the spacers on it, from below (the module's docstring)."""
     half_gap, thickness = options.layer_gap_mm / 2, options.layer_thickness_mm
