@@ -13,7 +13,7 @@
 | `GET /api/limits` | the limits a request meets (`serve.limits.request_limits`) |
 | `GET /openapi.json` | the API described, bodies and bounds included (`serve.openapi`) |
 | `GET /` | the web studio (`links_ray/serve/studio/index.html`) |
-| `GET /studio/<file>` | the studio's scripts and style sheet, from the package |
+| `GET /studio/<file>` | the studio's scripts, style sheet and vendored files, from the package |
 
 The routes are methods of `LinksApiRoutes`, declared on `router`, which the app (`serve.api`)
 takes in; the gateway deployment `LinksApi` (`serve.deployments`) inherits them and holds the
@@ -96,15 +96,28 @@ STUDIO_CSP = (
 )
 
 
+#: Third-party files, unchanged, one folder per package and version (`studio/vendor/README.md`).
+STUDIO_VENDOR = "vendor"
+
+
 @functools.cache
 def studio_files() -> dict[str, tuple[bytes, str]]:
-    """The studio's files by name, as (content, media type), read once from the package."""
+    """The studio's files by name, as (content, media type), read once from the package: its
+    own by file name, the vendored ones by their path (`vendor/three-0.187.0/three.module.js`).
+    A name is looked up here, never joined to a path on disk."""
     folder = importlib.resources.files("links_ray.serve") / "studio"
     files = {}
-    for entry in folder.iterdir():
-        media_type = STUDIO_MEDIA_TYPES.get("." + entry.name.rpartition(".")[2])
-        if entry.is_file() and media_type is not None:
-            files[entry.name] = (entry.read_bytes(), media_type)
+    pending = [("", folder)]
+    while pending:
+        prefix, here = pending.pop()
+        for entry in here.iterdir():
+            name = prefix + entry.name
+            if entry.is_dir() and name.startswith(STUDIO_VENDOR):
+                pending.append((name + "/", entry))
+                continue
+            media_type = STUDIO_MEDIA_TYPES.get("." + entry.name.rpartition(".")[2])
+            if entry.is_file() and media_type is not None:
+                files[name] = (entry.read_bytes(), media_type)
     if "index.html" not in files:
         raise FileNotFoundError(f"the studio's index.html is missing from {folder}")
     return files
@@ -116,7 +129,11 @@ def studio_response(name: str) -> Response:
     if found is None:
         raise ApiError(404, f"the studio has no file {name[:80]!r}")
     content, media_type = found
-    headers = {"Cache-Control": "no-cache", "X-Content-Type-Options": "nosniff"}
+    # The studio's own files change with the package; a vendored file's path names its
+    # version, so its content never changes and a browser may keep it.
+    vendored = name.startswith(STUDIO_VENDOR + "/")
+    cache = "public, max-age=31536000, immutable" if vendored else "no-cache"
+    headers = {"Cache-Control": cache, "X-Content-Type-Options": "nosniff"}
     if name.endswith(".html"):
         headers["Content-Security-Policy"] = STUDIO_CSP
     return Response(content, media_type=media_type, headers=headers)
@@ -224,9 +241,10 @@ class LinksApiRoutes:
         """The web studio's page."""
         return studio_response("index.html")
 
-    @router.get("/studio/{name}")
+    @router.get("/studio/{name:path}")
     async def api_studio_file(self, name: str) -> Response:
-        """One of the studio's scripts or its style sheet; 404 for any other name."""
+        """One of the studio's scripts, its style sheet or a vendored file
+        (`vendor/<package>-<version>/<file>`); 404 for any other name."""
         return studio_response(name)
 
     @router.get("/api/health", response_model=models.HealthResponse)
