@@ -33,13 +33,13 @@ FORMATS = ("svg", "dxf", "table", "pylinkage", "3d")
 #: The options of `--format 3d`: flag, `KitOptions` field, its default (mm), what it sets.
 KIT_FLAGS = (
     ("--bar-width-mm", "bar_width_mm", kit.DEFAULT_BAR_WIDTH_MM, "each link's bar width"),
-    ("--hole-diameter-mm", "hole_diameter_mm", kit.DEFAULT_HOLE_DIAMETER_MM, "its holes"),
-    ("--pin-diameter-mm", "pin_diameter_mm", kit.DEFAULT_PIN_DIAMETER_MM, "the pins"),
+    ("--hole-diameter-mm", "hole_diameter_mm", kit.DEFAULT_HOLE_DIAMETER_MM, "a link's holes"),
+    ("--pin-diameter-mm", "pin_diameter_mm", kit.DEFAULT_PIN_DIAMETER_MM, "each pin's diameter"),
     (
         "--spacer-diameter-mm",
         "spacer_diameter_mm",
         kit.DEFAULT_SPACER_DIAMETER_MM,
-        "the spacers' outside (the pins' width in the layer plan)",
+        "the spacers' outside diameter, the pins' width in the layer plan",
     ),
     (
         "--clearance-mm",
@@ -122,7 +122,7 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         default=None,
         metavar="FILE",
         help="output file (default: stdout); with --format 3d a folder, new, empty or holding "
-        "an earlier build",
+        "an earlier kit",
     )
     command.add_argument(
         "--json", action="store_true", help="with --format table: the table as JSON"
@@ -208,14 +208,14 @@ def write_kit(args: argparse.Namespace, source: Source) -> None:
             args.out,
             options,
         )
-    except ValueError as exc:
+    except (ValueError, ImportError) as exc:  # ImportError: the `build` extra is missing
         message = str(exc)
         for flag, field, _, _ in (*KIT_FLAGS, ("--crank-mm", "crank_mm", 0, "")):
             message = re.sub(rf"\b{field}\b", flag, message)
         raise ValueError(message) from None
     frame = " (the drawing's frame)" if bom["frame"] == "drawing" else ""
     print(
-        f"wrote {args.out}: 3d, {len(bom['joints'])} joints, {len(bom['links'])} links on "
+        f"wrote {args.out}: 3d, {len(bom['joints'])} joints, {len(bom['links'])} links, "
         f"{bom['layers']} layers ({bom['status']}), {len(bom['parts'])} parts, crank "
         f"{bom['crank_mm']:g} mm{frame}"
     )

@@ -203,12 +203,14 @@ def export_kit(
     materials, as written.
 
     `out_dir` is made if missing; one that holds files must hold an earlier kit (a
-    `bom.json`), whose parts are replaced. Raises `ValueError` naming the problem (what
-    `plan_kit` refuses, `LayeringError` among it, or a folder it may not write into),
-    `OSError` if a file cannot be written, before any file is written for the former.
+    `bom.json`), whose parts are replaced. Raises, before any file is written, `ValueError`
+    naming the problem (what `plan_kit` refuses, `LayeringError` among it, a part that cannot
+    be made closed, a folder it may not write into) and `ImportError` without the `build`
+    extra; `OSError` if a file cannot be written.
     """
+    _libraries()  # before the plan, which may take seconds, as the folder's check
     out = Path(out_dir)
-    stale = earlier_parts(out)  # before the plan, which may take seconds
+    stale = earlier_parts(out)
     kit = plan_kit(adjacency, node_types, positions, options)
     files = kit_files(kit)
     (out / PARTS_FOLDER).mkdir(parents=True, exist_ok=True)

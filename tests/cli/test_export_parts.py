@@ -30,7 +30,7 @@ def test_a_result_keeps_its_frame_and_the_crank_length_scales_it(tmp_path: Path)
     said = ok(source, "--format", "3d", "--out", str(out), "--bar-width-mm", "7")
     bom = json.loads((out / "bom.json").read_text())
     assert said.strip() == (
-        f"wrote {out}: 3d, 4 joints, 3 links on {bom['layers']} layers ({bom['status']}), "
+        f"wrote {out}: 3d, 4 joints, 3 links, {bom['layers']} layers ({bom['status']}), "
         f"{len(bom['parts'])} parts, crank 7.5 mm (the drawing's frame)"
     )
     assert (bom["unit"], bom["frame"], bom["mm_per_unit"]) == ("mm", "drawing", 1.0)
