@@ -48,9 +48,9 @@ export async function postJsonLines(path, body, onLine) {
 }
 
 /**
- * POST a JSON body for a file to download; resolves to {status, text, name, type} on 200 (the
- * file's text, the name its Content-Disposition gives, its type), else {status, data} with the
- * server's JSON as postJson has it.
+ * POST a JSON body for a file to download; resolves to {status, blob, name, type} on 200 (the
+ * file's bytes, the name its Content-Disposition gives, its type), else {status, data} with
+ * the server's JSON as postJson has it. A Blob, not text: a GLB or a zip is binary.
  */
 export async function postForFile(path, body, fallbackName) {
   const response = await send(path, {
@@ -63,7 +63,7 @@ export async function postForFile(path, body, fallbackName) {
   const named = /filename="([^"]+)"/.exec(disposition);
   return {
     status: 200,
-    text: await response.text(),
+    blob: await response.blob(),
     name: named ? named[1] : fallbackName,
     type: response.headers.get("Content-Type") || "application/octet-stream",
   };

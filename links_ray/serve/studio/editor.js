@@ -91,6 +91,7 @@ export class Editor {
     this.step = 0;
     this.playing = false;
     this.latencies = []; // /api/simulate round trips, ms
+    this.changeListeners = []; // called with the new version after every change
     this.simulations = new Latest((job) => this.runSimulation(job));
     this.analyses = new Latest((job) => this.runAnalysis(job));
     this.fitted = false;
@@ -181,6 +182,12 @@ export class Editor {
     this.showHint();
     this.showStep();
     this.draw();
+    for (const listener of this.changeListeners) listener(this.version);
+  }
+
+  /** Call `listener(version)` after every change to the mechanism, drags included. */
+  whenChanged(listener) {
+    this.changeListeners.push(listener);
   }
 
   /** True once every change has been simulated and analysed. */

@@ -3,9 +3,9 @@
 import { FIXED, isCrank, links, parseMechanism } from "./mechanism.js";
 import { bounds, jointColor } from "./view.js";
 
-/** Offer `text` as a file download named `name`. */
-export function download(name, text, type) {
-  const url = URL.createObjectURL(new Blob([text], { type }));
+/** Offer `content` (text or a Blob) as a file download named `name`. */
+export function download(name, content, type) {
+  const url = URL.createObjectURL(new Blob([content], { type }));
   const anchor = document.createElement("a");
   anchor.href = url;
   anchor.download = name;

@@ -6,6 +6,7 @@ import { Constraints } from "./constraints.js";
 import { readCurveFile } from "./curvefile.js";
 import { Editor } from "./editor.js";
 import { download, mechanismJson, mechanismSvg, readMechanismFile, sharedMechanism, shareUrl } from "./files.js";
+import { KitView } from "./kit.js";
 import { FIXED } from "./mechanism.js";
 import { Retriever } from "./retrieve.js";
 
@@ -88,6 +89,31 @@ const retriever = new Retriever({
   },
 });
 
+// Build: the editor's mechanism as a kit of printable parts, in 3D (POST /api/kit).
+const kitView = new KitView({
+  editor,
+  notify,
+  ui: {
+    build: $("build-kit"),
+    layers: $("kit-layers"),
+    panel: $("kit-panel"),
+    status: $("kit-status"),
+    canvas: $("kit-canvas"),
+    play: $("kit-play"),
+    crank: $("kit-crank"),
+    crankValue: $("kit-crank-value"),
+    explode: $("kit-explode"),
+    explodeValue: $("kit-explode-value"),
+    close: $("kit-close"),
+    downloads: { zip: $("kit-zip"), glb: $("kit-glb"), bom: $("kit-bom") },
+    crankMm: $("crank-mm"),
+    barWidth: $("kit-bar-width"),
+    clearance: $("kit-clearance"),
+    layerThickness: $("kit-layer-thickness"),
+    base: $("kit-base"),
+  },
+});
+
 for (const button of document.querySelectorAll("[data-tool]")) {
   button.addEventListener("click", () => editor.setTool(button.dataset.tool));
 }
@@ -128,7 +154,7 @@ async function exportForFabrication(format) {
   try {
     const answer = await postForFile("/api/export", body, `mechanism.${format}`);
     if (answer.status === 200) {
-      download(answer.name, answer.text, answer.type);
+      download(answer.name, answer.blob, answer.type);
       notify("", "fabrication");
     } else {
       notify(`Export failed: ${explain(answer)}`, "fabrication");
@@ -231,11 +257,15 @@ getJson("/api/health")
   })
   .catch((err) => notify(`Health check failed: ${err.message}`, "health"));
 
-// For scripts and the browser tests: the live state, read-only by convention.
+// For scripts and the browser tests: the live state, read-only by convention. `kitView` is
+// the kit in 3D: its parts() are the parts drawn (kind, name, layer, world position in mm, z
+// up, and a bar's two hole centres) at its current step, which setStep(s) sets; drawn() says
+// what the last frame drew.
 window.studio = {
   editor,
   retriever,
   constraints,
+  kitView,
   limits,
   mechanism: () => editor.current(),
   trajectories: () => editor.trajectories(),
@@ -243,5 +273,10 @@ window.studio = {
   drawToScreen: (p) => retriever.view.toScreen(p),
   latencies: () => editor.latencies.slice(),
   idle: () =>
-    limitsSettled && importing === 0 && exporting === 0 && openingCurve === 0 && editor.idle,
+    limitsSettled &&
+    importing === 0 &&
+    exporting === 0 &&
+    openingCurve === 0 &&
+    editor.idle &&
+    kitView.idle,
 };
