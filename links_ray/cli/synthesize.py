@@ -71,8 +71,8 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         "--constraints",
         metavar="FILE",
         help='JSON file of design constraints in the drawing\'s units: {"pivots": [xmin, ymin, '
-        'xmax, ymax], "footprint": [...], "max_link_ratio": R, "min_link": L, "max_link": L} '
-        "(any of them); every result keeps them",
+        'xmax, ymax], "footprint": [...], "max_link_ratio": R, "min_link": L, "max_link": L, '
+        '"max_layers": N} (any of them); every result keeps them',
     )
     synthesize.add_argument(
         "--timing",

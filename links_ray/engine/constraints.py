@@ -4,12 +4,15 @@ them, and the linearized rows that keep a refinement step inside them.
 The constraints themselves (`Constraints`, validated by `as_constraints`) are a
 pivot region (every fixed joint in a box), a footprint (every joint in a box over the whole
 turn) and link lengths (every link between `min_link` and `max_link`, the longest at most
-`max_link_ratio` times the shortest). A link is an edge of the mechanism's adjacency, the
+`max_link_ratio` times the shortest), and `max_layers` (at most that many layers as a kit at the
+default sizes, `engine.synthesis_layers`). A link is an edge of the mechanism's adjacency, the
 crank included.
 
-`violation` measures how far a mechanism is from keeping them: each constraint's miss in its
-own units (lengths in the drawing's units, the ratio as a ratio) and one merit that adds them
-up in chords, which refinement drives to zero before it may trade any of it for a better fit.
+`violation` measures how far a mechanism is from keeping the geometric ones (all but
+`max_layers`, which costs a layer plan and is kept at the answer, `engine.synthesis_layers`):
+each constraint's miss in its own units (lengths in the drawing's units, the ratio as a ratio)
+and one merit that adds them up in chords, which refinement drives to zero before it may trade
+any of it for a better fit.
 `guard_rows` linearizes the constraints near their bounds as rows A d >= b of a step d of the
 positions, as `refine_step.transmission_guards` does for the transmission margin.
 
@@ -22,10 +25,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from links_ray.engine.inputs import MAX_COORDINATE, as_real_array, positive_at_most, shown
+from links_ray.engine.inputs import (
+    MAX_COORDINATE,
+    MAX_DATASET_JOINTS,
+    as_int,
+    as_real_array,
+    positive_at_most,
+    shown,
+)
 
 __all__ = [
     "CONSTRAINT_NAMES",
+    "MAX_LAYERS",
     "Constraints",
     "Violation",
     "as_constraints",
@@ -36,7 +47,18 @@ __all__ = [
 ]
 
 #: The design constraints a synthesis takes (`as_constraints`), in the drawing's units.
-CONSTRAINT_NAMES = ("pivots", "footprint", "max_link_ratio", "min_link", "max_link")
+CONSTRAINT_NAMES = (
+    "pivots",
+    "footprint",
+    "max_link_ratio",
+    "min_link",
+    "max_link",
+    "max_layers",
+)
+#: The most `max_layers` may be: a plan needs no more layers than links (one each), and a
+#: mechanism synthesis answers has at most MAX_DATASET_JOINTS joints, each of which adds at
+#: most two links.
+MAX_LAYERS = 2 * MAX_DATASET_JOINTS
 
 
 @dataclass(frozen=True)
@@ -46,6 +68,8 @@ class Constraints:
     `pivots` (xmin, ymin, xmax, ymax): every fixed joint inside this box. `footprint`: every
     joint inside this box through the whole crank turn. `max_link_ratio`: the longest link at
     most this many times the shortest. `min_link`, `max_link`: every link's length within.
+    `max_layers`: at most this many layers as a kit at the default sizes scaled to its crank
+    (`engine.synthesis_layers`).
     """
 
     pivots: tuple[float, float, float, float] | None = None
@@ -53,6 +77,7 @@ class Constraints:
     max_link_ratio: float | None = None
     min_link: float | None = None
     max_link: float | None = None
+    max_layers: int | None = None
 
     def given(self) -> tuple[str, ...]:
         """The names of the constraints set."""
@@ -101,9 +126,12 @@ def as_constraints(value: object) -> Constraints | None:
     low, high = lengths.get("min_link"), lengths.get("max_link")
     if low is not None and high is not None and low > high:
         raise ValueError(f"min_link ({low:g}) must not exceed max_link ({high:g})")
+    layers = None
+    if "max_layers" in given:
+        layers = as_int("max_layers", given["max_layers"], 1, MAX_LAYERS)
     if not given:
         return None
-    return Constraints(max_link_ratio=ratio, **boxes, **lengths)
+    return Constraints(max_link_ratio=ratio, max_layers=layers, **boxes, **lengths)
 
 
 #: Steps aim this share of the drawing's chord inside a bound (and a ratio this share of
@@ -158,8 +186,9 @@ def violation(
     bounds: np.ndarray,
     chord: float,
 ) -> Violation:
-    """How far `positions` (n, 2) are from `constraints`; `fixed` are the fixed joints'
-    indices, `bounds` the `extent` of every joint over the turn, `chord` the drawing's."""
+    """How far `positions` (n, 2) are from `constraints` but `max_layers` (kept at the
+    answer: `engine.synthesis_layers`); `fixed` are the fixed joints' indices, `bounds` the
+    `extent` of every joint over the turn, `chord` the drawing's."""
     if constraints is None:
         return KEPT
     misses: list[tuple[float, str, float]] = []  # (in chords, name, in its units)

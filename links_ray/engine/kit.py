@@ -66,6 +66,7 @@ __all__ = [
     "Pin",
     "Placement",
     "Spacer",
+    "kit_layers",
     "plan_kit",
 ]
 
@@ -375,9 +376,7 @@ def plan_kit(
     link too short to hold its two holes, and `LayeringError` when no stacking keeps every pin
     clear.
     """
-    options = KitOptions() if options is None else options
-    if not isinstance(options, KitOptions):
-        raise ValueError(f"options must be a KitOptions, got {type(options).__name__}")
+    options = _as_options(options)
     drawing = fabrication(adjacency, node_types, positions, crank_mm=options.crank_mm)
     shortest = min(drawing.links, key=lambda link: link.length_mm)
     if shortest.length_mm <= options.hole_diameter_mm:
@@ -386,8 +385,60 @@ def plan_kit(
             f"link {list(shortest.joints)} is {shortest.length_mm:.3g} mm long: its holes, "
             f"{options.hole_diameter_mm:g} mm across, would meet; give {scale}, or smaller holes"
         )
+    plan = _planned(adjacency, node_types, drawing, options, steps)
+    posts = (drawing.node_types == FIXED) & options.ground_on_base
+    pins, spacers = _pins_and_spacers(plan, posts, options)
+    base = None
+    if options.ground_on_base:
+        turn = simulate(adjacency, node_types, drawing.joints_mm, steps)
+        low = turn.min(axis=(0, 1)) - options.bar_width_mm
+        high = turn.max(axis=(0, 1)) + options.bar_width_mm
+        bottom = options.layer_bottom(-1)  # the plate is layer -1, as thick as a layer
+        base = BasePlate(
+            extent_mm=(float(low[0]), float(low[1]), float(high[0]), float(high[1])),
+            z_mm=(bottom, bottom + options.layer_thickness_mm),
+            posts=tuple(int(j) for j in np.flatnonzero(posts)),
+        )
+    return Kit(options, drawing, plan, pins, spacers, base)
+
+
+def kit_layers(
+    adjacency: ArrayLike,
+    node_types: ArrayLike,
+    positions: ArrayLike,
+    options: KitOptions | None = None,
+    *,
+    steps: int = DEFAULT_COLLISION_STEPS,
+) -> LayerPlan:
+    """The layer plan `plan_kit` would give the mechanism, without its parts: the layers
+    alone do not depend on the holes, so a link too short for its two holes is no error here.
+
+    Raises `ValueError` as `plan_kit` does for the drawing and the plan (`LayeringError`
+    when no stacking keeps every pin clear)."""
+    options = _as_options(options)
+    drawing = fabrication(adjacency, node_types, positions, crank_mm=options.crank_mm)
+    return _planned(adjacency, node_types, drawing, options, steps)
+
+
+def _as_options(options: object) -> KitOptions:
+    """`options`, or `KitOptions()` for None; ValueError for anything else."""
+    if options is None:
+        return KitOptions()
+    if not isinstance(options, KitOptions):
+        raise ValueError(f"options must be a KitOptions, got {type(options).__name__}")
+    return options
+
+
+def _planned(
+    adjacency: ArrayLike,
+    node_types: ArrayLike,
+    drawing: Fabrication,
+    options: KitOptions,
+    steps: int,
+) -> LayerPlan:
+    """The layers of `drawing` (the mechanism in mm) at the sizes of `options`."""
     try:
-        plan = plan_layers(
+        return plan_layers(
             adjacency,
             node_types,
             drawing.joints_mm,
@@ -405,20 +456,6 @@ def plan_kit(
             f"{exc}; the bars are {options.bar_width_mm:g} mm wide beside a crank "
             f"{drawing.crank_mm:.3g} mm long: give a longer crank_mm, or smaller sizes"
         ) from None
-    posts = (drawing.node_types == FIXED) & options.ground_on_base
-    pins, spacers = _pins_and_spacers(plan, posts, options)
-    base = None
-    if options.ground_on_base:
-        turn = simulate(adjacency, node_types, drawing.joints_mm, steps)
-        low = turn.min(axis=(0, 1)) - options.bar_width_mm
-        high = turn.max(axis=(0, 1)) + options.bar_width_mm
-        bottom = options.layer_bottom(-1)  # the plate is layer -1, as thick as a layer
-        base = BasePlate(
-            extent_mm=(float(low[0]), float(low[1]), float(high[0]), float(high[1])),
-            z_mm=(bottom, bottom + options.layer_thickness_mm),
-            posts=tuple(int(j) for j in np.flatnonzero(posts)),
-        )
-    return Kit(options, drawing, plan, pins, spacers, base)
 
 
 def _pins_and_spacers(

@@ -31,6 +31,7 @@ from concurrent.futures import ThreadPoolExecutor
 from links_ray.engine.budget import Budget, IterationBudget, TimeBudget
 from links_ray.engine.cpus import usable_cpus
 from links_ray.engine.inputs import DEFAULT_K
+from links_ray.engine.synthesis_layers import LAYER_SHARE, plans_layers
 from links_ray.engine.synthesis_options import SynthesisOptions
 from links_ray.engine.synthesis_passes import Progress, SynthesisPasses
 from links_ray.engine.synthesis_plan import Retriever, pooled, retrievals
@@ -70,16 +71,22 @@ def refine_retrieved(
     candidates, the best result, and only those better than every simpler one, by joints
     ascending (k does not limit it). `options.constraints`: every result keeps them; if none
     can, the answer is empty and its `unmet` says which the nearest candidate misses, and by
-    how much. `options.timing`: the points are reached at those crank angles; the short pass
+    how much; `max_layers` is kept at the answer, and a front's results (and those of a
+    synthesis given `max_layers`) carry their `layers`, `engine.synthesis_layers` says how
+    (with a time budget, the passes take 1 - LAYER_SHARE of it, the plans the rest).
+    `options.timing`: the points are reached at those crank angles; the short pass
     fits the shape, then the start of each candidate is chosen (`timing.best_start`) and the
     rest refines and ranks by the timed error."""
     started = time.perf_counter() if started is None else started
     target = as_target(points, options.partial)
-    budget: Budget = (
-        IterationBudget(options.iterations)
-        if options.iterations is not None
-        else TimeBudget(started, options.seconds)  # type: ignore[arg-type]
-    )
+    budget: Budget
+    if options.iterations is not None:
+        budget = IterationBudget(options.iterations)
+    else:
+        seconds: float = options.seconds  # type: ignore[assignment]
+        if plans_layers(options):
+            seconds *= 1.0 - LAYER_SHARE  # the answer's layer plans take the rest
+        budget = TimeBudget(started, seconds)
     workers = max(1, min(usable_cpus(), len(retrieved)))
     with ThreadPoolExecutor(workers, thread_name_prefix="links-synthesize") as pool:
         passes = SynthesisPasses(options, target, budget, pool, workers, progress, started)
@@ -115,12 +122,12 @@ def synthesize(
 
     Design: `max_joints`, only mechanisms of at most that many joints (each result's
     `n_joints` counts its reduced mechanism's); `front`, the Pareto front (the best of each
-    joint count that beats every simpler one) instead of the k best; `constraints` (pivots,
-    footprint, max_link_ratio, min_link, max_link, in the drawing's units:
-    `constraints.Constraints`), kept by every result, the answer's `unmet` saying so when no
-    candidate can; `timing` (True: equal crank steps over a turn; or the crank angle of each
-    point in degrees), the points reached at those angles from a free start, each result's
-    `timed_error` measuring it.
+    joint count that beats every simpler one) instead of the k best, each result with its
+    `layers` as a kit; `constraints` (pivots, footprint, max_link_ratio, min_link, max_link,
+    in the drawing's units, and max_layers: `constraints.Constraints`), kept by every result,
+    the answer's `unmet` saying so when no candidate can; `timing` (True: equal crank steps
+    over a turn; or the crank angle of each point in degrees), the points reached at those
+    angles from a free start, each result's `timed_error` measuring it.
 
     `options`: all of the above but `points` and `progress` as one `SynthesisOptions`, instead
     of the separate arguments. Raises ValueError naming bad input."""

@@ -38,6 +38,7 @@ from links_ray.engine.candidates import WORST_RANK, Candidate, candidate
 from links_ray.engine.inputs import DEFAULT_MIN_TRANSMISSION_DEG
 from links_ray.engine.pareto import pareto_front
 from links_ray.engine.refine_step import IRLS_WEIGHT_FLOOR
+from links_ray.engine.synthesis_layers import LayerCounts, layer_deadline, plans_layers
 from links_ray.engine.synthesis_options import SynthesisOptions
 from links_ray.engine.synthesis_results import SynthesisResults, as_result
 from links_ray.engine.target import Target
@@ -251,14 +252,29 @@ class SynthesisPasses:
 
     def answer(self) -> SynthesisResults:
         """The k best candidates that keep the constraints (or a front of them), as results;
-        `unmet` says what the nearest missed when none keeps them."""
+        `unmet` says what the nearest missed when none keeps them. A front's results, and
+        every result of one given `max_layers`, carry their `layers`
+        (`engine.synthesis_layers`)."""
         candidates = sorted(self.candidates, key=lambda c: (*c.rank(), c.result["path_id"]))
         kept = [c for c in candidates if c.missed.kept]
-        chosen = pareto_front(kept) if self.options.front else kept[: self.options.k]
+        constraints, unmet = self.options.constraints, None
+        counts = None
+        if plans_layers(self.options):
+            counts = LayerCounts(self.pool, layer_deadline(self.options, self.started))
+        if counts is not None and constraints is not None and constraints.max_layers is not None:
+            chosen, unmet = counts.keeping(kept, self.options, constraints.max_layers)
+        else:
+            chosen = pareto_front(kept) if self.options.front else kept[: self.options.k]
+        if counts is not None:
+            counts.plan(chosen, bounded=False)  # a front's, planned whatever the bounds
         answer = SynthesisResults(as_result(c, self.target, self.timed) for c in chosen)
+        if counts is not None:
+            for result, c in zip(answer, chosen, strict=True):
+                result["layers"] = counts.counts[c]
         if candidates and not kept:
             nearest = candidates[0].missed
-            answer.unmet = {"constraint": nearest.name, "by": nearest.by}
+            unmet = {"constraint": nearest.name, "by": nearest.by}
+        answer.unmet = unmet
         return answer
 
     def report(self) -> None:

@@ -11,6 +11,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from links_ray.engine.constraints import MAX_LAYERS
 from links_ray.engine.inputs import (
     DEFAULT_CRANK_MM,
     DEFAULT_K,
@@ -125,6 +126,15 @@ class DesignConstraints(Request):
     )
     min_link: float | None = Field(None, gt=0.0, description="every link at least this long")
     max_link: float | None = Field(None, gt=0.0, description="every link at most this long")
+    max_layers: int | None = Field(
+        None,
+        ge=1,
+        le=MAX_LAYERS,
+        description=(
+            "at most this many layers as a kit at the default sizes scaled to its crank (bars "
+            "0.4 of the crank wide), checked at the answer"
+        ),
+    )
 
 
 class SynthesizeRequest(CurveRequest):
@@ -310,12 +320,21 @@ class SynthesisResult(BaseModel):
             "the drawing's longest chord"
         ),
     )
+    layers: int | None = Field(
+        None,
+        description=(
+            "with front or max_layers: its layers as a kit at the default sizes scaled to its "
+            "crank; null when no stacking exists (absent otherwise)"
+        ),
+    )
 
 
 class Unmet(BaseModel):
     """The constraint the nearest candidate misses most, and by how much in its own units."""
 
-    constraint: Literal["pivots", "footprint", "max_link_ratio", "min_link", "max_link"]
+    constraint: Literal[
+        "pivots", "footprint", "max_link_ratio", "min_link", "max_link", "max_layers"
+    ]
     by: float
 
 

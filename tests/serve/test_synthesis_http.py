@@ -106,6 +106,19 @@ def test_http_synthesize_stream_flag_is_checked(client: Client) -> None:
             "give seconds or iterations, not both",
         ),
         ([1, 2], 400, "the body must be a JSON object"),
+        *(
+            (
+                {"points": [[0, 0], [1, 1], [2, 0]], "constraints": {"max_layers": value}},
+                400,
+                words,
+            )
+            for value, words in [
+                (0, "max_layers must be from 1 to 40, got 0"),
+                (-1, "max_layers must be from 1 to 40, got -1"),
+                ("x", "max_layers must be an integer from 1 to 40, got 'x'"),
+                (1e9, "max_layers must be an integer from 1 to 40"),
+            ]
+        ),
     ],
 )
 def test_http_synthesize_refuses_bad_requests(

@@ -116,6 +116,21 @@ def _synthesize(args: argparse.Namespace) -> Measured:
     return result, synthesis.format_synthesize
 
 
+def _kit(args: argparse.Namespace) -> Measured:
+    from links_ray.cli.bench import kit
+
+    return kit.bench_kit(mechanisms=args.mechanisms, seed=args.seed), kit.format_kit
+
+
+def _kit_arguments(command: argparse.ArgumentParser) -> None:
+    command.add_argument(
+        "--seed",
+        type=non_negative_int,
+        default=0,
+        help="seed of the random mechanisms (default 0, the benchmarks page's figures)",
+    )
+
+
 def _import_release(args: argparse.Namespace) -> Measured:
     from links_ray.cli.bench import release
 
@@ -299,6 +314,14 @@ BENCHMARKS = (
         _synthesize,
         ("--paths", 1_000_000, "curated paths in the index"),
         _synthesize_arguments,
+    ),
+    Benchmark(
+        "kit",
+        "random dataset mechanisms as kits at the default sizes: share with no layer plan, "
+        "layers, share proven fewest, seconds to plan; by joint count",
+        _kit,
+        ("--mechanisms", 1000, "valid mechanisms (8-20 joints, five per topology)"),
+        _kit_arguments,
     ),
     Benchmark(
         "import-release",
