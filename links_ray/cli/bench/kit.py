@@ -69,7 +69,8 @@ def _summary(rows: list[dict]) -> dict:
 
 def bench_kit(mechanisms: int = 1000, seed: int = 0) -> dict:
     """Layer plans of `mechanisms` random dataset mechanisms at the kit's default sizes (the
-    module's docstring), one at a time in this thread, each timed on the wall clock."""
+    module's docstring), one at a time in this thread, each timed on the wall clock; `each`
+    holds every mechanism's joints, layers and status, in the workload's order."""
     workload = kit_workload(mechanisms, seed)
     kit_layers(*workload[0])  # compiles the collision kernels outside the timing
     rows = []
@@ -94,6 +95,7 @@ def bench_kit(mechanisms: int = 1000, seed: int = 0) -> dict:
         "sizes": {"crank": DEFAULT_CRANK_MM, **_sizes(KitOptions())},
         **_summary(rows),
         "by_joints": by_joints,
+        "each": [{key: row.get(key) for key in ("joints", "layers", "status")} for row in rows],
         "machine": machine_info(),
     }
 
