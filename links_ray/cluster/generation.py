@@ -127,6 +127,7 @@ def generate(
         pool = ShardPool(
             lambda: GeneratorActor.remote(out, config, lease.token), workers, role="generator"
         )
+        made_now = 0  # mechanisms made by this run: a resumed run's rate counts only these
         try:
             while todo or pool.busy():
                 if lease.lost:
@@ -135,13 +136,15 @@ def generate(
                 pool.submit(todo)
                 for shard, marker in pool.collect(todo):
                     committed[shard.shard_id] = marker
+                    made_now += marker["stats"]["mechanisms"]
                     meter.advance(marker["stats"]["mechanisms"])
         finally:
             pool.shutdown()
             meter.close()
         lease.confirm()
         remove_uncommitted(store, "shards", committed)
-        summary = summarize(plan, committed, store.uri, time.perf_counter() - start, pool.peak)
+        seconds = time.perf_counter() - start
+        summary = summarize(plan, committed, store.uri, seconds, pool.peak, made_now)
         store.write_json(f"{META}/summary.json", summary)
     return summary
 
@@ -183,9 +186,17 @@ SHARD_COUNTS = (
 
 
 def summarize(
-    plan: GenerationPlan, markers: dict[int, dict], uri: str, seconds: float, workers: int
+    plan: GenerationPlan,
+    markers: dict[int, dict],
+    uri: str,
+    seconds: float,
+    workers: int,
+    made_now: int,
 ) -> dict:
-    """The run summary: counts, candidates per valid mechanism by joint count, throughput."""
+    """The run summary: counts over the whole root, candidates per valid mechanism by joint
+    count, and throughput: `mechanisms_per_second` is this run's (`made_now` mechanisms in
+    `seconds`: a resumed run's earlier rows took no time of it), `valid_per_core_second` the
+    root's (all rows over the seconds every shard's actor took)."""
     by_size: dict[int, dict] = {}
     rows = dict.fromkeys(plan.tables, 0)
     compute_s = 0.0
@@ -216,6 +227,7 @@ def summarize(
         ),
         "seconds": seconds,
         "workers": workers,
-        "mechanisms_per_second": rows["mechanisms"] / seconds if seconds else None,
+        "mechanisms_this_run": made_now,
+        "mechanisms_per_second": made_now / seconds if seconds else None,
         "valid_per_core_second": rows["mechanisms"] / compute_s if compute_s else None,
     }

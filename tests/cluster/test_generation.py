@@ -211,6 +211,9 @@ def test_a_root_grows_in_place_to_the_rows_of_a_fresh_run(
     summary = generate(str(root), 200, seed=3, progress=False, topologies_per_shard=2)
     assert summary["complete"] and summary["rows"]["mechanisms"] == 200
     assert summary["plan"]["grown_from"] == [137]
+    # Its rate is of the rows it made: the 137 it found took none of its seconds.
+    assert summary["mechanisms_this_run"] == 200 - 137
+    assert summary["mechanisms_per_second"] == pytest.approx(63 / summary["seconds"])
     assert all(path.read_bytes() == data for path, data in before.items())
     fresh = GenerationPlan(seed=3, mechanisms=200, topologies_per_shard=2)
     generate_and_curate(str(tmp_path / "fresh"), fresh)
