@@ -54,9 +54,14 @@ def shots(tmp_path: Path) -> Path:
 
 
 def build(studio: Studio, tmp_path: Path, mechanism: dict[str, Any], base: bool) -> str:
-    """Import `mechanism` into the editor, set a CRANK_MM crank (and the base plate), press
-    *Build 3D* and wait for the answer; the kit panel's state: shown, refused or failed."""
+    """Import `mechanism` into the editor and build it (`press_build`)."""
     studio.import_mechanism(tmp_path, mechanism, "kit.json")
+    return press_build(studio, base)
+
+
+def press_build(studio: Studio, base: bool) -> str:
+    """Set a CRANK_MM crank (and the base plate), press *Build 3D* and wait for the answer;
+    the kit panel's state: shown, refused or failed."""
     studio.page.get_by_test_id("crank-mm").fill(f"{CRANK_MM:g}")
     studio.page.get_by_test_id("kit-base").set_checked(base)
     studio.click("build-kit")
@@ -94,7 +99,7 @@ def at_step(studio: Studio, step: int) -> dict[str, Any]:
 
 
 def test_the_kit_in_3d_turns_as_the_simulation_does(
-    studio: Studio, client: Client, tmp_path: Path, shots: Path
+    studio: Studio, client: Client, tmp_path: Path
 ) -> None:
     # three.js (2 MB) loads only when a kit is first shown.
     assert not any("vendor/" in url for url in studio.requests)
@@ -154,7 +159,6 @@ def test_the_kit_in_3d_turns_as_the_simulation_does(
                 np.testing.assert_allclose(part["position"][:2], truth[joint, step], atol=1e-6)
     # The crank has turned between the two steps: its tip is elsewhere.
     assert math.dist(seen["link-0-1", 37][1], seen["link-0-1", 121][1]) > 1.0
-    studio.page.get_by_test_id("kit-panel").screenshot(path=str(shots / "studio-kit.png"))
 
     # The files, from the same route: the zip holds every part, the bill and the assembly.
     with studio.page.expect_download() as download:
@@ -176,6 +180,23 @@ def test_the_kit_in_3d_turns_as_the_simulation_does(
     # An edit makes the plan the old mechanism's: the line says so.
     studio.start_blank()
     assert studio.text("kit-layers") == "changed since its kit was planned: press Build 3D"
+
+
+def test_the_opening_four_bar_stands_on_a_base_plate(studio: Studio, shots: Path) -> None:
+    """What the page opens on, built as it is: its fixed joints' pins are posts in the plate,
+    which the explode spacing lowers by one step below layer 0."""
+    assert press_build(studio, base=True) == "shown"
+    bom = studio.js("() => window.studio.kitView.kit.bom")
+    assert bom["base"]["posts"] == [0, 2]  # the crank's pivot and the rocker's
+    studio.page.get_by_test_id("kit-explode").fill("2")
+    state = at_step(studio, 60)
+    pitch = LAYER_MM + GAP_MM
+    assert state["explode"] == pytest.approx(2 * pitch)
+    [plate] = [part for part in state["parts"] if part["kind"] == "base"]
+    assert plate["position"][2] == pytest.approx(-pitch - 2 * pitch)
+    bars = [part for part in state["parts"] if part["kind"] == "link"]
+    assert len(bars) == 5 and {bar["layer"] for bar in bars} == set(range(bom["layers"]))
+    studio.page.get_by_test_id("kit-panel").screenshot(path=str(shots / "studio-kit.png"))
 
 
 def test_an_unbuildable_mechanism_shows_why_in_the_analysis_line(

@@ -168,22 +168,24 @@ export class KitView {
     this.line(layerWords(bom), "ok");
     const drawn = await this.ensureScene();
     this.showKitControls(); // the files can be had even where nothing can be drawn
-    if (!drawn) return;
-    this.scene.setKit(bom);
-    this.step = 0;
-    this.pose();
-    this.scene.frame(this.box());
-    const n = bom.links.length + bom.pins.length + bom.spacers.length + (bom.base ? 1 : 0);
-    const base = bom.base ? ", a base plate" : "";
-    this.say(
-      `${layerWords(bom)}: ${bom.links.length} bars, ${bom.pins.length} pins, ` +
-        `${bom.spacers.length} spacers${base} (${n} parts placed, ${bom.parts.length} files), ` +
-        `crank ${bom.crank_mm} mm; planned in ${bom.took_ms.toFixed(0)} ms.`,
-    );
-    this.ui.panel.dataset.state = "shown";
-    this.ui.canvas.dataset.parts = String(n);
-    this.ui.panel.scrollIntoView({ behavior: "smooth", block: "nearest" });
-    this.setPlaying(joints.length > 1);
+    if (drawn) {
+      this.scene.setKit(bom);
+      this.step = 0;
+      this.pose();
+      this.scene.frame(this.box());
+      const n = bom.links.length + bom.pins.length + bom.spacers.length + (bom.base ? 1 : 0);
+      const base = bom.base ? ", a base plate" : "";
+      this.say(
+        `${layerWords(bom)}: ${bom.links.length} bars, ${bom.pins.length} pins, ` +
+          `${bom.spacers.length} spacers${base} (${n} parts placed, ${bom.parts.length} files), ` +
+          `crank ${bom.crank_mm} mm; planned in ${bom.took_ms.toFixed(0)} ms.`,
+      );
+      this.ui.panel.dataset.state = "shown";
+      this.ui.canvas.dataset.parts = String(n);
+      this.ui.panel.scrollIntoView({ behavior: "smooth", block: "nearest" });
+      this.setPlaying(joints.length > 1);
+    }
+    this.mechanismChanged(this.editor.version); // edited while the kit was planned
   }
 
   /** The 3D scene, made on first use (three.js loads then); false if it cannot be. */

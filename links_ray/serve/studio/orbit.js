@@ -15,7 +15,7 @@ export class Orbit {
     this.onChange = onChange;
     this.target = [0, 0, 0];
     this.azimuth = -Math.PI / 3; // the eye's direction from the target, from +x, seen from above
-    this.elevation = Math.PI / 5;
+    this.elevation = 0.45; // low enough that the layers stand apart, high enough to see in
     this.distance = 100;
     this.pointers = new Map(); // pointer id -> [x, y]: one drags, two pinch
     this.pinch = 0;
@@ -27,10 +27,11 @@ export class Orbit {
     element.addEventListener("wheel", (e) => this.wheel(e), { passive: false });
   }
 
-  /** Look at `centre` from far enough that a sphere of `radius` fits a `fovDeg` view. */
+  /** Look at `centre` from about where a sphere of `radius` just fits a `fovDeg` view: a
+   * little nearer, since what fills a box seldom reaches the sphere around it. */
   frame(centre, radius, fovDeg) {
     this.target = centre.slice();
-    this.distance = (1.15 * radius) / Math.sin((fovDeg * Math.PI) / 360);
+    this.distance = (0.9 * radius) / Math.sin((fovDeg * Math.PI) / 360);
     this.onChange();
   }
 
