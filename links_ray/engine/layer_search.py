@@ -1,12 +1,12 @@
 """The searches for a layer plan (`engine.layers` says what a plan is, and how these serve
 it): the rules checked, greedy placements, whether any order keeps the pin rule, and whether
-a plan fits on so many layers, as a mixed-integer program (`scipy.optimize.milp`, HiGHS).
+the fewest layers a plan can have, as a constraint program (OR-Tools CP-SAT).
 
 Arrays throughout: `links` (L, 2) joint pairs, `link_conflicts` (L, L) and `pin_conflicts`
 (L, n) bool (`collisions.Collisions`), `posts` (n,) bool the joints whose pins stand on the
 base plate, a plan (L,) the links' layers.
 
-Numpy and scipy: no numba of its own, no Ray.
+Numpy and OR-Tools: no numba of its own, no Ray.
 """
 
 from __future__ import annotations
@@ -14,14 +14,11 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from scipy.optimize import Bounds, LinearConstraint, milp
-from scipy.sparse import coo_array
+from ortools.sat.python import cp_model
 
 #: Orders the greedy placement tries, the fewest layers kept; then rounds of it placing the
 #: best plan's layers anew, in shuffled order (iterated greedy, as for graph colouring).
 GREEDY_ORDERS, GREEDY_ROUNDS = 16, 48
-
-Rows = list[tuple[list[tuple[int, float]], float, float]]
 
 
 def _pin_spans(links: np.ndarray, layer: np.ndarray, n: int, posts: np.ndarray) -> np.ndarray:
@@ -168,10 +165,15 @@ def _merged(
 
 
 def _feasible_order(
-    links: np.ndarray, pin_conflicts: np.ndarray, posts: np.ndarray, deadline: float
+    links: np.ndarray,
+    pin_conflicts: np.ndarray,
+    posts: np.ndarray,
+    states: int,
+    deadline: float,
 ) -> tuple[np.ndarray | None, str]:
-    """(a plan (L,) of one layer per link, or None; "feasible", "infeasible" or "time limit"
-    if `deadline` (time.monotonic) passed first): whether any plan keeps the pin rule.
+    """(a plan (L,) of one layer per link, or None; "feasible", "infeasible", or "work
+    limit" after `states` states visited, "time limit" if `deadline` (time.monotonic) passed
+    first): whether any plan keeps the pin rule.
 
     A plan exists if one with no two links on a layer does (a shared layer split in two
     keeps every span's ends on the same sides of every other link), and conflicting links
@@ -232,8 +234,11 @@ def _feasible_order(
 
     stack = [start]
     while stack:
+        if states <= 0:
+            return None, "work limit"
         if time.monotonic() > deadline:
             return None, "time limit"
+        states -= 1
         state = stack.pop()
         branch = settle(state)
         if branch is None:
@@ -260,69 +265,60 @@ def _members(bits: int) -> list[int]:
     return members
 
 
-def _plan_on(
+def _fewest_layers(
     links: np.ndarray,
     link_conflicts: np.ndarray,
     pin_conflicts: np.ndarray,
     posts: np.ndarray,
-    layers: int,
+    lower: int,
+    plan: np.ndarray,
+    work: float,
     seconds: float,
-) -> tuple[np.ndarray | None, str]:
-    """(a plan (L,) on at most `layers` layers, or None; "feasible", "infeasible" or "time
-    limit"), as a mixed-integer program (`scipy.optimize.milp`, HiGHS) stopped after
-    `seconds`: binaries x[l, k] (link l on layer k), each link on one layer; the links of a
-    joint, and two conflicting links, not two on a layer; per link m and pin p it conflicts
-    with, a binary z: m above every link of p (z = 1) or below every one (z = 0), big-M on
-    the layers' numbers (at a post, m above). Any other stop of the solver counts as the time
-    limit's."""
-    count = len(links)
-    x_count = count * layers
-    choices = int((pin_conflicts & ~posts[None, :]).sum())
+) -> tuple[np.ndarray, int, str]:
+    """(the plan (L,) of fewest layers found, at most those of `plan`; the fewest any plan
+    can have, proven, at least `lower`; "optimal" when the two meet, else "work limit" or
+    "time limit"), by a constraint program (OR-Tools CP-SAT) that starts from `plan`: each
+    link's layer a variable; the links of a joint, and two conflicting links, on different
+    layers; per link m and pin p it conflicts with, a choice: m above every link of p, or
+    below every one (at a post, above); the highest layer minimized.
 
-    def x(link: int, k: int) -> int:
-        return int(link) * layers + k
-
-    def height(link: int, sign: float) -> list[tuple[int, float]]:
-        """sign * the layer of `link`, as terms."""
-        return [(x(link, k), sign * k) for k in range(1, layers)]
-
-    rows: Rows = [([(x(link, k), 1.0) for k in range(layers)], 1.0, 1.0) for link in range(count)]
-    for joint in np.unique(links):
-        at = np.flatnonzero((links == joint).any(axis=1))
-        rows += [([(x(link, k), 1.0) for link in at], -np.inf, 1.0) for k in range(layers)]
+    The solver runs in one thread from a fixed seed, stopped after `work` units of its
+    deterministic time (its own count of work done, the same on any machine), so its answer
+    is too; `seconds` of wall clock guard it, should that count ever run far slower."""
+    count, layers = len(links), int(plan.max()) + 1
+    model = cp_model.CpModel()
+    layer = [model.new_int_var(0, layers - 1, f"link {link}") for link in range(count)]
+    top = model.new_int_var(lower - 1, layers - 1, "top")
+    model.add_max_equality(top, layer)
     shared = (links[:, None, :, None] == links[None, :, None, :]).any(axis=(2, 3))
-    for first, second in np.argwhere(np.triu(link_conflicts & ~shared, 1)):
-        rows += [([(x(first, k), 1.0), (x(second, k), 1.0)], -np.inf, 1.0) for k in range(layers)]
-    if not posts.any():  # a plan upside down is a plan: keep link 0 in the lower half
-        rows.append((height(0, 2.0), -np.inf, layers - 1.0))
-    z = x_count
+    apart = np.triu((link_conflicts | shared) & ~np.eye(count, dtype=bool), 1)
+    for first, second in np.argwhere(apart):
+        model.add(layer[first] != layer[second])
     for m, p in np.argwhere(pin_conflicts):
-        for o in np.flatnonzero((links == p).any(axis=1)):
-            if posts[p]:
-                rows.append((height(m, 1.0) + height(o, -1.0), 1.0, np.inf))
-                continue
-            rows.append(([*height(m, 1.0), *height(o, -1.0), (z, -layers)], 1.0 - layers, np.inf))
-            rows.append(([*height(o, 1.0), *height(m, -1.0), (z, layers)], 1.0, np.inf))
-        z += not posts[p]
-    width = x_count + choices
-    index, cols, values, low, high = [], [], [], [], []
-    for number, (terms, lower, upper) in enumerate(rows):
-        for col, value in terms:
-            index.append(number)
-            cols.append(col)
-            values.append(value)
-        low.append(lower)
-        high.append(upper)
-    matrix = coo_array((values, (index, cols)), shape=(len(rows), width)).tocsr()
-    result = milp(
-        np.zeros(width),
-        integrality=np.ones(width),
-        bounds=Bounds(0.0, 1.0),
-        constraints=LinearConstraint(matrix, low, high),
-        options={"time_limit": max(seconds, 0.01), "disp": False},
-    )
-    if result.status == 2:
-        return None, "infeasible"
-    if result.status != 0 or result.x is None:
-        return None, "time limit"
-    return result.x[:x_count].reshape(count, layers).argmax(axis=1), "feasible"
+        own = np.flatnonzero((links == p).any(axis=1))
+        above = model.new_constant(1) if posts[p] else model.new_bool_var(f"{m} above pin {p}")
+        for o in own:
+            model.add(layer[m] > layer[o]).only_enforce_if(above)
+            if not posts[p]:
+                model.add(layer[m] < layer[o]).only_enforce_if(~above)
+    if not posts.any():  # a plan upside down is a plan: keep link 0 in the lower half
+        model.add(2 * layer[0] <= top)
+    for link in range(count):
+        model.add_hint(layer[link], int(plan[link]))
+    model.minimize(top)
+    solver = cp_model.CpSolver()
+    solver.parameters.num_workers = 1
+    solver.parameters.random_seed = 0
+    solver.parameters.max_deterministic_time = work
+    solver.parameters.max_time_in_seconds = max(seconds, 0.01)
+    answer = solver.solve(model)
+    proven = solver.best_objective_bound
+    bound = max(lower, round(proven) + 1) if np.isfinite(proven) else lower
+    if answer in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+        found = np.array([solver.value(v) for v in layer], dtype=np.int64)
+        if found.max() < plan.max():
+            plan = found
+    if answer == cp_model.OPTIMAL or int(plan.max()) + 1 <= bound:
+        return plan, int(plan.max()) + 1, "optimal"
+    out_of_time = solver.wall_time >= max(seconds, 0.01)
+    return plan, bound, "time limit" if out_of_time else "work limit"

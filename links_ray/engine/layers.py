@@ -42,17 +42,19 @@ transitive closure. None: `LayeringError`, naming the pins in the way. Else that
 layer per link, its neighbouring layers merged where the rules allow, is the first plan.
 Random mechanisms of the dataset often have none: their links sweep over each other's joints.
 
-Then the fewest layers, exactly: is there a plan on as many layers as the lower bound? A
-mixed-integer program says (`scipy.optimize.milp`, HiGHS; `layer_search._plan_on` states
-it): if so, that plan, optimal; if not, the bound rises by one and the question is asked
-again, until the bound meets the first plan, which is then optimal. Skipped past
-`MAX_EXACT_LINKS` links (the first plan taken). The searches of one plan together stop at
-`MILP_SECONDS`: the best plan so far taken, and the bound proven so far reported with it.
+Then the fewest layers, exactly, when the first plan is above the lower bound: a constraint
+program (OR-Tools CP-SAT; `layer_search._fewest_layers` states it), started from the first
+plan, minimizes the highest layer and proves the fewest. Skipped past `MAX_EXACT_LINKS` links
+(the first plan taken). The searches of one plan do counted work, so a plan is the same on
+any machine and under any load: the order search visits at most `ORDER_STATES` states, the
+solver does at most `PLAN_WORK` of its deterministic time, in one thread. Past them, the best
+plan so far is taken, and the bound proven so far reported with it. `PLAN_SECONDS` guards the
+wall clock behind them, far above what the counted work takes.
 
 The lower bound starts at the most links at one joint or a greedy clique of conflicting
-links, whichever is larger (each needs a layer of its own), and rises with each "no".
+links, whichever is larger (each needs a layer of its own); the solver may prove it higher.
 
-Numpy and scipy: no numba of its own, no Ray.
+Numpy and OR-Tools: no numba of its own, no Ray.
 """
 
 from __future__ import annotations
@@ -68,17 +70,19 @@ from links_ray.engine.inputs import DEFAULT_COLLISION_STEPS, as_flag
 from links_ray.engine.layer_search import (
     _broken_rule,
     _feasible_order,
+    _fewest_layers,
     _first_plan,
     _merged,
     _pin_spans,
-    _plan_on,
 )
 from links_ray.engine.node_kinds import FIXED
 from links_ray.engine.solver import topology_cache
 
 __all__ = [
     "MAX_EXACT_LINKS",
-    "MILP_SECONDS",
+    "ORDER_STATES",
+    "PLAN_SECONDS",
+    "PLAN_WORK",
     "STATUSES",
     "LayerPlan",
     "LayeringError",
@@ -87,12 +91,18 @@ __all__ = [
 
 #: The most links whose fewest layers are sought exactly; past it, the first plan is taken.
 MAX_EXACT_LINKS = 60
-#: Seconds the searches of one plan may take together; then the best plan so far is taken.
-MILP_SECONDS = 10.0
-#: How a plan was found: "optimal", its layers the lower bound (proven fewest); "time limit",
-#: the searches stopped at MILP_SECONDS with the first plan above the bound proven so far;
-#: "heuristic", past MAX_EXACT_LINKS, the first plan, above the starting bound.
-STATUSES = ("optimal", "time limit", "heuristic")
+#: States the search for an order that keeps the pin rule may visit in one plan.
+ORDER_STATES = 20_000
+#: Work the constraint solver may do for one plan, in its units of deterministic time.
+PLAN_WORK = 2.0
+#: Seconds the searches of one plan may take together, a guard should the counted work ever
+#: run far longer than it does; then the best plan so far is taken, as past the counted work.
+PLAN_SECONDS = 60.0
+#: How a plan was found: "optimal", its layers the lower bound (proven fewest); "work limit",
+#: the searches spent ORDER_STATES or PLAN_WORK with their plan above the bound proven so
+#: far; "time limit", the same at PLAN_SECONDS (the one outcome that depends on the
+#: machine); "heuristic", past MAX_EXACT_LINKS, the first plan, above the starting bound.
+STATUSES = ("optimal", "work limit", "time limit", "heuristic")
 
 
 class LayeringError(ValueError):
@@ -189,31 +199,31 @@ def plan_layers(
     topology = topology_cache.simulator(adjacency, node_types).topology  # kept by the check
     posts = (topology.node_types == FIXED) & ground_on_base
     lower = _lower_bound(links, link_conflicts)
-    deadline = time.monotonic() + MILP_SECONDS
+    deadline = time.monotonic() + PLAN_SECONDS
     plan = _first_plan(links, link_conflicts, pin_conflicts, posts, lower)
     if plan is None:
-        plan, found_one = _feasible_order(links, pin_conflicts, posts, deadline)
+        plan, found_one = _feasible_order(links, pin_conflicts, posts, ORDER_STATES, deadline)
         if found_one == "infeasible":
             raise LayeringError(_no_plan(found, pin_conflicts, ground_on_base))
         if plan is None:
-            raise LayeringError(
-                f"no layer plan found in {MILP_SECONDS:g} s, nor shown that none exists"
+            spent = (
+                f"{PLAN_SECONDS:g} s" if found_one == "time limit" else f"{ORDER_STATES:,} states"
             )
+            raise LayeringError(f"no layer plan found in {spent}, nor shown that none exists")
         plan = _merged(plan, links, link_conflicts, pin_conflicts, posts)
-    # Fewer layers, if any: a plan on as many as the lower bound, else the bound is one more.
+    # Fewer layers, if any, and the fewest proven.
     status = "heuristic"
-    while lower < int(plan.max()) + 1 and len(links) <= MAX_EXACT_LINKS:
-        fewer, answer = _plan_on(
-            links, link_conflicts, pin_conflicts, posts, lower, deadline - time.monotonic()
+    if lower < int(plan.max()) + 1 and len(links) <= MAX_EXACT_LINKS:
+        plan, lower, status = _fewest_layers(
+            links,
+            link_conflicts,
+            pin_conflicts,
+            posts,
+            lower,
+            plan,
+            PLAN_WORK,
+            deadline - time.monotonic(),
         )
-        if answer == "infeasible":
-            lower += 1
-            continue
-        if fewer is not None:
-            plan = fewer
-        else:
-            status = "time limit"
-        break
     # Layers the solver left empty are dropped: the order, and so the rules, stay.
     layer = np.unique(plan, return_inverse=True)[1].astype(np.int64)
     broken = _broken_rule(links, layer, link_conflicts, pin_conflicts, posts)

@@ -7,8 +7,8 @@ then the default bar width, clearance and spacer diameter in millimetres. In the
 units that is each candidate's sizes relative to its own crank length c: bars 0.4 c wide
 (8 mm), 0.05 c of clearance (1 mm), pins with their spacers 0.3 c across (6 mm).
 
-Where it is checked. A layer plan costs about 0.03 to 0.5 s a mechanism, up to the planner's
-MILP_SECONDS: far too much for a refinement step. So refinement ignores `max_layers`, and the
+Where it is checked. A layer plan costs about 0.03 to 0.5 s a mechanism, rarely seconds:
+far too much for a refinement step. So refinement ignores `max_layers`, and the
 answer keeps it: the candidates that keep every other constraint, in rank order, are planned
 (a few at a time, on the synthesis's threads) until the answer is full (k that keep it, or a
 front of them), at most MAX_LAYER_PLANS of them, and with a time budget not past the
@@ -21,11 +21,10 @@ Unmet. A candidate misses `max_layers` by its layers over the most; one with no 
 (`LayeringError`, or a mechanism the planner refuses) by NO_PLAN_MISS, more than any plan
 misses by. When none planned keeps it, `unmet` names the one that missed by least.
 
-The planner is deterministic (its shuffles seeded, its exact search HiGHS's), so counted work
-stays bit-equal, but for one thing: a plan whose search reaches the planner's own MILP_SECONDS
-(status "time limit") keeps the plan found by then, which depends on the load. Large random
-mechanisms do (`links bench kit`, docs/benchmarks.md, Kits); a synthesis's answers are
-mostly small.
+The planner does counted work (its shuffles seeded, its searches bounded by states and
+branch-and-bound nodes, `engine.layers`), so a synthesis of counted work stays bit-equal with
+layers too. Only the planner's wall-clock guard (status "time limit") could make a plan depend
+on the load, and the counted work stops long before it.
 
 Pure numpy and threads: no Ray.
 """

@@ -15,6 +15,7 @@ from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.refine_checks import target_error
 from links_ray.engine.solver import simulate
 from links_ray.engine.target import Target, as_target, target_chamfer
+from links_ray.engine.transmission import joint_transmission_deg
 
 __all__ = ["SynthesisResults", "as_result", "fit"]
 
@@ -73,6 +74,10 @@ def as_result(
         "mechanism_joint": candidate.joint,
         "n_joints": topology.n_joints,
         "n_links": int(np.count_nonzero(np.triu(topology.adjacency, 1))),
+        # As the dataset's paths state it: the joint's dyads, at the stored steps.
+        "min_transmission_deg": float(
+            joint_transmission_deg(topology.order, path[None])[0, candidate.joint]
+        ),
         "path": path[candidate.joint].tolist(),
         "interval": None,
     }

@@ -71,7 +71,7 @@ class KitResponse(BaseModel):
     layers: int
     lower_bound: int = Field(description="the fewest layers any plan could use")
     optimal: bool
-    status: Literal["optimal", "time limit", "heuristic"]
+    status: Literal["optimal", "work limit", "time limit", "heuristic"]
     bar_width_mm: float
     hole_diameter_mm: float
     pin_diameter_mm: float

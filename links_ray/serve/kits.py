@@ -2,10 +2,10 @@
 made (`interop.parts`), answered as its bill of materials, its assembly's glTF binary or a zip
 of the whole kit.
 
-Making a kit holds a core for up to its layer plan's time limit (`engine.layers.MILP_SECONDS`)
-and its parts' making, so a replica makes one at a time, in a thread of its own below the
-event loop (`admission.low_priority_thread`), and holds at most `MAX_KITS`, made or waiting:
-one more is answered 503 with `Retry-After` at once. The mechanism is at most
+Making a kit holds a core for its layer plan's counted work (`engine.layers`; bounded behind
+it by `PLAN_SECONDS`) and its parts' making, so a replica makes one at a time, in a thread of
+its own below the event loop (`admission.low_priority_thread`), and holds at most `MAX_KITS`,
+made or waiting: one more is answered 503 with `Retry-After` at once. The mechanism is at most
 `MAX_REQUEST_JOINTS` joints (413), which bounds the checks and the parts, so the time and the
 memory of making a kit. A place is freed when its kit is made, whether or not its client
 still waits. Nothing here imports Ray.

@@ -45,9 +45,9 @@ def test_bench_kit_counts_what_plan_layers_finds() -> None:
         assert row["joints"] == len(node_types)
         layers, status = direct(adjacency, node_types, positions)
         assert (row["layers"] is None) == (layers is None)
-        # A plan cut by the planner's time limit depends on the load; the rest may not.
+        # The planner's work is counted, so the load changes nothing (but its wall-clock guard).
         if "time limit" not in (row["status"], status):
-            assert row["layers"] == layers
+            assert (row["layers"], row["status"]) == (layers, status)
     # The summary is the per-mechanism rows'.
     planned = [row["layers"] for row in each if row["layers"] is not None]
     assert result["no_plan"] == pytest.approx(1 - len(planned) / MECHANISMS)

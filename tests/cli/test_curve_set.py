@@ -220,7 +220,7 @@ def test_missing_font_names_the_package(tmp_path: Path) -> None:
 
 
 def test_set_groups_sum_up_by_half_and_family() -> None:
-    from links_ray.cli.bench.synthesis import set_groups
+    from links_ray.cli.bench.synthesis_report import set_groups
 
     def row(family: str, half: str, retrieved: float, refined: float, seconds: float) -> dict:
         return {"family": family, "half": half, "retrieved": retrieved, "refined": refined,
@@ -403,7 +403,8 @@ def test_gcp_holo_curves_are_stored_with_their_source() -> None:
 def test_the_time_dial_reports_each_family_at_each_budget(dataset: str) -> None:
     """`bench_dial` runs the set at every budget and gives each half and family's mean and
     median at each: the same figures as the run at that budget."""
-    from links_ray.cli.bench.synthesis import bench_dial, format_dial
+    from links_ray.cli.bench.synthesis import bench_dial
+    from links_ray.cli.bench.synthesis_report import format_dial
 
     names = ("cam_dwell", "crossing_eight_0")
     result = bench_dial(budgets=(0.2, 0.5), root=dataset, use_set=True, only=names)

@@ -81,3 +81,36 @@ def test_synthesis_figure_draws_each_curve(dataset_index: RetrievalIndex, tmp_pa
     quarter = image.shape[1] // 4
     ink = [float((image[:, i * quarter : (i + 1) * quarter, :3] < 0.9).mean()) for i in range(4)]
     assert ink[0] > 0.01 and ink[1] > 0.01 and ink[2] == ink[3] == 0.0
+
+
+def test_a_bench_row_reports_its_floor_and_its_front_as_kits(
+    dataset_index: RetrievalIndex,
+) -> None:
+    """`links bench synthesize --front --min-transmission`'s row: its answer keeps the floor
+    asked, and each answer of the front is stated with the layers its own kit plan finds (the
+    same answers again, as counted work repeats)."""
+    import numpy as np
+
+    from links_ray.cli.bench.synthesis import bench_row
+    from links_ray.cli.bench.synthesis_report import front_layers
+    from links_ray.engine.synthesis_layers import kit_layer_count
+
+    points = hand_drawn()[0]
+    row, _ = bench_row(
+        dataset_index, "ellipse", points, iterations=200, min_transmission=10.0, front=True
+    )
+    assert row["transmission_deg"] >= 10.0 - 1e-4
+    again = synthesize(
+        dataset_index, points, front=True, min_transmission=10.0, seed=0, iterations=200
+    )
+    assert [answer["chamfer"] for answer in row["front"]] == [r["chamfer"] for r in again]
+    assert row["refined"] == min(r["chamfer"] for r in again)
+    for answer, result in zip(row["front"], again, strict=True):
+        assert answer["transmission_deg"] >= 10.0 - 1e-4
+        mechanism = result["mechanism"]
+        assert answer["layers"] == kit_layer_count(
+            *(np.array(mechanism[key]) for key in ("adjacency", "node_types", "positions"))
+        )
+    summary = front_layers([row])
+    assert summary["answers"] == len(again)
+    assert 0.0 <= summary["no_plan"] <= 1.0 and row["layer_seconds"] > 0

@@ -11,6 +11,7 @@ package's import layering.)
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
@@ -19,7 +20,7 @@ import pytest
 
 import links_ray
 from links_ray.engine.collisions import find_collisions
-from links_ray.engine.layer_search import _feasible_order, _first_plan, _plan_on
+from links_ray.engine.layer_search import _feasible_order, _fewest_layers, _first_plan
 from links_ray.engine.layers import STATUSES, LayeringError, plan_layers
 from links_ray.engine.mechanism import LockingError
 from links_ray.engine.node_kinds import FIXED
@@ -270,22 +271,55 @@ def test_the_solvers_on_made_up_conflicts() -> None:
         greedy = _first_plan(links, link_conflicts, pin_conflicts, posts, 1)
         if greedy is not None:
             assert obeys(links, greedy, link_conflicts, pin_conflicts, posts)
-        order, status = _feasible_order(links, pin_conflicts, posts, time.monotonic() + 10)
+        order, status = _feasible_order(links, pin_conflicts, posts, 10**6, time.monotonic() + 60)
         assert (order is None) == (least is None) and status in ("feasible", "infeasible")
         if least is None:
             none += 1
             continue
         assert obeys(links, order, link_conflicts, pin_conflicts, posts)
-        plan, answer = _plan_on(links, link_conflicts, pin_conflicts, posts, least, 10.0)
-        assert answer == "feasible" and plan is not None
+        one_each = np.argsort(np.argsort(order, kind="stable"))  # a link a layer: a start
+        plan, bound, status = _fewest_layers(
+            links, link_conflicts, pin_conflicts, posts, 1, one_each, 100.0, 60.0
+        )
+        assert status == "optimal" and bound == least
         assert obeys(links, plan, link_conflicts, pin_conflicts, posts)
-        assert len(np.unique(plan)) == least
-        if least > 1 and seed % 2 == 0:  # every other one, for time
-            fewer = _plan_on(links, link_conflicts, pin_conflicts, posts, least - 1, 10.0)
-            assert fewer == (None, "infeasible")
+        assert len(np.unique(plan)) == plan.max() + 1 == least
         solved += 1
     print(f"{solved} made-up plans of the fewest layers, {none} with none")
     assert solved >= 40 and none >= 5
+
+
+def test_the_searches_stop_at_their_counted_work() -> None:
+    """Given fewer states than it needs, the order search stops with "work limit", and with
+    enough, its answer does not depend on the budget; the program, given no work, keeps a
+    plan that obeys the rules and says "work limit" where it proved nothing, the same at
+    every call. Counted work, so the same on any machine."""
+    cut_orders = cut_programs = 0
+    for seed in range(80):
+        links, link_conflicts, pin_conflicts, posts = made_up(seed)
+        whole = _feasible_order(links, pin_conflicts, posts, 10**6, time.monotonic() + 60)
+        for states in (1, 2, 4):
+            order, status = _feasible_order(links, pin_conflicts, posts, states, math.inf)
+            assert status in ("work limit", whole[1])
+            if status == "work limit":
+                assert order is None
+                cut_orders += 1
+            else:
+                assert np.array_equal(order, whole[0])
+        if whole[0] is None:
+            continue
+        start = np.argsort(np.argsort(whole[0], kind="stable"))
+        runs = [
+            _fewest_layers(links, link_conflicts, pin_conflicts, posts, 1, start, 1e-9, 60.0)
+            for _ in range(2)
+        ]
+        plan, bound, status = runs[0]
+        assert np.array_equal(plan, runs[1][0]) and runs[0][1:] == runs[1][1:]
+        assert obeys(links, plan, link_conflicts, pin_conflicts, posts)
+        assert status in ("optimal", "work limit") and bound <= plan.max() + 1
+        cut_programs += status == "work limit"
+    print(f"order searches cut: {cut_orders}; programs cut at no work: {cut_programs}")
+    assert cut_orders > 0 and cut_programs > 0
 
 
 # -- refused input --------------------------------------------------------------------------------

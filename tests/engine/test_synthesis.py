@@ -17,6 +17,7 @@ how busy the machine is; only the deadline tests measure time.
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import sys
@@ -30,6 +31,7 @@ import pytest
 import links_ray
 from links_ray.engine import cpus
 from links_ray.engine.inputs import MIN_POINTS
+from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.paths import chamfer, longest_chord
 from links_ray.engine.synthesis import refine_retrieved, synthesize
 from links_ray.engine.synthesis_options import (
@@ -40,7 +42,7 @@ from links_ray.engine.synthesis_options import (
 from links_ray.engine.synthesis_plan import CANDIDATES
 from links_ray.engine.synthesis_results import fit
 from links_ray.search.index import RetrievalIndex
-from tests.engine.test_refine import assert_valid
+from tests.engine.test_refine import angle_sines, assert_valid
 from tests.support.serving import hand_drawn
 
 #: The counted work of the tests of quality: a short pass over every candidate and some long
@@ -101,6 +103,16 @@ def test_synthesis_refines_and_reports_what_it_traces(
             )
             np.testing.assert_array_equal(np.array(result["path"]), path)
             assert result["interval"] is None
+            # The mechanism is reduced to what the joint needs: its least angle is every dyad's.
+            answered = result["mechanism"]
+            adjacency, node_types = (np.array(answered[key]) for key in ("adjacency", "node_types"))
+            sines = angle_sines(
+                analyze_topology(adjacency, node_types).order,
+                links_ray.simulate(adjacency, node_types, np.array(answered["positions"])),
+            )
+            assert result["min_transmission_deg"] == pytest.approx(
+                math.degrees(math.asin(min(sines.min(initial=1.0), 1.0))), abs=1e-4
+            )
             start_from = retrieved[result["path_id"]]
             assert start_from["mechanism_id"] == result["mechanism_id"]
             assert result["retrieved_chamfer"] == pytest.approx(

@@ -85,7 +85,7 @@ def _retrieve(args: argparse.Namespace) -> Measured:
 
 
 def _synthesize(args: argparse.Namespace) -> Measured:
-    from links_ray.cli.bench import synthesis
+    from links_ray.cli.bench import synthesis, synthesis_report
 
     if args.design:
         from links_ray.cli.bench import design
@@ -103,7 +103,7 @@ def _synthesize(args: argparse.Namespace) -> Measured:
         result = synthesis.bench_dial(
             paths=args.paths, seed=args.seed, use_set=args.set, only=tuple(args.curve or ())
         )
-        return result, synthesis.format_dial
+        return result, synthesis_report.format_dial
     result = synthesis.bench_synthesize(
         seconds=args.seconds,
         paths=args.paths,
@@ -112,8 +112,10 @@ def _synthesize(args: argparse.Namespace) -> Measured:
         iterations=args.iterations,
         use_set=args.set,
         only=tuple(args.curve or ()),
+        min_transmission=args.min_transmission,
+        front=args.front,
     )
-    return result, synthesis.format_synthesize
+    return result, synthesis_report.format_synthesize
 
 
 def _kit(args: argparse.Namespace) -> Measured:
@@ -232,6 +234,20 @@ def _synthesize_arguments(command: argparse.ArgumentParser) -> None:
         metavar="NAME",
         help="run only this curve (repeat for several); with --iterations its row is the same "
         "bit for bit as in a run of them all",
+    )
+    command.add_argument(
+        "--min-transmission",
+        type=float,
+        default=0.0,
+        metavar="DEG",
+        help="the least transmission angle the synthesis keeps, as `links synthesize` takes it "
+        "(default 0)",
+    )
+    command.add_argument(
+        "--front",
+        action="store_true",
+        help="answer each curve with the front, and report its answers' layers as kits and "
+        "the seconds of planning them",
     )
 
 

@@ -16,6 +16,13 @@ mean retrieval-only chamfer, refined / retrieved, and the median and worst secon
 are the held-out half's, and its figure shows the held-out curves only. For a stroke the
 retrieval-only chamfer is the best retrieved mechanism's fit over the run of its path that
 matches the stroke best, as a refined one is measured.
+
+Every row also states its answer's least transmission angle, and `min_transmission` asks the
+synthesis for a floor, so the fit a floor costs is measured. With `front` each curve is
+answered by the front (the best of each joint count that beats every simpler one), the row's
+scores are its best answer's, and the row states each answer's joints, chamfer, transmission
+and layers as a kit, and the seconds those layer plans took (planned again, one at a time):
+what a buildable answer needs, and what planning it costs.
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ import numpy as np
 
 from links_ray.cli.bench.curve_set import HALVES, curve_set
 from links_ray.cli.bench.machine import machine_info
+from links_ray.cli.bench.synthesis_report import front_layers, quantiles, set_groups
 from links_ray.cli.bench.targets import TARGET_POINTS, placed, target_curves
 from links_ray.engine.inputs import DEFAULT_STEPS, REFINE_CHECK_STEPS
 from links_ray.engine.ordered import ordered_match
@@ -62,8 +70,6 @@ SET_GROUP_GOALS = {
 #: Goals on a held-out family's median `dense_score`: a traced curve's mechanism exists, so
 #: its best score is 0.
 SET_DENSE_GOALS = {"traced": 0.001}
-#: Families grouped in the set's report as `smooth_closed`.
-SMOOTH_CLOSED = ("gait", "cam", "random_smooth")
 
 
 def chord_length(points: np.ndarray) -> float:
@@ -116,46 +122,6 @@ def name_rng(seed: int, name: str) -> np.random.Generator:
     return np.random.default_rng([seed, int.from_bytes(hashlib.sha256(name.encode()).digest()[:8])])
 
 
-def set_groups(rows: list[dict]) -> list[dict]:
-    """Per half (and both, `all`), per family (and `smooth_closed`, and `all`) of the set's
-    `rows`: the curves, mean retrieval-only and mean and median refined chamfer, refined /
-    retrieved (of the means), and the median and worst seconds."""
-    families = sorted({row["family"] for row in rows})
-    groups = []
-    for half in (*HALVES, "all"):
-        in_half = [row for row in rows if half in ("all", row["half"])]
-        for family in (*families, "smooth_closed", "all"):
-            members = [
-                row
-                for row in in_half
-                if family in ("all", row["family"])
-                or (family == "smooth_closed" and row["family"] in SMOOTH_CLOSED)
-            ]
-            if not members:
-                continue
-            retrieved = statistics.fmean(row["retrieved"] for row in members)
-            refined = [row["refined"] for row in members]
-            seconds = [row["seconds"] for row in members]
-            dense = [row["dense"] for row in members if row.get("dense") is not None]
-            ordered = [row["ordered"] for row in members if row.get("ordered") is not None]
-            groups.append(
-                {
-                    "half": half,
-                    "family": family,
-                    "curves": len(members),
-                    "mean_retrieved": retrieved,
-                    "mean_refined": statistics.fmean(refined),
-                    "median_refined": statistics.median(refined),
-                    "ratio": statistics.fmean(refined) / retrieved,
-                    "mean_ordered": statistics.fmean(ordered) if ordered else None,
-                    "median_dense": statistics.median(dense) if dense else None,
-                    "median_seconds": statistics.median(seconds),
-                    "worst_seconds": max(seconds),
-                }
-            )
-    return groups
-
-
 def bench_row(
     index: Retriever,
     name: str,
@@ -166,22 +132,28 @@ def bench_row(
     seed: int = 0,
     labels: dict | None = None,
     draw: bool = False,
+    min_transmission: float = 0.0,
+    front: bool = False,
 ) -> tuple[dict, dict | None]:
     """One curve's row of the bench, synthesized from `points` (already in their frame) over
     `index`, and with `draw` what the figure draws of it (else None). With `iterations` the
     row is counted work, the same bit for bit whatever the time, the load, the threads and the
     rows run before it; its `seconds` alone vary. `seconds`: the budget (default the synthesis
-    default)."""
+    default). `min_transmission` and `front` as `synthesize` takes them (the module says what
+    the row then holds)."""
     from links_ray.engine.synthesis import synthesize
+    from links_ray.engine.synthesis_layers import kit_layer_count
     from links_ray.engine.synthesis_results import fit
 
     seconds = DEFAULT_SYNTHESIS_SECONDS if seconds is None else seconds
+    asked = {"k": 3, "partial": partial, "min_transmission": min_transmission, "front": front}
     start = time.perf_counter()
     if iterations is None:
-        results = synthesize(index, points, k=3, seconds=seconds, partial=partial)
+        results = synthesize(index, points, seconds=seconds, **asked)
     else:
-        results = synthesize(index, points, k=3, partial=partial, seed=seed, iterations=iterations)
+        results = synthesize(index, points, seed=seed, iterations=iterations, **asked)
     took = time.perf_counter() - start
+    best = min(results, key=lambda result: result["chamfer"])
     best_retrieved = index.retrieve(points, 1)[0]
     mechanism = best_retrieved["mechanism"]
     retrieved = best_retrieved["chamfer"]
@@ -199,15 +171,35 @@ def bench_row(
         **(labels or {}),
         "partial": partial,
         "retrieved": retrieved,
-        "refined": results[0]["chamfer"],
+        "refined": best["chamfer"],
         "seconds": took,
         "overrun_ms": None if iterations is not None else (took - seconds) * 1e3,
         "reference": even_reference(points, closed=not partial),
-        "ordered": None if partial else ordered_score(points, np.array(results[0]["path"])),
-        "dense": None if partial else dense_score(points, results[0]),
-        "joints": len(results[0]["mechanism"]["node_types"]),
-        "path_id": results[0]["path_id"],
+        "ordered": None if partial else ordered_score(points, np.array(best["path"])),
+        "dense": None if partial else dense_score(points, best),
+        "joints": len(best["mechanism"]["node_types"]),
+        "transmission_deg": best["min_transmission_deg"],
+        "path_id": best["path_id"],
     }
+    if front:
+        row["front"] = [
+            {
+                "joints": result["n_joints"],
+                "chamfer": result["chamfer"],
+                "transmission_deg": result["min_transmission_deg"],
+                "layers": result["layers"],
+            }
+            for result in results
+        ]
+        planning = time.perf_counter()
+        for result in results:
+            mechanism = result["mechanism"]
+            kit_layer_count(
+                np.array(mechanism["adjacency"], dtype=np.uint8),
+                np.array(mechanism["node_types"], dtype=np.int8),
+                np.array(mechanism["positions"], dtype=np.float64),
+            )
+        row["layer_seconds"] = time.perf_counter() - planning
     if not draw:
         return row, None
     drawn = {
@@ -218,8 +210,8 @@ def bench_row(
             mechanism["adjacency"], mechanism["node_types"], mechanism["positions"]
         )[best_retrieved["mechanism_joint"]],
         "retrieved": retrieved,
-        "refined": results[0]["chamfer"],
-        "result": results[0],
+        "refined": best["chamfer"],
+        "result": best,
     }
     return row, drawn
 
@@ -233,6 +225,8 @@ def bench_synthesize(
     use_set: bool = False,
     only: tuple[str, ...] = (),
     root: str | None = None,
+    min_transmission: float = 0.0,
+    front: bool = False,
 ) -> dict:
     """Synthesize every target curve, placed in a random frame (`seed`), over the cached data
     set of `paths` curated paths; per curve and overall (means, median seconds, the worst
@@ -243,7 +237,7 @@ def bench_synthesize(
     (needs the `plots` extra). `use_set`: the curve set instead of the targets (its fonts need
     the `bench` extra), reported by half and family too. `only`: the names of the curves to run
     (all if empty); ValueError names one that is not there. `root`: a dataset to use instead of
-    the cached one of `paths`."""
+    the cached one of `paths`. `min_transmission` and `front`: `bench_row`'s."""
     from links_ray.cli.bench.data import retrieval_dataset
     from links_ray.engine.synthesis import synthesize
     from links_ray.search.index import RetrievalIndex
@@ -280,7 +274,17 @@ def bench_synthesize(
         # The set's figure is of its held-out half; the targets' of all of them.
         draw = figure is not None and (not use_set or labels["half"] == HALVES[1])
         row, picture = bench_row(
-            index, name, points, partial, seconds, iterations, seed, labels, draw
+            index,
+            name,
+            points,
+            partial,
+            seconds,
+            iterations,
+            seed,
+            labels,
+            draw,
+            min_transmission,
+            front,
         )
         rows.append(row)
         if picture is not None:
@@ -325,6 +329,10 @@ def bench_synthesize(
         "seed": seed,
         "index_open_s": open_s,
         "curve_set": use_set,
+        "min_transmission": min_transmission,
+        "front": front,
+        "transmission_deg": quantiles([row["transmission_deg"] for row in rows]),
+        "layers": front_layers(rows) if front else None,
         "curves": rows,
         "groups": groups,
         "mean_retrieved": mean_retrieved,
@@ -345,6 +353,8 @@ def bench_dial(
     use_set: bool = False,
     only: tuple[str, ...] = (),
     root: str | None = None,
+    min_transmission: float = 0.0,
+    front: bool = False,
 ) -> dict:
     """The time dial: `bench_synthesize` at each of `budgets` seconds a curve, and per half
     and family (the set's groups; the targets as one group) the mean and median refined
@@ -384,79 +394,3 @@ def bench_dial(
         "runs": runs,
         "machine": machine_info(),
     }
-
-
-def format_dial(result: dict) -> str:
-    """The time dial as a Markdown table: mean (median) refined chamfer at each budget."""
-    budgets = [f"{seconds:g}" for seconds in result["budgets_s"]]
-    lines = [
-        f"Synthesis at {', '.join(budgets)} s a curve over {result['paths']:,} curated paths, "
-        f"frames of seed {result['seed']}: mean (median) chamfer / longest chord",
-        "",
-        "| half | family | curves | " + " | ".join(f"{b} s" for b in budgets) + " |",
-        "|---|---|---|" + "---|" * len(budgets),
-    ]
-    for entry in result["dial"]:
-        at = entry["by_budget"]
-        cells = [f"{at[b]['mean_refined']:.4f} ({at[b]['median_refined']:.4f})" for b in budgets]
-        lines.append(
-            f"| {entry['half']} | {entry['family']} | {entry['curves']} | "
-            + " | ".join(cells)
-            + " |"
-        )
-    return "\n".join(lines)
-
-
-def format_synthesize(result: dict) -> str:
-    """The bench as a Markdown table."""
-    work = (
-        f"budget {result['budget_s']:g} s"
-        if result["budget_s"] is not None
-        else f"{result['iterations']:,} iterations"
-    )
-
-    def overrun(value: float | None) -> str:
-        return "" if value is None else f"{value:.0f}"
-
-    lines = [
-        f"Synthesis over {result['paths']:,} curated paths, {result['points_per_curve']} points "
-        f"a curve, {work}, frames of seed {result['seed']} "
-        "(chamfer / the drawing's longest chord)",
-        "",
-        "| curve | retrieval only | refined | refined, ordered | reference (even) | joints "
-        "| seconds | overrun ms |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for row in result["curves"]:
-        ordered = "" if row.get("ordered") is None else f"{row['ordered']:.4f}"
-        lines.append(
-            f"| {row['curve']} | {row['retrieved']:.4f} | {row['refined']:.4f} | {ordered} | "
-            f"{row['reference']:.4f} | {row['joints']} | {row['seconds']:.2f} | "
-            f"{overrun(row['overrun_ms'])} |"
-        )
-    lines.append(
-        f"| **mean** (median s, worst overrun) | {result['mean_retrieved']:.4f} | "
-        f"{result['mean_refined']:.4f} | | {result['mean_reference']:.4f} | | "
-        f"{result['median_seconds']:.2f} | {overrun(result['worst_overrun_ms'])} |"
-    )
-    if result.get("groups"):
-        lines += [
-            "",
-            "| half | family | curves | retrieval only (mean) | refined mean | refined median "
-            "| refined / retrieved | ordered mean | dense median | median s | worst s |",
-            "|---|---|---|---|---|---|---|---|---|---|---|",
-        ]
-
-        def shown(value: float | None) -> str:
-            return "" if value is None else f"{value:.4f}"
-
-        lines += [
-            f"| {g['half']} | {g['family']} | {g['curves']} | {g['mean_retrieved']:.4f} | "
-            f"{g['mean_refined']:.4f} | {g['median_refined']:.4f} | {g['ratio']:.3f} | "
-            f"{shown(g['mean_ordered'])} | {shown(g['median_dense'])} | "
-            f"{g['median_seconds']:.2f} | {g['worst_seconds']:.2f} |"
-            for g in result["groups"]
-        ]
-    lines += ["", f"refined / retrieval-only: {result['ratio']:.3f}"]
-    lines += [f"{goal}: {'yes' if met else 'no'}" for goal, met in result["goals"].items()]
-    return "\n".join(lines)

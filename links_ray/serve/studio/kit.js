@@ -18,7 +18,10 @@ const STEPS_PER_SECOND = 50; // as the editor: one crank turn in four seconds
 export function layerWords(bom) {
   const count = `${bom.layers} layer${bom.layers === 1 ? "" : "s"}`;
   if (bom.optimal) return `${count}, proven fewest`;
-  const why = bom.status === "time limit" ? "the search hit its time limit" : "a heuristic's plan";
+  const why = {
+    "work limit": "the search spent its counted work",
+    "time limit": "the search hit its time limit",
+  }[bom.status] ?? "a heuristic's plan";
   return `${count}, perhaps not the fewest: at least ${bom.lower_bound} (${why})`;
 }
 
