@@ -12,7 +12,6 @@ README's.
 
 import json
 import math
-import os
 import time
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
@@ -29,27 +28,12 @@ from links_ray.serve.limits import request_limits
 from tests.support.drawings import dxf_parts, read_dxf
 from tests.support.needs import need_module
 from tests.support.serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
-from tests.support.studio_page import VIEWPORT, Studio, draw, open_studio
+from tests.support.studio_page import VIEWPORT, Studio, draw
 
 STEPS = 200
 
 
 # -- the studio page ----------------------------------------------------------------------------
-
-
-@pytest.fixture
-def studio(browser: Any, client: Client) -> Iterator[Studio]:
-    """A fresh browser context on the studio; fails the test if the page logged any error."""
-    with open_studio(browser, client.port) as studio:
-        yield studio
-
-
-@pytest.fixture
-def shots(tmp_path: Path) -> Path:
-    """Where screenshots go: LINKS_STUDIO_SCREENSHOTS, else this test's temporary folder."""
-    folder = Path(os.environ.get("LINKS_STUDIO_SCREENSHOTS") or tmp_path)
-    folder.mkdir(parents=True, exist_ok=True)
-    return folder
 
 
 def assert_same_mechanism(got: dict[str, Any], expected: dict[str, Any], atol: float) -> None:

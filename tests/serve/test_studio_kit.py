@@ -15,9 +15,7 @@ from __future__ import annotations
 import io
 import json
 import math
-import os
 import zipfile
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +25,7 @@ import pytest
 import links_ray
 from tests.interop.test_parts import UNBUILDABLE, random_mechanism
 from tests.support.serving import Client
-from tests.support.studio_page import Studio, open_studio
+from tests.support.studio_page import Studio
 
 STEPS = 200
 CRANK_MM = 30.0
@@ -37,20 +35,6 @@ BAR_MM, CLEARANCE_MM, LAYER_MM, GAP_MM = 8.0, 1.0, 3.0, 0.5
 #: 12 joints on a base plate: several layers, spacers and posts, planned in under a second.
 BUILDABLE = {name: np.asarray(value).tolist() for name, value in random_mechanism(4, 12).items()}
 THREE_JS = "vendor/three-0.187.0/three.module.js"
-
-
-@pytest.fixture
-def studio(browser: Any, client: Client) -> Iterator[Studio]:
-    """A fresh browser context on the studio; fails the test if the page logged any error."""
-    with open_studio(browser, client.port) as studio:
-        yield studio
-
-
-@pytest.fixture
-def shots(tmp_path: Path) -> Path:
-    folder = Path(os.environ.get("LINKS_STUDIO_SCREENSHOTS") or tmp_path)
-    folder.mkdir(parents=True, exist_ok=True)
-    return folder
 
 
 def build(studio: Studio, tmp_path: Path, mechanism: dict[str, Any], base: bool) -> str:
