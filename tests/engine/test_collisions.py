@@ -204,10 +204,10 @@ def entries(
 
 @pytest.fixture(scope="module")
 def corpus() -> list[dict[str, Any]]:
-    """40 random valid mechanisms of 8 to 12 joints, each with its pairs and their brute
+    """100 random valid mechanisms of 8 to 12 joints, each with its pairs and their brute
     force at FINE_STEPS."""
     mechanisms = []
-    for seed in range(40):
+    for seed in range(100):
         mechanism = random_mechanism(1000 + seed, 8 + seed % 5)
         links, pairs, which, is_pin = pairs_of(np.asarray(mechanism["adjacency"]))
         least, dip = brute_force(links_ray.simulate(**mechanism, steps=FINE_STEPS), pairs)

@@ -208,6 +208,36 @@ def test_plans_obey_the_brute_force(ground_on_base: bool) -> None:
     assert checked >= 5
 
 
+def test_a_plan_cut_at_its_counted_work_is_the_same_every_time(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """With no work left for the solver, a plan above its bound stops at "work limit": the
+    first plan, obeying the rules the full plan obeys, the same at every call; with the
+    default work, the same mechanisms are planned the same at every call too."""
+    import links_ray.engine.layers as layers
+
+    cut = 0
+    for seed in range(30):
+        mechanism = random_mechanism(3000 + seed, 10 + seed % 6)
+        width, clearance, pin = SIZES[1]
+        sizes = {"bar_width": width, "clearance": clearance, "pin_diameter": pin}
+        try:
+            whole = [plan_layers(**mechanism, **sizes) for _ in range(2)]
+        except LayeringError:
+            continue
+        assert np.array_equal(whole[0].link_layer, whole[1].link_layer)
+        with monkeypatch.context() as patched:
+            patched.setattr(layers, "PLAN_WORK", 1e-9)
+            short = [plan_layers(**mechanism, **sizes) for _ in range(2)]
+        assert np.array_equal(short[0].link_layer, short[1].link_layer)
+        assert short[0].layers >= whole[0].layers >= short[0].lower_bound
+        if short[0].status == "work limit":
+            assert short[0].layers > short[0].lower_bound and not short[0].optimal
+            cut += 1
+    print(f"{cut} plans cut at no work")
+    assert cut >= 1
+
+
 def test_a_four_bar_takes_two_layers() -> None:
     """The crank and the rocker share no joint and, this thin, never meet: they share a layer
     under (or over) the coupler."""
