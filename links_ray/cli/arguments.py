@@ -126,9 +126,11 @@ def max_joints_option(command: argparse.ArgumentParser) -> None:
     )
 
 
-def query_arguments(command: argparse.ArgumentParser, curve_help: str = "") -> None:
-    """The dataset root, the drawn points' file or a drawing's curve, and k, as retrieve and
-    synthesize take them."""
+def query_arguments(
+    command: argparse.ArgumentParser, curve_help: str = "", min_transmission: float = 0.0
+) -> None:
+    """The dataset root, the drawn points' file or a drawing's curve, k, and the least
+    transmission angle (default `min_transmission`), as retrieve and synthesize take them."""
     command.add_argument("root", help="dataset root: a folder or s3://...")
     source = command.add_mutually_exclusive_group(required=True)
     source.add_argument(
@@ -150,10 +152,11 @@ def query_arguments(command: argparse.ArgumentParser, curve_help: str = "") -> N
     command.add_argument(
         "--min-transmission",
         type=float,
-        default=0.0,
+        default=min_transmission,
         metavar="DEG",
         help="only mechanisms whose least transmission angle is at least DEG degrees "
-        f"(0-{MAX_TRANSMISSION_DEG:g}, default 0: all)",
+        f"(0-{MAX_TRANSMISSION_DEG:g}, default {min_transmission:g}"
+        + (": all)" if min_transmission == 0 else ")"),
     )
 
 

@@ -21,6 +21,7 @@ from links_ray.cli.arguments import (
 from links_ray.cli.kernels import note_compiling
 from links_ray.engine.synthesis_options import (
     DEFAULT_SYNTHESIS_SECONDS,
+    DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
     MAX_SYNTHESIS_ITERATIONS,
     MAX_SYNTHESIS_SECONDS,
     SynthesisOptions,
@@ -33,7 +34,11 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         "synthesize",
         help="find mechanisms for the curve in FILE and refine them onto it (offline)",
     )
-    query_arguments(synthesize, "; an open curve is matched as a stroke (as with --partial)")
+    query_arguments(
+        synthesize,
+        "; an open curve is matched as a stroke (as with --partial)",
+        DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
+    )
     synthesize.add_argument(
         "--seconds",
         type=positive_float,

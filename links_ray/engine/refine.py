@@ -20,7 +20,7 @@ derivatives of the path come from `refine_kernels.solve_tangents`.
 
 The margin is a constraint, and steps slide along it. Each step is solved subject to the
 linearized transmission sines at their lowest steps: those near a dyad's floor must stay
-CLEARANCE_DEG above it, and a rigid dyad's triangle may not flatten (`engine.refine_step`:
+CLEARANCE_DEG above it, a rigid dyad's triangle as a moving dyad (`engine.refine_step`:
 `transmission_guards`, solved by a small active set in `constrained_minimum`). A best fit
 often lies across the margin; without the guards every step toward it would be refused and
 refinement would stop there.
@@ -30,7 +30,8 @@ the simulation's steps and at REFINE_CHECK_STEPS steps and between them (`engine
 every joint keeps its assembly branch (the signs of `dyad_geometry`), its links keep
 MIN_LINK_LENGTH, and every dyad keeps a transmission angle of at least the margin at every
 check step (a dyad that starts below the margin keeps half its starting sine until it reaches
-the margin, and the margin from then on; rigid dyads, whose angle never changes, have none).
+the margin, and the margin from then on; rigid dyads too, whose angle never changes: a
+triangle of bars flattened toward a line no longer holds its joint).
 Otherwise the damping grows and a shorter step is tried. So the chamfer never rises, and the
 result is valid whenever the input was.
 
@@ -119,7 +120,7 @@ class Refinement:
     `positions` (n, 2) are the refined initial positions (the input's when no step helped).
     Chamfers are divided by the drawing's longest chord. `interval` is (start step, count) of
     the matched run for a partial stroke, else None. `min_transmission_deg` is the least
-    transmission angle over the non-rigid dyads and the check steps (90 without such dyads).
+    transmission angle over the dyads and the check steps (90 without any).
     `error` is set, and the rest is the input's, when a candidate of `refine_many` could not be
     refined (it locks). `damping` is where Levenberg-Marquardt's damping ended: a refinement
     continued from `positions` starts there.
@@ -211,7 +212,7 @@ def refine_validated(
 
     missed = missed_by(start, check.bounds)
     if late():  # the origin's check would be one more 2,000-step turn past the deadline
-        least = least_deg(check.min_transmission_sine[~check.rigid])
+        least = least_deg(check.min_transmission_sine)
         return Refinement(
             start.copy(),
             value / target.chord,
@@ -227,8 +228,9 @@ def refine_validated(
     clearance = math.sin(math.radians(min_transmission_deg + CLEARANCE_DEG)) - margin
     # Dyads keep the margin once they have it. One below it at the start may not fall under
     # BELOW_MARGIN of its starting sine: "not at all" would freeze it, as every step moves its
-    # least angle a little. Rigid dyads (decided once, from the input) have no margin: their
-    # sines are >= 0 > -1.
+    # least angle a little. Rigid dyads (decided once, from the input) keep it alike: a
+    # triangle of bars flattened toward a line no longer holds its joint, and a flat one turns
+    # over onto the other branch.
     rigid = check.rigid
     first = check if origin is None else check_mechanism(topology, origin)
     # Every joint keeps the origin's assembly branch: a start shaken off it is no start.
@@ -236,24 +238,16 @@ def refine_validated(
     if not np.array_equal(check.sides, sides):
         raise ValueError("the start is assembled on other branches than its origin")
     floors = np.where(
-        rigid,
-        -1.0,
-        np.where(
-            first.min_transmission_sine >= margin,
-            margin,
-            BELOW_MARGIN * first.min_transmission_sine,
-        ),
+        first.min_transmission_sine >= margin, margin, BELOW_MARGIN * first.min_transmission_sine
     )
     if origin is not None:  # what the origin gained since, it keeps
-        floors = np.where(~rigid & (check.min_transmission_sine >= margin), margin, floors)
+        floors = np.where(check.min_transmission_sine >= margin, margin, floors)
         # A start shaken below the origin's margins is no start either: kept as it is, it
         # would hand back a mechanism nearer a dead centre than refinement allows.
         if np.any(check.min_transmission_sine < floors):
             raise ValueError("the start is nearer a dead centre than its origin allows")
-    # Steps are guarded off every dyad's floor, and off flattening a rigid dyad: a triangle
-    # of links flattened to a line turns over onto the other branch (which the check
-    # refuses), and its derivatives are unbounded there.
-    flat = np.minimum(margin, BELOW_MARGIN * first.min_transmission_sine)
+    # Steps are guarded off every dyad's floor (a rigid dyad's derivatives are unbounded where
+    # it is flat, too).
     before = value
     pos = start.copy()
     damping = min(max(damping, DAMPING_MIN), DAMPING_START)
@@ -273,7 +267,7 @@ def refine_validated(
                 topology, pos, len(target.crank), True, target.crank
             )
             hessian, gradient = timed_equations(target, timed[joint], dtimed[joint], weight_floor)
-        margins = transmission_guards(trans, dtrans, np.where(rigid, flat, floors), clearance)
+        margins = transmission_guards(trans, dtrans, floors, clearance)
         kept = guard_rows(constraints, pos, fixed, links, traj, dtraj, target.chord)
         guards = (np.concatenate([margins[0], kept[0]]), np.concatenate([margins[1], kept[1]]))
         diagonal = np.diag(hessian).copy()
@@ -327,7 +321,7 @@ def refine_validated(
                             trial_check,
                             trial_missed,
                         )
-                        gained = ~rigid & (check.min_transmission_sine >= margin)
+                        gained = check.min_transmission_sine >= margin
                         floors = np.where(gained, margin, floors)
                         damping = max(damping / DAMPING_DOWN, DAMPING_MIN)
                         accepted = True
@@ -342,7 +336,7 @@ def refine_validated(
         interval=interval,
         iterations=done,
         evaluations=evaluations,
-        min_transmission_deg=least_deg(check.min_transmission_sine[~rigid]),
+        min_transmission_deg=least_deg(check.min_transmission_sine),
         damping=damping,
         violation=missed,
     )

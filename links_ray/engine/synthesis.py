@@ -32,7 +32,7 @@ from links_ray.engine.budget import Budget, IterationBudget, TimeBudget
 from links_ray.engine.cpus import usable_cpus
 from links_ray.engine.inputs import DEFAULT_K
 from links_ray.engine.synthesis_layers import LAYER_SHARE, plans_layers
-from links_ray.engine.synthesis_options import SynthesisOptions
+from links_ray.engine.synthesis_options import DEFAULT_SYNTHESIS_TRANSMISSION_DEG, SynthesisOptions
 from links_ray.engine.synthesis_passes import Progress, SynthesisPasses
 from links_ray.engine.synthesis_plan import Retriever, pooled, retrievals
 from links_ray.engine.synthesis_results import SynthesisResults
@@ -99,7 +99,7 @@ def synthesize(
     k: int = DEFAULT_K,
     seconds: float | None = None,
     partial: bool = False,
-    min_transmission: float = 0.0,
+    min_transmission: float = DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
     progress: Progress | None = None,
     *,
     max_joints: int | None = None,
@@ -114,11 +114,12 @@ def synthesize(
     `mechanism_joint` traces `points` in the drawing's own frame, within `seconds` (default
     DEFAULT_SYNTHESIS_SECONDS, at most MAX_SYNTHESIS_SECONDS), retrieval included.
     `partial`: the points are an open stroke, matched to part of a turn. `min_transmission`
-    (degrees): only paths keeping it are retrieved, and refinement keeps it as its floor (at
-    least DEFAULT_MIN_TRANSMISSION_DEG). `progress`: called with the best so far as it improves
-    (`refine_retrieved` says how). `iterations` (instead of `seconds`): a counted amount of
-    work, about that many refinement iterations, whose answer is the same bit for bit for
-    equal inputs whatever the time and the cores; `seed` (default 0) seeds the restarts.
+    (degrees, default DEFAULT_SYNTHESIS_TRANSMISSION_DEG): only paths keeping it are
+    retrieved, and refinement keeps it as its floor (at least DEFAULT_MIN_TRANSMISSION_DEG).
+    `progress`: called with the best so far as it improves (`refine_retrieved` says how).
+    `iterations` (instead of `seconds`): a counted amount of work, about that many refinement
+    iterations, whose answer is the same bit for bit for equal inputs whatever the time and
+    the cores; `seed` (default 0) seeds the restarts.
 
     Design: `max_joints`, only mechanisms of at most that many joints (each result's
     `n_joints` counts its reduced mechanism's); `front`, the Pareto front (the best of each
@@ -149,7 +150,7 @@ def synthesize(
         DEFAULT_K,
         None,
         False,
-        0.0,
+        DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
         None,
         False,
     ) or (constraints, timing, seed, iterations) != (None, None, None, None):

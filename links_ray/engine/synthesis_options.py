@@ -28,6 +28,7 @@ from links_ray.engine.inputs import (
 
 __all__ = [
     "DEFAULT_SYNTHESIS_SECONDS",
+    "DEFAULT_SYNTHESIS_TRANSMISSION_DEG",
     "MAX_SEED",
     "MAX_SYNTHESIS_ITERATIONS",
     "MAX_SYNTHESIS_SECONDS",
@@ -36,6 +37,11 @@ __all__ = [
     "as_timing",
 ]
 
+#: The least transmission angle, in degrees, a synthesis keeps unless asked for another: a
+#: mechanism a builder can turn by hand without it jamming at a dead centre, chosen by what it
+#: costs in fit on the bench (docs/benchmarks.md, A floor a builder can trust). 0 relaxes it
+#: to refinement's own margin (DEFAULT_MIN_TRANSMISSION_DEG, on dyads that have it).
+DEFAULT_SYNTHESIS_TRANSMISSION_DEG = 10.0
 #: Seconds a synthesis takes by default (retrieval included), and the most it may be given:
 #: a synthesis holds a core for its whole budget, so a request may not hold one for long.
 DEFAULT_SYNTHESIS_SECONDS, MAX_SYNTHESIS_SECONDS = 3.0, 30.0
@@ -95,7 +101,8 @@ class SynthesisOptions:
     `iterations` about that many refinement iterations, `seconds` then None (`counted_work`);
     `seed` seeds the restarts (None given: 0). `partial`: the points are an open stroke.
     `min_transmission_deg` (HTTP and `synthesize`: `min_transmission`): the transmission floor
-    of what is retrieved and of what refinement keeps. `max_joints`, `constraints` and
+    of what is retrieved and of what refinement keeps (default
+    DEFAULT_SYNTHESIS_TRANSMISSION_DEG). `max_joints`, `constraints` and
     `timing` (True, or one angle in degrees a point; `timing_angles` checks their count) are
     the design's.
     """
@@ -103,7 +110,7 @@ class SynthesisOptions:
     k: int = DEFAULT_K
     seconds: float | None = None
     partial: bool = False
-    min_transmission_deg: float = 0.0
+    min_transmission_deg: float = DEFAULT_SYNTHESIS_TRANSMISSION_DEG
     max_joints: int | None = None
     front: bool = False
     constraints: Constraints | None = None

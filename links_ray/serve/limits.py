@@ -20,6 +20,7 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.synthesis_options import (
     DEFAULT_SYNTHESIS_SECONDS,
+    DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
     MAX_SYNTHESIS_ITERATIONS,
     MAX_SYNTHESIS_SECONDS,
 )
@@ -63,6 +64,7 @@ def request_limits() -> dict[str, float | int]:
         "max_iterations": MAX_SYNTHESIS_ITERATIONS,
         "default_seconds": DEFAULT_SYNTHESIS_SECONDS,
         "max_transmission_deg": MAX_TRANSMISSION_DEG,
+        "default_transmission_deg": DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
         "max_coordinate": MAX_COORDINATE,
         "max_body_bytes": MAX_BODY_BYTES,
         "body_timeout_s": BODY_TIMEOUT_S,

@@ -40,6 +40,7 @@ from links_ray.engine.kit import (
 )
 from links_ray.engine.synthesis_options import (
     DEFAULT_SYNTHESIS_SECONDS,
+    DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
     MAX_SEED,
     MAX_SYNTHESIS_ITERATIONS,
     MAX_SYNTHESIS_SECONDS,
@@ -152,6 +153,12 @@ class SynthesizeRequest(CurveRequest):
         ge=1,
         le=MAX_SYNTHESIS_ITERATIONS,
         description="counted work instead of a time budget: equal requests, bit-equal answers",
+    )
+    min_transmission: float = Field(
+        DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
+        ge=0.0,
+        le=MAX_TRANSMISSION_DEG,
+        description="the least transmission angle kept, degrees (0: refinement's own margin)",
     )
     seed: int = Field(0, ge=0, le=MAX_SEED, description="seed of the random restarts")
     partial: bool = Field(False, description="the drawing is part of a curve: match a run")

@@ -35,7 +35,7 @@ from links_ray.engine.inputs import (
     validate_query,
 )
 from links_ray.engine.kit import KitOptions
-from links_ray.engine.synthesis_options import SynthesisOptions
+from links_ray.engine.synthesis_options import DEFAULT_SYNTHESIS_TRANSMISSION_DEG, SynthesisOptions
 from links_ray.serve.limits import (
     BODY_TIMEOUT_S,
     MAX_BODY_BYTES,
@@ -285,7 +285,9 @@ def synthesize_args(body: dict[str, Any]) -> tuple[np.ndarray, SynthesisOptions]
             k=DEFAULT_K if k is None else k,
             seconds=body.get("seconds"),
             partial=body.get("partial", False),
-            min_transmission_deg=0.0 if min_transmission is None else min_transmission,
+            min_transmission_deg=(
+                DEFAULT_SYNTHESIS_TRANSMISSION_DEG if min_transmission is None else min_transmission
+            ),
             max_joints=body.get("max_joints"),
             front=body.get("front", False),
             constraints=body.get("constraints"),

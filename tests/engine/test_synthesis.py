@@ -35,6 +35,7 @@ from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.paths import chamfer, longest_chord
 from links_ray.engine.synthesis import refine_retrieved, synthesize
 from links_ray.engine.synthesis_options import (
+    DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
     MAX_SYNTHESIS_ITERATIONS,
     MAX_SYNTHESIS_SECONDS,
     SynthesisOptions,
@@ -95,7 +96,9 @@ def test_synthesis_refines_and_reports_what_it_traces(
         chamfers = [r["chamfer"] for r in results]
         assert chamfers == sorted(chamfers)
         assert len({r["path_id"] for r in results}) == 3
-        retrieved = {r["path_id"]: r for r in dataset_index.retrieve(query, CANDIDATES)}
+        # Synthesis retrieves only paths that keep its default floor.
+        floor = DEFAULT_SYNTHESIS_TRANSMISSION_DEG
+        retrieved = {r["path_id"]: r for r in dataset_index.retrieve(query, CANDIDATES, floor)}
         for result in results:
             path = traced(result)
             assert result["chamfer"] == pytest.approx(
@@ -127,8 +130,10 @@ def test_synthesis_refines_and_reports_what_it_traces(
                 np.array(mechanism["node_types"]),
                 np.array(mechanism["positions"]),
                 np.array(result["mechanism"]["positions"]),
-                3.0,
+                floor,
             )
+            # Every dyad keeps the floor, a rigid triangle of links too.
+            assert result["min_transmission_deg"] >= floor - 1e-4
         # The best refined beats the best retrieved: refinement found something.
         assert results[0]["chamfer"] < min(r["chamfer"] for r in retrieved.values())
     assert improved >= 6

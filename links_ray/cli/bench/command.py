@@ -21,7 +21,10 @@ from links_ray.cli.arguments import (
     print_result,
 )
 from links_ray.cli.bench.synthesis import BENCH_SECONDS
-from links_ray.engine.synthesis_options import DEFAULT_SYNTHESIS_SECONDS
+from links_ray.engine.synthesis_options import (
+    DEFAULT_SYNTHESIS_SECONDS,
+    DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
+)
 
 #: What a benchmark measured and how a person reads it.
 Measured = tuple[dict, Callable[[dict], str]]
@@ -238,10 +241,10 @@ def _synthesize_arguments(command: argparse.ArgumentParser) -> None:
     command.add_argument(
         "--min-transmission",
         type=float,
-        default=0.0,
+        default=DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
         metavar="DEG",
         help="the least transmission angle the synthesis keeps, as `links synthesize` takes it "
-        "(default 0)",
+        f"(default {DEFAULT_SYNTHESIS_TRANSMISSION_DEG:g})",
     )
     command.add_argument(
         "--front",

@@ -42,7 +42,10 @@ from links_ray.engine.inputs import DEFAULT_STEPS, REFINE_CHECK_STEPS
 from links_ray.engine.ordered import ordered_match
 from links_ray.engine.paths import chamfer, even_along, longest_chord
 from links_ray.engine.solver import simulate
-from links_ray.engine.synthesis_options import DEFAULT_SYNTHESIS_SECONDS
+from links_ray.engine.synthesis_options import (
+    DEFAULT_SYNTHESIS_SECONDS,
+    DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
+)
 
 if TYPE_CHECKING:
     from links_ray.engine.synthesis_plan import Retriever
@@ -132,7 +135,7 @@ def bench_row(
     seed: int = 0,
     labels: dict | None = None,
     draw: bool = False,
-    min_transmission: float = 0.0,
+    min_transmission: float = DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
     front: bool = False,
 ) -> tuple[dict, dict | None]:
     """One curve's row of the bench, synthesized from `points` (already in their frame) over
@@ -225,7 +228,7 @@ def bench_synthesize(
     use_set: bool = False,
     only: tuple[str, ...] = (),
     root: str | None = None,
-    min_transmission: float = 0.0,
+    min_transmission: float = DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
     front: bool = False,
 ) -> dict:
     """Synthesize every target curve, placed in a random frame (`seed`), over the cached data
@@ -353,8 +356,6 @@ def bench_dial(
     use_set: bool = False,
     only: tuple[str, ...] = (),
     root: str | None = None,
-    min_transmission: float = 0.0,
-    front: bool = False,
 ) -> dict:
     """The time dial: `bench_synthesize` at each of `budgets` seconds a curve, and per half
     and family (the set's groups; the targets as one group) the mean and median refined

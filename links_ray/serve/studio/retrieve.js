@@ -199,7 +199,7 @@ export class Retriever {
     const body = {
       points: this.points,
       ...(Number.isFinite(k) ? { k } : {}),
-      ...(Number.isFinite(floor) && floor > 0 ? { min_transmission: floor } : {}),
+      ...(Number.isFinite(floor) && floor >= 0 ? { min_transmission: floor } : {}),
     };
     const options = synthesize ? this.synthesisOptions() : this.retrievalOptions();
     const what = synthesize ? "Synthesis" : "Retrieval";

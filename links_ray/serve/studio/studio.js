@@ -240,6 +240,7 @@ loadLimits()
     $("k").min = String(limits.min_k);
     $("k").max = String(limits.max_k);
     $("min-transmission").max = String(limits.max_transmission_deg);
+    $("min-transmission").value = String(limits.default_transmission_deg);
     $("max-joints").min = String(limits.min_joints);
   })
   .catch((err) => notify(`The API's limits could not be read: ${err.message}`, "limits"))
