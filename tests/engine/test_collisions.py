@@ -26,10 +26,11 @@ from links_ray.engine.inputs import (
     MAX_LAYERED_JOINTS,
     InvalidMechanismError,
 )
-from links_ray.engine.mechanism import LockingError
+from links_ray.engine.mechanism import LockingError, analyze_topology
 from links_ray.engine.node_kinds import FIXED
 from links_ray.engine.solver import _dyad_geometry, topology_cache
 from links_ray.engine.topology import random_topology
+from links_ray.engine.transmission import joint_transmission_deg
 from tests.support.bars import brute_force, pairs_of
 from tests.support.serving import LOCKING_FOUR_BAR
 
@@ -210,7 +211,9 @@ def corpus() -> list[dict[str, Any]]:
     for seed in range(100):
         mechanism = random_mechanism(1000 + seed, 8 + seed % 5)
         links, pairs, which, is_pin = pairs_of(np.asarray(mechanism["adjacency"]))
-        least, dip = brute_force(links_ray.simulate(**mechanism, steps=FINE_STEPS), pairs)
+        trajectories = links_ray.simulate(**mechanism, steps=FINE_STEPS)
+        least, dip = brute_force(trajectories, pairs)
+        order = analyze_topology(mechanism["adjacency"], mechanism["node_types"]).order
         mechanisms.append(
             {
                 "mechanism": mechanism,
@@ -220,6 +223,7 @@ def corpus() -> list[dict[str, Any]]:
                 "is_pin": is_pin,
                 "least": least,
                 "dip": dip,
+                "least_deg": float(joint_transmission_deg(order, trajectories[None]).min()),
             }
         )
     return mechanisms
@@ -227,8 +231,10 @@ def corpus() -> list[dict[str, Any]]:
 
 def test_every_pair_agrees_with_the_brute_force(corpus: list[dict[str, Any]]) -> None:
     """A pair the brute force finds within is a conflict; a conflict the brute force does not
-    find is a graze finer than its steps, within a step's motion of the threshold."""
-    checked = agreed = finer = 0
+    find is a graze finer than its steps, within a step's motion of the threshold, or a pair
+    left undecided: only near a dead centre, where the joints' speeds outrun the subdivision's
+    budget, and then counted as a conflict."""
+    checked = agreed = finer = undecided = 0
     for entry in corpus:
         which, is_pin, least, dip = entry["which"], entry["is_pin"], entry["least"], entry["dip"]
         for width, clearance, pin in SIZES:
@@ -236,13 +242,17 @@ def test_every_pair_agrees_with_the_brute_force(corpus: list[dict[str, Any]]) ->
                 **entry["mechanism"], bar_width=width, clearance=clearance, pin_diameter=pin
             )
             assert np.array_equal(found.links, entry["links"])
-            assert not found.link_unresolved.any() and not found.pin_unresolved.any()
+            unresolved = entries(found.link_unresolved, found.pin_unresolved, which, is_pin)
+            if unresolved.any():
+                assert entry["least_deg"] < 1.0, "pairs left undecided away from a dead centre"
             thresholds = np.where(is_pin, found.pin_threshold, found.link_threshold)
             within = least < thresholds
             conflicts = entries(found.link_conflicts, found.pin_conflicts, which, is_pin)
             distances = entries(found.link_distance, found.pin_distance, which, is_pin)
             assert np.all(conflicts[within]), "a pair within at a pose was reported clear"
-            extra = conflicts & ~within
+            assert np.all(conflicts[unresolved])
+            extra = conflicts & ~within & ~unresolved
+            undecided += int(np.sum(unresolved & ~within))
             assert np.all(least[extra] - thresholds[extra] <= dip[extra])
             # The check's distances are at real poses: no less than the least between steps.
             assert np.all(distances >= least - dip - 1e-12)
@@ -250,8 +260,12 @@ def test_every_pair_agrees_with_the_brute_force(corpus: list[dict[str, Any]]) ->
             checked += len(which)
             agreed += int(np.sum(conflicts == within))
             finer += int(extra.sum())
-    print(f"{checked} pairs: {agreed} agree, {finer} grazes finer than {FINE_STEPS} steps")
-    assert agreed + finer == checked and finer <= checked // 1000
+    print(
+        f"{checked} pairs: {agreed} agree, {finer} grazes finer than {FINE_STEPS} steps, "
+        f"{undecided} undecided near a dead centre (counted as conflicts)"
+    )
+    assert agreed + finer + undecided == checked and finer <= checked // 1000
+    assert undecided <= checked // 20
 
 
 def test_thresholds_at_a_pairs_graze(corpus: list[dict[str, Any]]) -> None:
