@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from links_ray.cli.bench.kit import kit_workload
 from links_ray.engine.kit import KitOptions, plan_kit
 from links_ray.serve.kits import MAX_KITS
 from tests.interop.test_parts import UNBUILDABLE, random_mechanism
@@ -24,6 +25,10 @@ from tests.support.needs import need_module
 from tests.support.serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
 
 trimesh = need_module("trimesh", "pip install 'links-ray[build]' (the test extra)")
+
+
+#: A random dataset mechanism (`links bench kit`'s 50th) that takes seconds to plan as a kit.
+SLOW_KIT = 49
 
 
 def plain(mechanism: dict[str, Any]) -> dict[str, Any]:
@@ -142,9 +147,11 @@ def test_openapi_describes_the_route(client: Client) -> None:
 
 
 def test_kits_past_the_limit_wait_elsewhere_and_health_is_answered(client: Client) -> None:
-    """MAX_KITS kits at once, a slow one each (a layer plan of about 3 s): one more is 503 with
-    Retry-After at once, and health is answered meanwhile."""
-    slow = plain(random_mechanism(18, 11))
+    """MAX_KITS kits at once, a slow one each (18 joints: about 4 s of collision check and
+    layer plan here): one more is 503 with Retry-After at once, and health is answered
+    meanwhile."""
+    adjacency, node_types, positions = kit_workload(SLOW_KIT + 1, 0)[SLOW_KIT]
+    slow = plain({"adjacency": adjacency, "node_types": node_types, "positions": positions})
     answers: list[int] = []
 
     def make() -> None:
