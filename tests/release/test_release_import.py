@@ -604,7 +604,14 @@ def test_links_serve_and_the_studio_work_on_the_imported_root(
         assert status == 200, found
         best = found["results"][0]
         assert best["mechanism_id"] == target["mechanism_id"] and best["chamfer"] < 1e-3
-        request = {"points": curve.tolist(), "k": 2, "seed": 0, "iterations": 20}
+        # Whatever its transmission angle: no floor, so the imported mechanism is a candidate.
+        request = {
+            "points": curve.tolist(),
+            "k": 2,
+            "seed": 0,
+            "iterations": 20,
+            "min_transmission": 0,
+        }
         status, made = client.post("/api/synthesize", request)
         assert status == 200, made
         assert made["results"][0]["chamfer"] < 1e-4
@@ -613,6 +620,7 @@ def test_links_serve_and_the_studio_work_on_the_imported_root(
             draw(studio, curve.tolist())
             drawn = studio.js("() => window.studio.retriever.points")
             studio.page.get_by_test_id("k").fill("3")
+            studio.page.get_by_test_id("min-transmission").fill("0")
             studio.click("retrieve-button")
             results = studio.page.get_by_test_id("result")
             results.nth(2).wait_for()
