@@ -87,8 +87,21 @@ def shown(value: object) -> str:
     if isinstance(value, int | np.integer) and abs(int(value)).bit_length() > 128:
         # Python refuses to write out integers of more than 4,300 digits; none is needed.
         return f"an integer of {abs(int(value)).bit_length()} bits"
-    text = str(int(value)) if isinstance(value, np.integer) else repr(value)
+    text = str(int(value)) if isinstance(value, np.integer) else _repr_head(value, 40)
     return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _repr_head(value: object, limit: int) -> str:
+    """repr(value), or a prefix of it longer than `limit`: a list or tuple is written only
+    as far as needed, so a sequence of a million items costs what its first few do."""
+    if not isinstance(value, list | tuple) or len(value) == 1:
+        return repr(value)
+    text = "[" if isinstance(value, list) else "("
+    for i, item in enumerate(value):
+        text += (", " if i else "") + _repr_head(item, limit - len(text))
+        if len(text) > limit:
+            return text
+    return text + ("]" if isinstance(value, list) else ")")
 
 
 def as_real(name: str, value: object, kind: str = "a number") -> float:

@@ -554,3 +554,32 @@ def test_every_numeric_field_refuses_numbers_past_float64(
     with pytest.raises(ValueError, match=match) as refused:
         check(value)
     assert len(str(refused.value)) < 300
+
+
+def test_a_refused_value_is_shown_as_its_repr_cut_short_however_long() -> None:
+    """Error messages show a value as its repr cut to 40 characters; a list or tuple is
+    written only as far as that needs (a request's list of a million numbers included), and
+    the text is the same as the whole repr's, cut."""
+    from links_ray.engine.inputs import shown
+
+    def cut(value: object) -> str:
+        text = repr(value)
+        return text if len(text) <= 40 else text[:37] + "..."
+
+    values: list[object] = [
+        [0.0] * 1_000_000,
+        [[0.5] * 1_000_000],
+        [[1, 2], [3, 4]],
+        (1,),
+        (1, 2),
+        [],
+        (),
+        [[]],
+        [(1,), (2, 3)],
+        [1, [2, [3, [4, [5]]]]],
+        ["x" * 100],
+        list(range(12)),
+        {"a": [1] * 100},
+    ]
+    for value in values:
+        assert shown(value) == cut(value)
