@@ -4,8 +4,8 @@ runs, with a ValueError naming it.
 numba checks no bounds: a kernel given a buffer too small for what it writes writes past its
 end, silently, and the process may crash much later. Each case below calls an entry point
 with the buffers it needs (it must run), then with one of them a row short (or otherwise
-misshapen): ValueError naming that buffer. tests/project/test_boundscheck.py runs these again with
-numba's own bounds checks on, which would turn a write past an end into an IndexError.
+misshapen): ValueError naming that buffer. tests/run runs these with numba's own bounds checks
+on (tests/support/boundscheck.py), which would turn a write past an end into an IndexError.
 """
 
 from __future__ import annotations

@@ -11,6 +11,12 @@ be shared through the machine, so each worker is given its own:
   could join the other worker's. The folder is short: Ray's socket paths live under it.
 - pytest's own temporary folders are already per worker (xdist names them).
 
+It also orders the files for the workers. tests/run's workers take whole files (`--dist
+loadfile`) in the order collected (`--no-loadscope-reorder`; xdist would otherwise send the
+files with the most tests first, and a long file of one test last, for one worker to run alone
+while the other waits). The files in LONGEST_FIRST go first, longest first, so that the two
+workers finish together.
+
 Run alone (no xdist, or `-n 0`), the plugin does nothing.
 """
 
@@ -26,6 +32,22 @@ import pytest
 def worker_name() -> str | None:
     """This process's xdist worker ("gw0", "gw1", ...), or None outside xdist."""
     return os.environ.get("PYTEST_XDIST_WORKER")
+
+
+#: The files that hold a worker longest in tests/run's first two steps, longest first (the
+#: slowest-tests lists tests/run prints say which): a cold compile of every kernel, commits raced
+#: on S3, command runs, the large dataset's build.
+LONGEST_FIRST = (
+    "tests/cli/test_warm.py",
+    "tests/data/test_commit.py",
+    "tests/cli/test_export_mechanism.py",
+    "tests/search/test_retrieval_scale.py",
+    "tests/release/test_release_import.py",
+    "tests/engine/test_synthesis.py",
+    "tests/engine/test_collisions.py",
+    "tests/engine/test_kernel_buffers.py",
+    "tests/engine/test_turning.py",
+)
 
 
 class _RayFolder:
@@ -49,3 +71,10 @@ def pytest_unconfigure(config: pytest.Config) -> None:
     if _FOLDER.path is not None:
         shutil.rmtree(_FOLDER.path, ignore_errors=True)
         _FOLDER.path = None
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if worker_name() is None:
+        return
+    rank = {path: place for place, path in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))
