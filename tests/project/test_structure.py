@@ -132,3 +132,13 @@ def test_every_module_is_a_room_of_readable_size() -> None:
         if lines > limit:
             too_long.append(f"{module}: {lines} lines (at most {limit})")
     assert too_long == []
+
+
+def test_the_files_the_workers_take_first_exist() -> None:
+    """tests/support/workers.py names test files to hand out first: a renamed or removed file
+    would drop out of that order unnoticed."""
+    from tests.support.workers import LONGEST_FIRST
+
+    missing = [path for path in LONGEST_FIRST if not (REPO / path).is_file()]
+    assert not missing, missing
+    assert len(set(LONGEST_FIRST)) == len(LONGEST_FIRST)
