@@ -58,6 +58,10 @@ class Budget(ABC):
         """How many candidates a round refines together: `workers`, or `steady` whatever the
         threads."""
 
+    @abstractmethod
+    def left(self) -> float:
+        """The share of the whole budget not yet spent (0 to 1)."""
+
 
 class TimeBudget(Budget):
     """`seconds` of work from `started` (a `time.perf_counter()` value)."""
@@ -67,6 +71,7 @@ class TimeBudget(Budget):
     def __init__(self, started: float, seconds: float) -> None:
         super().__init__()
         self.deadline = started + seconds
+        self.seconds = seconds
 
     def pass_end(self, share: float) -> float:
         """Now, plus `share` of the time left."""
@@ -88,6 +93,10 @@ class TimeBudget(Budget):
     def at_once(self, workers: int, steady: int) -> int:
         """`workers`: a core for each."""
         return workers
+
+    def left(self) -> float:
+        """The share of the seconds still to come."""
+        return min(1.0, max(0.0, self.deadline - time.perf_counter()) / max(self.seconds, 1e-9))
 
 
 class IterationBudget(Budget):
@@ -120,3 +129,7 @@ class IterationBudget(Budget):
     def at_once(self, workers: int, steady: int) -> int:
         """`steady`, whatever the threads."""
         return steady
+
+    def left(self) -> float:
+        """The share of the iterations not yet spent."""
+        return max(0.0, 1.0 - self.spent / self.iterations)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from links_ray.engine.constraints import KEPT, Constraints, Violation, violation
+from links_ray.engine.growth import grown_mechanisms
 from links_ray.engine.inputs import DEFAULT_STEPS, check_refine_size, link_pairs
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.refine import DAMPING_START, Refinement, refine_validated
@@ -42,6 +43,40 @@ class Candidate:
     converged: bool = False
     damping: float = DAMPING_START  # where the last kept refinement of `positions` ended
     rounds: int = 0  # long-pass rounds it has had
+    growths: int = 0  # joints grown onto the retrieved mechanism (`engine.growth`)
+    parent: Candidate | None = None  # the candidate it was grown from
+    grew: bool = False  # whether it has been grown
+
+    @property
+    def retrieved_as(self) -> Candidate:
+        """The candidate, as retrieved, that this one grew from (itself if it did not grow)."""
+        return self if self.parent is None else self.parent.retrieved_as
+
+    def grown(
+        self, target: Target, constraints: Constraints | None, offset: float, max_joints: int
+    ) -> list[Candidate]:
+        """New candidates, each this one's best positions grown by a coupler point `offset`
+        from the tracing joint, which traces instead, with at most `max_joints` joints
+        (`engine.growth.grown_mechanisms`); those that lock or cannot be traced are left
+        out."""
+        self.grew = True
+        children = []
+        for adjacency, node_types, positions in grown_mechanisms(
+            self.topology, self.positions, self.joint, offset, max_joints
+        ):
+            try:
+                topology = analyze_topology(adjacency, node_types)
+            except ValueError:
+                continue
+            child = _prepared(
+                self.result, topology, positions, len(positions) - 1, target, constraints
+            )
+            if child is not None:
+                child.retrieved = self.retrieved
+                child.growths = self.growths + 1
+                child.parent = self
+                children.append(child)
+        return children
 
     def rank(self) -> tuple[bool, float, float]:
         """Order of merit: keeping the constraints first, then missing them by less, then
@@ -122,6 +157,22 @@ def candidate(result: dict, target: Target, constraints: Constraints | None) -> 
         topology = analyze_topology(mechanism["adjacency"], mechanism["node_types"])
         positions = np.ascontiguousarray(mechanism["positions"], dtype=np.float64)
         joint = int(result["mechanism_joint"])
+    except ValueError:
+        return None
+    return _prepared(result, topology, positions, joint, target, constraints)
+
+
+def _prepared(
+    result: dict,
+    topology: Topology,
+    positions: np.ndarray,
+    joint: int,
+    target: Target,
+    constraints: Constraints | None,
+) -> Candidate | None:
+    """`candidate` of a mechanism already analyzed: None if it locks between the simulation's
+    steps or is too large to refine."""
+    try:
         check_refine_size(topology.n_joints, DEFAULT_STEPS)
         check = check_mechanism(topology, positions)
         if check.lock[0] >= 0:

@@ -35,6 +35,7 @@ import numpy as np
 
 from links_ray.engine.budget import Budget
 from links_ray.engine.candidates import WORST_RANK, Candidate, candidate
+from links_ray.engine.growth import GROWN_MAX_JOINTS
 from links_ray.engine.inputs import DEFAULT_MIN_TRANSMISSION_DEG
 from links_ray.engine.pareto import pareto_front
 from links_ray.engine.refine_step import IRLS_WEIGHT_FLOOR
@@ -62,6 +63,11 @@ HOP_ITERATIONS = 300
 #: which pulls harder on the parts of the drawing the path is far from; the long pass and
 #: restarts then weigh pairs as the chamfer does (IRLS_WEIGHT_FLOOR).
 SHORT_WEIGHT_FLOOR = 0.15
+#: The polish: once no more than POLISH_LEFT of the budget is left, the best candidate alone
+#: goes on, and whenever it has converged it grows a coupler point on a link of its tracing
+#: joint (`engine.growth`) GROWTH_OFFSET of the drawing's chord from it, at most MAX_GROWTHS
+#: times along one line of descent.
+POLISH_LEFT, GROWTH_OFFSET, MAX_GROWTHS = 0.2, 0.02, 3
 #: Least seconds between two progress reports (the best so far) of one synthesis.
 PROGRESS_INTERVAL_S = 0.2
 #: With timing, the candidates the short pass leaves best go on, timed: choosing each one's
@@ -102,6 +108,7 @@ class SynthesisPasses:
         self.finalists: list[Candidate] = []
         self.progress = progress
         self.started = started
+        self.polishing = False  # whether the best alone goes on (`polish`)
         # The measure reported, when, and the best candidate's rank last looked at.
         self._reported_rank: tuple = WORST_RANK
         self._reported_at = -math.inf
@@ -224,8 +231,33 @@ class SynthesisPasses:
             for future in done:
                 future.result()
                 running.pop(future).rounds += 1
+            waiting[:0] = self.polish(waiting)
             self.report()
         wait(running)  # rounds past the deadline stop within their damping trial under way
+
+    def polish(self, waiting: list[Candidate]) -> list[Candidate]:
+        """Once no more than POLISH_LEFT of the budget is left, the best candidate alone goes
+        on: the other finalists stop and `waiting` is emptied. Then, and again whenever the best
+        has converged, its grown children (`Candidate.grown`), which join the candidates and
+        are returned to wait for a finalist's place: the answer gets new freedom where it
+        traces. Not for a front (which ranks by joints) or a timed target."""
+        if self.options.front or self.timed is not None or not self.candidates:
+            return []
+        if self.budget.left() > POLISH_LEFT:
+            return []
+        best = min(self.candidates, key=Candidate.rank)
+        if not self.polishing:  # it grows at once, and goes on beside its children
+            self.polishing = True
+            waiting.clear()
+            for c in self.finalists:
+                c.converged = c.converged or c is not best
+        elif not best.converged or best.grew or best.growths >= MAX_GROWTHS:
+            return []
+        most = self.options.max_joints or GROWN_MAX_JOINTS
+        offset = GROWTH_OFFSET * self.target.chord
+        children = best.grown(self.target, self.options.constraints, offset, most)
+        self.candidates += children
+        return children
 
     def restarts(self) -> None:
         """While work remains, the best finalists shaken and refined again, each kept only if
@@ -255,7 +287,14 @@ class SynthesisPasses:
         `unmet` says what the nearest missed when none keeps them. A front's results, and
         every result of one given `max_layers`, carry their `layers`
         (`engine.synthesis_layers`)."""
-        candidates = sorted(self.candidates, key=lambda c: (*c.rank(), c.result["path_id"]))
+        ranked = sorted(self.candidates, key=lambda c: (*c.rank(), c.result["path_id"], c.growths))
+        # One answer for each retrieved mechanism: the best of it and what grew from it.
+        seen: set[int] = set()
+        candidates = []
+        for c in ranked:
+            if id(c.retrieved_as) not in seen:
+                seen.add(id(c.retrieved_as))
+                candidates.append(c)
         kept = [c for c in candidates if c.missed.kept]
         constraints, unmet = self.options.constraints, None
         counts = None

@@ -72,6 +72,9 @@ def as_result(
             "positions": positions.tolist(),
         },
         "mechanism_joint": candidate.joint,
+        # Joints grown onto the retrieved mechanism (`engine.growth`): 0 when it is the
+        # retrieved one, moved.
+        "grown_joints": candidate.growths,
         "n_joints": topology.n_joints,
         "n_links": int(np.count_nonzero(np.triu(topology.adjacency, 1))),
         # As the dataset's paths state it: the joint's dyads, at the stored steps.

@@ -89,7 +89,7 @@ def test_an_unrefined_retrieval_measures_the_retrievals_chamfer(
 def test_synthesis_refines_and_reports_what_it_traces(
     dataset_index: RetrievalIndex, queries: list
 ) -> None:
-    improved = 0
+    improved = grew = 0
     for query in [queries[0], *hand_drawn()[:2]]:
         results = synthesize(dataset_index, query, k=3, seed=0, iterations=ITERATIONS)
         assert len(results) == 3
@@ -124,12 +124,21 @@ def test_synthesis_refines_and_reports_what_it_traces(
             assert result["chamfer"] <= result["retrieved_chamfer"] + 1e-12
             improved += result["chamfer"] < 0.9 * result["retrieved_chamfer"]
             mechanism = start_from["mechanism"]
-            assert mechanism["adjacency"] == result["mechanism"]["adjacency"]
+            # Grown joints (engine.growth) come last, each hung on two joints before it, and
+            # the last traces; the retrieved mechanism is the rest, moved.
+            n, grown = len(mechanism["node_types"]), result["grown_joints"]
+            assert result["n_joints"] == n + grown
+            assert np.array_equal(adjacency[:n, :n], mechanism["adjacency"])
+            for joint in range(n, n + grown):
+                assert np.count_nonzero(adjacency[joint, :joint]) == 2
+            grew += grown > 0
+            if grown:
+                assert result["mechanism_joint"] == n + grown - 1
             assert_valid(
                 np.array(mechanism["adjacency"]),
                 np.array(mechanism["node_types"]),
                 np.array(mechanism["positions"]),
-                np.array(result["mechanism"]["positions"]),
+                np.array(result["mechanism"]["positions"])[:n],
                 floor,
             )
             # Every dyad keeps the floor, a rigid triangle of links too.
@@ -137,6 +146,7 @@ def test_synthesis_refines_and_reports_what_it_traces(
         # The best refined beats the best retrieved: refinement found something.
         assert results[0]["chamfer"] < min(r["chamfer"] for r in retrieved.values())
     assert improved >= 6
+    assert grew >= 1  # the polish grew an answer
 
 
 def test_a_partial_stroke_gets_its_crank_interval(
