@@ -109,6 +109,7 @@ class SynthesisPasses:
         self.progress = progress
         self.started = started
         self.polishing = False  # whether the best alone goes on (`polish`)
+        self.stopped: set[int] = set()  # ids of the finalists the polish stopped
         # The measure reported, when, and the best candidate's rank last looked at.
         self._reported_rank: tuple = WORST_RANK
         self._reported_at = -math.inf
@@ -203,7 +204,7 @@ class SynthesisPasses:
                 c.converged = True
 
         def moving_finalists() -> list[Candidate]:
-            moving = [c for c in self.finalists if not c.converged]
+            moving = [c for c in self.finalists if not c.converged and id(c) not in self.stopped]
             while len(moving) < quota and waiting:
                 c = waiting.pop(0)
                 c.converged = False  # a short round cut by its end is no sign of it
@@ -249,8 +250,9 @@ class SynthesisPasses:
         if not self.polishing:  # it grows at once, and goes on beside its children
             self.polishing = True
             waiting.clear()
-            for c in self.finalists:
-                c.converged = c.converged or c is not best
+            # By name, not by `converged`: a round under way when the polish begins may
+            # still keep a step, which would set it moving again.
+            self.stopped = {id(c) for c in self.finalists if c is not best}
         elif not best.converged or best.grew or best.growths >= MAX_GROWTHS:
             return []
         most = self.options.max_joints or GROWN_MAX_JOINTS
