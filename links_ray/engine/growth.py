@@ -46,6 +46,7 @@ def grown_mechanisms(
     if n >= min(max_joints, GROWN_MAX_JOINTS):
         return []
     centre = positions.mean(axis=0)
+    node_types = np.append(topology.node_types, np.int8(SIMPLE)).astype(np.int8)
     grown = []
     for neighbour in np.flatnonzero(topology.adjacency[joint]):
         along = positions[joint] - positions[neighbour]
@@ -58,7 +59,6 @@ def grown_mechanisms(
         adjacency = np.zeros((n + 1, n + 1), dtype=np.uint8)
         adjacency[:n, :n] = topology.adjacency
         adjacency[n, [joint, neighbour]] = adjacency[[joint, neighbour], n] = 1
-        node_types = np.append(topology.node_types, np.int8(SIMPLE)).astype(np.int8)
         at = np.vstack([positions, positions[joint] + offset * square])
-        grown.append((adjacency, node_types, at))
+        grown.append((adjacency, node_types.copy(), at))
     return grown
