@@ -184,51 +184,212 @@ def _nearest_pairs(
         target_d[i] = np.sqrt(target_d[i])
 
 
+#: fastmath flags of the stroke sums: reordered additions, so that they use vector lanes (the
+#: rounding then differs from a running sum's in the last bits, the same for equal inputs on
+#: one machine); no flag assumes finite values, as `nearest` starts infinite.
+LANES = {"reassoc", "nsz", "arcp", "contract"}
+
+
+@njit(cache=True, nogil=True, fastmath=LANES)
+def _sum(row: np.ndarray) -> float:
+    total = 0.0
+    for i in range(row.shape[0]):
+        total += row[i]
+    return total
+
+
+@njit(cache=True, nogil=True, fastmath=LANES)
+def _sum_of_least(first: np.ndarray, second: np.ndarray) -> float:
+    """The sum over i of the lesser of first[i] and second[i]."""
+    total = 0.0
+    for i in range(first.shape[0]):
+        a, b = first[i], second[i]
+        total += a if a < b else b
+    return total
+
+
+@njit(cache=True, nogil=True, fastmath=LANES)
+def _lower_and_sum(nearest: np.ndarray, row: np.ndarray) -> float:
+    """Lower `nearest` to `row` where it is larger, in place; the sum of the result."""
+    total = 0.0
+    for i in range(nearest.shape[0]):
+        d = row[i]
+        lowered = d if d < nearest[i] else nearest[i]
+        nearest[i] = lowered
+        total += lowered
+    return total
+
+
+@njit(cache=True, nogil=True)
+def _lesser(first: np.ndarray, second: np.ndarray, out: np.ndarray) -> None:
+    for i in range(out.shape[0]):
+        out[i] = first[i] if first[i] < second[i] else second[i]
+
+
+@njit(cache=True, nogil=True)
+def _run_minima(
+    dist: np.ndarray, prefix: np.ndarray, suffix: np.ndarray, middle: np.ndarray
+) -> None:
+    """Each stroke point's least distance over runs of path steps that end or start at an end of
+    the path or at its middle (steps // 2): prefix[q] over steps 0..q, suffix[q] over q..last,
+    middle[q] over q..middle-1 for q below the middle, middle..q from it."""
+    steps = dist.shape[0]
+    half = steps // 2
+    prefix[0] = dist[0]
+    for s in range(1, steps):
+        _lesser(prefix[s - 1], dist[s], prefix[s])
+    suffix[steps - 1] = dist[steps - 1]
+    for s in range(steps - 2, -1, -1):
+        _lesser(suffix[s + 1], dist[s], suffix[s])
+    if half > 0:
+        middle[half - 1] = dist[half - 1]
+        for s in range(half - 2, -1, -1):
+            _lesser(middle[s + 1], dist[s], middle[s])
+    middle[half] = dist[half]
+    for s in range(half + 1, steps):
+        _lesser(middle[s - 1], dist[s], middle[s])
+
+
+@njit(cache=True, nogil=True)
+def _long_run_sum(
+    prefix: np.ndarray, suffix: np.ndarray, middle: np.ndarray, start: int, count: int
+) -> float:
+    """The sum over the stroke of each point's least distance to the run (start, count) of at
+    least half the path's steps (`_run_minima`'s tables): such a run, if it wraps, is a suffix
+    and a prefix; if not, it starts at step 0, ends at the last step or holds the middle."""
+    steps = prefix.shape[0]
+    end = start + count
+    if end > steps:
+        return _sum_of_least(suffix[start], prefix[end - steps - 1])
+    if start == 0:
+        return _sum(prefix[end - 1])
+    if end == steps:
+        return _sum(suffix[start])
+    return _sum_of_least(middle[start], middle[end - 1])
+
+
+@njit(cache=True, nogil=True)
+def _path_terms(
+    column: np.ndarray,
+    least: int,
+    long_from: int,
+    path_mean: np.ndarray,
+    longer: np.ndarray,
+    shorter: np.ndarray,
+) -> np.ndarray:
+    """Fill path_mean[start, count] (the run's path term: the mean of `column` over it),
+    longer[start, count] (the least path term of the start's runs of long_from to count
+    steps, at least `least`) and shorter[start, count] (the least of its runs of count to
+    long_from - 1 steps, at least `least`); return each start's least path term of all."""
+    steps = column.shape[0]
+    running = np.empty(2 * steps + 1)  # sums of the path's nearest distances, twice round
+    running[0] = 0.0
+    for k in range(2 * steps):
+        running[k + 1] = running[k] + column[k % steps]
+    least_of_start = np.empty(steps)
+    for start in range(steps):
+        means = path_mean[start]
+        for count in range(1, steps + 1):
+            means[count] = (running[start + count] - running[start]) / count
+        lowest = np.inf
+        row = longer[start]
+        row[:long_from] = np.inf
+        for count in range(long_from, steps + 1):
+            if count >= least and means[count] < lowest:
+                lowest = means[count]
+            row[count] = lowest
+        lowest_short = np.inf
+        row = shorter[start]
+        row[long_from:] = np.inf
+        for count in range(long_from - 1, -1, -1):
+            if count >= least and means[count] < lowest_short:
+                lowest_short = means[count]
+            row[count] = lowest_short
+        least_of_start[start] = min(lowest, lowest_short)
+    return least_of_start
+
+
 @njit(cache=True, nogil=True)
 def _best_interval(path: np.ndarray, stroke: np.ndarray, min_count: int) -> tuple[int, int, float]:
     """The run of consecutive path points (cyclic) whose chamfer to `stroke` is least.
 
-    Tries every start and every count from `min_count` to all the points: (start, count,
-    chamfer), the shortest run and then the lowest start on ties. O(steps^2 x points): the
-    stroke's running nearest distances are kept while a run grows one point at a time.
+    Over every start and every count from `min_count` to all the points: (start, count,
+    chamfer), least by chamfer, then the shortest run, then the lowest start. A run's chamfer is
+    its stroke term (the mean over the stroke of each point's nearest run point) plus its path
+    term (the mean over the run of each point's nearest stroke point).
+
+    Exact, but it skips what cannot win. A run's stroke term only grows as it loses points,
+    and no run's is below the whole path's. So each start's runs are taken longest first: the
+    long ones (half the steps or more) from tables of least distances (`_run_minima`), each in
+    one pass over the stroke, until the stroke term so far plus the least path term of the
+    shorter ones passes the best so far; then the short ones, grown a point at a time, only
+    while the stroke term of the shortest long run plus their least path term could still
+    win. A stroke matched by most of a path visits a few runs per start, not every run.
     """
     steps = path.shape[0]
     m = stroke.shape[0]
-    dist = np.empty((steps, m))
+    long_from = steps - steps // 2
+    least = max(min_count, 1)
+    # One block each (not one per table): the allocator then keeps reusing its pages.
+    tables = np.empty((4, steps, m))
+    dist, prefix, suffix, middle = tables[0], tables[1], tables[2], tables[3]
     column = np.empty(steps)  # nearest stroke distance of each path point
+    xs = stroke[:, 0].copy()
+    ys = stroke[:, 1].copy()
     for s in range(steps):
-        best = np.inf
+        px, py = path[s, 0], path[s, 1]
+        row = dist[s]
+        nearest = np.inf
         for i in range(m):
-            dx = stroke[i, 0] - path[s, 0]
-            dy = stroke[i, 1] - path[s, 1]
+            dx = xs[i] - px
+            dy = ys[i] - py
             d = np.sqrt(dx * dx + dy * dy)
-            dist[s, i] = d
-            best = min(best, d)
-        column[s] = best
-    nearest = np.empty(m)
+            row[i] = d
+            nearest = min(nearest, d)
+        column[s] = nearest
+    _run_minima(dist, prefix, suffix, middle)
+    whole = _sum(suffix[0])  # the whole path's stroke term, times m: no run's is below it
+    terms = np.empty((3, steps, steps + 1))
+    path_mean, longer, shorter = terms[0], terms[1], terms[2]
+    least_path = _path_terms(column, least, long_from, path_mean, longer, shorter)
+    # Bounds are shaded down a little, so that no sum's rounding lets them cut a winner.
+    shade = 1.0 - 1e-9
+    nearest_run = np.empty(m)
     best_start, best_count, best_value = 0, steps, np.inf
-    for start in range(steps):
-        nearest[:] = np.inf
-        total = np.inf  # sum of `nearest`, once finite
-        path_sum = 0.0
-        for count in range(1, steps + 1):
-            s = (start + count - 1) % steps
-            path_sum += column[s]
-            if count == 1:
-                total = 0.0
-                for i in range(m):
-                    nearest[i] = dist[s, i]
-                    total += dist[s, i]
-            else:
-                for i in range(m):
-                    d = dist[s, i]
-                    if d < nearest[i]:
-                        total -= nearest[i] - d
-                        nearest[i] = d
-            if count < min_count:
+    for start in np.argsort(least_path, kind="mergesort"):
+        if (whole / m + least_path[start]) * shade > best_value:
+            break  # and so does every later start
+        below = whole  # the stroke term (times m) of the start's runs taken so far
+        cut = False
+        for count in range(steps, long_from - 1, -1):
+            if (below / m + longer[start, count]) * shade > best_value:
+                cut = count > long_from
+                break
+            total = whole if count == steps else _long_run_sum(prefix, suffix, middle, start, count)
+            below = total
+            if count >= least:
+                value = total / m + path_mean[start, count]
+                if value < best_value or (
+                    value == best_value
+                    and (count < best_count or (count == best_count and start < best_start))
+                ):
+                    best_start, best_count, best_value = start, count, value
+        if long_from <= least:
+            continue
+        if cut:  # the short runs' stroke terms are at least the shortest long run's
+            below = _long_run_sum(prefix, suffix, middle, start, long_from)
+        nearest_run[:] = np.inf
+        for count in range(1, long_from):
+            if (below / m + shorter[start, count]) * shade > best_value:
+                break
+            total = _lower_and_sum(nearest_run, dist[(start + count - 1) % steps])
+            if count < least:
                 continue
-            value = total / m + path_sum / count
-            if value < best_value or (value == best_value and count < best_count):
+            value = total / m + path_mean[start, count]
+            if value < best_value or (
+                value == best_value
+                and (count < best_count or (count == best_count and start < best_start))
+            ):
                 best_start, best_count, best_value = start, count, value
     return best_start, best_count, best_value
 

@@ -193,6 +193,76 @@ def test_best_interval_is_exhaustive() -> None:
     assert values[(start, count)] == pytest.approx(value, rel=1e-12)
 
 
+def _all_runs(path: np.ndarray, stroke: np.ndarray, least: int) -> dict[tuple[int, int], float]:
+    """Brute force: the chamfer of every cyclic run of `path` of `least` points or more."""
+    steps = len(path)
+    return {
+        (s, c): chamfer(stroke, path[(s + np.arange(c)) % steps])
+        for s in range(steps)
+        for c in range(least, steps + 1)
+    }
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_best_interval_finds_a_stroke_along_part_of_a_path(seed: int) -> None:
+    """A noisy stroke along a share of a smooth closed path, the case whose runs the search
+    skips most of: the run it finds is the least of all, by brute force."""
+    rng = np.random.default_rng(seed)
+    steps = 48
+    t = np.linspace(0, 2 * np.pi, steps, endpoint=False)
+    path = np.stack([np.cos(t) + 0.3 * np.cos(3 * t), np.sin(t) + 0.2 * np.sin(2 * t)], axis=1)
+    first = rng.uniform(0, 2 * np.pi)
+    u = np.linspace(first, first + rng.uniform(0.2, 1.0) * 2 * np.pi, 70)
+    stroke = np.stack([np.cos(u) + 0.3 * np.cos(3 * u), np.sin(u) + 0.2 * np.sin(2 * u)], axis=1)
+    stroke += rng.normal(0, 0.01, stroke.shape)
+    start, count, value = best_interval(path, stroke, 3)
+    values = _all_runs(path, stroke, 3)
+    assert value == pytest.approx(min(values.values()), rel=1e-12)
+    assert values[(start, count)] == pytest.approx(value, rel=1e-12)
+    assert count < steps  # a share of the path, not all of it
+
+
+def test_best_interval_is_exhaustive_at_every_small_size() -> None:
+    """Paths of 1 to 13 steps (odd and even: long runs are read from tables split at the
+    middle), strokes of 1 to 11 points, least counts 0 to 4, random and along the path."""
+    rng = np.random.default_rng(17)
+    for _ in range(300):
+        steps, points, least = (
+            int(rng.integers(1, 14)),
+            int(rng.integers(1, 12)),
+            int(rng.integers(0, 5)),
+        )
+        if least > steps:
+            continue
+        if rng.random() < 0.5:
+            path, stroke = rng.uniform(0, 1, (steps, 2)), rng.uniform(0, 1, (points, 2))
+        else:
+            t = np.linspace(0, 2 * np.pi, steps, endpoint=False)
+            path = np.stack([np.cos(t), np.sin(2 * t)], axis=1)
+            u = rng.uniform(0, 2 * np.pi) + np.linspace(0, rng.uniform(0.1, 1) * 2 * np.pi, points)
+            stroke = np.stack([np.cos(u), np.sin(2 * u)], axis=1) + rng.normal(0, 0.02, (points, 2))
+        start, count, value = best_interval(path, stroke, least)
+        values = _all_runs(path, stroke, max(least, 1))
+        assert value == pytest.approx(min(values.values()), rel=1e-12, abs=1e-15)
+        assert values[(start, count)] == pytest.approx(value, rel=1e-12, abs=1e-15)
+
+
+def test_best_interval_breaks_ties_by_the_shortest_run_then_the_lowest_start() -> None:
+    """A path that runs its loop twice has equal runs half a turn apart: the lowest start wins
+    whichever start the search takes first."""
+    rng = np.random.default_rng(11)
+    loop = rng.uniform(0, 1, (15, 2))
+    path = np.concatenate([loop, loop])
+    stroke = loop[4:9] + rng.normal(0, 0.01, (5, 2))
+    start, count, value = best_interval(path, stroke, 3)
+    values = _all_runs(path, stroke, 3)
+    least = min(values.values())
+    assert value == pytest.approx(least, rel=1e-12)
+    tied = [run for run, v in values.items() if v <= least * (1 + 1e-12)]
+    assert (count, start) == min((c, s) for s, c in tied)
+    assert start < 15
+
+
 # -- refinement ---------------------------------------------------------------------------------
 
 
