@@ -310,6 +310,17 @@ def _path_terms(
 
 
 @njit(cache=True, nogil=True)
+def _before(
+    value: float, count: int, start: int, best_value: float, best_count: int, best_start: int
+) -> bool:
+    """Whether run (start, count) of chamfer `value` comes before the best so far: by chamfer,
+    then the shorter run, then the lower start."""
+    if value != best_value:
+        return value < best_value
+    return count < best_count or (count == best_count and start < best_start)
+
+
+@njit(cache=True, nogil=True)
 def _best_interval(path: np.ndarray, stroke: np.ndarray, min_count: int) -> tuple[int, int, float]:
     """The run of consecutive path points (cyclic) whose chamfer to `stroke` is least.
 
@@ -369,10 +380,7 @@ def _best_interval(path: np.ndarray, stroke: np.ndarray, min_count: int) -> tupl
             below = total
             if count >= least:
                 value = total / m + path_mean[start, count]
-                if value < best_value or (
-                    value == best_value
-                    and (count < best_count or (count == best_count and start < best_start))
-                ):
+                if _before(value, count, start, best_value, best_count, best_start):
                     best_start, best_count, best_value = start, count, value
         if long_from <= least:
             continue
@@ -386,10 +394,7 @@ def _best_interval(path: np.ndarray, stroke: np.ndarray, min_count: int) -> tupl
             if count < least:
                 continue
             value = total / m + path_mean[start, count]
-            if value < best_value or (
-                value == best_value
-                and (count < best_count or (count == best_count and start < best_start))
-            ):
+            if _before(value, count, start, best_value, best_count, best_start):
                 best_start, best_count, best_value = start, count, value
     return best_start, best_count, best_value
 
