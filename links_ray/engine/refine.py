@@ -21,7 +21,7 @@ derivatives of the path come from `refine_kernels.solve_tangents`.
 The margin is a constraint, and steps slide along it. Each step is solved subject to the
 linearized transmission sines at their lowest steps: those near a dyad's floor must stay
 CLEARANCE_DEG above it, a rigid dyad's triangle as a moving dyad (`engine.refine_step`:
-`transmission_guards`, solved by a small active set in `constrained_minimum`). A best fit
+`transmission_guards`, solved by a small active set in `step_kernels`). A best fit
 often lies across the margin; without the guards every step toward it would be refused and
 refinement would stop there.
 
@@ -72,7 +72,6 @@ from links_ray.engine.inputs import (
     as_transmission_deg,
     check_positions,
     check_refine_size,
-    link_pairs,
 )
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.node_kinds import FIXED
@@ -205,7 +204,7 @@ def refine_validated(
     def late() -> bool:
         return deadline is not None and time.perf_counter() > deadline
 
-    fixed, links = topology.fixed_joints, link_pairs(topology.adjacency)
+    fixed, links = topology.fixed_joints, topology.links
 
     def missed_by(positions: np.ndarray, bounds: np.ndarray) -> Violation:
         return violation(constraints, positions, fixed, links, bounds, target.chord)

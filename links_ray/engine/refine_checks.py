@@ -13,13 +13,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from links_ray.engine.buffers import check_buffer
 from links_ray.engine.constraints import extent
 from links_ray.engine.inputs import REFINE_CHECK_STEPS, InvalidMechanismError, check_positions
 from links_ray.engine.mechanism import Topology
-from links_ray.engine.refine_kernels import solve_tangents
+from links_ray.engine.refine_kernels import _solve_tangents
 from links_ray.engine.solver import crank_turn
 from links_ray.engine.target import Target, target_chamfer, timed_distances
-from links_ray.engine.turning import rigid_dyads, turn_lock
+from links_ray.engine.turning import MAX_SPLITS, _turn_lock, rigid_dyads
 
 __all__ = ["Check", "check_mechanism", "least_deg", "solve_turn", "target_error", "valid_trial"]
 
@@ -75,7 +76,13 @@ def solve_turn(
             np.empty((m, 3)),
         )
     traj, dtraj, trans, dtrans, geometry = scratch[key]
-    lock = solve_tangents(
+    check_buffer("positions", positions, (n, 2))
+    if crank is not None:
+        check_buffer("crank", crank, (steps, 2))
+    # The kernel's own entry would check every buffer, three times an iteration: the scratch
+    # is made here in the topology's shapes, and a Topology's solution path was checked when
+    # it was made, so only the positions and the crank are the caller's.
+    lock = _solve_tangents(
         topology.order,
         topology.fixed_joints,
         positions,
@@ -97,7 +104,9 @@ def check_mechanism(
     refinement decides them once). A lock is reported in the `Check`, not raised."""
     lock, traj, _, trans, _, geometry = solve_turn(topology, positions, REFINE_CHECK_STEPS, False)
     if lock[0] < 0:  # and between the steps: valid means it turns
-        lock = turn_lock(topology.order, positions, geometry, traj)
+        # The arrays `solve_turn` made and checked, unchecked again (`turning.turn_lock`).
+        found = _turn_lock(topology.order, positions, geometry, traj, MAX_SPLITS)
+        lock = (int(found[0]), int(found[1]))
     if rigid is None:
         # A rigid dyad (a triangle of links) keeps its angle: no dead centre, no margin.
         rigid = rigid_dyads(topology.order, traj)
@@ -130,7 +139,7 @@ def valid_trial(
 ) -> Check | None:
     """The trial's check if it is a valid step (links, lock, branches, margins), else None."""
     try:
-        check_positions(topology.adjacency, trial)
+        check_positions(topology.adjacency, trial, topology.links)
     except InvalidMechanismError:
         return None
     check = check_mechanism(topology, trial, rigid)

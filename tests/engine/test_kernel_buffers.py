@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from links_ray.engine import refine_kernels, transmission, turning
+from links_ray.engine import refine_kernels, step_kernels, transmission, turning
 from links_ray.engine import solver as engine_solver
 from links_ray.engine.paths import chamfer_to_many, normalize_paths
 from links_ray.engine.sampling import PositionSampler
@@ -267,6 +267,38 @@ CASES: dict[str, Case] = {
         lambda: {"path": paths(1)[0], "stroke": query()[:10], "min_count": 3},
         ("path", "stroke"),
     ),
+    "chamfer_system": Case(
+        step_kernels.chamfer_system,
+        lambda: {
+            "path": paths(1)[0],
+            "drawn": query(),
+            "jac": np.ones((50, 2, 6)),
+            "interval": (45, 10),
+            "floor": 1e-4,
+            "relative": 0.25,
+        },
+        ("path", "drawn", "jac"),
+    ),
+    "guard_minima": Case(
+        step_kernels.guard_minima,
+        lambda: {
+            "trans": np.full((3, STEPS), 0.1),
+            "dtrans": np.ones((3, STEPS, 6)),
+            "floors": np.full(3, 0.2),
+            "clearance": 0.01,
+        },
+        ("dtrans", "floors"),
+    ),
+    "guarded_minimum": Case(
+        step_kernels.guarded_minimum,
+        lambda: {
+            "system": np.eye(4),
+            "gradient": np.ones(4),
+            "rows": np.eye(2, 4),
+            "bounds": np.zeros(2),
+        },
+        ("system", "bounds"),
+    ),
     "least_sines": Case(
         transmission.least_sines,
         lambda: {
@@ -342,7 +374,7 @@ CASES: dict[str, Case] = {
 def short(array: np.ndarray, name: str) -> np.ndarray:
     """`array` a row short: a joint short for trajectories (B, n, steps, 2), whose batch may be
     any size; a column short for a list of points (T, 2), whose length may be any."""
-    if name in ("path", "stroke"):
+    if name in ("path", "stroke", "drawn"):
         return np.ascontiguousarray(array[:, :1])
     if name == "trajectories":
         return np.ascontiguousarray(array[:, :-1])
@@ -410,7 +442,8 @@ def test_every_entry_point_has_a_case() -> None:
         "checked_input",
     }
     covered = {entry.split()[0].split(".")[-1] for entry in CASES} | {"simulate_one"}
-    for module in (engine_solver, turning, refine_kernels, transmission, kernels, reduced):
+    modules = (engine_solver, turning, refine_kernels, step_kernels, transmission, kernels, reduced)
+    for module in modules:
         for name, value in vars(module).items():
             if name.startswith("_") or name in making_their_own:
                 continue

@@ -32,8 +32,8 @@ from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.paths import longest_chord
 from links_ray.engine.refine import refine, refine_many, refine_validated
 from links_ray.engine.refine_kernels import best_interval, nearest_pairs, solve_tangents
-from links_ray.engine.refine_step import constrained_minimum
 from links_ray.engine.solver import crank_table, dyad_geometry
+from links_ray.engine.step_kernels import guarded_minimum
 from links_ray.engine.target import as_target
 from tests.engine.test_solver import fourbar_positions, fourbar_topology, fourbar_truth, grashof
 
@@ -574,7 +574,7 @@ def test_guarded_step_is_the_constrained_optimum() -> None:
         rows = rng.normal(size=(m, n))
         bounds = rng.normal(size=m) - 0.5
         expected = _qp_by_enumeration(system, gradient, rows, bounds)
-        delta = constrained_minimum(system, gradient, rows, bounds)
+        delta = guarded_minimum(system, gradient, rows, bounds)
         np.testing.assert_allclose(delta, expected, atol=1e-7)
         assert np.all(rows @ delta >= bounds - 1e-7)
         bound += not np.allclose(delta, np.linalg.solve(system, -gradient))
