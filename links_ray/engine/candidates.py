@@ -11,12 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from links_ray.engine.constraints import KEPT, Constraints, Violation, violation
+from links_ray.engine.constraints import KEPT, Constraints, Violation, joined, violation
 from links_ray.engine.growth import grown_mechanisms
 from links_ray.engine.inputs import DEFAULT_STEPS, check_refine_size, link_pairs
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.refine import DAMPING_START, Refinement, refine_validated
-from links_ray.engine.refine_checks import check_mechanism, target_error
+from links_ray.engine.refine_checks import below_margin, check_mechanism, target_error
 from links_ray.engine.solver import simulate
 from links_ray.engine.target import Target, target_chamfer
 from links_ray.engine.timing import best_start
@@ -53,7 +53,12 @@ class Candidate:
         return self if self.parent is None else self.parent.retrieved_as
 
     def grown(
-        self, target: Target, constraints: Constraints | None, offset: float, max_joints: int
+        self,
+        target: Target,
+        constraints: Constraints | None,
+        min_transmission_deg: float,
+        offset: float,
+        max_joints: int,
     ) -> list[Candidate]:
         """New candidates, each this one's best positions grown by a coupler point `offset`
         from the tracing joint, which traces instead, with at most `max_joints` joints
@@ -69,7 +74,13 @@ class Candidate:
             except ValueError:
                 continue
             child = _prepared(
-                self.result, topology, positions, len(positions) - 1, target, constraints
+                self.result,
+                topology,
+                positions,
+                len(positions) - 1,
+                target,
+                constraints,
+                min_transmission_deg,
             )
             if child is not None:
                 child.retrieved = self.retrieved
@@ -112,6 +123,7 @@ class Candidate:
                 damping=self.damping if start is self.positions else DAMPING_START,
                 weight_floor=weight_floor,
                 constraints=constraints,
+                restore=True,
             )
         except (LockingError, ValueError):  # a shaken start that locks or is degenerate
             return None
@@ -149,8 +161,11 @@ class Candidate:
         self.converged = False
 
 
-def candidate(result: dict, target: Target, constraints: Constraints | None) -> Candidate | None:
-    """A retrieval result ready to refine, with the constraints it misses, or None if it
+def candidate(
+    result: dict, target: Target, constraints: Constraints | None, min_transmission_deg: float
+) -> Candidate | None:
+    """A retrieval result ready to refine, with what it misses (the constraints, and the
+    transmission margin `min_transmission_deg`, which refinement restores first), or None if it
     cannot be (it locks between the simulation's steps, or is too large to refine)."""
     mechanism = result["mechanism"]
     try:
@@ -159,7 +174,7 @@ def candidate(result: dict, target: Target, constraints: Constraints | None) -> 
         joint = int(result["mechanism_joint"])
     except ValueError:
         return None
-    return _prepared(result, topology, positions, joint, target, constraints)
+    return _prepared(result, topology, positions, joint, target, constraints, min_transmission_deg)
 
 
 def _prepared(
@@ -169,6 +184,7 @@ def _prepared(
     joint: int,
     target: Target,
     constraints: Constraints | None,
+    min_transmission_deg: float,
 ) -> Candidate | None:
     """`candidate` of a mechanism already analyzed: None if it locks between the simulation's
     steps or is too large to refine."""
@@ -192,6 +208,7 @@ def _prepared(
         check.bounds,
         target.chord,
     )
+    missed = joined(missed, below_margin(check, min_transmission_deg))
     return Candidate(
         result, topology, joint, positions, positions, chamfer, chamfer, interval, missed
     )

@@ -42,6 +42,7 @@ __all__ = [
     "as_constraints",
     "extent",
     "guard_rows",
+    "joined",
     "link_lengths",
     "violation",
 ]
@@ -159,6 +160,12 @@ class Violation:
 
 
 KEPT = Violation(0.0, "", 0.0)
+
+
+def joined(first: Violation, second: Violation) -> Violation:
+    """Both misses as one: their totals added, the name and `by` of the larger."""
+    larger = first if first.total >= second.total else second
+    return Violation(first.total + second.total, larger.name, larger.by)
 
 
 def link_lengths(positions: np.ndarray, links: tuple[np.ndarray, np.ndarray]) -> np.ndarray:

@@ -58,7 +58,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from links_ray.engine.constraints import KEPT, Constraints, Violation, guard_rows, violation
+from links_ray.engine.constraints import (
+    KEPT,
+    Constraints,
+    Violation,
+    guard_rows,
+    joined,
+    violation,
+)
 from links_ray.engine.inputs import (
     DEFAULT_MIN_TRANSMISSION_DEG,
     DEFAULT_REFINE_ITERATIONS,
@@ -76,6 +83,8 @@ from links_ray.engine.inputs import (
 from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.node_kinds import FIXED
 from links_ray.engine.refine_checks import (
+    Check,
+    below_margin,
     check_mechanism,
     least_deg,
     solve_turn,
@@ -104,6 +113,9 @@ CONVERGED, STALL, STALL_GAIN = 1e-12, 5, 1e-8
 MAX_MOVE = 0.25
 #: A dyad below the margin at the start keeps at least this share of its starting sine.
 BELOW_MARGIN = 0.5
+#: Restoring the margin (`refine_validated`'s `restore`), each step aims every dyad below it
+#: this much higher in sine (about a degree), never past the margin.
+RESTORE_STEP = 0.02
 #: Damping (times the system's diagonal): start, growth on a rejected step, shrink on a kept
 #: one, the least it shrinks to, the least it grows to on a rejection (below it a rejected step
 #: barely shortens), and the end of trying. Steps stay damped (DAMPING_MIN): undamped
@@ -168,6 +180,7 @@ def refine_validated(
     damping: float = DAMPING_START,
     weight_floor: float = IRLS_WEIGHT_FLOOR,
     constraints: Constraints | None = None,
+    restore: bool = False,
 ) -> Refinement:
     """Refine a validated mechanism (`topology`, start positions (n, 2) float64, a moving
     `joint`) toward `target` at `steps` steps, for at most `iterations` iterations, keeping a
@@ -187,6 +200,11 @@ def refine_validated(
     that misses them is first moved toward them, each step lowering the miss whatever it does
     to the fit; once they are kept, no step leaves them. The `Refinement`'s `violation` says
     what is still missed (nothing when kept).
+
+    `restore`: a dyad below the margin is a miss too (`refine_checks.below_margin`), restored
+    as the constraints are: each step aims every such dyad RESTORE_STEP higher in sine and
+    must lower the misses, until none is left. Without it such a dyad only keeps
+    BELOW_MARGIN of its start.
     """
     lock, traj, _, _, _, _ = solve_turn(topology, start, steps, False)
     if lock[0] >= 0:
@@ -206,10 +224,11 @@ def refine_validated(
 
     fixed, links = topology.fixed_joints, topology.links
 
-    def missed_by(positions: np.ndarray, bounds: np.ndarray) -> Violation:
-        return violation(constraints, positions, fixed, links, bounds, target.chord)
+    def missed_by(positions: np.ndarray, checked: Check) -> Violation:
+        missed = violation(constraints, positions, fixed, links, checked.bounds, target.chord)
+        return joined(missed, below_margin(checked, min_transmission_deg)) if restore else missed
 
-    missed = missed_by(start, check.bounds)
+    missed = missed_by(start, check)
     if late():  # the origin's check would be one more 2,000-step turn past the deadline
         least = least_deg(check.min_transmission_sine)
         return Refinement(
@@ -266,7 +285,13 @@ def refine_validated(
                 topology, pos, len(target.crank), True, target.crank
             )
             hessian, gradient = timed_equations(target, timed[joint], dtimed[joint], weight_floor)
-        margins = transmission_guards(trans, dtrans, floors, clearance)
+        aims = floors
+        if restore:  # below the margin, a dyad's floor is where it is going
+            low = floors < margin
+            aims = np.where(
+                low, np.minimum(margin, check.min_transmission_sine + RESTORE_STEP), floors
+            )
+        margins = transmission_guards(trans, dtrans, aims, clearance)
         kept = guard_rows(constraints, pos, fixed, links, traj, dtraj, target.chord)
         guards = (np.concatenate([margins[0], kept[0]]), np.concatenate([margins[1], kept[1]]))
         diagonal = np.diag(hessian).copy()
@@ -301,7 +326,7 @@ def refine_validated(
                     )
                     trial_missed = KEPT
                     if trial_check is not None:
-                        trial_missed = missed_by(trial, trial_check.bounds)
+                        trial_missed = missed_by(trial, trial_check)
                         if missed.kept:
                             gain = value - trial_value if trial_missed.kept else -1.0
                         else:

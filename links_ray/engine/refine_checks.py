@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from links_ray.engine.buffers import check_buffer
-from links_ray.engine.constraints import extent
+from links_ray.engine.constraints import KEPT, Violation, extent
 from links_ray.engine.inputs import REFINE_CHECK_STEPS, InvalidMechanismError, check_positions
 from links_ray.engine.mechanism import Topology
 from links_ray.engine.refine_kernels import _solve_tangents
@@ -22,7 +22,15 @@ from links_ray.engine.solver import crank_turn
 from links_ray.engine.target import Target, target_chamfer, timed_distances
 from links_ray.engine.turning import MAX_SPLITS, _turn_lock, rigid_dyads
 
-__all__ = ["Check", "check_mechanism", "least_deg", "solve_turn", "target_error", "valid_trial"]
+__all__ = [
+    "Check",
+    "below_margin",
+    "check_mechanism",
+    "least_deg",
+    "solve_turn",
+    "target_error",
+    "valid_trial",
+]
 
 #: Each thread's scratch arrays of `solve_turn`, by shape; at most SCRATCH_SHAPES shapes are kept.
 _SCRATCH = threading.local()
@@ -111,6 +119,19 @@ def check_mechanism(
         # A rigid dyad (a triangle of links) keeps its angle: no dead centre, no margin.
         rigid = rigid_dyads(topology.order, traj)
     return Check(lock, geometry[:, 2].copy(), trans.min(axis=1), rigid, extent(traj))
+
+
+def below_margin(check: Check, min_transmission_deg: float) -> Violation:
+    """How far the checked dyads fall below a transmission margin: KEPT if none does, else a
+    `Violation` named "min_transmission" whose total adds the dyads' shortfalls in sine and
+    whose `by` is the degrees the least angle lacks."""
+    margin = math.sin(math.radians(min_transmission_deg))
+    shortfall = float(np.maximum(0.0, margin - check.min_transmission_sine).sum())
+    if shortfall <= 0.0:
+        return KEPT
+    return Violation(
+        shortfall, "min_transmission", min_transmission_deg - least_deg(check.min_transmission_sine)
+    )
 
 
 def least_deg(sines: np.ndarray) -> float:

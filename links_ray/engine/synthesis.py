@@ -158,8 +158,10 @@ def synthesize(
     drawn = options.drawing(points)  # refused before any retrieval
     retrieved = pooled(
         [
-            index.retrieve(drawn, count, options.min_transmission_deg, most)
-            for count, most in retrievals(options.k, options.max_joints, options.front)
+            index.retrieve(drawn, count, floor, most)
+            for count, most, floor in retrievals(
+                options.k, options.max_joints, options.front, options.min_transmission_deg
+            )
         ]
     )
     return refine_retrieved(drawn, retrieved, options, started=started, progress=progress)

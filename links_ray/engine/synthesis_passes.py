@@ -136,7 +136,7 @@ class SynthesisPasses:
             place, result = item
             if place >= k and self.budget.expired():
                 return None
-            return candidate(result, target, constraints)
+            return candidate(result, target, constraints, self.min_transmission_deg)
 
         found = self.pool.map(prepared, enumerate(retrieved))
         self.candidates = [c for c in found if c is not None]
@@ -257,7 +257,9 @@ class SynthesisPasses:
             return []
         most = self.options.max_joints or GROWN_MAX_JOINTS
         offset = GROWTH_OFFSET * self.target.chord
-        children = best.grown(self.target, self.options.constraints, offset, most)
+        children = best.grown(
+            self.target, self.options.constraints, self.min_transmission_deg, offset, most
+        )
         self.candidates += children
         return children
 

@@ -12,10 +12,15 @@ from typing import Protocol
 
 from links_ray.engine.inputs import DEFAULT_K
 
-__all__ = ["CANDIDATES", "Retriever", "pooled", "retrievals"]
+__all__ = ["BELOW_FLOOR_CANDIDATES", "CANDIDATES", "Retriever", "pooled", "retrievals"]
 
 #: Retrieved candidates the short pass refines.
 CANDIDATES = 96
+#: With a transmission floor, also BELOW_FLOOR_CANDIDATES paths retrieved whatever their
+#: least transmission: refinement restores the floor first (`refine_validated`'s `restore`),
+#: and among paths a floor leaves out are the best starts for shapes that few mechanisms
+#: keeping it trace (curves that cross themselves).
+BELOW_FLOOR_CANDIDATES = 48
 #: A Pareto front also retrieves FRONT_CANDIDATES paths of at most each of these joint counts,
 #: so that simple mechanisms are among the candidates even when complex ones match best.
 FRONT_JOINTS, FRONT_CANDIDATES = (5, 6, 8), 24
@@ -37,14 +42,22 @@ class Retriever(Protocol):
         ...
 
 
-def retrievals(k: int, max_joints: int | None, front: bool) -> list[tuple[int, int | None]]:
-    """The retrievals a synthesis asks for, as (count, max_joints): CANDIDATES (at least k) of
-    at most `max_joints` joints, and for a Pareto `front` FRONT_CANDIDATES more of each smaller
-    count of FRONT_JOINTS; `pooled` joins their answers."""
-    wanted: list[tuple[int, int | None]] = [(max(CANDIDATES, k), max_joints)]
+def retrievals(
+    k: int, max_joints: int | None, front: bool, min_transmission_deg: float
+) -> list[tuple[int, int | None, float]]:
+    """The retrievals a synthesis asks for, as (count, max_joints, min_transmission_deg):
+    CANDIDATES (at least k) of at most `max_joints` joints keeping the floor
+    `min_transmission_deg`; with a floor, BELOW_FLOOR_CANDIDATES more with none; for a Pareto
+    `front` FRONT_CANDIDATES more of each smaller count of FRONT_JOINTS, keeping it. `pooled`
+    joins their answers."""
+    wanted: list[tuple[int, int | None, float]] = [
+        (max(CANDIDATES, k), max_joints, min_transmission_deg)
+    ]
+    if min_transmission_deg > 0.0:
+        wanted.append((BELOW_FLOOR_CANDIDATES, max_joints, 0.0))
     if front:
         wanted += [
-            (FRONT_CANDIDATES, joints)
+            (FRONT_CANDIDATES, joints, min_transmission_deg)
             for joints in FRONT_JOINTS
             if max_joints is None or joints < max_joints
         ]

@@ -238,16 +238,16 @@ class LinksApi(LinksApiRoutes):
         return merge_results(answers, k)
 
     async def _synthesis_candidates(
-        self, points: np.ndarray, wanted: list[tuple[int, int | None]], min_transmission_deg: float
+        self, points: np.ndarray, wanted: list[tuple[int, int | None, float]]
     ) -> tuple[list[dict], float]:
-        """A synthesis's retrieved candidates (`synthesis.retrievals`: (count, max_joints)
-        each, `pooled`), counted against the retrieval limit as one retrieval (503 beyond
-        it), and the seconds they waited behind other retrievals (0 with partitions: they wait
-        in the partitions' replicas)."""
+        """A synthesis's retrieved candidates (`synthesis.retrievals`: (count, max_joints,
+        min_transmission_deg) each, `pooled`), counted against the retrieval limit as one
+        retrieval (503 beyond it), and the seconds they waited behind other retrievals (0 with
+        partitions: they wait in the partitions' replicas)."""
         self._admission.claim_retrieval()
         try:
             answers, waited = [], 0.0
-            for count, most in wanted:
+            for count, most, min_transmission_deg in wanted:
                 if self._retrieving is not None:
                     answer, wait = await self._retrieving.retrieve_waited(
                         points, count, min_transmission_deg, most

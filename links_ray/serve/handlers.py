@@ -421,10 +421,10 @@ class LinksApiRoutes:
         released = True  # until the refinement, once submitted, releases its place itself
         try:
             start = time.perf_counter()
-            wanted = retrievals(options.k, options.max_joints, options.front)
-            retrieved, waited = await self._synthesis_candidates(
-                points, wanted, options.min_transmission_deg
+            wanted = retrievals(
+                options.k, options.max_joints, options.front, options.min_transmission_deg
             )
+            retrieved, waited = await self._synthesis_candidates(points, wanted)
             retrieved_at = time.perf_counter()
             retrieval_s = retrieved_at - start - waited
             budget = None if seconds is None else max(0.0, seconds - retrieval_s)

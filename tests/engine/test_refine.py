@@ -609,3 +609,41 @@ def test_nearest_pairs_equal_brute_force() -> None:
         np.testing.assert_array_equal(drawn_nn, distances.argmin(axis=0))
         np.testing.assert_allclose(path_d, distances.min(axis=1), rtol=1e-15)
         np.testing.assert_allclose(drawn_d, distances.min(axis=0), rtol=1e-15)
+
+
+def test_restore_raises_a_start_below_the_margin_to_it() -> None:
+    """A four-bar at 31 degrees at its worst, refined toward its own curve with a 40-degree
+    margin: as it was, it is done at once, below the margin (a dyad below it only keeps half
+    its sine); restoring, it trades fit for angle until every dyad keeps the margin, measured
+    afresh at 2,000 steps by the test's own geometry."""
+    adjacency, node_types, positions = fourbar(LOW_FOURBAR)
+    topology = analyze_topology(adjacency, node_types)
+    target = as_target(fourbar_truth(positions, 200)[4], False)
+    order = topology.order
+    margin = math.sin(math.radians(40.0))
+
+    def least_sine(refined: np.ndarray) -> float:
+        traj = simulate(adjacency, node_types, refined, REFINE_CHECK_STEPS)
+        return float(angle_sines(order, traj).min())
+
+    assert least_sine(positions) < math.sin(math.radians(32.0))
+    kept = refine_validated(topology, positions, 4, target, 200, 100, 40.0)
+    assert kept.violation.kept  # not asked to restore: nothing is missed
+    assert least_sine(kept.positions) < margin
+    restored = refine_validated(topology, positions, 4, target, 200, 100, 40.0, restore=True)
+    assert restored.violation.kept
+    assert least_sine(restored.positions) >= margin - 1e-9
+    assert restored.min_transmission_deg >= 40.0 - 1e-9
+    assert restored.chamfer_after > 0.0  # the exact trace was given up for the margin
+    assert_valid(adjacency, node_types, positions, restored.positions, 40.0)
+
+
+def test_a_start_below_the_margin_is_missed_until_restored() -> None:
+    """What a restoring refinement reports before it has had a step: the margin, missed."""
+    adjacency, node_types, positions = fourbar(LOW_FOURBAR)
+    topology = analyze_topology(adjacency, node_types)
+    target = as_target(fourbar_truth(positions, 200)[4], False)
+    missed = refine_validated(topology, positions, 4, target, 200, 0, 40.0, restore=True).violation
+    assert not missed.kept
+    assert missed.name == "min_transmission"
+    assert 8.0 < missed.by < 10.0  # about 31 degrees against 40

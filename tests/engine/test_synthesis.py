@@ -40,7 +40,7 @@ from links_ray.engine.synthesis_options import (
     MAX_SYNTHESIS_SECONDS,
     SynthesisOptions,
 )
-from links_ray.engine.synthesis_plan import CANDIDATES
+from links_ray.engine.synthesis_plan import CANDIDATES, retrievals
 from links_ray.engine.synthesis_results import fit
 from links_ray.search.index import RetrievalIndex
 from tests.engine.test_refine import angle_sines, assert_valid
@@ -96,9 +96,14 @@ def test_synthesis_refines_and_reports_what_it_traces(
         chamfers = [r["chamfer"] for r in results]
         assert chamfers == sorted(chamfers)
         assert len({r["path_id"] for r in results}) == 3
-        # Synthesis retrieves only paths that keep its default floor.
+        # Synthesis retrieves paths that keep its default floor, and some that do not, whose
+        # answers it raises to the floor (below).
         floor = DEFAULT_SYNTHESIS_TRANSMISSION_DEG
-        retrieved = {r["path_id"]: r for r in dataset_index.retrieve(query, CANDIDATES, floor)}
+        retrieved = {
+            r["path_id"]: r
+            for count, most, least in retrievals(3, None, False, floor)
+            for r in dataset_index.retrieve(query, count, least, most)
+        }
         for result in results:
             path = traced(result)
             assert result["chamfer"] == pytest.approx(
@@ -183,13 +188,15 @@ def test_no_time_left_returns_the_first_retrieved_unrefined(
     prepare = synthesis_passes.candidate
     prepared: list[int] = []
 
-    def counted(result: dict, target: Any, constraints: Any) -> Any:
+    def counted(result: dict, target: Any, constraints: Any, min_transmission_deg: float) -> Any:
         prepared.append(result["path_id"])
-        return prepare(result, target, constraints)
+        return prepare(result, target, constraints, min_transmission_deg)
 
     monkeypatch.setattr(synthesis_passes, "candidate", counted)
     query = queries[1]
-    retrieved = dataset_index.retrieve(query, CANDIDATES)
+    # As synthesis retrieves them first: paths that keep its floor (one below it is no
+    # answer until refinement has raised it).
+    retrieved = dataset_index.retrieve(query, CANDIDATES, DEFAULT_SYNTHESIS_TRANSMISSION_DEG)
     first = [r["path_id"] for r in retrieved[:3]]
     options = SynthesisOptions(k=3, seconds=0.001)
     results = refine_retrieved(query, retrieved, options, started=time.perf_counter() - 1.0)
