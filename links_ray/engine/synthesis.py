@@ -114,8 +114,9 @@ def synthesize(
     `mechanism_joint` traces `points` in the drawing's own frame, within `seconds` (default
     DEFAULT_SYNTHESIS_SECONDS, at most MAX_SYNTHESIS_SECONDS), retrieval included.
     `partial`: the points are an open stroke, matched to part of a turn. `min_transmission`
-    (degrees, default DEFAULT_SYNTHESIS_TRANSMISSION_DEG): only paths keeping it are
-    retrieved, and refinement keeps it as its floor (at least DEFAULT_MIN_TRANSMISSION_DEG).
+    (degrees, default DEFAULT_SYNTHESIS_TRANSMISSION_DEG): every result keeps it (refinement's
+    floor, at least DEFAULT_MIN_TRANSMISSION_DEG); most candidates are paths that keep it, and
+    some are paths below it, which refinement raises to it first (`synthesis_plan`).
     `progress`: called with the best so far as it improves (`refine_retrieved` says how).
     `iterations` (instead of `seconds`): a counted amount of work, about that many refinement
     iterations, whose answer is the same bit for bit for equal inputs whatever the time and

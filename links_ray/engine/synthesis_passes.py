@@ -315,7 +315,11 @@ class SynthesisPasses:
             for result, c in zip(answer, chosen, strict=True):
                 result["layers"] = counts.counts[c]
         if candidates and not kept:
-            nearest = candidates[0].missed
+            # A design constraint if one holds any candidate back; the floor only if that is all.
+            nearest = next(
+                (c.missed for c in candidates if c.missed.name != "min_transmission"),
+                candidates[0].missed,
+            )
             unmet = {"constraint": nearest.name, "by": nearest.by}
         answer.unmet = unmet
         return answer

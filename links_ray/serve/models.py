@@ -347,7 +347,13 @@ class Unmet(BaseModel):
     """The constraint the nearest candidate misses most, and by how much in its own units."""
 
     constraint: Literal[
-        "pivots", "footprint", "max_link_ratio", "min_link", "max_link", "max_layers"
+        "pivots",
+        "footprint",
+        "max_link_ratio",
+        "min_link",
+        "max_link",
+        "max_layers",
+        "min_transmission",
     ]
     by: float
 

@@ -89,7 +89,7 @@ def test_an_unrefined_retrieval_measures_the_retrievals_chamfer(
 def test_synthesis_refines_and_reports_what_it_traces(
     dataset_index: RetrievalIndex, queries: list
 ) -> None:
-    improved = grew = 0
+    improved = grew = raised = 0
     for query in [queries[0], *hand_drawn()[:2]]:
         results = synthesize(dataset_index, query, k=3, seed=0, iterations=ITERATIONS)
         assert len(results) == 3
@@ -146,12 +146,14 @@ def test_synthesis_refines_and_reports_what_it_traces(
                 np.array(result["mechanism"]["positions"])[:n],
                 floor,
             )
-            # Every dyad keeps the floor, a rigid triangle of links too.
+            # Every dyad keeps the floor, a rigid triangle of links too, whatever its start.
             assert result["min_transmission_deg"] >= floor - 1e-4
+            raised += (start_from["min_transmission_deg"] or 90.0) < floor
         # The best refined beats the best retrieved: refinement found something.
         assert results[0]["chamfer"] < min(r["chamfer"] for r in retrieved.values())
     assert improved >= 6
     assert grew >= 1  # the polish grew an answer
+    assert raised >= 1  # an answer whose start lay below the floor, raised to it
 
 
 def test_a_partial_stroke_gets_its_crank_interval(
