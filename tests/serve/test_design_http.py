@@ -5,9 +5,12 @@ tests/engine/test_design.py."""
 from __future__ import annotations
 
 import json
+from typing import get_args
 
+from links_ray.engine.constraints import CONSTRAINT_NAMES
 from links_ray.engine.synthesis import synthesize
 from links_ray.search.index import RetrievalIndex
+from links_ray.serve.models import Unmet
 from tests.engine.test_design import misses
 from tests.support.serving import Client, hand_drawn
 
@@ -34,3 +37,10 @@ def test_http_synthesize_keeps_constraints_and_says_unmet(
     status, data = client.post("/api/synthesize", {**body, "constraints": far})
     assert status == 200, data
     assert data["results"] == [] and data["unmet"]["constraint"] == "pivots"
+
+
+def test_unmet_may_name_every_design_constraint_and_the_floor() -> None:
+    """The answer's `unmet` names what the engine's violations can name: a design constraint,
+    or the transmission floor a start below it has not yet reached."""
+    named = get_args(Unmet.model_fields["constraint"].annotation)
+    assert named == (*CONSTRAINT_NAMES, "min_transmission")
