@@ -1179,9 +1179,12 @@ def test_a_pivot_box_drawn_on_the_canvas_is_kept(
     assert any(np.any(f < held[:2]) or np.any(f > held[2:]) for f in outside)
     studio.shot("studio-pivots.png", shots)
 
-    # A box far from anything a mechanism of this curve can reach: unmet, said in words.
+    # A box far from anything a mechanism of this curve can reach: unmet, said in words. Ten
+    # chords away: a step moves a joint at most a quarter of the chord, so the counted work
+    # cannot bring a pivot there (a box in the canvas's corner it now can, at a chamfer of a
+    # chord and more). The canvas cannot draw so far: the box is held as a drawn one is.
     studio.click("clear-boxes")
-    draw_box(studio, "pivots", [0.02, 0.9], [0.04, 0.92])
+    studio.js("() => { window.studio.constraints.boxes.pivots = [8, 8, 8.02, 8.02]; }")
     studio.click("synthesize-button")
     unmet = studio.page.get_by_test_id("unmet")
     unmet.wait_for(timeout=SYNTHESIS_WAIT_MS)
