@@ -34,8 +34,12 @@ SEARCH = KernelGroup("the search kernels", "links_ray.search.kernels", "_sketch_
 REFINE = KernelGroup(
     "the refinement kernels", "links_ray.engine.refine_kernels", "_nearest_pairs", 5
 )
+# Its own group: an edit of `step_kernels` alone leaves `refine_kernels`' cache warm.
+STEP = KernelGroup(
+    "the refinement step's kernels", "links_ray.engine.step_kernels", "_chamfer_system", 5
+)
 #: Every group, as `links warm` checks them.
-ALL_GROUPS = (SOLVER, PATHS, SEARCH, REFINE)
+ALL_GROUPS = (SOLVER, PATHS, SEARCH, REFINE, STEP)
 
 #: The groups each command compiles on its first run.
 COMMAND_KERNELS: dict[str, tuple[KernelGroup, ...]] = {
@@ -43,7 +47,7 @@ COMMAND_KERNELS: dict[str, tuple[KernelGroup, ...]] = {
     "generate": (SOLVER,),
     "curate": (PATHS,),
     "retrieve": (SEARCH, PATHS, SOLVER),
-    "synthesize": (SEARCH, PATHS, SOLVER, REFINE),
+    "synthesize": (SEARCH, PATHS, SOLVER, REFINE, STEP),
     "serve": (SEARCH, PATHS, SOLVER),
 }
 

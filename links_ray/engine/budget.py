@@ -42,6 +42,11 @@ class Budget(ABC):
         """When a pass given `share` of what is left must end (`time.perf_counter()`)."""
 
     @abstractmethod
+    def share_end(self, share: float) -> float:
+        """When `share` of the whole budget is spent (`time.perf_counter()`): the end of a pass
+        that may run until then, which `done(share, end)` tells."""
+
+    @abstractmethod
     def done(self, share: float, end: float) -> bool:
         """Whether a pass that may take `share` of the work, or run until `end`, is done."""
 
@@ -78,6 +83,10 @@ class TimeBudget(Budget):
         now = time.perf_counter()
         return now + share * max(0.0, self.deadline - now)
 
+    def share_end(self, share: float) -> float:
+        """The deadline, less the rest of the seconds."""
+        return self.deadline - (1.0 - share) * self.seconds
+
     def done(self, share: float, end: float) -> bool:
         """Whether `end` has passed."""
         return time.perf_counter() >= end
@@ -111,6 +120,10 @@ class IterationBudget(Budget):
         self.iterations = iterations
 
     def pass_end(self, share: float) -> float:
+        """Never: a counted pass ends by its count."""
+        return math.inf
+
+    def share_end(self, share: float) -> float:
         """Never: a counted pass ends by its count."""
         return math.inf
 

@@ -33,7 +33,10 @@ check step (a dyad that starts below the margin keeps half its starting sine unt
 the margin, and the margin from then on; rigid dyads too, whose angle never changes: a
 triangle of bars flattened toward a line no longer holds its joint).
 Otherwise the damping grows and a shorter step is tried. So the chamfer never rises, and the
-result is valid whenever the input was.
+result is valid whenever the input was. The check at REFINE_CHECK_STEPS comes every
+FINE_EVERY kept steps and before positions are returned; until then a step is checked at the
+simulation's steps (`refine_checks.coarse_trial`), and one the fine check refuses sends
+refinement back to the last positions it passed.
 
 Synthesis (`engine.synthesis`) drives refinement in pieces through the public interface
 below the entry points: `as_target` validates a drawing once, `target_chamfer` measures a path
@@ -86,6 +89,7 @@ from links_ray.engine.refine_checks import (
     Check,
     below_margin,
     check_mechanism,
+    coarse_trial,
     least_deg,
     solve_turn,
     target_error,
@@ -116,6 +120,12 @@ BELOW_MARGIN = 0.5
 #: Restoring the margin (`refine_validated`'s `restore`), each step aims every dyad below it
 #: this much higher in sine (about a degree), never past the margin.
 RESTORE_STEP = 0.02
+#: A kept step is checked at the simulation's steps alone (`refine_checks.coarse_trial`); every
+#: FINE_EVERY kept steps, and before positions are returned, the last is checked at
+#: REFINE_CHECK_STEPS (`check_mechanism`), and if it fails refinement goes back to the last
+#: positions that passed and checks every step so from then on. The fine check costs as much
+#: as the rest of an iteration, and the guards' clearance makes it fail rarely.
+FINE_EVERY = 8
 #: Damping (times the system's diagonal): start, growth on a rejected step, shrink on a kept
 #: one, the least it shrinks to, the least it grows to on a rejection (below it a rejected step
 #: barely shortens), and the end of trying. Steps stay damped (DAMPING_MIN): undamped
@@ -270,6 +280,24 @@ def refine_validated(
     pos = start.copy()
     damping = min(max(damping, DAMPING_MIN), DAMPING_START)
     done = evaluations = stalled = 0
+    # The last positions checked at REFINE_CHECK_STEPS, and the kept steps since.
+    confirmed = (pos, value, interval, check, missed)
+    unconfirmed, fine_every = 0, FINE_EVERY
+
+    def confirm() -> bool:
+        """Check the kept positions at REFINE_CHECK_STEPS: True (and they are confirmed) if
+        they pass, else False (and refinement is back at the last confirmed)."""
+        nonlocal pos, value, interval, check, missed, floors, confirmed, unconfirmed
+        unconfirmed = 0
+        fine = valid_trial(topology, pos, sides, floors, rigid)
+        fine_missed = missed_by(pos, fine) if fine is not None else missed
+        if fine is None or (missed.kept and not fine_missed.kept):
+            pos, value, interval, check, missed = confirmed
+            return False
+        check, missed = fine, fine_missed
+        floors = np.where(fine.min_transmission_sine >= margin, margin, floors)
+        confirmed = (pos, value, interval, check, missed)
+        return True
 
     while done < iterations and stalled < STALL:
         if late() or (missed.kept and value <= CONVERGED * target.chord):
@@ -312,18 +340,24 @@ def refine_validated(
                 MAX_MOVE * target.chord,
             )
             if trial is not None:
-                lock, trial_traj, _, _, _, _ = solve_turn(topology, trial, steps, False)
+                lock, trial_traj, _, trial_trans, _, trial_geometry = solve_turn(
+                    topology, trial, steps, False
+                )
                 if lock[0] < 0:
+                    # Read before `target_error`'s own turn of a timed target can reuse them.
+                    trial_turn = (trial_traj, trial_trans, trial_geometry)
                     trial_value, trial_interval = target_error(
                         target, topology, trial, joint, trial_traj[joint]
                     )
                     # Cheap tests first: most rejected trials fail on the fit. While the
                     # constraints are missed, a step need only miss them by less.
-                    trial_check = (
-                        valid_trial(topology, trial, sides, floors, rigid)
-                        if (trial_value < value or not missed.kept) and not late()
-                        else None
-                    )
+                    trial_check = None
+                    if (trial_value < value or not missed.kept) and not late():
+                        trial_check = (
+                            valid_trial(topology, trial, sides, floors, rigid)
+                            if fine_every == 1
+                            else coarse_trial(topology, trial, trial_turn, sides, floors, rigid)
+                        )
                     trial_missed = KEPT
                     if trial_check is not None:
                         trial_missed = missed_by(trial, trial_check)
@@ -345,14 +379,22 @@ def refine_validated(
                             trial_check,
                             trial_missed,
                         )
-                        gained = check.min_transmission_sine >= margin
-                        floors = np.where(gained, margin, floors)
                         damping = max(damping / DAMPING_DOWN, DAMPING_MIN)
                         accepted = True
+                        unconfirmed += 1
+                        if fine_every == 1:
+                            confirmed, unconfirmed = (pos, value, interval, check, missed), 0
+                            floors = np.where(
+                                check.min_transmission_sine >= margin, margin, floors
+                            )
+                        elif unconfirmed >= fine_every and not confirm():
+                            fine_every = 1
                         break
             damping = max(damping * DAMPING_UP, DAMPING_REJECTED)
         if not accepted:
             break
+    if unconfirmed and not confirm():
+        fine_every = 1
     return Refinement(
         positions=pos,
         chamfer_before=before / target.chord,

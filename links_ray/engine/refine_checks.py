@@ -26,6 +26,7 @@ __all__ = [
     "Check",
     "below_margin",
     "check_mechanism",
+    "coarse_trial",
     "least_deg",
     "solve_turn",
     "target_error",
@@ -149,6 +150,32 @@ def target_error(
         return target_chamfer(target, path)
     _, traj, _, _, _, _ = solve_turn(topology, positions, len(target.crank), False, target.crank)
     return float(timed_distances(target, traj[joint]).mean()), None
+
+
+def coarse_trial(
+    topology: Topology,
+    trial: np.ndarray,
+    turn: tuple[np.ndarray, np.ndarray, np.ndarray],
+    sides: np.ndarray,
+    floors: np.ndarray,
+    rigid: np.ndarray,
+) -> Check | None:
+    """`valid_trial` read from the trial's own turn at the simulation's steps, which assembled
+    (`turn`: its traj, trans and geometry from `solve_turn`), not from a turn at
+    REFINE_CHECK_STEPS: a Check if its links, branches and margins hold at those steps, else
+    None. Looser than `valid_trial`, never stricter: refinement confirms it with
+    `check_mechanism` before any positions leave it."""
+    traj, trans, geometry = turn
+    try:
+        check_positions(topology.adjacency, trial, topology.links)
+    except InvalidMechanismError:
+        return None
+    if not np.array_equal(geometry[:, 2], sides):
+        return None
+    least = trans.min(axis=1)
+    if np.any(least < floors):
+        return None
+    return Check((-1, -1), sides, least, rigid, extent(traj))
 
 
 def valid_trial(

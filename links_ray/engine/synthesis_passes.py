@@ -5,12 +5,15 @@
    ranks by normalized shape alone; a few iterations show which candidates can really move
    onto the curve. Their steps weigh the point pairs nearer than SHORT_WEIGHT_FLOOR alike,
    pulling harder toward the parts of the drawing a path is far from than the chamfer would.
-2. A long pass: the best `LONG_PASS_CANDIDATES` after the first pass are refined on, in rounds
+2. A middle pass: the best `MIDDLE_CANDIDATES` after it get up to `MIDDLE_ITERATIONS` more, in
+   rounds of FIRST_ROUND, by the chamfer's own weights, until `MIDDLE_END` of the budget is
+   spent: ten iterations rank roughly, and the long pass takes only a few at a time.
+3. A long pass: the best `LONG_PASS_CANDIDATES` after the middle pass are refined on, in rounds
    of `LONG_ROUND` iterations, each continuing where the first pass left it (at the damping it
    ended with). One that converges gives its place to the next best of the first pass, until
    the budget is spent: the first pass ranks roughly, and the one that ends best is often
    well down its order.
-3. Restarts: if every candidate has converged and work remains, the best are shaken (every
+4. Restarts: if every candidate has converged and work remains, the best are shaken (every
    joint moved by a random share of the drawing's chord, log-uniform in `SHAKE`) and refined
    again for at most `HOP_ITERATIONS`, keeping the shaken result only if it is better (a
    basin hop: the point-sampled chamfer has many local minima).
@@ -49,7 +52,11 @@ __all__ = ["Progress", "SynthesisPasses"]
 #: Iterations of the short pass, in rounds of FIRST_ROUND for every candidate, and the most
 #: share of the budget it may take.
 FIRST_ITERATIONS, FIRST_ROUND, FIRST_SHARE = 30, 10, 0.4
-#: Candidates the long pass refines at a time (at least k), the best of the short pass first.
+#: The middle pass: candidates, iterations each (in rounds of FIRST_ROUND), and the share of
+#: the whole budget spent by which it ends.
+MIDDLE_CANDIDATES, MIDDLE_ITERATIONS, MIDDLE_END = 24, 30, 0.7
+#: Candidates the long pass refines at a time (at least k), the best after the middle pass
+#: first.
 LONG_PASS_CANDIDATES = 3
 #: Long-pass refinements run in rounds of LONG_ROUND iterations over the finalists.
 LONG_ROUND = 50
@@ -122,6 +129,7 @@ class SynthesisPasses:
         self.short_pass()
         if self.timed is not None:
             self.time_candidates(self.timed)
+        self.middle_pass()
         self.candidates.sort(key=Candidate.rank)
         self.long_pass()
         self.restarts()
@@ -175,6 +183,28 @@ class SynthesisPasses:
             list(self.pool.map(short, moving))
             self.report()
 
+    def middle_pass(self) -> None:
+        """The best MIDDLE_CANDIDATES rounds of FIRST_ROUND iterations, up to MIDDLE_ITERATIONS,
+        until MIDDLE_END of the budget is spent. Not for a front, whose long pass takes all its
+        leaders, best or not."""
+        if self.options.front:
+            return
+        end = self.budget.share_end(MIDDLE_END)
+        best = sorted(self.candidates, key=Candidate.rank)[:MIDDLE_CANDIDATES]
+        for c in best:  # a short step refused under the short pass's weights says little here
+            c.converged = False
+
+        def middle(c: Candidate) -> None:
+            if not self._refine(c, c.positions, FIRST_ROUND, end, IRLS_WEIGHT_FLOOR):
+                c.converged = True
+
+        for _ in range(0, MIDDLE_ITERATIONS, FIRST_ROUND):
+            moving = [c for c in best if not c.converged]
+            if not moving or self.budget.done(MIDDLE_END, end):
+                break
+            list(self.pool.map(middle, moving))
+            self.report()
+
     def time_candidates(self, timed: Target) -> None:
         """The shape is near: the best TIMED_CANDIDATES (and a front's leaders) get their
         start, and from here on the timing ranks them; the rest are dropped."""
@@ -188,7 +218,7 @@ class SynthesisPasses:
     def long_pass(self) -> None:
         """LONG_PASS_CANDIDATES (at least k; with a front, all its leaders) refined at a time,
         in rounds of LONG_ROUND, the finalist with the fewest rounds next; one that converges
-        makes room for the next best after the short pass (whose ranking is rough: the one
+        makes room for the next best after the earlier passes (whose ranking is rough: the one
         that ends best is often well down it)."""
         budget, deadline = self.budget, self.budget.deadline
         waiting = list(self.candidates)

@@ -41,6 +41,14 @@ def test_first_run_says_it_compiles_and_links_warm_compiles_everything(tmp_path:
     again = run(*demo)
     assert again.returncode == 0 and again.stderr == ""
 
+    # Each room of kernels is told by its own anchor: a cold cache names every group.
+    cold = run_python(
+        env, "from links_ray.cli.kernels import compile_notice\nprint(compile_notice('synthesize'))"
+    )
+    assert cold == (
+        "links synthesize: compiling the search kernels and the path kernels and the refinement "
+        "kernels and the refinement step's kernels (first run only, about 30 s)..."
+    )
     warmed = run("warm", "--json")
     assert warmed.returncode == 0, warmed.stderr
     assert set(json.loads(warmed.stdout)) == {

@@ -30,6 +30,8 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.paths import longest_chord
+from links_ray.engine import refine as refine_module
+from links_ray.engine import refine_checks
 from links_ray.engine.refine import refine, refine_many, refine_validated
 from links_ray.engine.refine_kernels import best_interval, nearest_pairs, solve_tangents
 from links_ray.engine.solver import crank_table, dyad_geometry
@@ -371,6 +373,30 @@ def test_margin_is_kept_when_the_best_fit_breaks_it() -> None:
     assert_valid(adjacency, node_types, start, result.positions, 40.0)
     free = refine(adjacency, node_types, start, 4, target, min_transmission_deg=0.0)
     assert free.chamfer_after < result.chamfer_after
+
+
+def test_steps_the_check_steps_refuse_are_undone(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Kept steps are checked at REFINE_CHECK_STEPS only every few (`FINE_EVERY`) and at the
+    end. With no clearance and a turn of 16 steps, steps that keep the 40-degree margin at
+    those steps dip below it between them: the check refuses them, refinement goes back to the
+    last positions that passed, and what it returns keeps the margin at 2,000 steps."""
+    adjacency, node_types, start = fourbar(GOOD_FOURBAR)
+    _, _, low = fourbar(LOW_FOURBAR)
+    target = fourbar_truth(low, 200)[4]
+    refused = []
+
+    def counted(*args: object) -> object:
+        check = refine_checks.valid_trial(*args)
+        refused.append(check is None)
+        return check
+
+    monkeypatch.setattr(refine_module, "valid_trial", counted)
+    monkeypatch.setattr(refine_module, "CLEARANCE_DEG", 0.0)
+    result = refine(adjacency, node_types, start, 4, target, min_transmission_deg=40.0, steps=16)
+    assert_valid(adjacency, node_types, start, result.positions, 40.0)
+    assert 40.0 <= result.min_transmission_deg
+    assert result.chamfer_after < result.chamfer_before
+    assert any(refused)  # the case this test is for
 
 
 def test_random_mechanisms_never_get_worse_and_stay_valid() -> None:
