@@ -262,6 +262,48 @@ def test_counted_work_is_bit_equal_whatever_the_threads(
     assert again == one
 
 
+@pytest.mark.parametrize("front", [False, True])
+def test_the_middle_pass_refines_the_short_passs_best(
+    dataset_index: RetrievalIndex, queries: list, monkeypatch: pytest.MonkeyPatch, front: bool
+) -> None:
+    """Between the short and the long pass, the best MIDDLE_CANDIDATES by rank after the short
+    pass, and no others, get up to MIDDLE_ITERATIONS more in rounds of FIRST_ROUND, weighed
+    as the chamfer weighs its pairs; a front, whose long pass takes all its leaders, skips it."""
+    from links_ray.engine import synthesis_passes as passes
+    from links_ray.engine.candidates import Candidate
+    from links_ray.engine.refine_step import IRLS_WEIGHT_FLOOR
+
+    refined: list[tuple[int, int, float]] = []
+    best: list[int] = []
+    middle_pass, refine = passes.SynthesisPasses.middle_pass, passes.SynthesisPasses._refine
+
+    def recorded_middle(self: passes.SynthesisPasses) -> None:
+        ranked = sorted(self.candidates, key=Candidate.rank)
+        best[:] = [id(c) for c in ranked[: passes.MIDDLE_CANDIDATES]]
+        refined.clear()
+        middle_pass(self)
+        best.append(-1)  # the pass is over: later refinements are not its
+
+    def recorded_refine(self: passes.SynthesisPasses, c: Candidate, *args: Any) -> bool:
+        if best and best[-1] != -1:
+            refined.append((id(c), args[1], args[3]))
+        return refine(self, c, *args)
+
+    monkeypatch.setattr(passes.SynthesisPasses, "middle_pass", recorded_middle)
+    monkeypatch.setattr(passes.SynthesisPasses, "_refine", recorded_refine)
+    # Twice the tests' counted work: the short pass's one round over every candidate takes
+    # most of ITERATIONS, past MIDDLE_END.
+    synthesize(dataset_index, queries[0], k=3, seed=7, iterations=2 * ITERATIONS, front=front)
+    if front:
+        assert refined == []
+        return
+    assert len(best) == passes.MIDDLE_CANDIDATES + 1
+    assert {c for c, _, _ in refined} == set(best[:-1])  # each at least once, none else
+    rounds = passes.MIDDLE_ITERATIONS // passes.FIRST_ROUND
+    assert max(sum(c == d for d, _, _ in refined) for c in best[:-1]) <= rounds
+    assert {(n, floor) for _, n, floor in refined} == {(passes.FIRST_ROUND, IRLS_WEIGHT_FLOOR)}
+
+
 def test_usable_cpus_follow_the_affinity_and_what_was_given() -> None:
     """In a process pinned to one core, one thread, whatever the machine has; a scheduler's
     grant counts in whole CPUs, at least 1, within the affinity."""
