@@ -290,8 +290,14 @@ def refine_validated(
         nonlocal pos, value, interval, check, missed, floors, confirmed, unconfirmed
         unconfirmed = 0
         fine = valid_trial(topology, pos, sides, floors, rigid)
-        fine_missed = missed_by(pos, fine) if fine is not None else missed
-        if fine is None or (missed.kept and not fine_missed.kept):
+        fine_missed = None if fine is None else missed_by(pos, fine)
+        was = confirmed[4]
+        # As a step checked so at once would have to: kept stays kept, a miss only falls.
+        if (
+            fine is None
+            or fine_missed is None
+            or not (fine_missed.kept or (not was.kept and fine_missed.total < was.total))
+        ):
             pos, value, interval, check, missed = confirmed
             return False
         check, missed = fine, fine_missed
@@ -344,7 +350,6 @@ def refine_validated(
                     topology, trial, steps, False
                 )
                 if lock[0] < 0:
-                    # Read before `target_error`'s own turn of a timed target can reuse them.
                     trial_turn = (trial_traj, trial_trans, trial_geometry)
                     trial_value, trial_interval = target_error(
                         target, topology, trial, joint, trial_traj[joint]
@@ -384,17 +389,15 @@ def refine_validated(
                         unconfirmed += 1
                         if fine_every == 1:
                             confirmed, unconfirmed = (pos, value, interval, check, missed), 0
-                            floors = np.where(
-                                check.min_transmission_sine >= margin, margin, floors
-                            )
+                            floors = np.where(check.min_transmission_sine >= margin, margin, floors)
                         elif unconfirmed >= fine_every and not confirm():
                             fine_every = 1
                         break
             damping = max(damping * DAMPING_UP, DAMPING_REJECTED)
         if not accepted:
             break
-    if unconfirmed and not confirm():
-        fine_every = 1
+    if unconfirmed:
+        confirm()
     return Refinement(
         positions=pos,
         chamfer_before=before / target.chord,
