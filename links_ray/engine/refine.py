@@ -284,26 +284,28 @@ def refine_validated(
     confirmed = (pos, value, interval, check, missed)
     unconfirmed, fine_every = 0, FINE_EVERY
 
+    def confirmed_now() -> None:
+        """The kept positions passed the check at REFINE_CHECK_STEPS (`check` is that
+        check's): they are the last confirmed, and the dyads that reached the margin keep it."""
+        nonlocal floors, confirmed, unconfirmed
+        floors = np.where(check.min_transmission_sine >= margin, margin, floors)
+        confirmed, unconfirmed = (pos, value, interval, check, missed), 0
+
     def confirm() -> bool:
         """Check the kept positions at REFINE_CHECK_STEPS: True (and they are confirmed) if
         they pass, else False (and refinement is back at the last confirmed)."""
-        nonlocal pos, value, interval, check, missed, floors, confirmed, unconfirmed
-        unconfirmed = 0
+        nonlocal pos, value, interval, check, missed, unconfirmed
         fine = valid_trial(topology, pos, sides, floors, rigid)
-        fine_missed = None if fine is None else missed_by(pos, fine)
-        was = confirmed[4]
-        # As a step checked so at once would have to: kept stays kept, a miss only falls.
-        if (
-            fine is None
-            or fine_missed is None
-            or not (fine_missed.kept or (not was.kept and fine_missed.total < was.total))
-        ):
-            pos, value, interval, check, missed = confirmed
-            return False
-        check, missed = fine, fine_missed
-        floors = np.where(fine.min_transmission_sine >= margin, margin, floors)
-        confirmed = (pos, value, interval, check, missed)
-        return True
+        if fine is not None:
+            fine_missed, was = missed_by(pos, fine), confirmed[4]
+            # As a step checked so at once would have to: kept stays kept, a miss only falls.
+            if fine_missed.kept or (not was.kept and fine_missed.total < was.total):
+                check, missed = fine, fine_missed
+                confirmed_now()
+                return True
+        pos, value, interval, check, missed = confirmed
+        unconfirmed = 0
+        return False
 
     while done < iterations and stalled < STALL:
         if late() or (missed.kept and value <= CONVERGED * target.chord):
@@ -387,9 +389,8 @@ def refine_validated(
                         damping = max(damping / DAMPING_DOWN, DAMPING_MIN)
                         accepted = True
                         unconfirmed += 1
-                        if fine_every == 1:
-                            confirmed, unconfirmed = (pos, value, interval, check, missed), 0
-                            floors = np.where(check.min_transmission_sine >= margin, margin, floors)
+                        if fine_every == 1:  # checked at REFINE_CHECK_STEPS already
+                            confirmed_now()
                         elif unconfirmed >= fine_every and not confirm():
                             fine_every = 1
                         break

@@ -166,16 +166,11 @@ def coarse_trial(
     None. Looser than `valid_trial`, never stricter: refinement confirms it with
     `check_mechanism` before any positions leave it."""
     traj, trans, geometry = turn
-    try:
-        check_positions(topology.adjacency, trial, topology.links)
-    except InvalidMechanismError:
+    if not _links_hold(topology, trial) or not np.array_equal(geometry[:, 2], sides):
         return None
-    if not np.array_equal(geometry[:, 2], sides):
-        return None
-    least = trans.min(axis=1)
-    if np.any(least < floors):
-        return None
-    return Check((-1, -1), sides, least, rigid, extent(traj))
+    # `sides`, not the scratch's own column, which the next trial's turn overwrites.
+    check = Check((-1, -1), sides, trans.min(axis=1), rigid, extent(traj))
+    return check if _keeps(check, sides, floors) else None
 
 
 def valid_trial(
@@ -186,13 +181,25 @@ def valid_trial(
     rigid: np.ndarray,
 ) -> Check | None:
     """The trial's check if it is a valid step (links, lock, branches, margins), else None."""
+    if not _links_hold(topology, trial):
+        return None
+    check = check_mechanism(topology, trial, rigid)
+    return check if _keeps(check, sides, floors) else None
+
+
+def _links_hold(topology: Topology, trial: np.ndarray) -> bool:
+    """Whether the trial's links keep MIN_LINK_LENGTH (`inputs.check_positions`)."""
     try:
         check_positions(topology.adjacency, trial, topology.links)
     except InvalidMechanismError:
-        return None
-    check = check_mechanism(topology, trial, rigid)
-    if check.lock[0] >= 0 or not np.array_equal(check.sides, sides):
-        return None
-    if np.any(check.min_transmission_sine < floors):
-        return None
-    return check
+        return False
+    return True
+
+
+def _keeps(check: Check, sides: np.ndarray, floors: np.ndarray) -> bool:
+    """Whether a checked trial turns, keeps its assembly branches and every dyad's floor."""
+    return (
+        check.lock[0] < 0
+        and np.array_equal(check.sides, sides)
+        and not np.any(check.min_transmission_sine < floors)
+    )

@@ -166,22 +166,38 @@ class SynthesisPasses:
         )
         return c.keep(self.budget.charge(refined), iterations)
 
+    def _refine_on(self, c: Candidate, iterations: int, end: float, weight_floor: float) -> None:
+        """`_refine` from where `c` is; if no step helped, it has converged (it will not move)."""
+        if not self._refine(c, c.positions, iterations, end, weight_floor):
+            c.converged = True
+
+    def _rounds(
+        self,
+        candidates: list[Candidate],
+        iterations: int,
+        share: float,
+        end: float,
+        weight_floor: float,
+    ) -> None:
+        """Rounds of FIRST_ROUND iterations over the `candidates` still moving, up to
+        `iterations` each, until the pass of `share` ending at `end` is done (`Budget.done`).
+        In rounds, so that when time runs short every candidate has had as many iterations
+        (large mechanisms take many times as long per iteration as small ones)."""
+
+        def round_of(c: Candidate) -> None:
+            self._refine_on(c, FIRST_ROUND, end, weight_floor)
+
+        for _ in range(0, iterations, FIRST_ROUND):
+            moving = [c for c in candidates if not c.converged]
+            if not moving or self.budget.done(share, end):
+                break
+            list(self.pool.map(round_of, moving))
+            self.report()
+
     def short_pass(self) -> None:
         """Every candidate a few rounds of FIRST_ROUND iterations, within FIRST_SHARE."""
         first_end = self.budget.pass_end(FIRST_SHARE)
-
-        def short(c: Candidate) -> None:
-            if not self._refine(c, c.positions, FIRST_ROUND, first_end, SHORT_WEIGHT_FLOOR):
-                c.converged = True  # no step helped: it will not move
-
-        # In rounds, so that when time runs short every candidate has had as many iterations
-        # (large mechanisms take many times as long per iteration as small ones).
-        for _ in range(0, FIRST_ITERATIONS, FIRST_ROUND):
-            moving = [c for c in self.candidates if not c.converged]
-            if not moving or self.budget.done(FIRST_SHARE, first_end):
-                break
-            list(self.pool.map(short, moving))
-            self.report()
+        self._rounds(self.candidates, FIRST_ITERATIONS, FIRST_SHARE, first_end, SHORT_WEIGHT_FLOOR)
 
     def middle_pass(self) -> None:
         """The best MIDDLE_CANDIDATES rounds of FIRST_ROUND iterations, up to MIDDLE_ITERATIONS,
@@ -189,21 +205,11 @@ class SynthesisPasses:
         leaders, best or not."""
         if self.options.front:
             return
-        end = self.budget.share_end(MIDDLE_END)
         best = sorted(self.candidates, key=Candidate.rank)[:MIDDLE_CANDIDATES]
         for c in best:  # a short step refused under the short pass's weights says little here
             c.converged = False
-
-        def middle(c: Candidate) -> None:
-            if not self._refine(c, c.positions, FIRST_ROUND, end, IRLS_WEIGHT_FLOOR):
-                c.converged = True
-
-        for _ in range(0, MIDDLE_ITERATIONS, FIRST_ROUND):
-            moving = [c for c in best if not c.converged]
-            if not moving or self.budget.done(MIDDLE_END, end):
-                break
-            list(self.pool.map(middle, moving))
-            self.report()
+        end = self.budget.share_end(MIDDLE_END)
+        self._rounds(best, MIDDLE_ITERATIONS, MIDDLE_END, end, IRLS_WEIGHT_FLOOR)
 
     def time_candidates(self, timed: Target) -> None:
         """The shape is near: the best TIMED_CANDIDATES (and a front's leaders) get their
@@ -230,8 +236,7 @@ class SynthesisPasses:
             quota = max(quota, len(leaders))
 
         def long(c: Candidate) -> None:
-            if not self._refine(c, c.positions, LONG_ROUND, deadline, IRLS_WEIGHT_FLOOR):
-                c.converged = True
+            self._refine_on(c, LONG_ROUND, deadline, IRLS_WEIGHT_FLOOR)
 
         def moving_finalists() -> list[Candidate]:
             moving = [c for c in self.finalists if not c.converged and id(c) not in self.stopped]

@@ -22,6 +22,8 @@ import pytest
 
 import links_ray
 from links_ray import LockingError, TopologySimulator, chamfer, random_topology, simulate
+from links_ray.engine import refine as refine_module
+from links_ray.engine import refine_checks
 from links_ray.engine.inputs import (
     MAX_REFINE_JOINTS,
     MAX_REFINE_STEPS,
@@ -30,8 +32,6 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.paths import longest_chord
-from links_ray.engine import refine as refine_module
-from links_ray.engine import refine_checks
 from links_ray.engine.refine import refine, refine_many, refine_validated
 from links_ray.engine.refine_kernels import best_interval, nearest_pairs, solve_tangents
 from links_ray.engine.solver import crank_table, dyad_geometry
