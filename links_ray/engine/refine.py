@@ -1,6 +1,6 @@
 """Refinement: move a mechanism's joints so that one joint's path traces a drawn curve.
 
-Retrieval finds a stored mechanism whose path is near a drawing; `refine` then moves its
+Retrieval finds a stored mechanism whose path is near a drawing; refinement then moves its
 initial joint positions (which carry the placement, turn and scale too) to bring the path onto
 the drawing, keeping the mechanism valid.
 
@@ -38,15 +38,19 @@ FINE_EVERY kept steps and before positions are returned; until then a step is ch
 simulation's steps (`refine_checks.coarse_trial`), and one the fine check refuses sends
 refinement back to the last positions it passed.
 
-Synthesis (`engine.synthesis`) drives refinement in pieces through the public interface
-below the entry points: `as_target` validates a drawing once, `target_chamfer` measures a path
-against it, `refine_validated` refines a validated mechanism within a deadline and continues a
-refinement from its origin, and `engine.refine_checks.check_mechanism` tells whether positions
-are valid.
+A caller's own arrays go through the entry points (`engine.refine_entry`: `refine`,
+`refine_many`), which check them. Synthesis (`engine.synthesis`) drives refinement in pieces
+through the interface below them: `as_target` validates a drawing once, `target_chamfer`
+measures a path against it, `refine_validated` refines a validated mechanism within a deadline
+and continues a refinement from its origin, and `engine.refine_checks.check_mechanism` tells
+whether positions are valid.
 
 Partial strokes (`partial=True`): an open stroke matches part of a turn. The measure is then the
 least chamfer between the stroke and a run of consecutive steps (cyclic) of the path, over
-every run; its start and length are returned.
+every run; its start and length are returned. Finding that run costs more than the rest of a
+trial, so trials are measured on the run last found (a chamfer no lower than the best run's)
+and the run is searched again every RUN_EVERY kept steps, when no step gains on it, and
+before positions are returned.
 
 Pure numpy/numba: no Ray, no files.
 """
@@ -55,11 +59,9 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from links_ray.engine.constraints import (
     KEPT,
@@ -70,21 +72,9 @@ from links_ray.engine.constraints import (
     violation,
 )
 from links_ray.engine.inputs import (
-    DEFAULT_MIN_TRANSMISSION_DEG,
-    DEFAULT_REFINE_ITERATIONS,
-    DEFAULT_STEPS,
-    MAX_REFINE_ITERATIONS,
-    MIN_POINTS,
     REFINE_CHECK_STEPS,
-    InvalidMechanismError,
-    as_int,
-    as_positions,
-    as_transmission_deg,
-    check_positions,
-    check_refine_size,
 )
-from links_ray.engine.mechanism import LockingError, Topology, analyze_topology
-from links_ray.engine.node_kinds import FIXED
+from links_ray.engine.mechanism import LockingError, Topology
 from links_ray.engine.refine_checks import (
     Check,
     below_margin,
@@ -102,9 +92,9 @@ from links_ray.engine.refine_step import (
     timed_equations,
     transmission_guards,
 )
-from links_ray.engine.target import Target, as_target
+from links_ray.engine.target import Target
 
-__all__ = ["Refinement", "refine", "refine_many", "refine_validated"]
+__all__ = ["Refinement", "refine_validated"]
 
 #: A step may bring a dyad's least transmission angle at the simulation's steps no nearer its
 #: floor than about this many degrees: the check steps between them dip lower.
@@ -126,6 +116,11 @@ RESTORE_STEP = 0.02
 #: positions that passed and checks every step so from then on. The fine check costs as much
 #: as the rest of an iteration, and the guards' clearance makes it fail rarely.
 FINE_EVERY = 8
+#: A partial stroke's best run (`target_chamfer`) costs more to find than the rest of a trial.
+#: Between searches a trial is measured on the run last found (`run_chamfer`), never below the
+#: best run's chamfer, so a kept step still lowers the measure; the run is searched again
+#: every RUN_EVERY kept steps, when no step gains on it, and before positions are returned.
+RUN_EVERY = 8
 #: Damping (times the system's diagonal): start, growth on a rejected step, shrink on a kept
 #: one, the least it shrinks to, the least it grows to on a rejection (below it a rejected step
 #: barely shortens), and the end of trying. Steps stay damped (DAMPING_MIN): undamped
@@ -157,24 +152,6 @@ class Refinement:
     error: str | None = None
     damping: float = DAMPING_START
     violation: Violation = KEPT
-
-
-def _prepare(
-    adjacency: ArrayLike,
-    node_types: ArrayLike,
-    positions: ArrayLike,
-    joint: object,
-    steps: int,
-) -> tuple[Topology, np.ndarray, int]:
-    topology = analyze_topology(adjacency, node_types)
-    n = topology.n_joints
-    check_refine_size(n, steps)
-    pos = as_positions(positions, n)
-    check_positions(topology.adjacency, pos)
-    joint = as_int("joint", joint, 0, n - 1, InvalidMechanismError)
-    if topology.node_types[joint] == FIXED:
-        raise InvalidMechanismError(f"joint {joint} is fixed: it traces no path to refine")
-    return topology, pos, joint
 
 
 def refine_validated(
@@ -283,6 +260,16 @@ def refine_validated(
     # The last positions checked at REFINE_CHECK_STEPS, and the kept steps since.
     confirmed = (pos, value, interval, check, missed)
     unconfirmed, fine_every = 0, FINE_EVERY
+    # A partial untimed target's trials hold `interval` (RUN_EVERY); `searched`: whether
+    # (value, interval) are the best run's at `pos`, and `held`: kept steps since.
+    holds = target.partial and target.crank is None
+    searched, held = True, 0
+
+    def search(path: np.ndarray) -> None:
+        """The best run of `pos`'s `path` for (value, interval)."""
+        nonlocal value, interval, searched, held
+        value, interval = target_error(target, topology, pos, joint, path)
+        searched, held = True, 0
 
     def confirmed_now() -> None:
         """The kept positions passed the check at REFINE_CHECK_STEPS (`check` is that
@@ -294,7 +281,7 @@ def refine_validated(
     def confirm() -> bool:
         """Check the kept positions at REFINE_CHECK_STEPS: True (and they are confirmed) if
         they pass, else False (and refinement is back at the last confirmed)."""
-        nonlocal pos, value, interval, check, missed, unconfirmed
+        nonlocal pos, value, interval, check, missed, unconfirmed, searched
         fine = valid_trial(topology, pos, sides, floors, rigid)
         if fine is not None:
             fine_missed, was = missed_by(pos, fine), confirmed[4]
@@ -304,7 +291,7 @@ def refine_validated(
                 confirmed_now()
                 return True
         pos, value, interval, check, missed = confirmed
-        unconfirmed = 0
+        unconfirmed, searched = 0, False  # its run may have been held when it was confirmed
         return False
 
     while done < iterations and stalled < STALL:
@@ -334,6 +321,7 @@ def refine_validated(
         # A joint the path does not depend on has a zero column; this keeps the system regular.
         diagonal += 1e-9 * max(float(diagonal.max()), 1e-300)
         accepted = False
+        damping_before = damping
         while damping <= DAMPING_MAX:
             # A trial is a 200-step simulation and, if it gains, a 2,000-step check: on a large
             # mechanism a dozen rejected trials take longer than a synthesis may overrun.
@@ -354,7 +342,12 @@ def refine_validated(
                 if lock[0] < 0:
                     trial_turn = (trial_traj, trial_trans, trial_geometry)
                     trial_value, trial_interval = target_error(
-                        target, topology, trial, joint, trial_traj[joint]
+                        target,
+                        topology,
+                        trial,
+                        joint,
+                        trial_traj[joint],
+                        interval if holds else None,
                     )
                     # Cheap tests first: most rejected trials fail on the fit. While the
                     # constraints are missed, a step need only miss them by less.
@@ -389,6 +382,10 @@ def refine_validated(
                         damping = max(damping / DAMPING_DOWN, DAMPING_MIN)
                         accepted = True
                         unconfirmed += 1
+                        if holds:
+                            searched, held = False, held + 1
+                            if held >= RUN_EVERY:
+                                search(trial_traj[joint])
                         if fine_every == 1:  # checked at REFINE_CHECK_STEPS already
                             confirmed_now()
                         elif unconfirmed >= fine_every and not confirm():
@@ -396,9 +393,18 @@ def refine_validated(
                         break
             damping = max(damping * DAMPING_UP, DAMPING_REJECTED)
         if not accepted:
+            if holds and not searched and not late():
+                run = interval
+                search(traj[joint])  # `pos` has not moved this iteration
+                if interval != run:  # another run fits best now: steps toward it may gain
+                    damping = damping_before
+                    continue
             break
     if unconfirmed:
         confirm()
+    if holds and not searched:
+        _, traj, _, _, _, _ = solve_turn(topology, pos, steps, False)
+        search(traj[joint])
     return Refinement(
         positions=pos,
         chamfer_before=before / target.chord,
@@ -410,77 +416,3 @@ def refine_validated(
         damping=damping,
         violation=missed,
     )
-
-
-def refine(
-    adjacency: ArrayLike,
-    node_types: ArrayLike,
-    positions: ArrayLike,
-    joint: int,
-    target_points: ArrayLike,
-    *,
-    partial: bool = False,
-    iterations: int = DEFAULT_REFINE_ITERATIONS,
-    min_transmission_deg: float = DEFAULT_MIN_TRANSMISSION_DEG,
-    steps: int = DEFAULT_STEPS,
-) -> Refinement:
-    """Move the joints of a mechanism so that `joint`'s path at `steps` crank steps traces
-    `target_points` (in the mechanism's frame); the module docstring says how.
-
-    `partial`: the points are an open stroke matched to part of a turn. `iterations`: most
-    Levenberg-Marquardt iterations. `min_transmission_deg`: least transmission angle kept. Raises
-    `InvalidMechanismError` or `ValueError` for bad input and `LockingError` if the mechanism
-    locks as given (at `steps` or REFINE_CHECK_STEPS steps).
-    """
-    steps = as_int("steps", steps, MIN_POINTS, None, InvalidMechanismError)
-    topology, pos, joint = _prepare(adjacency, node_types, positions, joint, steps)
-    target = as_target(target_points, partial)
-    iterations = as_int("iterations", iterations, 0, MAX_REFINE_ITERATIONS)
-    min_transmission_deg = as_transmission_deg(min_transmission_deg)
-    return refine_validated(topology, pos, joint, target, steps, iterations, min_transmission_deg)
-
-
-def refine_many(
-    candidates: Iterable[Sequence[object]],
-    target_points: ArrayLike,
-    *,
-    partial: bool = False,
-    iterations: int = DEFAULT_REFINE_ITERATIONS,
-    min_transmission_deg: float = DEFAULT_MIN_TRANSMISSION_DEG,
-    steps: int = DEFAULT_STEPS,
-) -> list[Refinement]:
-    """`refine` for many candidates (adjacency, node_types, positions, joint) of one drawing.
-
-    Every input is checked before any work, and a bad one raises ValueError naming the
-    candidate. A candidate that locks as given gets a result with `error` set and its own
-    positions, so one retrieved mechanism cannot sink the rest.
-    """
-    steps = as_int("steps", steps, MIN_POINTS, None, InvalidMechanismError)
-    target = as_target(target_points, partial)
-    iterations = as_int("iterations", iterations, 0, MAX_REFINE_ITERATIONS)
-    min_transmission_deg = as_transmission_deg(min_transmission_deg)
-    prepared = []
-    for index, candidate in enumerate(candidates):
-        try:
-            adjacency, node_types, positions, joint = candidate
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"candidate {index} must be (adjacency, node_types, positions, joint)"
-            ) from None
-        try:
-            prepared.append(_prepare(adjacency, node_types, positions, joint, steps))
-        except ValueError as exc:
-            raise type(exc)(f"candidate {index}: {exc}") from None
-    results = []
-    for topology, pos, joint in prepared:
-        try:
-            results.append(
-                refine_validated(
-                    topology, pos, joint, target, steps, iterations, min_transmission_deg
-                )
-            )
-        except LockingError as exc:
-            results.append(
-                Refinement(pos, math.nan, math.nan, None, 0, 0, math.nan, error=str(exc))
-            )
-    return results

@@ -19,7 +19,7 @@ from links_ray.engine.inputs import REFINE_CHECK_STEPS, InvalidMechanismError, c
 from links_ray.engine.mechanism import Topology
 from links_ray.engine.refine_kernels import _solve_tangents
 from links_ray.engine.solver import crank_turn
-from links_ray.engine.target import Target, target_chamfer, timed_distances
+from links_ray.engine.target import Target, run_chamfer, target_chamfer, timed_distances
 from links_ray.engine.turning import MAX_SPLITS, _turn_lock, rigid_dyads
 
 __all__ = [
@@ -141,12 +141,21 @@ def least_deg(sines: np.ndarray) -> float:
 
 
 def target_error(
-    target: Target, topology: Topology, positions: np.ndarray, joint: int, path: np.ndarray
+    target: Target,
+    topology: Topology,
+    positions: np.ndarray,
+    joint: int,
+    path: np.ndarray,
+    held: tuple[int, int] | None = None,
 ) -> tuple[float, tuple[int, int] | None]:
     """(value, interval) of the measure refinement lowers, in the drawing's units: for an
     untimed target `target_chamfer` of `path` (steps, 2), `joint`'s path over the turn; for a
-    timed one the mean distance of each point from `joint`'s path at its crank angle."""
+    timed one the mean distance of each point from `joint`'s path at its crank angle. `held`:
+    for a partial untimed target, the chamfer of that run of `path` (`run_chamfer`: no
+    search for the best run, and no less than its chamfer)."""
     if target.crank is None:
+        if held is not None and target.partial:
+            return run_chamfer(target, path, held), held
         return target_chamfer(target, path)
     _, traj, _, _, _, _ = solve_turn(topology, positions, len(target.crank), False, target.crank)
     return float(timed_distances(target, traj[joint]).mean()), None

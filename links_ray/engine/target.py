@@ -16,7 +16,7 @@ from links_ray.engine.inputs import MIN_POINTS, as_drawn_points
 from links_ray.engine.paths import chamfer, longest_chord
 from links_ray.engine.refine_kernels import best_interval
 
-__all__ = ["Target", "as_target", "target_chamfer", "timed_distances"]
+__all__ = ["Target", "as_target", "run_chamfer", "target_chamfer", "timed_distances"]
 
 
 @dataclass
@@ -60,9 +60,16 @@ def target_chamfer(target: Target, path: np.ndarray) -> tuple[float, tuple[int, 
     if not target.partial:
         return chamfer(target.points, path), None
     start, count, _ = best_interval(path, target.points, MIN_POINTS)
-    rows = (start + np.arange(count)) % len(path)
     # The exact chamfer of the chosen run, so accepted steps compare like with like.
-    return chamfer(target.points, path[rows]), (int(start), int(count))
+    return run_chamfer(target, path, (int(start), int(count))), (int(start), int(count))
+
+
+def run_chamfer(target: Target, path: np.ndarray, interval: tuple[int, int]) -> float:
+    """The chamfer distance between the target's points and the run `interval` (start step,
+    count) of `path` (steps, 2), cyclic, in the drawing's units: for a partial target, no less
+    than `target_chamfer`'s, which is the least over every run."""
+    start, count = interval
+    return chamfer(target.points, path[(start + np.arange(count)) % len(path)])
 
 
 def timed_distances(target: Target, timed_path: np.ndarray) -> np.ndarray:

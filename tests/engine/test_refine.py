@@ -28,11 +28,13 @@ from links_ray.engine.inputs import (
     MAX_REFINE_JOINTS,
     MAX_REFINE_STEPS,
     MAX_TRANSMISSION_DEG,
+    MIN_POINTS,
     REFINE_CHECK_STEPS,
 )
 from links_ray.engine.mechanism import analyze_topology
 from links_ray.engine.paths import longest_chord
-from links_ray.engine.refine import refine, refine_many, refine_validated
+from links_ray.engine.refine import refine_validated
+from links_ray.engine.refine_entry import refine, refine_many
 from links_ray.engine.refine_kernels import best_interval, nearest_pairs, solve_tangents
 from links_ray.engine.solver import crank_table, dyad_geometry
 from links_ray.engine.step_kernels import guarded_minimum
@@ -476,6 +478,41 @@ def test_partial_stroke_of_a_fourbar(start: int) -> None:
     run = path[(result.interval[0] + np.arange(result.interval[1])) % 200]
     assert result.chamfer_after == pytest.approx(chamfer(stroke, run) / chord(stroke), rel=1e-12)
     assert_valid(adjacency, node_types, moved, result.positions, 3.0)
+
+
+def test_a_strokes_run_is_held_between_searches_and_exact_at_the_end(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Trials are measured on the run last found, which is searched again only every few kept
+    steps (`RUN_EVERY`) or when no step gains on it; what refinement returns is still the
+    best run of its path, even when the run it held to the end is not."""
+    searches = []
+    search = refine_checks.target_chamfer
+
+    def counted(target: object, path: np.ndarray) -> tuple[float, tuple[int, int] | None]:
+        searches.append(1)
+        return search(target, path)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(refine_checks, "target_chamfer", counted)
+    adjacency, node_types, positions = fourbar(GOOD_FOURBAR)
+    curve = fourbar_truth(positions, 200)[4]
+    # A stroke a little off the curve, so that refinement keeps many steps.
+    stroke = 1.02 * curve[(40 + np.arange(90)) % 200] + 0.01
+    moved = positions + np.random.default_rng(1).normal(0.0, 3e-3, positions.shape)
+    first = refine(adjacency, node_types, moved, 4, stroke, partial=True, iterations=0).interval
+    for every in (refine_module.RUN_EVERY, 10**6):
+        monkeypatch.setattr(refine_module, "RUN_EVERY", every)
+        searches.clear()
+        result = refine(adjacency, node_types, moved, 4, stroke, partial=True, iterations=60)
+        assert result.chamfer_after < 0.2 * result.chamfer_before
+        assert 2 <= len(searches) <= result.evaluations // 2
+        path = simulate(adjacency, node_types, result.positions)[4]
+        start, count, _ = best_interval(path, stroke, MIN_POINTS)
+        assert result.interval == (start, count) != first
+        run = path[(start + np.arange(count)) % 200]
+        assert result.chamfer_after == pytest.approx(
+            chamfer(stroke, run) / chord(stroke), rel=1e-12
+        )
 
 
 def test_partial_stroke_of_random_mechanisms() -> None:
