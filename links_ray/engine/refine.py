@@ -341,13 +341,9 @@ def refine_validated(
                 )
                 if lock[0] < 0:
                     trial_turn = (trial_traj, trial_trans, trial_geometry)
+                    # A stroke's trial is measured on the run held (RUN_EVERY).
                     trial_value, trial_interval = target_error(
-                        target,
-                        topology,
-                        trial,
-                        joint,
-                        trial_traj[joint],
-                        interval if holds else None,
+                        target, topology, trial, joint, trial_traj[joint], interval
                     )
                     # Cheap tests first: most rejected trials fail on the fit. While the
                     # constraints are missed, a step need only miss them by less.

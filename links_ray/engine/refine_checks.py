@@ -150,11 +150,11 @@ def target_error(
 ) -> tuple[float, tuple[int, int] | None]:
     """(value, interval) of the measure refinement lowers, in the drawing's units: for an
     untimed target `target_chamfer` of `path` (steps, 2), `joint`'s path over the turn; for a
-    timed one the mean distance of each point from `joint`'s path at its crank angle. `held`:
-    for a partial untimed target, the chamfer of that run of `path` (`run_chamfer`: no
-    search for the best run, and no less than its chamfer)."""
+    timed one the mean distance of each point from `joint`'s path at its crank angle. `held`
+    (a partial target's run, as an untimed measure returns it): the chamfer of that run of
+    `path` (`run_chamfer`: no search for the best run, and no less than its chamfer)."""
     if target.crank is None:
-        if held is not None and target.partial:
+        if held is not None:
             return run_chamfer(target, path, held), held
         return target_chamfer(target, path)
     _, traj, _, _, _, _ = solve_turn(topology, positions, len(target.crank), False, target.crank)

@@ -60,8 +60,9 @@ def target_chamfer(target: Target, path: np.ndarray) -> tuple[float, tuple[int, 
     if not target.partial:
         return chamfer(target.points, path), None
     start, count, _ = best_interval(path, target.points, MIN_POINTS)
+    run = (int(start), int(count))
     # The exact chamfer of the chosen run, so accepted steps compare like with like.
-    return run_chamfer(target, path, (int(start), int(count))), (int(start), int(count))
+    return run_chamfer(target, path, run), run
 
 
 def run_chamfer(target: Target, path: np.ndarray, interval: tuple[int, int]) -> float:
