@@ -41,6 +41,9 @@ def _prepare(
     joint: object,
     steps: int,
 ) -> tuple[Topology, np.ndarray, int]:
+    """(topology, positions, joint) of a caller's mechanism, checked: `InvalidMechanismError`
+    names a malformed mechanism, one too large to refine or a fixed `joint`, and `ValueError`
+    more `steps` than refinement takes."""
     topology = analyze_topology(adjacency, node_types)
     n = topology.n_joints
     check_refine_size(n, steps)
