@@ -279,7 +279,7 @@ def run_server(
     """
     import ray
 
-    from links_ray.cluster.connect import connect
+    from links_ray.cluster.connect import connect, is_loopback
 
     check_root(root, shards)  # a wrong ROOT is one line here, not a replica failing to start
     cpus = PARTITION_CPUS if shard_cpus is None else shard_cpus
@@ -298,7 +298,7 @@ def run_server(
         signal.signal(signal.SIGTERM, signal.default_int_handler)
     stop = True
     try:
-        connect()
+        connect(loopback=is_loopback(host))  # Ray's own listeners stay on loopback too
         if blocking:
             signal.signal(signal.SIGTERM, signal.default_int_handler)
         if local:
