@@ -89,6 +89,8 @@ def _as_box(value: object, name: str) -> tuple[float, float, float, float]:
     """[xmin, ymin, xmax, ymax] as four finite floats, each min below its max."""
     if isinstance(value, str | bytes | dict) or not hasattr(value, "__len__"):
         raise ValueError(f"{name} must be a box [xmin, ymin, xmax, ymax], got {shown(value)}")
+    if isinstance(value, list | tuple) and len(value) != 4:  # before any entry is read
+        raise ValueError(f"{name} must be four numbers [xmin, ymin, xmax, ymax]")
     box = as_real_array(name, value, "four numbers [xmin, ymin, xmax, ymax]")
     if box.shape != (4,) or any(isinstance(v, bool) for v in value):  # type: ignore[union-attr]
         raise ValueError(f"{name} must be four numbers [xmin, ymin, xmax, ymax]")

@@ -278,7 +278,10 @@ def check_positions(
 
 def as_drawn_points(points: object, name: str = "points") -> np.ndarray:
     """Drawn points as a float64 (T, 2) array: MIN_POINTS to MAX_POINTS finite [x, y] pairs
-    within +-MAX_COORDINATE spanning at least MIN_EXTENT, or ValueError naming the problem."""
+    within +-MAX_COORDINATE spanning at least MIN_EXTENT, or ValueError naming the problem.
+    A list's count is checked before any of its entries is looked at."""
+    if isinstance(points, list | tuple):
+        check_point_count(len(points), name)
     try:
         array = np.asarray(points)
     except (TypeError, ValueError):
@@ -287,8 +290,8 @@ def as_drawn_points(points: object, name: str = "points") -> np.ndarray:
         raise ValueError(f"{name} must be a list of [x, y] number pairs")
     array = array.astype(np.float64)
     # The count first: an empty list has no pairs to have a shape.
-    if array.ndim and not MIN_POINTS <= len(array) <= MAX_POINTS:
-        raise ValueError(f"{name} must hold {MIN_POINTS} to {MAX_POINTS} pairs, got {len(array)}")
+    if array.ndim:
+        check_point_count(len(array), name)
     if array.ndim != 2 or array.shape[1] != 2:
         raise ValueError(f"{name} must be [x, y] pairs, got an array of shape {array.shape}")
     if not np.all(np.isfinite(array)):
@@ -300,6 +303,12 @@ def as_drawn_points(points: object, name: str = "points") -> np.ndarray:
     if np.ptp(array, axis=0).max() < MIN_EXTENT:
         raise ValueError(f"{name} span less than {MIN_EXTENT:g}: there is no curve to match")
     return array
+
+
+def check_point_count(count: int, name: str = "points") -> None:
+    """Refuse `count` drawn points unless MIN_POINTS to MAX_POINTS (ValueError naming `name`)."""
+    if not MIN_POINTS <= count <= MAX_POINTS:
+        raise ValueError(f"{name} must hold {MIN_POINTS} to {MAX_POINTS} pairs, got {count}")
 
 
 def validate_query(points: object, k: object = DEFAULT_K) -> tuple[np.ndarray, int]:

@@ -15,6 +15,7 @@ from links_ray.engine.constraints import Constraints, as_constraints
 from links_ray.engine.inputs import (
     DEFAULT_K,
     MAX_K,
+    MAX_POINTS,
     MIN_K,
     as_drawn_points,
     as_flag,
@@ -76,6 +77,8 @@ def as_timing(timing: object, count: int, partial: bool) -> np.ndarray | None:
         return 2.0 * np.pi * np.arange(count) / count
     if isinstance(timing, str | bytes | dict) or not hasattr(timing, "__len__"):
         raise ValueError(f"timing must be true or a list of angles in degrees, got {shown(timing)}")
+    if isinstance(timing, list | tuple) and len(timing) != count:  # before any angle is read
+        raise ValueError(f"timing must give one angle per point: {count}, got {len(timing)}")
     if any(isinstance(v, bool) for v in timing):  # type: ignore[union-attr]
         raise ValueError("timing must be true or a list of angles in degrees")
     degrees = as_real_array("timing", timing, "true or a list of angles in degrees")
@@ -178,4 +181,9 @@ def _as_timing_given(timing: object, partial: bool) -> Timing:
         return True
     if isinstance(timing, str | bytes | dict) or not hasattr(timing, "__len__"):
         raise ValueError(f"timing must be true or a list of angles in degrees, got {shown(timing)}")
+    angles = len(timing)  # type: ignore[arg-type]
+    if angles > MAX_POINTS:  # before any angle is read
+        raise ValueError(
+            f"timing must give one angle per point, at most {MAX_POINTS}, got {angles}"
+        )
     return tuple(timing)  # type: ignore[call-overload]

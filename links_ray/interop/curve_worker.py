@@ -3,7 +3,8 @@
 `read_curve_isolated(name, data, part, points)` reads a file's contents as `read_curve_text`
 does, in one of CURVE_READERS long-lived reader processes. Each reader is a fresh interpreter
 (started by exec, never a fork of the caller, a server whose threads a fork would copy
-mid-flight), with one numpy thread, its address space limited to CURVE_READER_MEMORY_BYTES
+mid-flight), at CURVE_READER_NICENESS, with one numpy thread, its address space limited to
+CURVE_READER_MEMORY_BYTES
 and each file to CURVE_READ_SECONDS: a reader that overruns is killed (SIGKILL) and a new one
 started for the next file; one that dies is replaced the same way. The caller waits on a pipe,
 without the GIL, and a file that finds every reader busy for CURVE_READER_WAIT_S is turned away.
@@ -49,6 +50,7 @@ from links_ray.interop.curve_files import (
 from links_ray.interop.curve_limits import (
     CURVE_READ_SECONDS,
     CURVE_READER_MEMORY_BYTES,
+    CURVE_READER_NICENESS,
     CURVE_READER_WAIT_S,
     CURVE_READERS,
     MAX_CURVE_FILE_BYTES,
@@ -390,10 +392,11 @@ _serve(int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4]))
 
 
 def _serve(handle: int, memory_bytes: int, seconds: float) -> None:
-    """A reader's life: its libraries loaded, its address space limited to `memory_bytes`,
-    files read one at a time from the socket `handle` until the caller closes it. Each file
-    is given CPU time for twice `seconds` (and 2 s) too: a reader the caller no longer
-    watches stops itself."""
+    """A reader's life: at CURVE_READER_NICENESS, its libraries loaded, its address space
+    limited to `memory_bytes`, files read one at a time from the socket `handle` until the
+    caller closes it. Each file is given CPU time for twice `seconds` (and 2 s) too: a reader
+    the caller no longer watches stops itself."""
+    _lower_priority()
     import ezdxf  # noqa: F401 - loaded before the limit, as every file needs
     import svgelements  # noqa: F401
 
@@ -414,6 +417,14 @@ def _serve(handle: int, memory_bytes: int, seconds: float) -> None:
         connection.send_bytes(body)
         if header.get("error") == "memory":
             return
+
+
+def _lower_priority() -> None:
+    """This process at CURVE_READER_NICENESS, unless it runs lower already. Set before any
+    thread starts: Linux keeps a niceness per thread, and new threads inherit it."""
+    current = os.getpriority(os.PRIO_PROCESS, 0)
+    if current < CURVE_READER_NICENESS:
+        os.setpriority(os.PRIO_PROCESS, 0, CURVE_READER_NICENESS)
 
 
 def _limit(which: int, soft: int) -> None:

@@ -10,7 +10,9 @@ own budget is refused 503 too.
 
 Retrievals run in a thread of their own, one at a time, beside the index they search
 (`RetrievalSlot`). Both threads run at `RETRIEVAL_NICENESS`, below the event loop that answers
-health checks. Nothing here imports Ray: the routes (`serve.handlers`) and the deployments
+health checks. Drawings (`/api/curve`) are read with tokens and threads of their own
+(`CurveReads`), never the thread pool's that simulations, analyses and exports share.
+Nothing here imports Ray: the routes (`serve.handlers`) and the deployments
 (`serve.deployments`) both use it.
 """
 
@@ -26,6 +28,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from links_ray.interop.curve_files import Curve
+from links_ray.interop.curve_limits import CURVE_READER_WAIT_S, CURVE_READERS
+from links_ray.interop.curve_worker import read_curve_isolated
 from links_ray.serve.responses import ApiError
 
 if TYPE_CHECKING:  # only a type here: the routes, and the docs, need no index module
@@ -47,6 +52,9 @@ MAX_RETRIEVALS = 8
 MAX_SYNTHESES = 2
 #: Seconds a refused client is asked to wait (`Retry-After`).
 RETRY_AFTER_S = 1
+#: Drawings one gateway replica holds at once, being read (CURVE_READERS at a time) or waiting
+#: for a reader; one more is answered at once with 503.
+MAX_CURVE_READS = 4 * CURVE_READERS
 
 
 def busy(message: str, retry_after: float = RETRY_AFTER_S) -> ApiError:
@@ -75,6 +83,7 @@ class Admission:
         self.retrievals = 0  # running or waiting
         self.syntheses = 0  # running or waiting
         self.line: list[Place] = []  # the first holds the refinement thread
+        self.curves = CurveReads()
 
     def claim_retrieval(self) -> None:
         """Count one more retrieval under way, or refuse it 503 at the limit."""
@@ -152,6 +161,61 @@ class Admission:
         self.line.remove(place)
         if self.line and not self.line[0].ready.done():
             self.line[0].ready.set_result(None)
+
+
+class CurveReads:
+    """The drawings one replica reads: `readers` at a time, each in a thread of this pool
+    waiting on its reader process (`interop.curve_worker`), at most `most` held, reading or
+    waiting for a token. One more, or one that finds no token free within `wait_s`, is
+    answered 503 with `Retry-After` (`busy`). Only the event loop's thread uses it."""
+
+    def __init__(
+        self,
+        readers: int = CURVE_READERS,
+        most: int = MAX_CURVE_READS,
+        wait_s: float = CURVE_READER_WAIT_S,
+    ) -> None:
+        self.readers = readers
+        self.most = most
+        self.wait_s = wait_s
+        self.held = 0  # reading or waiting
+        self.reading = 0
+        self._tokens = asyncio.Semaphore(readers)
+        self._pool = ThreadPoolExecutor(max_workers=readers, thread_name_prefix="links-curve")
+
+    async def read(self, name: str, text: str, part: str | None) -> Curve:
+        """The curve of the file `name` (`read_curve_isolated`), read with one of the tokens:
+        503 when none comes free in time, else what the reader raises."""
+        if self.held >= self.most:
+            raise busy(
+                f"busy: {self.held} drawings being read or waiting, the most this server holds"
+            )
+        self.held += 1
+        try:
+            await asyncio.wait_for(self._tokens.acquire(), self.wait_s)
+        except TimeoutError:
+            self.held -= 1
+            raise busy(
+                f"busy: no curve reader came free within {self.wait_s:g} s (all "
+                f"{self.readers} busy)"
+            ) from None
+        except BaseException:
+            self.held -= 1
+            raise
+        self.reading += 1
+        reading = asyncio.get_running_loop().run_in_executor(
+            self._pool, read_curve_isolated, name, text, part
+        )
+        # The token is held until the read ends, whether or not its client still waits.
+        reading.add_done_callback(self._done)
+        return await asyncio.shield(reading)
+
+    def _done(self, reading: asyncio.Future[Curve]) -> None:
+        if not reading.cancelled():
+            reading.exception()  # seen, whoever is left to await it
+        self.reading -= 1
+        self.held -= 1
+        self._tokens.release()
 
 
 def low_priority_thread(name: str) -> ThreadPoolExecutor:

@@ -38,7 +38,6 @@ from fastapi.responses import HTMLResponse, Response, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from links_ray.engine.fabrication import Fabrication, fabrication
-from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.mechanism import (
     InvalidMechanismError,
     LockingError,
@@ -51,7 +50,7 @@ from links_ray.engine.synthesis import refine_retrieved
 from links_ray.engine.synthesis_options import MAX_SYNTHESIS_SECONDS
 from links_ray.engine.synthesis_plan import retrievals
 from links_ray.engine.synthesis_results import SynthesisResults
-from links_ray.interop.curve_worker import CurveReadersBusy, read_curve_isolated
+from links_ray.interop.curve_worker import CurveReadersBusy
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve import kit_models, models
 from links_ray.serve.admission import Admission, Place, RetrievalSlot
@@ -61,15 +60,14 @@ from links_ray.serve.models import request_body
 from links_ray.serve.parsing import (
     EXPORT_FORMATS,
     KIT_FORMATS,
+    analyze_args,
     curve_args,
     export_args,
     kit_args,
-    read_json_object,
+    read_args,
     retrieve_args,
     simulate_args,
-    stream_arg,
-    synthesize_args,
-    topology_args,
+    synthesize_request,
 )
 from links_ray.serve.responses import (
     ApiError,
@@ -272,7 +270,7 @@ class LinksApiRoutes:
     )
     async def api_simulate(self, request: Request) -> Response:
         """Trajectories [n][steps][2] of a mechanism, 422 if it locks, 4xx if malformed."""
-        args = simulate_args(await read_json_object(request, "/api/simulate"))
+        args = await read_args(request, "/api/simulate", simulate_args)
         try:
             trajectories = await run_in_threadpool(simulate, *args)
         except LockingError as exc:
@@ -289,12 +287,7 @@ class LinksApiRoutes:
     )
     async def api_analyze(self, request: Request) -> Response:
         """Degree of freedom, dyadic solvability and, given positions, where it locks."""
-        body = await read_json_object(request, "/api/analyze")
-        if body.get("positions") is None:
-            adjacency, node_types = topology_args(body)
-            args = (adjacency, node_types, None, DEFAULT_STEPS)
-        else:
-            args = simulate_args(body)
+        args = await read_args(request, "/api/analyze", analyze_args)
         try:
             found = await run_in_threadpool(analyze_mechanism, *args)
         except ValueError as exc:  # degenerate positions: named as /api/simulate names them
@@ -318,7 +311,7 @@ class LinksApiRoutes:
         """The mechanism as an SVG, DXF or table file in millimetres, its crank `crank_mm`
         long (default 20), with the path of `path_joint` if given; 422 if that path locks,
         other 4xx JSON if it cannot."""
-        args = export_args(await read_json_object(request, "/api/export"))
+        args = await read_args(request, "/api/export", export_args)
         try:
             return await run_in_threadpool(export_file, *args)
         except LockingError as exc:  # only with a path: a locking mechanism has none
@@ -351,7 +344,7 @@ class LinksApiRoutes:
         20): the bill of materials as JSON, the assembly as GLB or the whole build as a zip
         (`format`); 422 when no stacking of layers keeps every pin clear (or it locks), other
         4xx JSON for bad input, 503 with `Retry-After` when MAX_KITS are under way."""
-        args = kit_args(await read_json_object(request, "/api/kit"))
+        args = await read_args(request, "/api/kit", kit_args)
         return await answer_kit(*args)
 
     @router.post(
@@ -366,10 +359,11 @@ class LinksApiRoutes:
         closed; 400 naming what is wrong with the file, 413 naming a limit on what it holds,
         422 when reading it overran a reader's time or memory, 503 when every reader is busy
         (`interop.curve_worker`)."""
-        name, text, part = curve_args(await read_json_object(request, "/api/curve"))
+        name, text, part = await read_args(request, "/api/curve", curve_args)
         try:
-            # In a reader process: no drawing can hold this replica's GIL, memory or time.
-            curve = await run_in_threadpool(read_curve_isolated, name, text, part)
+            # In a reader process: no drawing can hold this replica's GIL, memory or time;
+            # waiting for one takes none of the thread pool's tokens.
+            curve = await self._admission.curves.read(name, text, part)
         except CurveReadersBusy as exc:
             raise ApiError(exc.status, str(exc), headers={"Retry-After": "1"}) from None
         except ValueError as exc:  # the file's problem, or the limit it passed, named
@@ -385,8 +379,8 @@ class LinksApiRoutes:
     async def api_retrieve(self, request: Request) -> Response:
         """The k curated paths nearest to a drawn curve, best first, with their mechanisms;
         503 with `Retry-After` when MAX_RETRIEVALS are already under way here."""
-        body = await read_json_object(request, "/api/retrieve")
-        points, k, min_transmission_deg, most = retrieve_args(body)
+        args = await read_args(request, "/api/retrieve", retrieve_args)
+        points, k, min_transmission_deg, most = args
         # Claimed once the body is read and checked: a client that sends its body slowly, or
         # never, holds a connection until the body timeout, never a place of the index.
         self._admission.claim_retrieval()
@@ -412,10 +406,8 @@ class LinksApiRoutes:
         refinement does (its retrieval counted), and `queued_ms` says how long it waited.
         With `"stream": true` the answer is NDJSON: a `{"progress": ...}` line each time the
         best so far improves, then the answer's own line (`_synthesis_lines`)."""
-        body = await read_json_object(request, "/api/synthesize")
-        points, options = synthesize_args(body)
+        points, options, stream = await read_args(request, "/api/synthesize", synthesize_request)
         seconds = options.seconds
-        stream = stream_arg(body)
         self._admission.claim_synthesis()  # once the body is read and checked, as a retrieval
         place: Place | None = None
         released = True  # until the refinement, once submitted, releases its place itself

@@ -9,6 +9,12 @@ checks only what JSON alone can get wrong (types, booleans for numbers, array le
 the values are checked by the engine's own validators, whose ValueErrors become 400s. Each
 refusal is an `ApiError` naming the problem. `serve.models` describes the same bodies for
 `/openapi.json`.
+
+Counts come before contents: a body's brackets are counted before it is parsed
+(`MAX_BODY_CONTAINERS`), and each list's length before any of its entries is looked at, so
+that a body over a limit costs what its bytes do to refuse, not what its entries do to read.
+A large body is parsed and turned into a route's arguments (`read_args`) in `JSON_POOL`,
+where it is freed too.
 """
 
 import asyncio
@@ -16,7 +22,7 @@ import json
 import math
 from collections.abc import Callable
 from dataclasses import fields
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import orjson
@@ -27,11 +33,13 @@ from links_ray.engine.inputs import (
     DEFAULT_CRANK_MM,
     DEFAULT_K,
     DEFAULT_STEPS,
+    MAX_POINTS,
     as_crank_mm,
     as_flag,
     as_max_joints,
     as_steps,
     as_transmission_deg,
+    check_point_count,
     validate_query,
 )
 from links_ray.engine.kit import KitOptions
@@ -84,11 +92,37 @@ def _refuse_constant(name: str) -> float:
     raise _NotANumber(f"{name} is not a JSON number (numbers must be finite)")
 
 
+#: What a route makes of its body (`read_args`).
+Args = TypeVar("Args")
+
+#: Routes whose bodies carry free text (a drawing's file), in which brackets are characters.
+TEXT_ROUTES = frozenset({"/api/curve"})
+#: The most brackets (`[` and `{`) a body of any other route may hold: each array and object
+#: opens with one, and no body that keeps the limits holds more than its points' MAX_POINTS
+#: pairs, or a mechanism's rows and positions, and a few lists and objects besides. Counting
+#: them takes a millisecond on a 2 MB body; parsing one of that many arrays holds the GIL
+#: (orjson's, in any thread) about a hundred times as long.
+MAX_BODY_CONTAINERS = max(MAX_POINTS, 2 * MAX_REQUEST_JOINTS) + 16
+
+
 async def read_json_object(request: Request, route: str) -> dict[str, Any]:
     """The body of a request to `route` as a JSON object, or ApiError (400, 408, 413 or 415)
     naming the problem: a field the route's model (`models.REQUEST_MODELS`) does not name is
     refused, so that a misspelled option is never silently dropped. A large body is parsed in
     JSON_POOL, off the event loop."""
+    return await read_args(request, route, _as_is)
+
+
+def _as_is(body: dict[str, Any]) -> dict[str, Any]:
+    return body
+
+
+async def read_args(
+    request: Request, route: str, convert: Callable[[dict[str, Any]], Args]
+) -> Args:
+    """`convert(body)`, the body of a request to `route` read as `read_json_object` reads it,
+    or ApiError naming the problem. A large body is parsed, converted and freed in
+    JSON_POOL: neither its parse nor its walk holds up the event loop."""
     # A body of another type, or of none, is refused unread: it is what a page of another
     # site can send without the browser asking this server first (a CORS preflight).
     media = (request.headers.get("content-type") or "").split(";", 1)[0].strip().lower()
@@ -102,12 +136,31 @@ async def read_json_object(request: Request, route: str) -> dict[str, Any]:
         if int(declared) > MAX_BODY_BYTES:
             raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
     body = await read_body(request)
+    if route not in TEXT_ROUTES:
+        refuse_many_containers(body, route)
     if len(body) <= INLINE_JSON_BYTES:
-        data = parse_json_object(body)
-    else:
-        data = await asyncio.get_running_loop().run_in_executor(JSON_POOL, parse_json_object, body)
+        return _converted(body, route, convert)
+    loop = asyncio.get_running_loop()
+    return await loop.run_in_executor(JSON_POOL, _converted, body, route, convert)
+
+
+def _converted(body: bytes, route: str, convert: Callable[[dict[str, Any]], Args]) -> Args:
+    """`convert` of `body` parsed, its fields checked; the parsed body is freed in this thread."""
+    data = parse_json_object(body)
     refuse_unknown_fields(data, route)
-    return data
+    return convert(data)
+
+
+def refuse_many_containers(body: bytes, route: str) -> None:
+    """ApiError 400 if `body` holds more brackets than MAX_BODY_CONTAINERS: more arrays and
+    objects than any body of `route` (not one of TEXT_ROUTES) that keeps the limits holds."""
+    brackets = body.count(b"[") + body.count(b"{")
+    if brackets > MAX_BODY_CONTAINERS:
+        raise ApiError(
+            400,
+            f"the body holds {brackets} brackets, more arrays and objects than any {route} body "
+            f"within the limits (at most {MAX_POINTS} points, {MAX_REQUEST_JOINTS} joints)",
+        )
 
 
 def refuse_unknown_fields(body: dict[str, Any], route: str) -> None:
@@ -263,10 +316,18 @@ def _pairs(name: str, value: object, count: int | None = None) -> list[list[floa
     return value
 
 
+def _drawn_pairs(name: str, value: object) -> list[list[float]]:
+    """`value` as drawn points' [x, y] pairs, their count (MIN_POINTS to MAX_POINTS) checked
+    before any pair is looked at."""
+    if isinstance(value, list):
+        _checked(check_point_count, len(value), name)
+    return _pairs(name, value)
+
+
 def retrieve_args(body: dict[str, Any]) -> tuple[np.ndarray, int, float, int | None]:
     """The query points (T, 2), k, min_transmission and max_joints of a /api/retrieve body,
     or ApiError naming the problem."""
-    points = _pairs("points", _required(body, "points"))
+    points = _drawn_pairs("points", _required(body, "points"))
     k = body.get("k")
     points, k = _checked(validate_query, points, DEFAULT_K if k is None else k)
     return points, k, _min_transmission(body), _checked(as_max_joints, body.get("max_joints"))
@@ -276,7 +337,7 @@ def synthesize_args(body: dict[str, Any]) -> tuple[np.ndarray, SynthesisOptions]
     """(points (T, 2), options) of a /api/synthesize body, or ApiError naming the problem: the
     points, k and min_transmission as /api/retrieve takes them, and the rest as `synthesize`
     takes them, checked once (`SynthesisOptions`)."""
-    points = _pairs("points", _required(body, "points"))
+    points = _drawn_pairs("points", _required(body, "points"))
     k = body.get("k")
     min_transmission = body.get("min_transmission")
 
@@ -298,6 +359,11 @@ def synthesize_args(body: dict[str, Any]) -> tuple[np.ndarray, SynthesisOptions]
         return options.drawing(points), options
 
     return _checked(checked)
+
+
+def synthesize_request(body: dict[str, Any]) -> tuple[np.ndarray, SynthesisOptions, bool]:
+    """(points, options, stream) of a /api/synthesize body (`synthesize_args`, `stream_arg`)."""
+    return (*synthesize_args(body), stream_arg(body))
 
 
 def stream_arg(body: dict[str, Any]) -> bool:
@@ -325,6 +391,15 @@ def topology_args(body: dict[str, Any]) -> tuple[list, list]:
         _numbers(f"adjacency[{i}]", row, n, "0 or 1")
     _numbers("node_types", node_types, n, "0, 1 or 2")
     return adjacency, node_types
+
+
+def analyze_args(body: dict[str, Any]) -> tuple[list, list, list | None, int]:
+    """(adjacency, node_types, positions, steps) of a /api/analyze body: as /api/simulate's,
+    positions None (and DEFAULT_STEPS) when it gives none."""
+    if body.get("positions") is None:
+        adjacency, node_types = topology_args(body)
+        return adjacency, node_types, None, DEFAULT_STEPS
+    return simulate_args(body)
 
 
 def simulate_args(body: dict[str, Any]) -> tuple[list, list, list, int]:

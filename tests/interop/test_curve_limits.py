@@ -25,6 +25,7 @@ import pytest
 
 from links_ray.interop.curve_files import read_curve, read_curve_text, read_points
 from links_ray.interop.curve_limits import (
+    CURVE_READER_NICENESS,
     MAX_CURVE_SEGMENTS,
     MAX_DXF_ENTITIES,
     MAX_SPLINE_FIT_POINTS,
@@ -38,6 +39,7 @@ from links_ray.interop.curve_worker import (
 )
 from links_ray.interop.dxf_curves import read_dxf
 from links_ray.interop.outlines import FLAT_POINTS, CurveFileTooLarge
+from links_ray.serve.admission import RETRIEVAL_NICENESS
 
 SVG = '<svg xmlns="http://www.w3.org/2000/svg">{}</svg>'
 PLAIN = '<path id="wing" d="M 0 0 C 10 20 30 -10 40 5 L 35 -12 Q 20 -25 4 -6 Z"/>'
@@ -457,3 +459,16 @@ def test_the_reader_answers_as_read_curve_text_does(one_reader: CurveReaders) ->
         with pytest.raises(kind) as there:
             one_reader.read(name, text)
         assert str(there.value) == str(here.value) and type(there.value) is type(here.value)
+
+
+def test_readers_run_below_their_caller_and_its_retrievals() -> None:
+    """Every thread of a reader process runs at CURVE_READER_NICENESS, below the thread that
+    started it and below a server's retrieval threads (RETRIEVAL_NICENESS)."""
+    with CurveReaders(readers=1) as readers:
+        readers.warm()
+        (pid,) = readers.pids()
+        threads = [int(task.name) for task in Path(f"/proc/{pid}/task").iterdir()]
+        nice = {os.getpriority(os.PRIO_PROCESS, thread) for thread in threads}
+        assert readers.read("tiny.csv", TINY).points.shape == (400, 2)
+    assert nice == {CURVE_READER_NICENESS}
+    assert CURVE_READER_NICENESS > RETRIEVAL_NICENESS > os.getpriority(os.PRIO_PROCESS, 0)
