@@ -7,12 +7,15 @@ same for Serve config files (deploy/serve/serve_config.yaml), whose `shards` arg
 serve --shards N`, is the number of partitions. The app the gateway answers with is
 `serve.api`'s, its routes `serve.handlers`'.
 
-`run_server` (what `links serve` runs) starts its own Ray and, with one replica, has the replica
-(the gateway, with partitions) answer HTTP itself, on the port asked for: Ray Serve's *direct
-ingress*, which its throughput mode uses, and which spares every request the actor hop to
-Serve's HTTP proxy and a second one to fetch the body. Serve's proxy then listens on another
-loopback port. With several replicas, or on a cluster that Ray was already running, the proxy
-answers on the port and balances the replicas. On Ctrl-C or SIGTERM it stops in bounded time
+`run_server` (what `links serve` runs) starts its own Ray and puts the request gate
+(`serve.gate`) on the address asked for: it reads each request whole, under the bounds of
+`serve.limits`, and only then passes it to Serve on loopback, so that slow or idle clients hold
+none of Serve's places. With one replica (the gateway, with partitions), the replica answers
+the gate itself: Ray Serve's *direct ingress*, which spares every request the actor hop to
+Serve's HTTP proxy and a second one to fetch the body. With several replicas, the proxy
+answers the gate and balances them. On a cluster that Ray was already running, the proxy
+answers on the address asked for, and the cluster's own ingress stands in front of it.
+On Ctrl-C or SIGTERM it stops in bounded time
 (`stop_serving`): the replicas drain the requests under way for at most `SHUTDOWN_DRAIN_S`,
 then Serve and the Ray it started stop.
 """
@@ -41,12 +44,15 @@ from links_ray.serve.deployments import (
     IndexPartition,
     LinksApi,
 )
+from links_ray.serve.gate import GateThread, RequestGate
 from links_ray.serve.guards import as_host_names
 
 #: CPUs a partition replica reserves unless told otherwise (`--shard-cpus`, and unless
 #: `fit_partition_cpus` gives it less on a Ray that `links serve` started itself); Ray counts
 #: CPUs in steps of 1 / CPU_STEPS.
 PARTITION_CPUS, CPU_STEPS = 1.0, 10_000
+#: Where Serve's HTTP servers listen when `links serve` puts its request gate before them.
+LOOPBACK = "127.0.0.1"
 #: Seconds `links serve` gives Serve's controller beyond the drain to stop the replicas and
 #: proxies, before it stops Ray under them.
 SHUTDOWN_STOP_S = 5.0
@@ -270,12 +276,14 @@ def run_server(
     `shards`, split the index into that many partitions, `IndexPartition` deployments
     (`build_app`), each replica reserving `shard_cpus` CPUs (default PARTITION_CPUS).
 
-    When this call starts Ray and serves one replica (of the gateway, with partitions), the
-    replica answers on `port` directly (`direct_ingress_env`) and Serve's proxy takes a free
-    port; otherwise the proxy answers. On a Ray it starts itself, partitions given no
-    `shard_cpus` share what the gateway leaves when PARTITION_CPUS each would not fit
-    (`fit_partition_cpus`, said in one line on stderr), and an app that cannot fit is refused
-    at once (ValueError naming what it needs), where Serve would wait for resources forever.
+    When this call starts Ray, the request gate (`serve.gate`) answers on host:port and passes
+    whole requests to Serve on loopback: to the replica itself when there is one (of the
+    gateway, with partitions; `direct_ingress_env`), else to Serve's proxy. On a Ray that was
+    running already, Serve's proxy answers on host:port itself. On a Ray it starts itself,
+    partitions given no `shard_cpus` share what the gateway leaves when PARTITION_CPUS each
+    would not fit (`fit_partition_cpus`, said in one line on stderr), and an app that cannot
+    fit is refused at once (ValueError naming what it needs), where Serve would wait for
+    resources forever.
     """
     import ray
 
@@ -287,11 +295,16 @@ def run_server(
     app = build_app(root, replicas, shards, cpus, shard_memory_gb, **hosts)  # checks them first
     local = not ray.is_initialized() and not os.environ.get("RAY_ADDRESS")
     direct = replicas == 1 and local
-    proxy_port = port
-    if direct:
-        bindable_port(host, port)  # else the replica retries and fails without saying why
-        os.environ.update(direct_ingress_env(port))
-        proxy_port = bindable_port(host, 0)
+    serve_host, proxy_port, gate = host, port, None
+    if local:
+        # Serve answers only the gate, on loopback; the gate answers the user on host:port.
+        bindable_port(host, port)  # else the command would fail after Ray's start
+        serve_host, proxy_port = LOOPBACK, bindable_port(LOOPBACK, 0)
+        upstream_port = proxy_port
+        if direct:
+            upstream_port = bindable_port(LOOPBACK, 0)
+            os.environ.update(direct_ingress_env(upstream_port))
+        gate = GateThread(RequestGate(host, port, upstream_port, as_host_names(allowed_hosts)))
     if blocking:
         # A service manager stops with SIGTERM: shut down as on Ctrl-C, not with a stack
         # trace, from the start on (set again once Ray has started: it sets its own).
@@ -319,8 +332,11 @@ def run_server(
         # command prints its own line when it serves, and Serve's warnings still show.
         quiet = {"enable_access_log": False, "log_level": "WARNING"}
         logging.getLogger("ray.serve").setLevel(logging.WARNING)
-        serve.start(http_options={"host": host, "port": proxy_port}, logging_config=quiet)
+        serve.start(http_options={"host": serve_host, "port": proxy_port}, logging_config=quiet)
         serve.run(app, name="links", route_prefix="/", logging_config=quiet)
+        if gate is not None:
+            gate.start()
+            _running_gates.append(gate)
         shown = f"[{host}]" if ":" in host else host
         print(f"links-ray: serving {root} at http://{shown}:{port}/ (API under /api)", flush=True)
         if not blocking:
@@ -339,6 +355,10 @@ def run_server(
                 gc.freeze()
 
 
+#: The request gates `run_server` started in this process, which `stop_serving` stops.
+_running_gates: list[GateThread] = []
+
+
 def stop_serving(ray_started: bool) -> None:
     """Stop Serve, then Ray if this process started it, in bounded time: the replicas drain
     the requests under way for at most SHUTDOWN_DRAIN_S (a replica with none stops at once),
@@ -348,6 +368,8 @@ def stop_serving(ray_started: bool) -> None:
     import ray
 
     signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second one must not cut the drain short
+    while _running_gates:  # no new requests while the replicas drain
+        _running_gates.pop().stop()
     # `serve.shutdown()` with a bound: it takes none; its client's `shutdown` does.
     client = serve.context._get_global_client(raise_if_no_controller_running=False)
     if client is not None:

@@ -105,6 +105,15 @@ def host_allowed(header: str | None, names: frozenset[str]) -> bool:
     return True
 
 
+def host_refusal(header: str | None) -> str:
+    """What a request refused for its Host header `header` is told."""
+    said = "no Host header" if header is None else f"Host {header[:80]!r}"
+    return (
+        f"{said}: this server answers its addresses, localhost and the names it is given "
+        "(links serve --allow-host NAME, or the app's allowed_hosts)"
+    )
+
+
 #: The host names this process's app answers to besides addresses and localhost: set by the
 #: gateway replica's constructor (`allow_host_names`), read by `HostGuard` on every request.
 _allowed_host_names: frozenset[str] = frozenset()
@@ -131,11 +140,6 @@ class HostGuard:
             raw = headers.get(b"host")
             header = raw.decode("latin-1") if raw is not None else None
             if not host_allowed(header, _allowed_host_names):
-                said = "no Host header" if header is None else f"Host {header[:80]!r}"
-                message = (
-                    f"{said}: this server answers its addresses, localhost and the names it "
-                    "is given (links serve --allow-host NAME, or the app's allowed_hosts)"
-                )
-                await error_response(400, message)(scope, receive, send)
+                await error_response(400, host_refusal(header))(scope, receive, send)
                 return
         await self.app(scope, receive, send)

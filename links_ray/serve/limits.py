@@ -43,6 +43,20 @@ MAX_BODY_BYTES = 2 * 1024 * 1024
 #: (138 s), however it sends.
 BODY_TIMEOUT_S = 10.0
 MIN_BODY_BYTES_PER_S = 16 * 1024
+#: A request's head: its request line (method, target, version) at most MAX_URL_BYTES (else
+#: 414), the whole head at most MAX_HEAD_BYTES and MAX_HEADERS headers (else 431), all of it
+#: within HEAD_TIMEOUT_S of its first byte, or of the connection's opening (else 408).
+MAX_URL_BYTES = 8 * 1024
+MAX_HEAD_BYTES = 32 * 1024
+MAX_HEADERS = 100
+HEAD_TIMEOUT_S = 10.0
+
+
+def body_deadline(start: float, now: float, received: int) -> float:
+    """When a body begun at `start` that has `received` bytes by `now` is cut off with 408
+    if nothing more arrives: BODY_TIMEOUT_S after its last bytes, and no later than its pace
+    of MIN_BODY_BYTES_PER_S allows (all times in one clock's seconds)."""
+    return min(now + BODY_TIMEOUT_S, start + BODY_TIMEOUT_S + received / MIN_BODY_BYTES_PER_S)
 
 
 def request_limits() -> dict[str, float | int]:
@@ -69,4 +83,8 @@ def request_limits() -> dict[str, float | int]:
         "max_body_bytes": MAX_BODY_BYTES,
         "body_timeout_s": BODY_TIMEOUT_S,
         "min_body_bytes_per_s": MIN_BODY_BYTES_PER_S,
+        "max_url_bytes": MAX_URL_BYTES,
+        "max_head_bytes": MAX_HEAD_BYTES,
+        "max_headers": MAX_HEADERS,
+        "head_timeout_s": HEAD_TIMEOUT_S,
     }

@@ -269,6 +269,10 @@ class LimitsResponse(BaseModel):
     max_body_bytes: int
     body_timeout_s: float
     min_body_bytes_per_s: int
+    max_url_bytes: int
+    max_head_bytes: int
+    max_headers: int
+    head_timeout_s: float
 
 
 class SimulateResponse(BaseModel):

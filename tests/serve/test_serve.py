@@ -1357,8 +1357,8 @@ def test_the_replica_answers_http_itself(client: Client) -> None:
 def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
     dataset: str, curated: Any, shards: int | None, tmp_path: Path
 ) -> None:
-    """`links serve` starts its own Ray; the replica (the gateway, with --shards) answers on
-    --port, and Ctrl-C (one index) or SIGTERM (shards) stops all, cleanly. On its Ray of 2
+    """`links serve` starts its own Ray; its request gate answers on --port and passes requests
+    to the replica (the gateway, with --shards), and Ctrl-C (one index) or SIGTERM (shards) stops all, cleanly. On its Ray of 2
     CPUs, `--shards 2` does not fit at 1 CPU a partition beside the gateway's 1: the partitions
     share the CPU the gateway leaves, said in one line on stderr."""
     port = bindable_port("127.0.0.1", 0)
@@ -1371,7 +1371,10 @@ def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
         assert len(health.get("shards", [])) == (shards or 0)
         status, data = served.post("/api/retrieve", {"points": [[0, 0], [1, 0.5], [2, 0], [1, -1]]})
         assert status == 200 and len(data["results"]) == 3
-        assert "ServeReplica:links:LinksApi" in listening_process(port)
+        # The request gate, in the command's own process, answers on the port; the replica
+        # answers the gate on loopback.
+        assert "links_ray.cli serve" in listening_process(port)
+        assert served.get("/-/routes")[0] == 200
         # The port is taken now: a second server says so in one line, before starting Ray.
         taken = subprocess.run(
             [sys.executable, "-m", "links_ray.cli", "serve", dataset, "--port", str(port)],

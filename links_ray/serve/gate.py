@@ -1,0 +1,567 @@
+"""The request gate `links serve` puts before Ray Serve: every request is read whole, under
+bounds, before it is passed on, so that a client that sends slowly or not at all holds only
+the gate's memory, never a place in Serve.
+
+Serve's HTTP server (the replica's, under direct ingress, or its proxy's) gives a request its
+place, among `max_ongoing_requests` and `max_queued_requests`, as soon as its headers arrive,
+while its body is still coming; it takes headers of any size and count, and waits for
+unfinished headers without end. A crowd of idle clients could so fill every place, and Serve
+then refused health itself. The gate (`RequestGate`, an asyncio server on the address the
+user asked for) is where those bounds live:
+
+- a request's head must keep to the head limits of `serve.limits` (414, 431, 408);
+- its body is read under the body pace of `limits.body_deadline` (else 408), within
+  MAX_BODY_BYTES (else 413, refused unread when Content-Length says so), with at most
+  MAX_BODIES_READING bodies and MAX_BODY_BYTES_BUFFERED bytes of them in the gate at once
+  (else 503);
+- a request whose Host `guards.host_allowed` refuses gets 400 before anything else, Serve's
+  own routes (`/-/...`) included;
+- only then is it passed to Serve, on 127.0.0.1, at most MAX_PASSED at once (fewer than the
+  places Serve has, so health, which skips that line, always finds one), and the answer
+  relayed; an answer the client does not read within SEND_TIMEOUT_S ends its connection;
+- a client that goes away while its request is served closes the gate's connection to Serve
+  too, so the app learns of it (`http.disconnect`) and stops the work.
+
+Every refusal is JSON `{"error": ...}`, as the app's own. HTTP parsing is h11's.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import threading
+from collections.abc import Iterable
+
+import h11
+
+from links_ray.serve.guards import host_allowed, host_refusal
+from links_ray.serve.limits import (
+    BODY_TIMEOUT_S,
+    HEAD_TIMEOUT_S,
+    MAX_BODY_BYTES,
+    MAX_HEAD_BYTES,
+    MAX_HEADERS,
+    MAX_URL_BYTES,
+    MIN_BODY_BYTES_PER_S,
+    body_deadline,
+)
+
+logger = logging.getLogger("links_ray.serve.gate")
+
+#: An idle kept-alive connection is closed after KEEP_ALIVE_S without a byte.
+KEEP_ALIVE_S = 5.0
+#: Connections the gate holds at once; one more is answered 503 and closed.
+MAX_CONNECTIONS = 1024
+#: Bodies being read at once, and their bytes held at once: one more is refused 503.
+MAX_BODIES_READING = 512
+MAX_BODY_BYTES_BUFFERED = 128 * 1024 * 1024
+#: Requests passed to Serve at once; more wait, up to PASS_WAIT_S, then 503. Below Serve's
+#: places for the gateway (`deployments.GATEWAY_MAX_ONGOING`), so that health, which does not
+#: wait in this line, always finds one.
+MAX_PASSED = 64
+PASS_WAIT_S = 10.0
+#: Seconds Serve may take to answer a request passed on (syntheses are bounded far below it).
+ANSWER_TIMEOUT_S = 600.0
+#: Seconds one piece of an answer may wait for the client to read it.
+SEND_TIMEOUT_S = 10.0
+#: Requests that skip the line for Serve: health checks, which must never wait behind work.
+HEALTH_TARGETS = frozenset({b"/api/health", b"/-/healthz"})
+#: Bytes read from a socket at a time.
+READ_BYTES = 64 * 1024
+#: Headers that describe one connection, not the request or answer, and so are not passed on
+#: (h11 frames each side's messages itself).
+HOP_HEADERS = frozenset(
+    {
+        b"connection",
+        b"keep-alive",
+        b"proxy-connection",
+        b"te",
+        b"trailer",
+        b"transfer-encoding",
+        b"upgrade",
+        b"content-length",
+        b"expect",
+    }
+)
+RETRY_AFTER_S = 1
+
+
+class Refusal(Exception):
+    """A request the gate answers itself: its status, message and extra headers."""
+
+    def __init__(self, status: int, message: str, retry: bool = False) -> None:
+        super().__init__(message)
+        self.status = status
+        self.message = message
+        self.retry = retry
+
+
+class _Budget:
+    """The bodies the gate reads at once, and their bytes; used on the event loop only."""
+
+    def __init__(self, bodies: int, body_bytes: int) -> None:
+        self.max_bodies, self.max_bytes = bodies, body_bytes
+        self.bodies = 0
+        self.bytes = 0
+
+    def start_body(self) -> None:
+        if self.bodies >= self.max_bodies:
+            raise Refusal(503, f"busy: {self.bodies} request bodies arriving at once", retry=True)
+        self.bodies += 1
+
+    def take(self, count: int) -> None:
+        if self.bytes + count > self.max_bytes:
+            raise Refusal(
+                503, f"busy: {self.bytes} bytes of request bodies held at once", retry=True
+            )
+        self.bytes += count
+
+    def end_body(self) -> None:
+        self.bodies -= 1
+
+    def give_back(self, count: int) -> None:
+        self.bytes -= count
+
+
+class _Conn:
+    """One client connection: its streams, its h11 state, and bytes read ahead of h11."""
+
+    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self.reader, self.writer = reader, writer
+        self.h11 = h11.Connection(h11.SERVER, max_incomplete_event_size=MAX_HEAD_BYTES)
+        self.answering = False  # an answer to the current request has begun
+
+
+class RequestGate:
+    """An asyncio HTTP/1.1 server on (`host`, `port`) that reads requests whole, within the
+    module's bounds, and passes them to the HTTP server at 127.0.0.1:`upstream_port`; Host
+    headers are checked as `guards.host_allowed` does, against `allowed_hosts`."""
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        upstream_port: int,
+        allowed_hosts: Iterable[str] = (),
+        *,
+        upstream_host: str = "127.0.0.1",
+    ) -> None:
+        self.host, self.port = host, port
+        self.upstream = (upstream_host, upstream_port)
+        self.allowed_hosts = frozenset(allowed_hosts)
+        self.connections = 0
+        self.budget = _Budget(MAX_BODIES_READING, MAX_BODY_BYTES_BUFFERED)
+        self.server: asyncio.Server | None = None
+        self._passing: asyncio.Semaphore | None = None
+        self._tasks: set[asyncio.Task] = set()
+
+    async def start(self) -> None:
+        """Listen; `port` 0 takes a free one, which `port` then holds."""
+        self._passing = asyncio.Semaphore(MAX_PASSED)
+        self.server = await asyncio.start_server(
+            self._accept, self.host, self.port, limit=READ_BYTES, backlog=1024
+        )
+        self.port = self.server.sockets[0].getsockname()[1]
+
+    async def close(self) -> None:
+        """Stop listening and end every connection."""
+        if self.server is not None:
+            self.server.close()
+        for task in list(self._tasks):
+            task.cancel()
+        if self._tasks:
+            await asyncio.wait(self._tasks, timeout=5.0)
+        if self.server is not None:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(self.server.wait_closed(), 5.0)
+
+    async def _accept(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        assert task is not None
+        self._tasks.add(task)
+        self.connections += 1
+        try:
+            if self.connections > MAX_CONNECTIONS:
+                writer.write(_plain_refusal(503, "busy: too many connections at once"))
+                with contextlib.suppress(Exception):
+                    await asyncio.wait_for(writer.drain(), SEND_TIMEOUT_S)
+                return
+            await self._serve_connection(_Conn(reader, writer))
+        except (ConnectionError, TimeoutError, asyncio.IncompleteReadError, h11.ProtocolError):
+            pass  # the client went away, or would not read: nothing is left to answer
+        except asyncio.CancelledError:
+            pass
+        except Exception as exc:  # the gate keeps serving whatever one connection does
+            logger.error("links-ray gate: unexpected %s", type(exc).__name__)
+        finally:
+            self.connections -= 1
+            self._tasks.discard(task)
+            writer.close()
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(writer.wait_closed(), 1.0)
+
+    async def _serve_connection(self, conn: _Conn) -> None:
+        """Requests of one connection, one after another, until it closes."""
+        first = True
+        while True:
+            try:
+                request = await self._read_head(conn, first)
+                if request is None:
+                    return
+                first = False
+                body = await self._read_body(conn, request)
+            except Refusal as refusal:
+                await self._refuse(conn, refusal)
+                return
+            try:
+                await self._pass_on(conn, request, body)
+            except Refusal as refusal:
+                await self._refuse(conn, refusal)
+                return
+            finally:
+                self.budget.give_back(len(body))  # held until the request is answered
+            conn.answering = False
+            if conn.h11.our_state is h11.MUST_CLOSE or conn.h11.their_state is h11.MUST_CLOSE:
+                return
+            try:
+                conn.h11.start_next_cycle()
+            except h11.ProtocolError:
+                return
+
+    async def _read_head(self, conn: _Conn, first: bool) -> h11.Request | None:
+        """The next request's head, or None if the client closed (or idled) between requests."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + HEAD_TIMEOUT_S
+        idle_until = None if first else loop.time() + KEEP_ALIVE_S
+        line = _RequestLine()
+        head_bytes = 0
+        while True:
+            try:
+                event = conn.h11.next_event()
+            except h11.RemoteProtocolError as exc:
+                raise Refusal(_head_status(exc), _head_message(exc)) from None
+            if isinstance(event, h11.Request):
+                if len(event.headers) > MAX_HEADERS:
+                    raise Refusal(431, f"more than {MAX_HEADERS} headers")
+                # h11 bounds a head that arrives in pieces; one that came in a single read
+                # is measured here.
+                if sum(len(name) + len(value) + 4 for name, value in event.headers) + len(
+                    event.target
+                ) > MAX_HEAD_BYTES:
+                    raise Refusal(431, f"the request head is over {MAX_HEAD_BYTES} bytes")
+                host = _header(event.headers, b"host")
+                if not host_allowed(host, self.allowed_hosts):
+                    raise Refusal(400, host_refusal(host))
+                return event
+            if isinstance(event, h11.ConnectionClosed):
+                return None
+            if event is not h11.NEED_DATA:
+                raise Refusal(400, "malformed request")
+            timeout = (idle_until if head_bytes == 0 and idle_until else deadline) - loop.time()
+            try:
+                async with asyncio.timeout(max(0.0, timeout)):
+                    data = await conn.reader.read(READ_BYTES)
+            except TimeoutError:
+                if head_bytes == 0 and not first:
+                    return None  # an idle kept-alive connection: closed without a word
+                raise Refusal(
+                    408, f"the request's head did not arrive within {HEAD_TIMEOUT_S:g} s"
+                ) from None
+            if not data and head_bytes == 0:
+                return None
+            if head_bytes == 0 and not first:
+                deadline = loop.time() + HEAD_TIMEOUT_S  # a new request's head starts now
+            head_bytes += len(data)
+            if line.over(data):
+                raise Refusal(414, f"the request line is over {MAX_URL_BYTES} bytes")
+            conn.h11.receive_data(data)
+
+    async def _read_body(self, conn: _Conn, request: h11.Request) -> bytes:
+        """The request's whole body, within the body bounds; its bytes stay counted in the
+        budget until the caller gives them back."""
+        declared = _header(request.headers, b"content-length")
+        chunked = _header(request.headers, b"transfer-encoding") is not None
+        if declared is not None and int(declared) > MAX_BODY_BYTES:
+            raise Refusal(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
+        if (declared is not None and int(declared) == 0) or (declared is None and not chunked):
+            event = conn.h11.next_event()  # EndOfMessage at once
+            if not isinstance(event, h11.EndOfMessage):
+                raise Refusal(400, "malformed request")
+            return b""
+        self.budget.start_body()
+        loop = asyncio.get_running_loop()
+        start = loop.time()
+        pieces: list[bytes] = []
+        size = 0
+        whole = False
+        try:
+            if conn.h11.they_are_waiting_for_100_continue:
+                await self._send(conn, h11.InformationalResponse(status_code=100, headers=[]))
+            while True:
+                try:
+                    event = conn.h11.next_event()
+                except h11.RemoteProtocolError as exc:
+                    raise Refusal(400, f"malformed body: {exc}") from None
+                if isinstance(event, h11.Data):
+                    self.budget.take(len(event.data))
+                    size += len(event.data)
+                    pieces.append(bytes(event.data))
+                    if size > MAX_BODY_BYTES:
+                        raise Refusal(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
+                    continue
+                if isinstance(event, h11.EndOfMessage):
+                    whole = True
+                    return b"".join(pieces)
+                if isinstance(event, h11.ConnectionClosed):
+                    raise ConnectionError("the client closed before sending the whole body")
+                now = loop.time()
+                wait = body_deadline(start, now, size) - now
+                try:
+                    async with asyncio.timeout(max(0.0, wait)):
+                        data = await conn.reader.read(READ_BYTES)
+                except TimeoutError:
+                    raise Refusal(
+                        408,
+                        f"the body came too slowly ({size} bytes in {now - start:.1f} s): it "
+                        f"may pause at most {BODY_TIMEOUT_S:g} s and must keep up "
+                        f"{MIN_BODY_BYTES_PER_S} bytes a second",
+                    ) from None
+                conn.h11.receive_data(data)
+        finally:
+            self.budget.end_body()
+            if not whole:
+                self.budget.give_back(size)
+
+    async def _pass_on(self, conn: _Conn, request: h11.Request, body: bytes) -> None:
+        """Send the request to Serve and relay its answer; close Serve's connection if the
+        client goes away meanwhile."""
+        assert self._passing is not None
+        health = request.target.split(b"?", 1)[0] in HEALTH_TARGETS
+        if not health:
+            try:
+                async with asyncio.timeout(PASS_WAIT_S):
+                    await self._passing.acquire()
+            except TimeoutError:
+                raise Refusal(
+                    503, f"busy: {MAX_PASSED} requests under way, the most passed on", retry=True
+                ) from None
+        try:
+            await self._exchange(conn, request, body)
+        finally:
+            if not health:
+                self._passing.release()
+
+    async def _exchange(self, conn: _Conn, request: h11.Request, body: bytes) -> None:
+        try:
+            up_reader, up_writer = await asyncio.wait_for(
+                asyncio.open_connection(*self.upstream, limit=READ_BYTES), PASS_WAIT_S
+            )
+        except (OSError, TimeoutError):
+            raise Refusal(503, "the server is starting or restarting", retry=True) from None
+        upstream = h11.Connection(h11.CLIENT)
+        # The client's end is watched while Serve works: its close closes Serve's connection.
+        gone = asyncio.create_task(_closed(conn))
+        relay = asyncio.create_task(
+            self._relay(conn, request, body, upstream, up_reader, up_writer)
+        )
+        try:
+            done, _ = await asyncio.wait({gone, relay}, return_when=asyncio.FIRST_COMPLETED)
+            if relay not in done:
+                relay.cancel()
+                with contextlib.suppress(BaseException):
+                    await relay
+                raise ConnectionError("the client went away")
+            relay.result()
+        finally:
+            gone.cancel()
+            with contextlib.suppress(BaseException):
+                await gone
+            up_writer.close()
+
+    async def _relay(
+        self,
+        conn: _Conn,
+        request: h11.Request,
+        body: bytes,
+        upstream: h11.Connection,
+        up_reader: asyncio.StreamReader,
+        up_writer: asyncio.StreamWriter,
+    ) -> None:
+        headers = [
+            (name, value) for name, value in request.headers if name.lower() not in HOP_HEADERS
+        ]
+        headers += [(b"content-length", str(len(body)).encode()), (b"connection", b"close")]
+        out = upstream.send(
+            h11.Request(method=request.method, target=request.target, headers=headers)
+        )
+        out += upstream.send(h11.Data(data=body)) if body else b""
+        out += upstream.send(h11.EndOfMessage())
+        up_writer.write(out)
+        await up_writer.drain()
+        started = False
+        async with asyncio.timeout(ANSWER_TIMEOUT_S):
+            while True:
+                event = upstream.next_event()
+                if event is h11.NEED_DATA:
+                    data = await up_reader.read(READ_BYTES)
+                    upstream.receive_data(data)
+                    continue
+                if isinstance(event, h11.InformationalResponse):
+                    continue
+                if isinstance(event, h11.Response):
+                    passed = [
+                        (name, value)
+                        for name, value in event.headers
+                        if name.lower() not in HOP_HEADERS or name.lower() == b"content-length"
+                    ]
+                    await self._send(
+                        conn, h11.Response(status_code=event.status_code, headers=passed)
+                    )
+                    started = conn.answering = True
+                elif isinstance(event, h11.Data):
+                    await self._send(conn, h11.Data(data=event.data))
+                elif isinstance(event, h11.EndOfMessage):
+                    await self._send(conn, h11.EndOfMessage())
+                    return
+                elif isinstance(event, h11.ConnectionClosed):
+                    if not started:
+                        raise Refusal(503, "the server closed before answering", retry=True)
+                    raise ConnectionError("the server closed mid-answer")
+
+    async def _send(self, conn: _Conn, event: h11.Event) -> None:
+        data = conn.h11.send(event)
+        if data:
+            conn.writer.write(data)
+            await asyncio.wait_for(conn.writer.drain(), SEND_TIMEOUT_S)
+
+    async def _refuse(self, conn: _Conn, refusal: Refusal) -> None:
+        """Answer `refusal` as JSON, unless an answer has begun, and end the connection (the
+        rest of the request is never read)."""
+        if conn.answering:
+            return
+        conn.writer.write(_plain_refusal(refusal.status, refusal.message, refusal.retry))
+        with contextlib.suppress(Exception):
+            await asyncio.wait_for(conn.writer.drain(), SEND_TIMEOUT_S)
+
+
+async def _closed(conn: _Conn) -> None:
+    """Return once the client has closed its end; bytes it sends meanwhile (a next request)
+    are kept for h11."""
+    while True:
+        data = await conn.reader.read(READ_BYTES)
+        if not data:
+            return
+        conn.h11.receive_data(data)
+        if len(conn.h11.trailing_data[0]) > MAX_HEAD_BYTES + MAX_BODY_BYTES:
+            return  # more read ahead than one request may hold: treated as gone
+
+
+def _header(headers: Iterable[tuple[bytes, bytes]], name: bytes) -> str | None:
+    for key, value in headers:
+        if key == name:
+            return value.decode("latin-1")
+    return None
+
+
+class _RequestLine:
+    """Counts the request line's bytes as they arrive, piece by piece (never searching what
+    came before again), skipping the empty lines a client may send before a request."""
+
+    def __init__(self) -> None:
+        self.length = 0
+        self.seen = False
+
+    def over(self, data: bytes) -> bool:
+        """Take the next piece; whether the request line is now known to be over
+        MAX_URL_BYTES."""
+        start = 0
+        while not self.seen:
+            end = data.find(b"\n", start)
+            if end < 0:
+                self.length += len(data) - start
+                break
+            self.length += end - start
+            if self.length > 1:  # more than a lone CR: the request line itself
+                self.seen = True
+            else:
+                self.length = 0
+            start = end + 1
+        return self.length > MAX_URL_BYTES
+
+
+def _head_status(exc: h11.RemoteProtocolError) -> int:
+    """431 for a head over the limit (h11's hint), else 400."""
+    return 431 if exc.error_status_hint == 431 else 400
+
+
+def _head_message(exc: h11.RemoteProtocolError) -> str:
+    if exc.error_status_hint == 431:
+        return f"the request head is over {MAX_HEAD_BYTES} bytes"
+    return f"malformed request head: {str(exc)[:120]}"
+
+
+_REASONS = {
+    400: "Bad Request",
+    408: "Request Timeout",
+    413: "Content Too Large",
+    414: "URI Too Long",
+    431: "Request Header Fields Too Large",
+    503: "Service Unavailable",
+}
+
+
+def _plain_refusal(status: int, message: str, retry: bool = False) -> bytes:
+    """A whole JSON refusal, written without h11 (for a head h11 could not read)."""
+    body = json.dumps({"error": message}).encode()
+    lines = [
+        f"HTTP/1.1 {status} {_REASONS.get(status, 'Error')}",
+        "Content-Type: application/json",
+        f"Content-Length: {len(body)}",
+        "X-Content-Type-Options: nosniff",
+        "Connection: close",
+    ]
+    if retry:
+        lines.append(f"Retry-After: {RETRY_AFTER_S}")
+    return ("\r\n".join(lines) + "\r\n\r\n").encode() + body
+
+
+class GateThread:
+    """A `RequestGate` run on an event loop in a thread of its own (what `links serve` does:
+    its main thread waits for Ctrl-C)."""
+
+    def __init__(self, gate: RequestGate) -> None:
+        self.gate = gate
+        self.loop = asyncio.new_event_loop()
+        self._started = threading.Event()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="links-gate", daemon=True)
+
+    def start(self) -> None:
+        """Start listening; raise what binding raised, if it failed."""
+        self._thread.start()
+        self._started.wait()
+        if self._error is not None:
+            raise self._error
+
+    def _run(self) -> None:
+        asyncio.set_event_loop(self.loop)
+        try:
+            self.loop.run_until_complete(self.gate.start())
+        except BaseException as exc:
+            self._error = exc
+            self._started.set()
+            return
+        self._started.set()
+        self.loop.run_forever()
+
+    def stop(self) -> None:
+        """End every connection and stop the thread."""
+        if not self._thread.is_alive():
+            return
+        future = asyncio.run_coroutine_threadsafe(self.gate.close(), self.loop)
+        with contextlib.suppress(Exception):
+            future.result(timeout=10.0)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self._thread.join(timeout=10.0)
