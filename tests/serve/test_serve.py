@@ -1374,7 +1374,6 @@ def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
         # The request gate, in the command's own process, answers on the port; the replica
         # answers the gate on loopback.
         assert "links_ray.cli serve" in listening_process(port)
-        assert served.get("/-/routes")[0] == 200
         # The port is taken now: a second server says so in one line, before starting Ray.
         taken = subprocess.run(
             [sys.executable, "-m", "links_ray.cli", "serve", dataset, "--port", str(port)],
