@@ -11,7 +11,7 @@ import ipaddress
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from links_ray.serve.responses import error_response, logger
+from links_ray.serve.responses import error_response, logger, nosniff
 
 
 class InternalErrorGuard:
@@ -128,7 +128,8 @@ def allow_host_names(names: object) -> None:
 
 class HostGuard:
     """ASGI middleware: a request whose Host header `host_allowed` refuses gets 400 with a
-    JSON error saying how to let it in, before anything reads its body."""
+    JSON error saying how to let it in, before anything reads its body. The outermost of the
+    app's middlewares, it gives every answer of the app `nosniff`'s header."""
 
     def __init__(self, app: ASGIApp) -> None:
         self.app = app
@@ -136,6 +137,7 @@ class HostGuard:
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         """Refuse the request, or pass it on."""
         if scope["type"] == "http":
+            send = nosniff(send)
             headers = dict(scope.get("headers") or ())
             raw = headers.get(b"host")
             header = raw.decode("latin-1") if raw is not None else None

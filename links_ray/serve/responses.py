@@ -6,6 +6,8 @@ Every bad request gets a 4xx with a JSON `{"error": "<what is wrong>"}`: routes 
 Answers are compact JSON that refuses NaN and infinity (`JsonResponse`). A large answer is
 rendered in pieces (`render_json`) in `JSON_POOL`'s one thread, off the event loop that answers
 health checks (`json_answer`); large request bodies are parsed there too (`serve.parsing`).
+Every answer says `X-Content-Type-Options: nosniff` (`nosniff`, which `serve.guards.HostGuard`
+applies to all).
 """
 
 import asyncio
@@ -16,6 +18,7 @@ from typing import Any
 
 import numpy as np
 from fastapi.responses import JSONResponse, Response
+from starlette.types import Message, Send
 
 #: Where the API logs what it cannot answer (Ray Serve's own logger, so its replicas' logs).
 logger = logging.getLogger("ray.serve")
@@ -133,6 +136,24 @@ async def json_answer(content: Any, status: int = 200) -> Response:
 async def json_line(content: Any) -> bytes:
     """One NDJSON line, as compact as JsonResponse's bodies."""
     return await rendered_json(content) + b"\n"
+
+
+#: The header every answer of the app carries: a browser takes each answer for the type it
+#: names and never guesses another (an error quoting a request is never read as HTML).
+NOSNIFF = (b"x-content-type-options", b"nosniff")
+
+
+def nosniff(send: Send) -> Send:
+    """`send` that adds NOSNIFF to the headers of a response that lacks it."""
+
+    async def sending(message: Message) -> None:
+        if message["type"] == "http.response.start":
+            headers = list(message.get("headers", ()))
+            if all(name.lower() != NOSNIFF[0] for name, _ in headers):
+                message = {**message, "headers": [*headers, NOSNIFF]}
+        await send(message)
+
+    return sending
 
 
 def error_response(status: int, message: str, **extra: Any) -> JsonResponse:
