@@ -27,13 +27,15 @@ retrieval index) read only the files that markers name.
 
 A marker is never half there: an S3 object appears whole, and on a local disk it is a link to
 a whole, synced file. One that cannot be read (damaged) counts as absent, and cleanup deletes
-it so that its shard can be committed again.
+it so that its shard can be committed again. One that names a file outside the root
+(`marker_path`) is refused: a root made to read what is not its own is no dataset.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import os
 import re
 import time
 import uuid
@@ -99,17 +101,55 @@ def _marker_names(store: Store, stage: str) -> dict[int, str]:
 
 
 def committed_shards(store: Store, stage: str = "shards") -> dict[int, dict]:
-    """The markers of the shards `stage` committed, by shard id; unreadable ones are left out."""
+    """The markers of the shards `stage` committed, by shard id; unreadable ones are left out,
+    and one naming a file outside the root is refused (`marker_path`'s ValueError)."""
     if stage not in STAGE_TABLES:
         raise ValueError(f"stage must be one of {', '.join(STAGE_TABLES)}, got {stage!r}")
     names = _marker_names(store, stage)
     with ThreadPoolExecutor(MARKER_READERS) as pool:
         markers = dict(zip(names, pool.map(store.read_json, names.values()), strict=True))
-    return {
+    committed = {
         shard: marker
         for shard, marker in sorted(markers.items())
         if _well_formed(marker, shard, STAGE_TABLES[stage])
     }
+    for shard, marker in committed.items():
+        _check_files(store, names[shard], marker)
+    return committed
+
+
+def marker_path(store: Store, marker: str, relative: str) -> str:
+    """`relative`, a file the marker at `marker` names, if it is a file under the store's root:
+    a relative path of plain names (no `..`, `.` or empty parts; no scheme or drive such as
+    `s3://`, `file:` or `C:`; no backslash or NUL) that on a local disk resolves, symbolic
+    links followed, inside the root. Else ValueError naming the marker and the path."""
+    parts = relative.split("/")
+    why = None
+    if relative.startswith("/"):
+        why = "an absolute path"
+    elif ":" in relative:
+        why = "a scheme or drive"
+    elif "\\" in relative or "\0" in relative:
+        why = "a backslash or NUL"
+    elif any(part in ("", ".", "..") for part in parts):
+        why = "a '..', '.' or empty part"
+    elif store.is_local:
+        root = os.path.realpath(store.root)
+        if os.path.commonpath([root, os.path.realpath(store.path(relative))]) != root:
+            why = "a path that resolves outside the root"
+    if why is not None:
+        shown = relative if len(relative) <= 200 else relative[:200] + "..."
+        raise ValueError(
+            f"{store.uri}: commit marker {marker} names {shown!r}, {why}: a marker may name "
+            "only files under its root"
+        )
+    return relative
+
+
+def _check_files(store: Store, marker: str, committed: dict) -> None:
+    """Refuse `committed`, the marker at `marker`, if it names a file outside the root."""
+    for relative in committed["files"].values():
+        marker_path(store, marker, relative)
 
 
 def _well_formed(marker: dict | None, shard: int, tables: tuple[str, ...]) -> bool:
@@ -290,6 +330,7 @@ class ShardWriter:
                 f"{self.store.uri}: another attempt holds {self.marker}, which cannot be "
                 "read; the next run's cleanup deletes it and the shard is done again"
             )
+        _check_files(self.store, self.marker, committed)  # type: ignore[arg-type]
         return committed
 
     def abort(self) -> None:

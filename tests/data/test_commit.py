@@ -39,6 +39,7 @@ from links_ray.data.dataset import PARTITIONING, open_table
 from links_ray.data.schemas import GENERATION_TABLES
 from links_ray.data.shards import GenerationPlan, Shard, generate_shard, write_shard
 from links_ray.data.store import Store, StoreError
+from tests.support.cli import links
 
 #: Four topologies of four joint counts: four shards of one topology each.
 PLAN = GenerationPlan(seed=3, mechanisms=20, topologies_per_shard=1)
@@ -595,3 +596,77 @@ def test_cleanup_beside_a_live_attempt_never_breaks_its_commit(
     assert attempt.error is None and list(markers) == [shard.shard_id]
     assert table_files(store) == sorted(markers[shard.shard_id]["files"].values())
     assert_same(rows(store), first_shard_only(undisturbed))
+
+
+def crafted_root(tmp_path: Path, named: str) -> tuple[Store, str]:
+    """A root of two committed shards whose second marker names `named` for its mechanisms
+    (OUTSIDE standing for the absolute path of `outside.parquet`), and beside the root a
+    whole, readable copy of that shard's file there: had a reader followed the marker, it
+    would have read rows. Returns the store and the file the marker named before."""
+    store = Store.open(str(tmp_path / "data"))
+    for shard in PLAN.shards()[:2]:
+        write_shard(store, PLAN, shard)
+    marker = json.loads(Path(store.path(marker_file(1))).read_text())
+    own = marker["files"]["mechanisms"]
+    outside = tmp_path / "outside.parquet"
+    shutil.copy(store.path(own), outside)
+    marker["files"]["mechanisms"] = named.replace("OUTSIDE", str(outside))
+    Path(store.path(marker_file(1))).write_text(json.dumps(marker))
+    return store, own
+
+
+@pytest.mark.parametrize(
+    ("named", "why"),
+    [
+        ("../outside.parquet", "a '..', '.' or empty part"),
+        ("OUTSIDE", "an absolute path"),
+        ("mechanisms/../../outside.parquet", "a '..', '.' or empty part"),
+        ("file:OUTSIDE", "a scheme or drive"),
+        ("s3://bucket/outside.parquet", "a scheme or drive"),
+        ("mechanisms\\..\\..\\outside.parquet", "a backslash or NUL"),
+        ("mechanisms/\0.parquet", "a backslash or NUL"),
+        ("mechanisms//shard.parquet", "a '..', '.' or empty part"),
+        ("escape/outside.parquet", "a path that resolves outside the root"),
+    ],
+    ids=["dotdot", "absolute", "inner-dotdot", "file", "s3", "backslash", "nul", "empty", "link"],
+)
+def test_a_marker_naming_a_file_outside_its_root_is_refused(
+    tmp_path: Path, named: str, why: str
+) -> None:
+    """Every reader of markers meets the refusal: the marker reader, the readers of tables
+    (`committed_files`, `open_table`, `load`), naming the marker and the path."""
+    store, _ = crafted_root(tmp_path, named)
+    (tmp_path / "data" / "escape").symlink_to(tmp_path)  # for "escape/...": a link out
+    shown = repr(named.replace("OUTSIDE", str(tmp_path / "outside.parquet")))
+    message = (
+        f"{store.uri}: commit marker {marker_file(1)} names {shown}, {why}: a marker may name "
+        "only files under its root"
+    )
+    for read in (
+        lambda: committed_shards(store),
+        lambda: committed_files(store, "simulations"),
+        lambda: open_table(store, "mechanisms"),
+        lambda: links_ray.load(store.uri, "mechanisms"),
+    ):
+        with pytest.raises(ValueError) as caught:
+            read()
+        assert str(caught.value) == message
+
+
+def test_links_export_dataset_refuses_a_crafted_root_in_one_line(tmp_path: Path) -> None:
+    """`links export-dataset` on a root whose marker names `../outside.parquet`: one line,
+    exit status 2, nothing exported; the root itself exports once the marker is its own."""
+    store, own = crafted_root(tmp_path, "../outside.parquet")
+    result = links("export-dataset", store.uri, "--out", str(tmp_path / "export"))
+    assert result.returncode == 2
+    assert result.stderr.splitlines() == [
+        f"links export-dataset: error: {store.uri}: commit marker {marker_file(1)} names "
+        "'../outside.parquet', a '..', '.' or empty part: a marker may name only files under "
+        "its root"
+    ]
+    assert not (tmp_path / "export").exists() or not any((tmp_path / "export").iterdir())
+    marker = json.loads(Path(store.path(marker_file(1))).read_text())
+    marker["files"]["mechanisms"] = own
+    Path(store.path(marker_file(1))).write_text(json.dumps(marker))
+    again = links("export-dataset", store.uri, "--out", str(tmp_path / "export"))
+    assert again.returncode == 0, again.stderr
