@@ -9,6 +9,16 @@ lists, tuples, numbers, strings and bytes use (`ALLOWED`), memo indices in the o
 writes them (each PUT the next index, each GET one already put), and at most `MAX_MARKS` MARKs
 open at once. A batch's STOP starts the next batch's scan afresh: each pickle has its own memo.
 
+The scan also keeps the file's memory ledger. Each opcode is charged, as it is scanned and so
+before the unpickler acts on it, at least what the unpickler then allocates for it: the object
+it makes (a string at up to 5 bytes a byte of its UTF-8, for a widened copy), a stack and
+container slot for what it pushes, a memo slot for what it memoizes (`COSTS`). The unpickler's
+own code charges what the names it calls make (`charge`), and what it makes of the loaded batch.
+The file's charges together may not pass `memory_budget` of its size: `MEMORY_PER_BYTE` bytes a
+byte and `MEMORY_CONSTANT`; so nothing a file holds, a string encoded from the memo a thousand
+times or lists nested a million deep, takes more memory than a small multiple of its size. An
+argument or frame whose length runs past the end of the file is refused before it is read.
+
 The scan's cost is per opcode: an argument of given length (an array's bytes) is skipped by
 count. Only newline-ended arguments, those of protocols 0 and 1, are read byte by byte.
 
@@ -28,15 +38,18 @@ from links_ray.engine.buffers import check_buffer
 
 #: The most MARKs a batch may have open at once.
 MAX_MARKS = 1000
+#: Bytes of memory a file's unpickling may take for each byte of the file, and besides.
+MEMORY_PER_BYTE = 64
+MEMORY_CONSTANT = 2**20
 
 # What an opcode does to the scan (its _ACTION), and its argument's width or line count (_WIDTH).
 _REFUSE, _PLAIN, _MARK, _POP_MARK, _MEMOIZE, _STOP = 0, 1, 2, 3, 4, 5
-_FIXED, _SIZED, _LINES, _PUT_LINE, _GET_LINE, _PUT, _GET = 6, 7, 8, 9, 10, 11, 12
+_FIXED, _SIZED, _LINES, _PUT_LINE, _GET_LINE, _PUT, _GET, _FRAME = 6, 7, 8, 9, 10, 11, 12, 13
 
 #: Each opcode the scan lets through: (what it does, its argument's width or line count).
 ALLOWED: dict[bytes, tuple[int, int]] = {
     pickle.PROTO: (_FIXED, 1),
-    pickle.FRAME: (_FIXED, 8),
+    pickle.FRAME: (_FRAME, 8),
     pickle.STOP: (_STOP, 0),
     pickle.MARK: (_MARK, 0),
     pickle.POP: (_PLAIN, 0),
@@ -85,18 +98,69 @@ ALLOWED: dict[bytes, tuple[int, int]] = {
     pickle.BINGET: (_GET, 1),
     pickle.LONG_BINGET: (_GET, 4),
 }
+# What the unpickler allocates for an object it pushes beyond the object itself: a slot of its
+# stack, grown by an eighth, and one of the list or tuple the object ends in (a list of one item
+# has four); and for a memo entry: a slot of the memo table, which doubles.
+_PUSHED = 32
+_MEMOIZED = 24
+#: What each opcode is charged (bytes): a fixed cost and one for each byte of its argument (of
+#: its text line for protocol 0's). What a name called by REDUCE or BUILD makes is charged by
+#: the unpickler. CPython 3.11's sizes, each rounded up: an int 32, a float 24, bytes 33 and a
+#: bytearray 57 before their bytes, a str 80 before its characters, a list 56 and a tuple 40
+#: before their slots, each with 16 for the garbage collector.
+COSTS: dict[bytes, tuple[int, int]] = {
+    **{code: (_PUSHED, 0) for code in (pickle.NONE, pickle.NEWTRUE, pickle.NEWFALSE)},
+    **{code: (_PUSHED + 32, 0) for code in (pickle.BININT, pickle.BININT1, pickle.BININT2)},
+    pickle.BINFLOAT: (_PUSHED + 24, 0),
+    **{code: (_PUSHED + 32, 1) for code in (pickle.INT, pickle.LONG, pickle.FLOAT)},
+    **{code: (_PUSHED + 32, 2) for code in (pickle.LONG1, pickle.LONG4)},
+    # Python 2 strings: bytes decoded to a str, both held at once.
+    **{code: (_PUSHED + 128, 2) for code in (pickle.SHORT_BINSTRING, pickle.BINSTRING)},
+    pickle.STRING: (_PUSHED + 128, 2),
+    # A str's characters take up to 4 bytes each, and its decoder may widen a copy of them.
+    **{
+        code: (_PUSHED + 80, 5)
+        for code in (pickle.UNICODE, pickle.SHORT_BINUNICODE, pickle.BINUNICODE)
+    },
+    pickle.BINUNICODE8: (_PUSHED + 80, 5),
+    **{code: (_PUSHED + 48, 1) for code in (pickle.SHORT_BINBYTES, pickle.BINBYTES)},
+    pickle.BINBYTES8: (_PUSHED + 48, 1),
+    pickle.BYTEARRAY8: (_PUSHED + 64, 1),
+    **{code: (_PUSHED + 72, 0) for code in (pickle.EMPTY_LIST, pickle.LIST)},
+    pickle.EMPTY_TUPLE: (_PUSHED, 0),
+    **{
+        code: (_PUSHED + 56, 0)
+        for code in (pickle.TUPLE, pickle.TUPLE1, pickle.TUPLE2, pickle.TUPLE3)
+    },
+    # A name's module and name are read as text, then looked up: nothing new is kept.
+    pickle.GLOBAL: (_PUSHED, 2),
+    pickle.STACK_GLOBAL: (_PUSHED, 0),
+    pickle.REDUCE: (_PUSHED, 0),
+    **{code: (_PUSHED, 0) for code in (pickle.GET, pickle.BINGET, pickle.LONG_BINGET)},
+    **{
+        code: (_MEMOIZED, 0)
+        for code in (pickle.PUT, pickle.BINPUT, pickle.LONG_BINPUT, pickle.MEMOIZE)
+    },
+}
 _ACTION = np.zeros(256, dtype=np.int64)
 _WIDTH = np.zeros(256, dtype=np.int64)
+_COST = np.zeros(256, dtype=np.int64)
+_PER_BYTE = np.zeros(256, dtype=np.int64)
 for _code, (_action, _width) in ALLOWED.items():
     _ACTION[_code[0]] = _action
     _WIDTH[_code[0]] = _width
+for _code, (_cost, _per_byte) in COSTS.items():
+    _COST[_code[0]] = _cost
+    _PER_BYTE[_code[0]] = _per_byte
 
 #: Why the scan stopped (state[REASON]).
 REFUSED_OPCODE, PUT_OUT_OF_ORDER, GET_NOT_PUT, TOO_MANY_MARKS, NOT_AN_INDEX = 1, 2, 3, 4, 5
+OVER_BUDGET, PAST_END = 6, 7
 # The scan's state, carried from chunk to chunk: what it is reading (_MODE), how much of it is
 # left (_COUNT), the integer read so far (_VALUE) and its shift or digit count (_SHIFT), the
 # opcode it belongs to and where that began, the batch's memo entries and open MARKs, the bytes
-# scanned, and the refusal (why, its opcode and where).
+# scanned, the refusal (why, its opcode and where), the stream's length (END), the bytes its
+# objects are charged (SPENT) and the most they may be (BUDGET).
 (
     _MODE,
     _COUNT,
@@ -110,16 +174,46 @@ REFUSED_OPCODE, PUT_OUT_OF_ORDER, GET_NOT_PUT, TOO_MANY_MARKS, NOT_AN_INDEX = 1,
     REASON,
     REFUSED,
     REFUSED_AT,
-) = range(12)
-STATE_SIZE = 12
+    END,
+    SPENT,
+    BUDGET,
+) = range(15)
+STATE_SIZE = 15
 _EXPECT_OPCODE, _SKIP, _LITTLE_ENDIAN, _TO_NEWLINE, _DECIMAL = 0, 1, 2, 3, 4
-#: An 8-byte length past int64 (the unpickler refuses it): skipped as this many bytes.
-_ENDLESS = 1 << 62
 
 
-def new_state() -> np.ndarray:
-    """The scan's state at the start of a file: expecting an opcode, nothing refused."""
-    return np.zeros(STATE_SIZE, dtype=np.int64)
+#: The length and budget of a stream whose length is not given.
+_UNBOUNDED = 1 << 62
+
+
+def memory_budget(size: int) -> int:
+    """The most bytes the objects unpickled from a file of `size` bytes may take."""
+    return MEMORY_PER_BYTE * size + MEMORY_CONSTANT
+
+
+def new_state(size: int | None = None) -> np.ndarray:
+    """The scan's state at the start of a file of `size` bytes (unbounded if None): expecting
+    an opcode, nothing refused, nothing charged against the file's `memory_budget`."""
+    state = np.zeros(STATE_SIZE, dtype=np.int64)
+    state[END] = _UNBOUNDED if size is None else size
+    state[BUDGET] = _UNBOUNDED if size is None else memory_budget(size)
+    return state
+
+
+def charge(state: np.ndarray, size: int) -> None:
+    """Charge `size` bytes more to the file whose scan `state` holds; UnpicklingError if its
+    objects then take more than its budget."""
+    spent = int(state[SPENT]) + size
+    state[SPENT] = spent
+    if spent > state[BUDGET]:
+        raise pickle.UnpicklingError(f"its objects would take more than {_budget(state)}")
+
+
+def _budget(state: np.ndarray) -> str:
+    return (
+        f"{int(state[BUDGET]):,} bytes of memory, the budget of a file of "
+        f"{int(state[END]):,} bytes ({MEMORY_PER_BYTE} a byte and {MEMORY_CONSTANT:,})"
+    )
 
 
 @njit(cache=True, nogil=True)
@@ -130,7 +224,14 @@ def _refuse(state: np.ndarray, reason: int) -> None:
 
 
 @njit(cache=True, nogil=True)
-def _scan(chunk: np.ndarray, state: np.ndarray, action: np.ndarray, width: np.ndarray) -> int:
+def _scan(
+    chunk: np.ndarray,
+    state: np.ndarray,
+    action: np.ndarray,
+    width: np.ndarray,
+    cost: np.ndarray,
+    per_byte: np.ndarray,
+) -> int:
     """Scan `chunk`, the bytes after state[_POSITION]; return how many of them may be handed
     on: all, or those before the opcode refused (its reason in state[REASON])."""
     start = state[_POSITION]
@@ -146,11 +247,15 @@ def _scan(chunk: np.ndarray, state: np.ndarray, action: np.ndarray, width: np.nd
             state[_OPCODE_AT] = start + i
             i += 1
             what = action[code]
-            if what == _PLAIN:
-                continue
             if what == _REFUSE:
                 _refuse(state, REFUSED_OPCODE)
                 break
+            state[SPENT] += cost[code]
+            if state[SPENT] > state[BUDGET]:
+                _refuse(state, OVER_BUDGET)
+                break
+            if what == _PLAIN:
+                continue
             if what == _MARK:
                 if state[_MARKS] >= MAX_MARKS:
                     _refuse(state, TOO_MANY_MARKS)
@@ -168,7 +273,7 @@ def _scan(chunk: np.ndarray, state: np.ndarray, action: np.ndarray, width: np.nd
             elif what == _FIXED:
                 state[_MODE] = _SKIP
                 state[_COUNT] = width[code]
-            elif what == _SIZED or what == _PUT or what == _GET:
+            elif what == _SIZED or what == _PUT or what == _GET or what == _FRAME:
                 state[_MODE] = _LITTLE_ENDIAN
                 state[_COUNT] = width[code]
                 state[_VALUE] = 0
@@ -196,10 +301,18 @@ def _scan(chunk: np.ndarray, state: np.ndarray, action: np.ndarray, width: np.nd
             value = state[_VALUE]
             what = action[state[_OPCODE]]
             state[_MODE] = _EXPECT_OPCODE
-            if what == _SIZED:
-                if value != 0:
+            if what == _SIZED or what == _FRAME:
+                # A length read as negative is past int64, and past any file's end.
+                if value < 0 or value > state[END] - (start + i):
+                    _refuse(state, PAST_END)
+                    break
+                if what == _SIZED and value != 0:
+                    state[SPENT] += per_byte[state[_OPCODE]] * value
+                    if state[SPENT] > state[BUDGET]:
+                        _refuse(state, OVER_BUDGET)
+                        break
                     state[_MODE] = _SKIP
-                    state[_COUNT] = value if value > 0 else _ENDLESS
+                    state[_COUNT] = value
             elif what == _PUT:
                 if value != state[_MEMO]:
                     _refuse(state, PUT_OUT_OF_ORDER)
@@ -209,6 +322,10 @@ def _scan(chunk: np.ndarray, state: np.ndarray, action: np.ndarray, width: np.nd
                 _refuse(state, GET_NOT_PUT)
                 break
         elif mode == _TO_NEWLINE:
+            state[SPENT] += per_byte[state[_OPCODE]]
+            if state[SPENT] > state[BUDGET]:
+                _refuse(state, OVER_BUDGET)
+                break
             if chunk[i] == 10:
                 state[_COUNT] -= 1
                 if state[_COUNT] == 0:
@@ -258,7 +375,7 @@ def scan(chunk: np.ndarray, state: np.ndarray) -> int:
     chunk is refused whole."""
     check_buffer("chunk", chunk, (None,), np.uint8)
     check_buffer("state", state, (STATE_SIZE,), np.int64, contiguous=True, writeable=True)
-    return _scan(chunk, state, _ACTION, _WIDTH)
+    return _scan(chunk, state, _ACTION, _WIDTH, _COST, _PER_BYTE)
 
 
 #: Opcodes' names by byte, as pickletools gives them.
@@ -305,5 +422,7 @@ def refusal(state: np.ndarray) -> str | None:
             GET_NOT_PUT: f"gets a memo index not put (the batch has put {int(state[_MEMO])})",
             TOO_MANY_MARKS: f"opens more than {MAX_MARKS} MARKs at once",
             NOT_AN_INDEX: "gives a memo index that is not a decimal number",
+            OVER_BUDGET: f"would take the file's objects past {_budget(state)}",
+            PAST_END: f"gives a length past the end of the file, byte {int(state[END]):,}",
         }[reason]
     )

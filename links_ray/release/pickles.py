@@ -5,8 +5,10 @@ one at a time: before the unpickler reads a byte, the opcode filter of `release.
 has passed it (no dict or set, no opcode such pickles never hold, memo indices only in the
 order a pickler writes them), and the unpickler is `release.unpickler.ReleaseUnpickler`, which
 resolves only the names a plain `pickle.dump` of lists of numpy arrays and scalars uses and
-makes the arrays itself from checked state. Whatever a file holds that cannot be read so is one
-`ReleaseFileError` naming the file, the batch and its offset.
+makes the arrays itself from checked state. Both charge what the file's pickles make to one
+ledger, a file's memory budget (`opcode_scan.memory_budget`, a small multiple of its size).
+Whatever a file holds that cannot be read so is one `ReleaseFileError` naming the file, the
+batch and its offset.
 
 Pure numpy: no Ray.
 """
@@ -89,14 +91,16 @@ def release_files(store: Store) -> dict[str, str | None]:
 
 class _Source(io.RawIOBase):
     """A stream as a raw file for io.BufferedReader, its bytes passed through the opcode filter
-    (`release.opcode_scan`): it ends just before the first opcode the filter refuses, and `refused`
-    then says which and why."""
+    (`release.opcode_scan`) for a file of `size` bytes: it ends just before the first opcode the
+    filter refuses, and `refused` then says which and why (`cut_short` if the opcode's length
+    runs past the file's end). `scan` is the filter's state, the file's memory ledger."""
 
-    def __init__(self, stream: Any) -> None:
+    def __init__(self, stream: Any, size: int) -> None:
         self._stream = stream
         self._position = 0
-        self._scan = opcode_scan.new_state()
+        self.scan = opcode_scan.new_state(size)
         self.refused: str | None = None
+        self.cut_short = False
 
     def readable(self) -> bool:
         return True
@@ -110,11 +114,12 @@ class _Source(io.RawIOBase):
         data = self._stream.read(len(buffer))
         # The unpickler reads ahead of the opcode it runs: bytes past a refused opcode must
         # never reach it, so they are held back here, where it reads them from.
-        handed = opcode_scan.scan(np.frombuffer(data, np.uint8), self._scan)
+        handed = opcode_scan.scan(np.frombuffer(data, np.uint8), self.scan)
         buffer[:handed] = data[:handed]
         self._position += handed
-        if handed < len(data):
-            self.refused = opcode_scan.refusal(self._scan)
+        if self.scan[opcode_scan.REASON] != 0:
+            self.refused = opcode_scan.refusal(self.scan)
+            self.cut_short = self.scan[opcode_scan.REASON] == opcode_scan.PAST_END
         return handed
 
 
@@ -137,11 +142,13 @@ def read_pickles(stream: Any, shown: str, size: int) -> Iterator[tuple[int, int,
     """`read_batches` of a binary `stream` (anything with `read(n)`) of `size` bytes, open at
     its start, named `shown` in errors.
 
-    A batch's arrays and scalars together hold at most the bytes from the batch's offset to
-    the end of the file: a pickle may hand the same bytes to many arrays, and each is a copy.
+    What the file's pickles make together takes at most `opcode_scan.memory_budget(size)`
+    bytes: a pickle may hand the same bytes to many arrays or strings, each a copy, and each is
+    charged.
     """
-    raw = _Source(stream)
-    source = io.BufferedReader(raw, READ_BUFFER)
+    raw = _Source(stream, size)
+    # A small file needs no larger buffer than itself.
+    source = io.BufferedReader(raw, max(min(READ_BUFFER, size), 1))
     batch = 0
     while True:
         offset = source.tell()
@@ -152,14 +159,15 @@ def read_pickles(stream: Any, shown: str, size: int) -> Iterator[tuple[int, int,
                     f"{raw.refused}"
                 )
             return
-        yield batch, offset, _load(source, raw, f"{shown} batch {batch}", offset, size - offset)
+        yield batch, offset, _load(source, raw, f"{shown} batch {batch}", offset, size)
         batch += 1
 
 
-def _load(source: io.BufferedReader, raw: _Source, shown: str, offset: int, budget: int) -> Any:
-    """One batch's object, read at `offset`; ReleaseFileError saying why it cannot be."""
+def _load(source: io.BufferedReader, raw: _Source, shown: str, offset: int, size: int) -> Any:
+    """One batch's object, read at `offset` of a file of `size` bytes; ReleaseFileError saying
+    why it cannot be."""
     try:
-        return ReleaseUnpickler(source, budget).load()
+        return ReleaseUnpickler(source, raw.scan).load()
     except RefusedName as exc:
         raise ReleaseFileError(
             f"{shown} names {exc.name}; only numpy arrays and lists are read"
@@ -171,13 +179,13 @@ def _load(source: io.BufferedReader, raw: _Source, shown: str, offset: int, budg
         # each is the file's fault and ends the import in one line. The stream ends early at
         # an opcode the filter refused: running out there is that refusal, not the file's end.
         if _ran_out(exc) and not source.peek(1):
-            if raw.refused is not None:
+            if raw.refused is not None and not raw.cut_short:
                 raise ReleaseFileError(
                     f"{shown} at byte {offset} is not a readable pickle: {raw.refused}"
                 ) from None
             raise ReleaseFileError(
                 f"{shown} at byte {offset} is cut short: the file ends inside it, at byte "
-                f"{source.tell()}"
+                f"{size if raw.cut_short else source.tell()}"
             ) from None
         raise ReleaseFileError(
             f"{shown} at byte {offset} is not a readable pickle: {_reason(exc)}"

@@ -13,12 +13,16 @@ kinds in `PLAIN_DTYPES`, then a shape and exactly the bytes that shape holds. Th
 copy of those bytes, made by numpy's buffer constructor; once the pickle is loaded, each
 stand-in is replaced by what it made.
 
+Everything it makes is charged to the file's memory ledger (`release.opcode_scan.charge`), each
+before it is made: the arrays and scalars, the bytes `_codecs.encode` gives (as many as its
+string has characters), the stand-ins, and the bookkeeping of replacing them in the batch. The
+filter has charged what the unpickler's opcodes make themselves.
+
 Files are read through it, behind the opcode filter, by `release.pickles`. Pure numpy: no Ray.
 """
 
 from __future__ import annotations
 
-import codecs
 import functools
 import gc
 import pickle
@@ -28,11 +32,25 @@ from typing import Any
 
 import numpy as np
 
+from links_ray.release.opcode_scan import charge
+
 #: The dtypes an array or scalar of a release file may have, as numpy's pickles spell them
 #: (kind and item size): bool, signed and unsigned ints, floats, and byte strings of any length.
 PLAIN_DTYPES = re.compile(r"b1|[iuf][248]|[iu]1|S[1-9][0-9]{0,9}")
 #: The most dimensions an array may have (numpy 2's own limit).
 MAX_DIMENSIONS = 64
+#: The spellings of latin-1 `_codecs.encode` is read with (pickle writes "latin1").
+LATIN1 = frozenset({"latin1", "latin-1", "latin_1", "iso8859-1", "iso-8859-1", "l1"})
+# What the unpickler's code makes, charged to the ledger (bytes, CPython 3.11's rounded up): a
+# stand-in; an array's object with its shape and strides (twice: a view, then the copy); a
+# bytes object before its bytes; a list or tuple of the batch as `_made` tracks it (an entry of
+# a dict keyed by an int, and of a list), and a tuple it replaces, before its slots.
+_STAND_IN_COST = 96
+_ARRAY_COST = 2 * 128
+_PER_DIMENSION_COST = 2 * 16
+_BYTES_COST = 48
+_TRACKED_COST = 192
+_TUPLE_COST = 160
 
 
 class RefusedName(pickle.UnpicklingError):
@@ -140,7 +158,7 @@ class _ArrayStandIn(_StandIn):
         if version != 1 or is_fortran not in (False, True):
             raise _refuse("an array's state is not numpy's version 1 with a bool order")
         if type(data) is str:  # a Python 2 pickle's bytes, as numpy reads them
-            data = data.encode("latin1")
+            data = self._maker.latin1(data)
         # numpy's own BUILD swaps a non-native array's bytes into native order.
         order = "F" if is_fortran else "C"
         self.value = self._maker.array(data, dtype, shape, order, native=True)
@@ -184,18 +202,6 @@ class _Name:
         return self._name
 
 
-def _latin1(text: object, encoding: object = "latin1") -> bytes:
-    """`_codecs.encode` as protocols 0-2 use it for bytes: a string to latin-1, nothing else
-    (other codecs would let a pickle run arbitrary codec machinery)."""
-    if (
-        type(text) is not str
-        or type(encoding) is not str
-        or codecs.lookup(encoding).name != "iso8859-1"
-    ):
-        raise _refuse("_codecs.encode is read only for latin-1 text")
-    return text.encode("latin1")
-
-
 def _empty_bytes(*args: object) -> bytes:
     """`bytes()` as protocols 0-2 write an empty bytes object: no arguments."""
     if args:
@@ -229,13 +235,23 @@ _MAX_EXTENT = np.iinfo(np.intp).max
 
 
 class _Maker:
-    """The arrays, dtypes and scalars of one pickle, made from checked state: at most `budget`
-    bytes of arrays and scalars together."""
+    """The arrays, dtypes, scalars and bytes of one pickle, made from checked state, each
+    charged to the file's ledger `ledger` (a `release.opcode_scan` state) before it is made."""
 
-    __slots__ = ("budget",)
+    __slots__ = ("ledger",)
 
-    def __init__(self, budget: int) -> None:
-        self.budget = budget
+    def __init__(self, ledger: np.ndarray) -> None:
+        self.ledger = ledger
+
+    def latin1(self, text: object, encoding: object = "latin1") -> bytes:
+        """`_codecs.encode` as protocols 0-2 use it for bytes: a string to latin-1, nothing
+        else (other codecs would let a pickle run arbitrary codec machinery)."""
+        if type(text) is not str or encoding not in LATIN1 or type(encoding) is not str:
+            raise _refuse("_codecs.encode is read only for latin-1 text")
+        # Latin-1 gives a byte a character: a string from the memo, encoded again and again,
+        # is charged each time before it is.
+        charge(self.ledger, _BYTES_COST + len(text))
+        return text.encode("latin1")
 
     def array(
         self, data: object, dtype: object, shape: object, order: str, native: bool
@@ -259,11 +275,8 @@ class _Maker:
             raise _refuse(
                 f"an array's data is {len(data)} bytes; a {shape} {made} array has {size}"
             )
-        # Each array is a copy, and a pickle may hand the same bytes to many: their total is
-        # what the budget bounds.
-        self.budget -= size
-        if self.budget < 0:
-            raise _refuse("its arrays hold more bytes than the file does from the batch on")
+        # Each array is a copy, and a pickle may hand the same bytes to many: each is charged.
+        charge(self.ledger, size + _ARRAY_COST + _PER_DIMENSION_COST * len(shape))
         # Positional (shape, dtype, buffer, offset, strides, order): numpy's keyword parsing
         # takes longer than copying a small array.
         return np.ndarray(shape, dtype.value, data, 0, None, order).astype(made, "K")
@@ -274,6 +287,7 @@ class _Maker:
             raise _refuse(f"a dtype is given a {type(spec).__name__}, not numpy's spec")
         if align not in (False, True) or copy not in (False, True):
             raise _refuse("a dtype is read only as numpy pickles it")
+        charge(self.ledger, _STAND_IN_COST)
         return _DtypeStandIn(spec)
 
     def reconstruct(self, subtype: object, shape: object, typecode: object) -> _ArrayStandIn:
@@ -281,35 +295,42 @@ class _Maker:
         # Any other call would ask for memory the file does not hold.
         if subtype is not _NDARRAY or shape != (0,) or typecode not in (b"b", "b"):
             raise _refuse("arrays are read only as numpy pickles them")
+        charge(self.ledger, _STAND_IN_COST)
         return _ArrayStandIn(self)
 
     def scalar(self, dtype: object, data: object) -> _Made:
         """numpy's `scalar(dtype, data)`: the scalar of a dtype stand-in from its bytes."""
         if type(data) is str:  # a Python 2 pickle's bytes, as numpy reads them
-            data = data.encode("latin1")
-        return _Made(self.array(data, dtype, (), "C", native=True)[()])
+            data = self.latin1(data)
+        made = self.array(data, dtype, (), "C", native=True)
+        # The scalar is a second copy of the array's bytes.
+        charge(self.ledger, _STAND_IN_COST + _ARRAY_COST + made.nbytes)
+        return _Made(made[()])
 
     def frombuffer(self, data: object, dtype: object, shape: object, order: object) -> _Made:
         """numpy's `_frombuffer` (protocol 5): the array of `shape` in `data`."""
         if order not in ("C", "F"):
             raise _refuse("an array's order is not C or F")
+        charge(self.ledger, _STAND_IN_COST)
         return _Made(self.array(data, dtype, shape, "F" if order == "F" else "C", native=False))
 
 
 class ReleaseUnpickler(pickle.Unpickler):
     """An unpickler that resolves only `ALLOWED_GLOBALS`, makes arrays, dtypes and scalars
-    itself from checked state (together at most `budget` bytes of them), and refuses
-    out-of-band buffers and persistent ids. `load` returns the batch with its arrays."""
+    itself from checked state, charging all it makes to `ledger` (the scan state of the
+    `release.opcode_scan` filter its file passes), and refuses out-of-band buffers and
+    persistent ids. `load` returns the batch with its arrays."""
 
-    def __init__(self, file: Any, budget: int) -> None:
+    def __init__(self, file: Any, ledger: np.ndarray) -> None:
         super().__init__(file)
+        self._ledger = ledger
         # Nothing the names reach refers back to the unpickler: a cycle would keep its memo,
         # and every array's bytes in it, until the garbage collector ran.
-        maker = _Maker(budget)
+        maker = _Maker(ledger)
         stands_for: dict[str, _Name | _Marker] = {
             "ndarray": _NDARRAY,
             "dtype": _Name(maker.dtype, "numpy.dtype"),
-            "encode": _Name(_latin1, "_codecs.encode"),
+            "encode": _Name(maker.latin1, "_codecs.encode"),
             "bytes": _Name(_empty_bytes, "bytes"),
             "reconstruct": _Name(maker.reconstruct, "numpy's _reconstruct"),
             "scalar": _Name(maker.scalar, "numpy's scalar"),
@@ -346,13 +367,13 @@ class ReleaseUnpickler(pickle.Unpickler):
         finally:
             if collecting:
                 gc.enable()
-        return _made(loaded)
+        return _made(loaded, self._ledger)
 
 
-def _made(loaded: Any) -> Any:
+def _made(loaded: Any, ledger: np.ndarray) -> Any:
     """`loaded` with each stand-in in it (in lists and tuples, at any depth, shared or in
-    cycles) replaced by what it made. Lists are changed in place; a tuple holding a stand-in,
-    or such a tuple, is replaced by a new one."""
+    cycles) replaced by what it made, the bookkeeping charged to `ledger`. Lists are changed
+    in place; a tuple holding a stand-in, or such a tuple, is replaced by a new one."""
     kind = type(loaded)
     if kind in _STAND_INS:
         return _value(loaded)
@@ -380,6 +401,9 @@ def _made(loaded: Any) -> Any:
             elif kind is list or kind is tuple:
                 holds_tuples = holds_tuples or kind is tuple
                 if id(item) not in seen:
+                    # Charged in steps: a charge per container would slow the walk.
+                    if len(seen) % 1024 == 1:
+                        charge(ledger, 1024 * _TRACKED_COST)
                     seen[id(item)] = item
                     waiting.append(item)
             elif kind not in _PLAIN_VALUES:
@@ -388,7 +412,7 @@ def _made(loaded: Any) -> Any:
             lists_with_tuples.append(container)
     if not tuples:
         return loaded
-    replaced = _replaced_tuples(tuples)
+    replaced = _replaced_tuples(tuples, ledger)
     for container in lists_with_tuples:
         for index, item in enumerate(container):
             if type(item) is tuple:
@@ -396,10 +420,11 @@ def _made(loaded: Any) -> Any:
     return replaced[id(loaded)] if type(loaded) is tuple else loaded
 
 
-def _replaced_tuples(tuples: list[tuple]) -> dict[int, tuple]:
+def _replaced_tuples(tuples: list[tuple], ledger: np.ndarray) -> dict[int, tuple]:
     """Each of `tuples` by id: itself, or a new tuple if it holds a stand-in or a tuple that
-    is replaced. A tuple holds only tuples made before it, so tuples within tuples are settled
-    innermost first."""
+    is replaced, each charged to `ledger`. A tuple holds only tuples made before it, so tuples
+    within tuples are settled innermost first."""
+    charge(ledger, _TUPLE_COST * len(tuples))
     replaced: dict[int, tuple] = {}
     for outer in tuples:
         unsettled = [outer]
@@ -413,6 +438,7 @@ def _replaced_tuples(tuples: list[tuple]) -> dict[int, tuple]:
                 unsettled.extend(inner)
                 continue
             unsettled.pop()
+            charge(ledger, 8 * len(top))
             items = tuple(
                 _value(x) if type(x) in _STAND_INS else replaced[id(x)] if type(x) is tuple else x
                 for x in top

@@ -222,15 +222,27 @@ def test_numpy_ndarray_is_never_called(tmp_path: Path) -> None:
 
 
 def test_recursion_overflow_and_memory_errors_are_one_line_refusals(tmp_path: Path) -> None:
-    depth = 100_000
-    nested_spec = b"\x80\x02cnumpy\ndtype\n" + b"]" * depth + b"a" * (depth - 1) + b"\x85R."
+    def nested_spec(depth: int) -> bytes:
+        return b"\x80\x02cnumpy\ndtype\n" + b"]" * depth + b"a" * (depth - 1) + b"\x85R."
+
     huge_item = (3, "<", None, None, None, 2**70, -1, 0)
     overflow = pickle.dumps(array((1,), dtype(state=huge_item), bytes(8)), protocol=2)
-    # BINBYTES8 of 2**50 bytes: the unpickler's own allocation fails.
+    # BINBYTES8 of 2**50 bytes: the unpickler would have allocated them before reading.
     too_large = b"\x80\x04\x8e" + (2**50).to_bytes(8, "little") + b"data."
-    assert "a dtype is given a list" in refusal(tmp_path / "recursion", nested_spec)
+    assert "a dtype is given a list" in refusal(tmp_path / "recursion", nested_spec(5_000))
+    # A nested list takes more than a hundred bytes for its two, with what finding the arrays
+    # in it takes: a million nested exceed the budget.
+    depth = 1_000_000
+    deep = b"\x80\x02" + b"]" * depth + b"a" * (depth - 1) + b"."
+    budget = 64 * len(deep) + 2**20
+    assert refusal(tmp_path / "deep", deep).endswith(
+        f"is not a readable pickle: its objects would take more than {budget:,} bytes of memory, "
+        f"the budget of a file of {len(deep):,} bytes (64 a byte and 1,048,576)"
+    )
     assert "not numpy's for a plain dtype" in refusal(tmp_path / "overflow", overflow)
-    assert "asks for more memory than there is" in refusal(tmp_path / "memory", too_large)
+    assert "is cut short: the file ends inside it, at byte 16" in refusal(
+        tmp_path / "memory", too_large
+    )
 
 
 def real_values() -> list:
@@ -321,8 +333,9 @@ def test_arrays_in_shared_nested_and_cyclic_structures_are_in_place(tmp_path: Pa
     assert got[2][0] is got[0] and got[2][1] is got[2]
     assert got[3][0][0] is got[3] and isinstance(got[3][1], np.ndarray)
     assert isinstance(got[4][0][0], np.ndarray)
-    # An array at the bottom of 100,000 lists, and of 100,000 tuples.
-    depth = 100_000
+    # An array at the bottom of 1,000 lists, and of 1,000 tuples (a million are refused: each
+    # takes a hundred times its byte or more; test_recursion_overflow_and_memory_errors...).
+    depth = 1_000
     leaf = pickle.dumps(np.arange(2.0), protocol=2)[2:-1]  # its opcodes, no PROTO or STOP
     in_lists = b"\x80\x02" + b"]" * depth + leaf + b"a" * depth + b"."
     in_tuples = b"\x80\x02" + leaf + b"\x85" * depth + b"."
@@ -358,12 +371,21 @@ def test_a_build_of_a_name_or_of_a_made_value_is_refused(tmp_path: Path) -> None
     assert "an array is built twice" in refusal(tmp_path / "twice", twice)
 
 
-def test_arrays_may_not_hold_more_bytes_than_the_file(tmp_path: Path) -> None:
-    # One MiB of bytes in the file, handed by the memo to 64 arrays, each a copy.
+def test_arrays_may_not_hold_more_bytes_than_the_budget(tmp_path: Path) -> None:
+    # One MiB of bytes in the file, handed by the memo to 96 arrays, each a copy: the budget
+    # is 64 bytes a byte of the file and 1 MiB.
     data = bytes(2**20)
-    batch = [array((2**17,), dtype(), data) for _ in range(64)]
-    message = refusal(tmp_path, pickle.dumps(batch, protocol=4))
-    assert "its arrays hold more bytes than the file does" in message
+    batch = [array((2**17,), dtype(), data) for _ in range(96)]
+    pickled = pickle.dumps(batch, protocol=4)
+    message = refusal(tmp_path, pickled)
+    budget = 64 * len(pickled) + 2**20
+    assert message.endswith(
+        f"is not a readable pickle: its objects would take more than {budget:,} bytes of "
+        f"memory, the budget of a file of {len(pickled):,} bytes (64 a byte and 1,048,576)"
+    )
+    # Thirty-two copies are within it.
+    (got,) = read(tmp_path / "within", pickle.dumps(batch[:32], protocol=4))
+    assert len(got) == 32 and all(len(value) == 2**17 for value in got)
 
 
 def test_dicts_sets_and_bare_names_in_a_batch_are_refused(tmp_path: Path) -> None:
