@@ -2,10 +2,13 @@
 
 Every YAML file parses; every Serve config builds the links app with args it takes; every
 Ingress routes only routes the app has, each route through exactly one of them, with TLS, rate
-limits, the app's body limit and timeouts, and synthesis behind a login; a RayService behind an
-Ingress holds only the read-only keys, whose policy only reads, and names the Ingress's hosts in
-its allow-list; the RayJobs run real `links` commands that generate, curate and index every
-root a RayService serves, as it serves it. Each check returns the problems it finds, and
+limits, the app's body limit and timeouts; every route but the open ones behind one login and
+the quota service, which gives each a per-user quota and a global cap (and, run here over HTTP,
+enforces them); NetworkPolicies let only the ingress controller reach a public RayService's
+Serve port and only its own pods its Ray ports; a RayService behind an Ingress holds only the
+read-only keys, whose policy only reads, and names the Ingress's hosts in its allow-list; the
+RayJobs run real `links` commands that generate, curate and index every root a RayService
+serves, as it serves it. Each check returns the problems it finds, and
 `test_a_planted_mistake_is_found` shows each one finding a mistake planted in a copy.
 (tests/serve/test_serve.py checks the private Serve config's and RayService's own values.)
 """
@@ -21,6 +24,7 @@ import shlex
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import pytest
 import yaml
@@ -52,6 +56,23 @@ WRITER_POLICY, READER_POLICY = "links-readwrite", "links-readonly"
 READ_ACTIONS = {"s3:GetObject", "s3:ListBucket", "s3:GetBucketLocation"}
 SYNTHESIZE = "/api/synthesize"
 NGINX = "nginx.ingress.kubernetes.io/"
+#: The routes anyone may ask without a login: the studio's page and files, and what computes
+#: nothing (health, the request limits, the OpenAPI document). Every other route costs.
+OPEN_ROUTES = {"/", "/studio/{name}", "/api/health", "/api/limits", "/openapi.json"}
+#: The quota service's name (its ConfigMap, Deployment, Service and pod label).
+QUOTA = "links-quota"
+#: The ingress controller's pods and namespace, as the NetworkPolicies name them.
+CONTROLLER_NAMESPACE = "ingress-nginx"
+CONTROLLER_LABELS = {
+    "app.kubernetes.io/name": "ingress-nginx",
+    "app.kubernetes.io/component": "controller",
+}
+#: The KubeRay operator's, and the one port of a Ray head it needs: the dashboard's.
+OPERATOR_NAMESPACE, OPERATOR_LABELS = (
+    "kuberay-system",
+    {"app.kubernetes.io/name": "kuberay-operator"},
+)
+DASHBOARD_PORT = 8265
 #: Shell operators in an entrypoint, as `shlex` splits them with punctuation_chars.
 SHELL_OPERATORS = {"&&", "||", ";", "|", "&", ";;", "(", ")", "<", ">", ">>", "<<"}
 #: Ray's logical CPUs of a RayService's replicas: the gateway's unless the config says otherwise.
@@ -485,17 +506,29 @@ def ingress_problems(manifests: Manifests) -> list[str]:
 
 
 def auth_problems(manifests: Manifests) -> list[str]:
-    """Every Ingress that routes /api/synthesize asks for a login, and limits each client
-    more tightly than every other Ingress of the host, in rate and in connections."""
+    """Every Ingress that routes a route of the app beyond OPEN_ROUTES asks for a login (basic
+    auth against a Secret: one Secret and one realm for all, so a browser asks once) and then
+    the quota service (`auth-url`); the one that routes /api/synthesize limits each client more
+    tightly than every other Ingress of the host, in rate and in connections."""
     problems = []
     routes = app_routes()
     ingresses = objects(manifests, "Ingress")
+    logins = set()
+    for where, ingress in ingresses:
+        costly = sorted(routes_of(ingress, routes) - OPEN_ROUTES)
+        if not costly:
+            continue
+        if annotation(ingress, "auth-type") == "basic" and annotation(ingress, "auth-secret"):
+            logins.add((annotation(ingress, "auth-secret"), annotation(ingress, "auth-realm")))
+        else:
+            problems.append(f"{where}: routes {costly} without a login")
+        if annotation(ingress, "auth-url") is None:
+            problems.append(f"{where}: routes {costly} without {QUOTA}'s check (auth-url)")
+    if len(logins) > 1:
+        problems.append(f"logins {sorted(logins, key=str)}: a browser would ask for each")
     for where, ingress in ingresses:
         if SYNTHESIZE not in routes_of(ingress, routes):
             continue
-        basic = annotation(ingress, "auth-type") == "basic" and annotation(ingress, "auth-secret")
-        if not (basic or annotation(ingress, "auth-url")):
-            problems.append(f"{where}: routes {SYNTHESIZE} without a login")
         for other_where, other in ingresses:
             if other is ingress or SYNTHESIZE in routes_of(other, routes):
                 continue
@@ -510,6 +543,189 @@ def auth_problems(manifests: Manifests) -> list[str]:
                 problems.append(
                     f"{where}: {mine_c} connections, more than {other_where}'s {theirs_c}"
                 )
+    return problems
+
+
+def named(manifests: Manifests, kind: str, name: str) -> tuple[str, dict] | None:
+    """(where, object) of the object `name` of `kind`, None if there is none."""
+    found = [(w, o) for w, o in objects(manifests, kind) if o["metadata"]["name"] == name]
+    return found[0] if found else None
+
+
+def quota_limits(manifests: Manifests) -> dict[str, dict[str, list[float]]]:
+    """The quota service's quotas.json: route to its per-user and all-users rate and burst."""
+    found = named(manifests, "ConfigMap", QUOTA)
+    return json.loads(found[1]["data"]["quotas.json"]) if found else {}
+
+
+def quota_problems(manifests: Manifests) -> list[str]:
+    """The quota service gives every route of the app beyond OPEN_ROUTES a per-user quota and
+    a global cap (positive requests a minute and bursts, each user's within all users'), and no
+    route the app lacks; it runs as one replica (its counts are the global ones); every
+    Ingress's `auth-url` reaches its Service, whose port reaches its container."""
+    problems = []
+    limits = quota_limits(manifests)
+    routes = app_routes()
+    for route in sorted(routes - OPEN_ROUTES - set(limits)):
+        problems.append(f"{QUOTA}: {route} has no quota")
+    for route, limit in sorted(limits.items()):
+        if route not in routes:
+            problems.append(f"{QUOTA}: {route} is no route of the app")
+        if set(limit) != {"user", "all"} or any(len(limit[k]) != 2 for k in limit):
+            problems.append(f"{QUOTA}: {route} needs [a minute, burst] for user and all")
+            continue
+        if min(*limit["user"], *limit["all"]) <= 0:
+            problems.append(f"{QUOTA}: {route} has a rate or burst that lets nothing through")
+        if any(u > a for u, a in zip(limit["user"], limit["all"], strict=True)):
+            problems.append(f"{QUOTA}: {route} lets a user more than all users' {limit['all']}")
+    deployment, service = named(manifests, "Deployment", QUOTA), named(manifests, "Service", QUOTA)
+    if deployment is None or service is None:
+        return [*problems, f"no Deployment and Service {QUOTA} under deploy/"]
+    spec = deployment[1]["spec"]
+    if spec.get("replicas", 1) != 1:
+        problems.append(f"{deployment[0]}: {spec['replicas']} replicas would each count apart")
+    (container,) = spec["template"]["spec"]["containers"]
+    ports = {p.get("name"): p["containerPort"] for p in container["ports"]}
+    labels = spec["template"]["metadata"]["labels"]
+    if not selects(service[1]["spec"]["selector"], labels):
+        problems.append(f"{service[0]}: its selector misses the {QUOTA} pods")
+    service_ports = {p["port"]: p.get("targetPort", p["port"]) for p in service[1]["spec"]["ports"]}
+    for where, ingress in objects(manifests, "Ingress"):
+        url = annotation(ingress, "auth-url")
+        if url is None:
+            continue
+        parts = urlsplit(url)
+        host = parts.hostname or ""
+        if host.split(".")[0] != QUOTA or parts.port not in service_ports:
+            problems.append(f"{where}: auth-url {url} is not {QUOTA}'s Service and port")
+            continue
+        target = service_ports[parts.port]
+        if target not in ports and target not in ports.values():
+            problems.append(f"{service[0]}: port {parts.port} leads to no port of the container")
+    return problems
+
+
+def selects(selector: dict, labels: dict) -> bool:
+    """Whether a label selector (its matchLabels, or a Service's plain map) selects `labels`."""
+    wanted = selector.get("matchLabels", selector) if "matchExpressions" not in selector else None
+    return wanted is not None and all(labels.get(k) == v for k, v in wanted.items())
+
+
+def all_pod_labels(manifests: Manifests) -> list[tuple[str, dict]]:
+    """(where, labels) of every pod template under deploy/: any mapping with metadata and a
+    spec holding containers, however deep in its object."""
+    found = []
+
+    def walk(where: str, value: Any) -> None:
+        if isinstance(value, dict):
+            if isinstance(value.get("spec"), dict) and "containers" in value["spec"]:
+                found.append((where, value.get("metadata", {}).get("labels", {})))
+            for item in value.values():
+                walk(where, item)
+        elif isinstance(value, list):
+            for item in value:
+                walk(where, item)
+
+    for where, documents in manifests.items():
+        for doc in documents:
+            if isinstance(doc, dict) and "kind" in doc:
+                walk(f"{where}: {doc['metadata']['name']}", doc)
+    return found
+
+
+def peer_kind(peer: dict, own: dict) -> str:
+    """What a NetworkPolicy peer is: "own" (pods of the policy's own selector, in its
+    namespace), "controller" or "operator" (their pods in their namespace), else "other"."""
+    if set(peer) == {"podSelector"} and peer["podSelector"] == own:
+        return "own"
+    namespace = peer.get("namespaceSelector", {}).get("matchLabels", {})
+    pods = peer.get("podSelector", {}).get("matchLabels", {})
+    name = namespace.get("kubernetes.io/metadata.name")
+    if set(peer) == {"namespaceSelector", "podSelector"}:
+        if name == CONTROLLER_NAMESPACE and CONTROLLER_LABELS.items() <= pods.items():
+            return "controller"
+        if name == OPERATOR_NAMESPACE and OPERATOR_LABELS.items() <= pods.items():
+            return "operator"
+    return "other"
+
+
+def rule_ports(rule: dict) -> set[int] | None:
+    """The TCP ports a NetworkPolicy rule admits, None for every port."""
+    if not rule.get("ports"):
+        return None
+    return {p["port"] for p in rule["ports"] if p.get("protocol", "TCP") == "TCP"}
+
+
+def network_problems(manifests: Manifests) -> list[str]:
+    """A NetworkPolicy selects every pod of each RayService behind an Ingress, and no pod of
+    anything else; it admits the ingress controller on the Serve port alone, the KubeRay
+    operator on the dashboard's alone, and every port from the RayService's own pods only;
+    another selects the quota service's pods and admits the ingress controller on its port
+    alone. No rule admits every source, an address block, or another pod."""
+    problems = []
+    # (where, its pod templates, the port the controller may reach, the operator's, whether
+    # its own pods may reach each other on every port: Ray's do)
+    guarded: list[tuple[str, list[dict], int, set[int], bool]] = []
+    exposed = exposed_services(manifests)
+    for where, service in objects(manifests, "RayService"):
+        if service["metadata"]["name"] in exposed:
+            config = yaml.safe_load(service["spec"]["serveConfigV2"])
+            templates = [t for _, t in pod_templates(service["spec"]["rayClusterConfig"])]
+            port = config["http_options"]["port"]
+            guarded.append((where, templates, port, {DASHBOARD_PORT}, True))
+    quota = named(manifests, "Deployment", QUOTA)
+    if quota is not None:
+        template = quota[1]["spec"]["template"]
+        (container,) = template["spec"]["containers"]
+        port = container["ports"][0]["containerPort"]
+        guarded.append((quota[0], [template], port, set(), False))
+    for where, templates, port, operator_ports, ray in guarded:
+        problems += guarded_problems(manifests, where, templates, port, operator_ports, ray)
+    return problems
+
+
+def guarded_problems(
+    manifests: Manifests,
+    where: str,
+    templates: list[dict],
+    port: int,
+    operator_ports: set[int],
+    ray: bool,
+) -> list[str]:
+    """`network_problems` for the pods of `templates`: the NetworkPolicies that select them
+    all select no other pod, and admit the controller on `port`, the operator on
+    `operator_ports` and, if `ray`, these pods on every port; nothing else."""
+    problems = []
+    labels = [t["metadata"].get("labels", {}) for t in templates]
+    mine = [
+        (pw, policy)
+        for pw, policy in objects(manifests, "NetworkPolicy")
+        if "Ingress" in policy["spec"].get("policyTypes", ["Ingress"])
+        and all(selects(policy["spec"]["podSelector"], each) for each in labels)
+    ]
+    if not mine:
+        return [f"{where}: no NetworkPolicy selects all of its pods"]
+    controller_ports: set[int] = set()
+    for pw, policy in mine:
+        own = policy["spec"]["podSelector"]
+        for other_where, other in all_pod_labels(manifests):
+            if selects(own, other) and other not in labels:
+                problems.append(f"{pw}: its selector also takes the pods of {other_where}")
+        for rule in policy["spec"].get("ingress", []):
+            ports = rule_ports(rule)
+            said = "every port" if ports is None else sorted(ports)
+            for peer in rule.get("from") or [{}]:
+                kind = peer_kind(peer, own) if peer else "every source"
+                if kind == "controller" and ports is not None and ports <= {port}:
+                    controller_ports |= ports
+                elif kind == "operator" and ports is not None and ports <= operator_ports:
+                    continue
+                elif kind == "own" and ray:
+                    continue
+                else:
+                    problems.append(f"{pw}: admits {kind} {peer or ''} on {said}".rstrip())
+    if port not in controller_ports:
+        problems.append(f"{where}: no policy admits the ingress controller on port {port}")
     return problems
 
 
@@ -690,6 +906,92 @@ def test_synthesis_needs_a_login_and_has_the_tightest_limits() -> None:
     assert auth_problems(MANIFESTS) == []
 
 
+def test_every_costly_route_needs_the_login_and_passes_a_quota() -> None:
+    routes = app_routes()
+    assert routes - OPEN_ROUTES >= {SYNTHESIZE, "/api/retrieve", "/api/kit", "/api/curve"}
+    assert auth_problems(MANIFESTS) == []
+    assert quota_problems(MANIFESTS) == []
+    # The open routes are only those: each is routed, and by an Ingress without a login.
+    for _, ingress in objects(MANIFESTS, "Ingress"):
+        if annotation(ingress, "auth-type") is None:
+            assert routes_of(ingress, routes) <= OPEN_ROUTES
+
+
+def test_network_policies_guard_the_serve_and_ray_ports() -> None:
+    assert objects(MANIFESTS, "NetworkPolicy")
+    assert network_problems(MANIFESTS) == []
+
+
+def quota_check(
+    port: int, route: str, user: str | None, headers: dict[str, str] | None = None
+) -> int:
+    """The status the quota service answers for `user`'s request to `route`, asked as
+    ingress-nginx asks (the request's headers, its URL in X-Original-URL, no body)."""
+    import base64
+    import http.client
+
+    sent = {"X-Original-URL": f"https://links.example.org{route}?x=1", **(headers or {})}
+    if user is not None:
+        sent["Authorization"] = "Basic " + base64.b64encode(f"{user}:pw".encode()).decode()
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+    try:
+        conn.request("GET", "/check", headers=sent)
+        response = conn.getresponse()
+        response.read()
+        return response.status
+    finally:
+        conn.close()
+
+
+def test_the_quota_service_counts_each_user_and_all_users(tmp_path: Path) -> None:
+    """quota.py as the ConfigMap ships it, over HTTP: each user gets their burst, then 403
+    while another user still passes; past the route's cap for all users, everyone gets 403;
+    a route with no quota and a request with no user are refused. The rates are one a minute,
+    so no token comes back while the test runs."""
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    found = named(MANIFESTS, "ConfigMap", QUOTA)
+    assert found is not None
+    config_map = found[1]
+    script = tmp_path / "quota.py"
+    script.write_text(config_map["data"]["quota.py"])
+    limits = {
+        "/api/synthesize": {"user": [1, 2], "all": [1, 5]},
+        "/api/kit": {"user": [1, 1], "all": [1, 9]},
+    }
+    (tmp_path / "quotas.json").write_text(json.dumps(limits))
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    server = subprocess.Popen(
+        [sys.executable, str(script), str(tmp_path / "quotas.json"), str(port)],
+        stderr=subprocess.PIPE,
+    )
+    try:
+        for _ in range(100):
+            with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), 0.2):
+                break
+            time.sleep(0.1)
+        synthesize = "/api/synthesize"
+        assert [quota_check(port, synthesize, "alice") for _ in range(3)] == [204, 204, 403]
+        assert quota_check(port, "/api/kit", "alice") == 204  # each route its own quota
+        assert quota_check(port, "/api/kit", "alice") == 403
+        # The global cap, 5: alice's 2, then bob's 2, then carol's first; dave gets none.
+        assert [quota_check(port, synthesize, "bob") for _ in range(3)] == [204, 204, 403]
+        assert quota_check(port, synthesize, "carol") == 204
+        assert quota_check(port, synthesize, "dave") == 403
+        assert quota_check(port, "/api/nope", "erin") == 403  # no quota: no work
+        assert quota_check(port, synthesize, None) == 401
+        assert quota_check(port, synthesize, None, {"Authorization": "Basic %%%"}) == 401
+    finally:
+        server.terminate()
+        _, errors = server.communicate(timeout=10)
+    assert b"Traceback" not in errors, errors.decode()
+
+
 def test_public_pods_hold_read_only_keys_and_jobs_the_writers() -> None:
     assert exposed_services(MANIFESTS)  # a RayService behind an Ingress, checked
     assert key_problems(MANIFESTS) == []
@@ -785,7 +1087,27 @@ def gateway_override(change_options: Callable[[dict], None]) -> Callable[[dict],
     return change
 
 
+def set_quota(route: str, limit: dict | None) -> Callable[[dict], None]:
+    def change(config_map: dict) -> None:
+        limits = json.loads(config_map["data"]["quotas.json"])
+        if limit is None:
+            limits.pop(route)
+        else:
+            limits[route] = limit
+        config_map["data"]["quotas.json"] = json.dumps(limits)
+
+    return change
+
+
+def policy_rule(index: int, change_rule: Callable[[dict], None]) -> Callable[[dict], None]:
+    def change(policy: dict) -> None:
+        change_rule(policy["spec"]["ingress"][index])
+
+    return change
+
+
 PUBLIC, INGRESS, MINIO = "public/rayservice.yaml", "public/ingress.yaml", "minio/minio.yaml"
+QUOTAS, POLICIES = "public/quota.yaml", "public/networkpolicy.yaml"
 INDEX_JOB = "kuberay/rayjob-index.yaml"
 #: (check, the mistake planted, a phrase of the problem it must report).
 PLANTED: list[tuple[Callable[[Manifests], list[str]], Callable[[Manifests], None], str]] = [
@@ -808,6 +1130,83 @@ PLANTED: list[tuple[Callable[[Manifests], list[str]], Callable[[Manifests], None
         auth_problems,
         lambda m: edit(m, INGRESS, "links-public-synthesize", set_annotation("limit-rpm", "6000")),
         "no tighter than",
+    ),
+    (
+        auth_problems,
+        lambda m: edit(m, INGRESS, "links-public", add_path("/api/curve", "Exact")),
+        "without a login",
+    ),
+    (
+        auth_problems,
+        lambda m: edit(m, INGRESS, "links-public-kit", set_annotation("auth-url", None)),
+        "without links-quota's check",
+    ),
+    (
+        auth_problems,
+        lambda m: edit(m, INGRESS, "links-public-kit", set_annotation("auth-realm", "kits")),
+        "a browser would ask for each",
+    ),
+    (
+        quota_problems,
+        lambda m: edit(m, QUOTAS, QUOTA, set_quota("/api/retrieve", None)),
+        "/api/retrieve has no quota",
+    ),
+    (
+        quota_problems,
+        lambda m: edit(m, QUOTAS, QUOTA, set_quota(SYNTHESIZE, {"user": [60, 2], "all": [20, 4]})),
+        "lets a user more than all users'",
+    ),
+    (
+        quota_problems,
+        lambda m: named(m, "Deployment", QUOTA)[1]["spec"].update(replicas=2),
+        "would each count apart",
+    ),
+    (
+        quota_problems,
+        lambda m: edit(
+            m,
+            INGRESS,
+            "links-public-edit",
+            set_annotation("auth-url", "http://links-quota.links.svc.cluster.local:9090/check"),
+        ),
+        "is not links-quota's Service and port",
+    ),
+    (
+        network_problems,
+        lambda m: edit(m, POLICIES, "links-public-ray", policy_rule(1, lambda r: r.pop("ports"))),
+        "admits controller",
+    ),
+    (
+        network_problems,
+        lambda m: edit(m, POLICIES, "links-public-ray", policy_rule(0, lambda r: r.pop("from"))),
+        "admits every source",
+    ),
+    (
+        network_problems,
+        lambda m: edit(
+            m,
+            POLICIES,
+            "links-public-ray",
+            lambda p: p["spec"].update(
+                podSelector={"matchLabels": {"app.kubernetes.io/name": "links-ray"}}
+            ),
+        ),
+        "also takes the pods of deploy/public/rayjob-demo.yaml",
+    ),
+    (
+        network_problems,
+        lambda m: edit(
+            m,
+            POLICIES,
+            "links-quota",
+            policy_rule(0, lambda r: r["from"].append({"podSelector": {}})),
+        ),
+        "admits other",
+    ),
+    (
+        network_problems,
+        lambda m: m[f"deploy/{POLICIES}"].pop(0),
+        "no NetworkPolicy selects all of its pods",
     ),
     (
         ingress_problems,
