@@ -1,7 +1,9 @@
 """How much work a synthesis may do: a time (`TimeBudget`) or a count of refinement
 iterations (`IterationBudget`, whose answers are bit-equal whatever the time, the load and the
 threads). The passes (`engine.synthesis_passes`) run one loop and ask the budget when a pass
-is done, what deadline a refinement gets, and whether rounds run in lockstep.
+is done, what deadline a refinement gets, and whether rounds run in lockstep. Either may be
+called off (`stop`, set when a synthesis's client has gone): every pass is then done, and a
+refinement under way ends at its next iteration.
 
 Pure Python: no Ray.
 """
@@ -19,7 +21,8 @@ __all__ = ["Budget", "IterationBudget", "TimeBudget"]
 
 
 class Budget(ABC):
-    """The work a synthesis may do, and the refinement iterations it has spent so far."""
+    """The work a synthesis may do, and the refinement iterations it has spent so far; `stop`,
+    once set, calls the rest off (a new Event if None)."""
 
     #: Whether each round of refinement waits for all its candidates before the next starts:
     #: then every candidate gets the same work whatever the threads (`IterationBudget`).
@@ -27,9 +30,14 @@ class Budget(ABC):
     #: When the work must end, by `time.perf_counter()` (inf when it ends by a count).
     deadline: float
 
-    def __init__(self) -> None:
+    def __init__(self, stop: threading.Event | None = None) -> None:
         self.spent = 0  # refinement iterations so far (each attempt counts one at least)
         self._counting = threading.Lock()  # workers add to `spent` at once
+        self.stop = threading.Event() if stop is None else stop
+
+    def stopped(self) -> bool:
+        """Whether the work has been called off (`stop` is set)."""
+        return self.stop.is_set()
 
     def charge(self, refinement: Refinement | None) -> Refinement | None:
         """Count `refinement`'s iterations (one for an attempt that did none), and return it."""
@@ -48,7 +56,8 @@ class Budget(ABC):
 
     @abstractmethod
     def done(self, share: float, end: float) -> bool:
-        """Whether a pass that may take `share` of the work, or run until `end`, is done."""
+        """Whether a pass that may take `share` of the work, or run until `end`, is done (at once
+        when called off)."""
 
     @abstractmethod
     def refine_deadline(self, end: float) -> float | None:
@@ -56,7 +65,7 @@ class Budget(ABC):
 
     @abstractmethod
     def expired(self) -> bool:
-        """Whether the whole budget is spent, for work that is skipped past it."""
+        """Whether the whole budget is spent (or called off), for work that is skipped past it."""
 
     @abstractmethod
     def at_once(self, workers: int, steady: int) -> int:
@@ -69,12 +78,13 @@ class Budget(ABC):
 
 
 class TimeBudget(Budget):
-    """`seconds` of work from `started` (a `time.perf_counter()` value)."""
+    """`seconds` of work from `started` (a `time.perf_counter()` value), unless `stop` is set
+    first."""
 
     lockstep = False
 
-    def __init__(self, started: float, seconds: float) -> None:
-        super().__init__()
+    def __init__(self, started: float, seconds: float, stop: threading.Event | None = None) -> None:
+        super().__init__(stop)
         self.deadline = started + seconds
         self.seconds = seconds
 
@@ -88,16 +98,16 @@ class TimeBudget(Budget):
         return self.deadline - (1.0 - share) * self.seconds
 
     def done(self, share: float, end: float) -> bool:
-        """Whether `end` has passed."""
-        return time.perf_counter() >= end
+        """Whether `end` has passed, or the work is called off."""
+        return self.stopped() or time.perf_counter() >= end
 
     def refine_deadline(self, end: float) -> float | None:
         """`end` itself."""
         return end
 
     def expired(self) -> bool:
-        """Whether the deadline has passed."""
-        return time.perf_counter() > self.deadline
+        """Whether the deadline has passed, or the work is called off."""
+        return self.stopped() or time.perf_counter() > self.deadline
 
     def at_once(self, workers: int, steady: int) -> int:
         """`workers`: a core for each."""
@@ -110,13 +120,13 @@ class TimeBudget(Budget):
 
 class IterationBudget(Budget):
     """About `iterations` refinement iterations over all candidates, checked between rounds:
-    no deadline, so the answer depends on nothing but the inputs."""
+    no deadline, so the answer depends on nothing but the inputs (unless `stop` is set)."""
 
     lockstep = True
     deadline = math.inf
 
-    def __init__(self, iterations: int) -> None:
-        super().__init__()
+    def __init__(self, iterations: int, stop: threading.Event | None = None) -> None:
+        super().__init__(stop)
         self.iterations = iterations
 
     def pass_end(self, share: float) -> float:
@@ -128,16 +138,16 @@ class IterationBudget(Budget):
         return math.inf
 
     def done(self, share: float, end: float) -> bool:
-        """Whether `share` of the iterations are spent."""
-        return self.spent >= share * self.iterations
+        """Whether `share` of the iterations are spent, or the work is called off."""
+        return self.stopped() or self.spent >= share * self.iterations
 
     def refine_deadline(self, end: float) -> float | None:
         """None: a refinement stops by its iterations alone."""
         return None
 
     def expired(self) -> bool:
-        """Never: counted work has no deadline."""
-        return False
+        """Only once called off: counted work has no deadline."""
+        return self.stopped()
 
     def at_once(self, workers: int, steady: int) -> int:
         """`steady`, whatever the threads."""

@@ -6,6 +6,7 @@ Pure numpy/numba: no Ray.
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 
@@ -103,11 +104,13 @@ class Candidate:
         min_transmission_deg: float,
         weight_floor: float,
         constraints: Constraints | None,
+        stop: threading.Event | None = None,
     ) -> Refinement | None:
         """`start` refined toward `target` for at most `iterations` iterations (from where
         the last kept refinement ended, when `start` is the best so far), or None if it is
-        past `deadline` or the start locks or is degenerate."""
-        if deadline is not None and time.perf_counter() > deadline:
+        past `deadline`, `stop` is set, or the start locks or is degenerate."""
+        late = deadline is not None and time.perf_counter() > deadline
+        if late or (stop is not None and stop.is_set()):
             return None  # not even its checks of the start: they are 2,000-step turns
         try:
             return refine_validated(
@@ -124,6 +127,7 @@ class Candidate:
                 weight_floor=weight_floor,
                 constraints=constraints,
                 restore=True,
+                stop=stop,
             )
         except (LockingError, ValueError):  # a shaken start that locks or is degenerate
             return None

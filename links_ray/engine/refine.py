@@ -58,6 +58,7 @@ Pure numpy/numba: no Ray, no files.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass
 
@@ -168,6 +169,7 @@ def refine_validated(
     weight_floor: float = IRLS_WEIGHT_FLOOR,
     constraints: Constraints | None = None,
     restore: bool = False,
+    stop: threading.Event | None = None,
 ) -> Refinement:
     """Refine a validated mechanism (`topology`, start positions (n, 2) float64, a moving
     `joint`) toward `target` at `steps` steps, for at most `iterations` iterations, keeping a
@@ -176,7 +178,8 @@ def refine_validated(
 
     Stops once `time.perf_counter()` passes `deadline`: checked before each iteration, each
     damping trial and each trial's check at REFINE_CHECK_STEPS, so a refinement ends within
-    one such piece of work of it (the last kept step stands; a trial cut short is not). With
+    one such piece of work of it (the last kept step stands; a trial cut short is not). `stop`,
+    once set, ends it as a passed deadline does (its caller has called the work off). With
     `origin` (positions `start` was refined from), the transmission floors and the assembly
     branches are the origin's, so refining in several calls keeps what one call would; a
     `start` on other branches than `origin`, or below its floors, raises ValueError.
@@ -207,6 +210,8 @@ def refine_validated(
         raise error
 
     def late() -> bool:
+        if stop is not None and stop.is_set():
+            return True
         return deadline is not None and time.perf_counter() > deadline
 
     fixed, links = topology.fixed_joints, topology.links

@@ -24,6 +24,7 @@ Pure numpy/numba and threads: no Ray, no files.
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -48,6 +49,7 @@ def refine_retrieved(
     *,
     started: float | None = None,
     progress: Progress | None = None,
+    stop: threading.Event | None = None,
 ) -> SynthesisResults:
     """The `options.k` best synthesis results (best first) refined from retrieval results of
     `points` (`RetrievalIndex.retrieve`'s, in the drawing's frame), keeping a transmission
@@ -76,21 +78,29 @@ def refine_retrieved(
     (with a time budget, the passes take 1 - LAYER_SHARE of it, the plans the rest).
     `options.timing`: the points are reached at those crank angles; the short pass
     fits the shape, then the start of each candidate is chosen (`timing.best_start`) and the
-    rest refines and ranks by the timed error."""
+    rest refines and ranks by the timed error.
+
+    Counted work on more points than MAX_SYNTHESIS_WORK allows raises ValueError
+    (`SynthesisOptions.check_work`). `stop`, once set (a server's client has gone), calls the
+    rest of the work off: each refinement under way ends at its next iteration, and the
+    answer is the best so far. The answer's `iterations` and `stopped` say what was done."""
     started = time.perf_counter() if started is None else started
     target = as_target(points, options.partial)
+    options.check_work(len(target.points))
     budget: Budget
     if options.iterations is not None:
-        budget = IterationBudget(options.iterations)
+        budget = IterationBudget(options.iterations, stop)
     else:
         seconds: float = options.seconds  # type: ignore[assignment]
         if plans_layers(options):
             seconds *= 1.0 - LAYER_SHARE  # the answer's layer plans take the rest
-        budget = TimeBudget(started, seconds)
+        budget = TimeBudget(started, seconds, stop)
     workers = max(1, min(usable_cpus(), len(retrieved)))
     with ThreadPoolExecutor(workers, thread_name_prefix="links-synthesize") as pool:
         passes = SynthesisPasses(options, target, budget, pool, workers, progress, started)
-        return passes.run(list(retrieved))
+        results = passes.run(list(retrieved))
+    results.iterations, results.stopped = budget.spent, budget.stopped()
+    return results
 
 
 def synthesize(

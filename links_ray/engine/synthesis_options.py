@@ -26,6 +26,7 @@ from links_ray.engine.inputs import (
     positive_at_most,
     shown,
 )
+from links_ray.engine.synthesis_plan import retrievals
 
 __all__ = [
     "DEFAULT_SYNTHESIS_SECONDS",
@@ -33,6 +34,7 @@ __all__ = [
     "MAX_SEED",
     "MAX_SYNTHESIS_ITERATIONS",
     "MAX_SYNTHESIS_SECONDS",
+    "MAX_SYNTHESIS_WORK",
     "SynthesisOptions",
     "as_seconds",
     "as_timing",
@@ -50,6 +52,17 @@ DEFAULT_SYNTHESIS_SECONDS, MAX_SYNTHESIS_SECONDS = 3.0, 30.0
 #: its candidates): about what MAX_SYNTHESIS_SECONDS allow on two cores (docs/benchmarks.md,
 #: Synthesis), so that counted work holds a replica about as long as a timed one.
 MAX_SYNTHESIS_ITERATIONS = 10_000
+#: Most counted work a synthesis may be given, in point-iterations: the drawing's points times
+#: its refinement iterations, `iterations` and CANDIDATE_ITERATIONS for each candidate it
+#: retrieves (`counted_work_units`). An iteration pairs every drawn point with the path (and
+#: a stroke searches for its best run along it), so its cost grows with the points; the
+#: iterations alone would let a 10,000-point stroke hold the refiner for minutes. Sized so
+#: that the costliest request within it (a Pareto front of a 10,000-point stroke) answers
+#: within a minute on two cores (docs/benchmarks.md, Hostile input).
+MAX_SYNTHESIS_WORK = 15_000_000
+#: Iterations each retrieved candidate costs whatever `iterations` says: its preparation, and
+#: the short pass's first round (`synthesis_passes.FIRST_ROUND`), which every candidate gets.
+CANDIDATE_ITERATIONS = 10
 #: Seeds are what numpy's generators take whole: non-negative, here within 64 bits.
 MAX_SEED = 2**64 - 1
 
@@ -159,10 +172,40 @@ class SynthesisOptions:
 
     def drawing(self, points: object) -> np.ndarray:
         """The drawn `points` as a float64 (T, 2) array, checked with the options that depend
-        on them (one timing angle a point), or ValueError naming the problem."""
+        on them (one timing angle a point, counted work within MAX_SYNTHESIS_WORK), or
+        ValueError naming the problem."""
         drawn = as_drawn_points(points)
         self.timing_angles(len(drawn))
+        self.check_work(len(drawn))
         return drawn
+
+    def counted_work_units(self, count: int) -> int | None:
+        """The point-iterations counted work on `count` points asks for (`count` times
+        `iterations` and CANDIDATE_ITERATIONS a candidate retrieved), None for timed work."""
+        if self.iterations is None:
+            return None
+        wanted = retrievals(self.k, self.max_joints, self.front, self.min_transmission_deg)
+        candidates = sum(asked for asked, _, _ in wanted)
+        return count * (self.iterations + CANDIDATE_ITERATIONS * candidates)
+
+    def check_work(self, count: int) -> None:
+        """ValueError naming MAX_SYNTHESIS_WORK and the request's units if counted work on
+        `count` points would pass it."""
+        units = self.counted_work_units(count)
+        if units is None or units <= MAX_SYNTHESIS_WORK:
+            return
+        candidates = units // count - self.iterations  # type: ignore[operator]
+        most = MAX_SYNTHESIS_WORK // count - candidates
+        fewer = (
+            f"at most {most} iterations for {count} points"
+            if most >= 1
+            else f"at most {MAX_SYNTHESIS_WORK // (self.iterations + candidates)} points"  # type: ignore[operator]
+        )
+        raise ValueError(
+            f"counted work must be at most {MAX_SYNTHESIS_WORK:,} point-iterations "
+            f"(MAX_SYNTHESIS_WORK), got {count} points x ({self.iterations} iterations + "
+            f"{candidates} for the candidates) = {units:,}: give {fewer}, or seconds"
+        )
 
     def timing_angles(self, count: int) -> np.ndarray | None:
         """The crank angles in radians (count,) at which `count` points are to be reached

@@ -163,7 +163,10 @@ class SynthesisPasses:
             self.min_transmission_deg,
             weight_floor,
             self.options.constraints,
+            self.budget.stop,
         )
+        if refined is None and self.budget.stopped():
+            return False  # called off: nothing was done, and nothing is charged
         return c.keep(self.budget.charge(refined), iterations)
 
     def _refine_on(self, c: Candidate, iterations: int, end: float, weight_floor: float) -> None:

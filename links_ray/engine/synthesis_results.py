@@ -24,9 +24,12 @@ class SynthesisResults(list):
     """A synthesis's results (a list of result dicts, best first, or a Pareto front by
     joints), and `unmet`: when constraints were given and no candidate keeps them,
     {"constraint", "by"} of the candidate that came nearest (the most missed constraint, and
-    by how much in its units), else None."""
+    by how much in its units), else None. `iterations`: the refinement iterations done (each
+    attempt counts one at least); `stopped`: whether the work was called off before its end."""
 
     unmet: dict[str, Any] | None = None
+    iterations: int = 0
+    stopped: bool = False
 
 
 def fit(

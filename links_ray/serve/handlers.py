@@ -27,6 +27,7 @@ exports run in the default thread pool, builds of parts in one thread of their o
 import asyncio
 import functools
 import importlib.resources
+import threading
 import time
 from collections.abc import AsyncIterator
 from concurrent.futures import ThreadPoolExecutor
@@ -191,6 +192,42 @@ def export_file(
             "X-Content-Type-Options": "nosniff",
         },
     )
+
+
+#: A synthesis whose client's server hands it one message after another, none of them the
+#: client's leaving, looks again this often (uvicorn's waits for the next one).
+GONE_POLL_S = 0.25
+
+
+async def _client_gone(request: Request) -> None:
+    """Return once the client of `request`, whose body is read, has gone (`http.disconnect`,
+    or a connection its server can no longer read)."""
+    try:
+        while (await request.receive())["type"] != "http.disconnect":
+            await asyncio.sleep(GONE_POLL_S)
+    except (OSError, RuntimeError):
+        return
+
+
+async def _unless_gone(
+    request: Request,
+    refining: asyncio.Future[tuple[SynthesisResults, float]],
+    stop: threading.Event,
+) -> tuple[SynthesisResults, float]:
+    """`refining`'s outcome. If the client goes first, or this wait is cancelled (Serve
+    cancels a request whose client has gone), `stop` is set: the refinement ends at its next
+    iteration, and its place and the refiner are free for the next synthesis."""
+    gone = asyncio.ensure_future(_client_gone(request))
+    try:
+        await asyncio.wait({refining, gone}, return_when=asyncio.FIRST_COMPLETED)
+    except asyncio.CancelledError:
+        stop.set()
+        raise
+    finally:
+        if gone.done() and not refining.done():
+            stop.set()
+        gone.cancel()
+    return await refining
 
 
 def _synthesis_answer(results: SynthesisResults, took_ms: float, queued_s: float) -> dict[str, Any]:
@@ -405,12 +442,15 @@ class LinksApiRoutes:
         or when it would wait longer than its own budget. The budget starts when its
         refinement does (its retrieval counted), and `queued_ms` says how long it waited.
         With `"stream": true` the answer is NDJSON: a `{"progress": ...}` line each time the
-        best so far improves, then the answer's own line (`_synthesis_lines`)."""
+        best so far improves, then the answer's own line (`_synthesis_lines`). Counted work
+        past MAX_SYNTHESIS_WORK is refused 400 before any; a synthesis whose client goes
+        stops at its next refinement iteration (`_unless_gone`)."""
         points, options, stream = await read_args(request, "/api/synthesize", synthesize_request)
         seconds = options.seconds
         self._admission.claim_synthesis()  # once the body is read and checked, as a retrieval
         place: Place | None = None
         released = True  # until the refinement, once submitted, releases its place itself
+        stop = threading.Event()  # set once the client has gone: the refinement stops
         try:
             start = time.perf_counter()
             wanted = retrievals(
@@ -438,6 +478,7 @@ class LinksApiRoutes:
                         if stream
                         else None
                     ),
+                    stop=stop,
                 )
                 return results, waited + began - retrieved_at
 
@@ -449,10 +490,10 @@ class LinksApiRoutes:
             released = False
             if stream:
                 return StreamingResponse(
-                    self._synthesis_lines(reports, refining, start),
+                    self._synthesis_lines(reports, refining, start, request, stop),
                     media_type="application/x-ndjson",
                 )
-            results, queued_s = await refining
+            results, queued_s = await _unless_gone(request, refining, stop)
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
             if released:
@@ -464,17 +505,28 @@ class LinksApiRoutes:
         reports: asyncio.Queue[dict[str, Any]],
         refining: asyncio.Future[tuple[SynthesisResults, float]],
         start: float,
+        request: Request,
+        stop: threading.Event,
     ) -> AsyncIterator[bytes]:
         """A streamed synthesis: `{"progress": best so far}` lines while it refines, then
         `{"results", "took_ms", "queued_ms"}` (or `{"error"}` if it failed after the stream
-        began)."""
-        while not refining.done() or not reports.empty():
-            waiting = asyncio.ensure_future(reports.get())
-            await asyncio.wait({waiting, refining}, return_when=asyncio.FIRST_COMPLETED)
-            if waiting.done():
-                yield await json_line({"progress": waiting.result()})
-            else:
-                waiting.cancel()
+        began). If the client goes, or the stream is closed, before the refinement ends,
+        `stop` is set."""
+        gone = asyncio.ensure_future(_client_gone(request))
+        try:
+            while not refining.done() or not reports.empty():
+                waiting = asyncio.ensure_future(reports.get())
+                await asyncio.wait({waiting, refining, gone}, return_when=asyncio.FIRST_COMPLETED)
+                if waiting.done():
+                    yield await json_line({"progress": waiting.result()})
+                else:
+                    waiting.cancel()
+                if gone.done():
+                    return
+        finally:
+            if not refining.done():
+                stop.set()
+            gone.cancel()
         try:
             results, queued_s = refining.result()
         except Exception as exc:  # the status is sent: the failure can only be a line

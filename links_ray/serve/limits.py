@@ -23,6 +23,7 @@ from links_ray.engine.synthesis_options import (
     DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
     MAX_SYNTHESIS_ITERATIONS,
     MAX_SYNTHESIS_SECONDS,
+    MAX_SYNTHESIS_WORK,
 )
 
 #: Longest file name or element id (SVG id, DXF layer) a curve file is named by over HTTP.
@@ -31,6 +32,12 @@ MAX_CURVE_NAME_CHARS = 1000
 #: Largest mechanism one request may carry, in joints. Smaller than MAX_JOINTS: a request holds
 #: a replica's CPU while it runs, and the studio draws nothing larger.
 MAX_REQUEST_JOINTS = 100
+#: Largest mechanism `POST /api/kit` builds, in joints: a kit's check of its links' pairs over
+#: the turn and its layer plan grow faster than the square of the joints, and the replica's
+#: one kit thread is held meanwhile. Every mechanism the dataset holds and synthesis grows is
+#: within it (20 joints at most), and the slowest of them plans in seconds (docs/benchmarks.md,
+#: Hostile input).
+MAX_KIT_JOINTS = 20
 #: Largest simulation one request may ask for: joints x steps (the answer holds twice as many
 #: numbers, about 4 MB of JSON at the limit).
 MAX_REQUEST_JOINT_STEPS = 100_000
@@ -76,6 +83,8 @@ def request_limits() -> dict[str, float | int]:
         "max_joint_steps": MAX_REQUEST_JOINT_STEPS,
         "max_seconds": MAX_SYNTHESIS_SECONDS,
         "max_iterations": MAX_SYNTHESIS_ITERATIONS,
+        "max_synthesis_work": MAX_SYNTHESIS_WORK,
+        "max_kit_joints": MAX_KIT_JOINTS,
         "default_seconds": DEFAULT_SYNTHESIS_SECONDS,
         "max_transmission_deg": MAX_TRANSMISSION_DEG,
         "default_transmission_deg": DEFAULT_SYNTHESIS_TRANSMISSION_DEG,

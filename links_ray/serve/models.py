@@ -263,6 +263,8 @@ class LimitsResponse(BaseModel):
     max_joint_steps: int
     max_seconds: float
     max_iterations: int
+    max_synthesis_work: int
+    max_kit_joints: int
     default_seconds: float
     max_transmission_deg: float
     max_coordinate: float

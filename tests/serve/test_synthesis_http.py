@@ -1,12 +1,15 @@
 """`POST /api/synthesize` on the Serve app: the Python API's answer bit for bit, its
 progress stream, bad requests refused (4xx JSON), health answered and the queue's budgets
-kept while syntheses run. The engine's own tests of synthesis are
+kept while syntheses run, counted work past its bound refused up front, and work stopped
+when its client goes. The engine's own tests of synthesis are
 tests/engine/test_synthesis.py."""
 
 from __future__ import annotations
 
+import contextlib
 import http.client
 import json
+import socket
 import threading
 import time
 from typing import Any
@@ -15,10 +18,13 @@ import numpy as np
 import pytest
 
 import links_ray
-from links_ray.engine.inputs import MIN_POINTS
+from links_ray.engine.inputs import MAX_POINTS, MIN_POINTS
 from links_ray.engine.paths import chamfer
 from links_ray.engine.synthesis import synthesize
+from links_ray.engine.synthesis_options import MAX_SYNTHESIS_WORK
 from links_ray.search.index import RetrievalIndex
+from links_ray.serve.limits import MAX_KIT_JOINTS
+from tests.engine.test_budget import BOUND_POINTS, bound_iterations
 from tests.engine.test_synthesis import ITERATIONS, chord, traced
 from tests.support.serving import Client, hand_drawn
 
@@ -236,3 +242,88 @@ def test_a_synthesis_retrieval_counts_against_the_retrieval_limit(client: Client
 #: so its margin was half its own), grazing it along a stretch of the turn. Between 200 steps
 #: the check cannot prove it turns; at 2,000 it took 79 s to, and is now refused within its
 #: split budget (test_turning).
+
+
+# -- bounded work, stopped when its client goes ----------------------------------------------
+
+
+def arc(count: int) -> list[list[float]]:
+    """An open stroke of `count` points: three quarters of an ellipse."""
+    t = np.linspace(0, 1.5 * np.pi, count)
+    return np.column_stack([300 + 120 * np.cos(t), 200 + 50 * np.sin(t)]).tolist()
+
+
+def test_counted_work_past_its_bound_is_refused_up_front(client: Client) -> None:
+    """10,000 iterations on a 10,000-point stroke (minutes of the refiner) are refused 400
+    before any work, naming MAX_SYNTHESIS_WORK and the request's units; so is one iteration
+    past the bound. `/api/limits` gives the bounds."""
+    status, data = client.post(
+        "/api/synthesize", {"points": arc(MAX_POINTS), "partial": True, "iterations": 10_000}
+    )
+    assert status == 400, data
+    assert "at most 15,000,000 point-iterations (MAX_SYNTHESIS_WORK)" in data["error"]
+    assert (
+        "10000 points x (10000 iterations + 1440 for the candidates) = 114,400,000"
+        in (data["error"])
+    )
+    at = bound_iterations()
+    status, data = client.post(
+        "/api/synthesize", {"points": arc(BOUND_POINTS), "partial": True, "iterations": at + 1}
+    )
+    assert (
+        status == 400
+        and f"give at most {at} iterations for {BOUND_POINTS} points" in (data["error"])
+    )
+    _, limits = client.get("/api/limits")
+    assert limits["max_synthesis_work"] == MAX_SYNTHESIS_WORK == 15_000_000
+    assert limits["max_kit_joints"] == MAX_KIT_JOINTS
+
+
+def left_behind(client: Client, body: dict[str, Any], stream: bool) -> None:
+    """Send `body` to /api/synthesize and go away once it is refining: streamed, after its
+    first progress line (the request was taken: 200); else after its retrieval's time."""
+    if stream:
+        conn = http.client.HTTPConnection("127.0.0.1", client.port, timeout=120)
+        conn.request(
+            "POST",
+            "/api/synthesize",
+            json.dumps({**body, "stream": True}),
+            {"Content-Type": "application/json"},
+        )
+        response = conn.getresponse()
+        assert response.status == 200
+        assert set(json.loads(response.readline())) == {"progress"}
+        response.close()
+        conn.close()
+        return
+    data = json.dumps(body).encode()
+    with socket.create_connection(("127.0.0.1", client.port), timeout=60) as sock:
+        sock.sendall(
+            b"POST /api/synthesize HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+            b"Content-Type: application/json\r\n"
+            + f"Content-Length: {len(data)}\r\n\r\n".encode()
+            + data
+        )
+        time.sleep(3.0)  # retrieved and refining: nothing answers within its 10,000 iterations
+        sock.settimeout(0.0)
+        with contextlib.suppress(BlockingIOError):
+            assert sock.recv(1) == b"", "the work at the bound answered before its client left"
+
+
+@pytest.mark.parametrize("stream", [True, False])
+def test_a_synthesis_whose_client_goes_frees_the_refiner(client: Client, stream: bool) -> None:
+    """Counted work at the bound (1,500 points x (8,560 iterations + 1,440), tens of seconds
+    of the refiner) is taken; its client goes once it refines. A synthesis right after
+    answers 200 without waiting for the work left behind: it stopped at its next iteration.
+    Had it not, the next would wait for all of it (or be refused 503 past 30 s)."""
+    body = {"points": arc(BOUND_POINTS), "partial": True, "iterations": bound_iterations()}
+    left_behind(client, body, stream)
+    status, data = client.post(
+        "/api/synthesize",
+        {"points": hand_drawn()[0].tolist(), "k": 1, "seed": 0, "iterations": 300},
+    )
+    assert status == 200, data
+    assert len(data["results"]) == 1
+    # The refiner is free within a refinement iteration and the answer's measure of what was
+    # left; the work at the bound would hold it many times longer.
+    assert data["queued_ms"] < 5_000, data["queued_ms"]
