@@ -1,7 +1,8 @@
 """`POST /api/kit` on the Serve app (the `client` fixture's, shared with the other HTTP tests):
 the bill of materials of the Python API, the assembly as GLB and the kit as a zip, refusals as
-4xx JSON, 503 past the kits a replica holds, and health answered while kits are made. The
-parts themselves are tested in tests/interop/test_parts.py.
+4xx JSON (a kit past MAX_KIT_JOINTS among them), 503 past the kits a replica holds, and
+health answered while kits are made. The parts themselves are tested in
+tests/interop/test_parts.py.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import pytest
 from links_ray.cli.bench.kit import kit_workload
 from links_ray.engine.kit import KitOptions, plan_kit
 from links_ray.serve.kits import MAX_KITS
+from links_ray.serve.limits import MAX_KIT_JOINTS
 from tests.interop.test_parts import UNBUILDABLE, random_mechanism
 from tests.support.needs import need_module
 from tests.support.serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
@@ -186,3 +188,20 @@ def test_a_file_of_an_unbuildable_mechanism_is_refused_as_json(client: Client, c
     )
     assert status == 422 and headers["content-type"].startswith("application/json")
     assert "no layer plan" in data["error"]
+
+
+def test_a_kit_past_its_joints_is_refused_and_one_at_them_is_made(client: Client) -> None:
+    """A kit of MAX_KIT_JOINTS + 1 joints is refused 400 naming the bound, before it takes
+    one of the replica's places; one of MAX_KIT_JOINTS joints is the Python API's kit."""
+    over = plain(random_mechanism(0, MAX_KIT_JOINTS + 1))
+    status, data = client.post("/api/kit", over)
+    assert status == 400, data
+    assert data["error"] == (
+        f"a kit is built of at most {MAX_KIT_JOINTS} joints here (MAX_KIT_JOINTS), got "
+        f"{MAX_KIT_JOINTS + 1}: its layer plan would hold the server too long"
+    )
+    at = plain(random_mechanism(2, MAX_KIT_JOINTS))
+    status, data = client.post("/api/kit", at)
+    assert status == 200, data
+    data.pop("took_ms")
+    assert data == json.loads(json.dumps(plan_kit(**at).bom()))
