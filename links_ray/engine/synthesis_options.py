@@ -57,8 +57,8 @@ MAX_SYNTHESIS_ITERATIONS = 10_000
 #: retrieves (`counted_work_units`). An iteration pairs every drawn point with the path (and
 #: a stroke searches for its best run along it), so its cost grows with the points; the
 #: iterations alone would let a 10,000-point stroke hold the refiner for minutes. Sized so
-#: that the costliest request within it (a Pareto front of a 10,000-point stroke) answers
-#: within a minute on two cores (docs/benchmarks.md, Hostile input).
+#: that the costliest request within it (a Pareto front of the longest stroke it allows)
+#: answers within a minute on two cores, and every request of the tests and benches is within.
 MAX_SYNTHESIS_WORK = 15_000_000
 #: Iterations each retrieved candidate costs whatever `iterations` says: its preparation, and
 #: the short pass's first round (`synthesis_passes.FIRST_ROUND`), which every candidate gets.

@@ -35,8 +35,8 @@ MAX_REQUEST_JOINTS = 100
 #: Largest mechanism `POST /api/kit` builds, in joints: a kit's check of its links' pairs over
 #: the turn and its layer plan grow faster than the square of the joints, and the replica's
 #: one kit thread is held meanwhile. Every mechanism the dataset holds and synthesis grows is
-#: within it (20 joints at most), and the slowest of them plans in seconds (docs/benchmarks.md,
-#: Hostile input).
+#: within it (20 joints at most), and the slowest of them plans within seconds of a core
+#: (docs/benchmarks.md, Kits); past it the time grows steeply.
 MAX_KIT_JOINTS = 20
 #: Largest simulation one request may ask for: joints x steps (the answer holds twice as many
 #: numbers, about 4 MB of JSON at the limit).
