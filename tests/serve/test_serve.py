@@ -493,7 +493,8 @@ def ret_raw(name: str, text: str, words: str, route: str = "/api/retrieve") -> A
     return bad(name, route, text.replace("PTS", json.dumps(POINTS)).encode(), words)
 
 
-NESTED = "[" * 50_000 + "]" * 50_000
+#: Deeper than the parser reads, in fewer brackets than a body may hold.
+NESTED = "[" * 2_000 + "]" * 2_000
 JUNK_ROWS = [[[0], {"a": [1]}, "x", None]] * 4
 PAD = "x" * LIMIT
 NOT_JSON = "the body is not valid JSON"
@@ -509,6 +510,11 @@ BAD_REQUESTS = [
     bad("number body", "/api/simulate", 3, "the body must be a JSON object, got a number"),
     bad("string body", "/api/simulate", "adjacency", "must be a JSON object, got a string"),
     ret_raw("deep nesting", '{"k": ' + NESTED + "}", f"{NOT_JSON}: nested too deeply"),
+    ret_raw(
+        "50,000 brackets",
+        '{"k": ' + "[" * 50_000 + "]" * 50_000 + "}",
+        "the body holds 50001 brackets, more arrays and objects than any /api/retrieve body",
+    ),
     bad(
         "text/plain",
         "/api/retrieve",
