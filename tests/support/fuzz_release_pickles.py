@@ -11,8 +11,10 @@ seed, integer arguments set to edge values, pieces of another seed spliced in) a
 batch of it with `links_ray.release.pickles.read_pickles`.
 
 The property: a case either loads, holding only lists, tuples, plain values and numpy arrays
-and scalars of the release's plain dtypes (the seed's own batches, or others when the mutation
-changed data), or is refused with a one-line ReleaseFileError. Any other exception is a
+and scalars of the release's plain dtypes (`links_ray.cli.bench.pickle_fuzz.not_plain`; the
+seed's own batches, or others when the mutation changed data), or is refused with a one-line
+ReleaseFileError. The grammar fuzzer of `links_ray.cli.bench.pickle_fuzz` builds pickles opcode
+by opcode instead, and measures each file's memory against its budget. Any other exception is a
 violation; a signal ends the run, which its caller sees in the exit status. The run prints its
 counts as one JSON object and exits 1 if there was a violation.
 
@@ -40,11 +42,9 @@ from typing import Any
 
 import numpy as np
 
+from links_ray.cli.bench.pickle_fuzz import not_plain
 from links_ray.release.pickles import ReleaseFileError, read_pickles
 
-#: numpy kinds of the arrays and scalars a loaded batch may hold.
-PLAIN_KINDS = frozenset("biufS")
-PLAIN_VALUES = (int, float, bool, str, bytes, bytearray, type(None))
 #: Integer arguments written into opcodes: edges of sizes, signs and widths.
 EDGE_INTEGERS = (0, 1, 2, 3, 7, 8, 255, 256, 2**15, 2**16 - 1, 2**27, 2**31 - 1, 2**31, 2**32 - 1)
 #: The width of an opcode's integer argument, or of its argument's length, by pickletools' n.
@@ -279,29 +279,6 @@ MUTATIONS: list[Callable[[bytearray, list, list[Seed], np.random.Generator], str
     edge_argument,
     splice,
 ]
-
-
-def not_plain(value: Any) -> str | None:
-    """What in `value` a release batch may not hold, or None: only lists, tuples, plain values
-    and numpy arrays and scalars of PLAIN_KINDS (any depth, shared or in cycles)."""
-    seen = {id(value)}
-    waiting = [value]
-    while waiting:
-        item = waiting.pop()
-        kind = type(item)
-        if kind is list or kind is tuple:
-            for inner in item:
-                if id(inner) not in seen:
-                    seen.add(id(inner))
-                    waiting.append(inner)
-        elif kind is np.ndarray or isinstance(item, np.generic):
-            if item.dtype.kind not in PLAIN_KINDS or item.dtype.hasobject:
-                return f"a {kind.__name__} of dtype {item.dtype}"
-            if kind is np.ndarray and not (item.flags.owndata and item.flags.writeable):
-                return "an array that does not own writable memory"
-        elif kind not in PLAIN_VALUES:
-            return f"a {kind.__name__}"
-    return None
 
 
 def same(loaded: Any, original: Any) -> bool:
