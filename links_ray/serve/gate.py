@@ -17,8 +17,9 @@ user asked for) is where those bounds live:
 - a request whose Host `guards.host_allowed` refuses gets 400 before anything else, Serve's
   own routes (`/-/...`) included;
 - only then is it passed to Serve, on 127.0.0.1, at most MAX_PASSED at once (fewer than the
-  places Serve has, so health, which skips that line, always finds one), and the answer
-  relayed; an answer the client does not read within SEND_TIMEOUT_S ends its connection;
+  places Serve has, so health, which skips that line, always finds one); Serve's whole answer
+  is taken (so a client that does not read holds no place in Serve) and sent on, within a
+  pace (else the connection ends);
 - a client that goes away while its request is served closes the gate's connection to Serve
   too, so the app learns of it (`http.disconnect`) and stops the work.
 
@@ -60,12 +61,19 @@ MAX_BODY_BYTES_BUFFERED = 128 * 1024 * 1024
 #: Requests passed to Serve at once; more wait, up to PASS_WAIT_S, then 503. Below Serve's
 #: places for the gateway (`deployments.GATEWAY_MAX_ONGOING`), so that health, which does not
 #: wait in this line, always finds one.
-MAX_PASSED = 64
+MAX_PASSED = 16
 PASS_WAIT_S = 10.0
 #: Seconds Serve may take to answer a request passed on (syntheses are bounded far below it).
 ANSWER_TIMEOUT_S = 600.0
-#: Seconds one piece of an answer may wait for the client to read it.
+#: The gate takes Serve's whole answer before sending it, so that a client that does not
+#: read holds the gate's memory, not a place in Serve: at most MAX_ANSWER_BYTES an answer
+#: (else 502), and no request is passed on while MAX_ANSWER_BYTES_HELD of answers wait for
+#: their clients. A client must take its answer within SEND_TIMEOUT_S, plus its size at
+#: MIN_SEND_BYTES_PER_S, or its connection ends.
+MAX_ANSWER_BYTES = 64 * 1024 * 1024
+MAX_ANSWER_BYTES_HELD = 128 * 1024 * 1024
 SEND_TIMEOUT_S = 10.0
+MIN_SEND_BYTES_PER_S = 64 * 1024
 #: Requests that skip the line for Serve: health checks, which must never wait behind work.
 HEALTH_TARGETS = frozenset({b"/api/health", b"/-/healthz"})
 #: Bytes read from a socket at a time.
@@ -155,6 +163,7 @@ class RequestGate:
         self.budget = _Budget(MAX_BODIES_READING, MAX_BODY_BYTES_BUFFERED)
         self.server: asyncio.Server | None = None
         self._passing: asyncio.Semaphore | None = None
+        self.answer_bytes = 0  # of answers taken from Serve, not yet sent
         self._tasks: set[asyncio.Task] = set()
 
     async def start(self) -> None:
@@ -247,9 +256,11 @@ class RequestGate:
                     raise Refusal(431, f"more than {MAX_HEADERS} headers")
                 # h11 bounds a head that arrives in pieces; one that came in a single read
                 # is measured here.
-                if sum(len(name) + len(value) + 4 for name, value in event.headers) + len(
-                    event.target
-                ) > MAX_HEAD_BYTES:
+                if (
+                    sum(len(name) + len(value) + 4 for name, value in event.headers)
+                    + len(event.target)
+                    > MAX_HEAD_BYTES
+                ):
                     raise Refusal(431, f"the request head is over {MAX_HEAD_BYTES} bytes")
                 host = _header(event.headers, b"host")
                 if not host_allowed(host, self.allowed_hosts):
@@ -335,100 +346,129 @@ class RequestGate:
                 self.budget.give_back(size)
 
     async def _pass_on(self, conn: _Conn, request: h11.Request, body: bytes) -> None:
-        """Send the request to Serve and relay its answer; close Serve's connection if the
-        client goes away meanwhile."""
+        """Pass the request to Serve, in its turn (health skips the line), take Serve's whole
+        answer, then deliver it: Serve's place is held only while Serve works, never while a
+        slow client reads."""
         assert self._passing is not None
         health = request.target.split(b"?", 1)[0] in HEALTH_TARGETS
         if not health:
-            try:
-                async with asyncio.timeout(PASS_WAIT_S):
-                    await self._passing.acquire()
-            except TimeoutError:
-                raise Refusal(
-                    503, f"busy: {MAX_PASSED} requests under way, the most passed on", retry=True
-                ) from None
+            await self._take_turn()
         try:
-            await self._exchange(conn, request, body)
+            head, answer = await self._fetch_watching(conn, request, body)
         finally:
             if not health:
                 self._passing.release()
+        self.answer_bytes += len(answer)
+        try:
+            await self._deliver(conn, head, answer)
+        finally:
+            self.answer_bytes -= len(answer)
 
-    async def _exchange(self, conn: _Conn, request: h11.Request, body: bytes) -> None:
+    async def _take_turn(self) -> None:
+        """Wait, at most PASS_WAIT_S, until fewer than MAX_PASSED requests are passed on and
+        fewer than MAX_ANSWER_BYTES_HELD of answers wait for their clients; then count this
+        one passed on (the caller releases `_passing`). Else 503."""
+        assert self._passing is not None
+        acquired = False
         try:
-            up_reader, up_writer = await asyncio.wait_for(
-                asyncio.open_connection(*self.upstream, limit=READ_BYTES), PASS_WAIT_S
-            )
-        except (OSError, TimeoutError):
-            raise Refusal(503, "the server is starting or restarting", retry=True) from None
-        upstream = h11.Connection(h11.CLIENT)
-        # The client's end is watched while Serve works: its close closes Serve's connection.
+            async with asyncio.timeout(PASS_WAIT_S):
+                await self._passing.acquire()
+                acquired = True
+                while self.answer_bytes >= MAX_ANSWER_BYTES_HELD:
+                    await asyncio.sleep(0.05)
+        except BaseException as exc:
+            if acquired:
+                self._passing.release()
+            if isinstance(exc, TimeoutError):
+                raise Refusal(
+                    503, f"busy: {MAX_PASSED} requests under way, the most passed on", retry=True
+                ) from None
+            raise
+
+    async def _fetch_watching(
+        self, conn: _Conn, request: h11.Request, body: bytes
+    ) -> tuple[h11.Response, bytes]:
+        """`_fetch`'s answer; if the client closes meanwhile, Serve's connection is closed
+        (the app sees the client leave) and ConnectionError raised."""
         gone = asyncio.create_task(_closed(conn))
-        relay = asyncio.create_task(
-            self._relay(conn, request, body, upstream, up_reader, up_writer)
-        )
+        fetch = asyncio.create_task(self._fetch(request, body))
         try:
-            done, _ = await asyncio.wait({gone, relay}, return_when=asyncio.FIRST_COMPLETED)
-            if relay not in done:
-                relay.cancel()
+            done, _ = await asyncio.wait({gone, fetch}, return_when=asyncio.FIRST_COMPLETED)
+            if fetch not in done:
+                fetch.cancel()
                 with contextlib.suppress(BaseException):
-                    await relay
+                    await fetch
                 raise ConnectionError("the client went away")
-            relay.result()
+            return fetch.result()
         finally:
             gone.cancel()
             with contextlib.suppress(BaseException):
                 await gone
-            up_writer.close()
 
-    async def _relay(
-        self,
-        conn: _Conn,
-        request: h11.Request,
-        body: bytes,
-        upstream: h11.Connection,
-        up_reader: asyncio.StreamReader,
-        up_writer: asyncio.StreamWriter,
-    ) -> None:
-        headers = [
-            (name, value) for name, value in request.headers if name.lower() not in HOP_HEADERS
-        ]
-        headers += [(b"content-length", str(len(body)).encode()), (b"connection", b"close")]
-        out = upstream.send(
-            h11.Request(method=request.method, target=request.target, headers=headers)
-        )
-        out += upstream.send(h11.Data(data=body)) if body else b""
-        out += upstream.send(h11.EndOfMessage())
-        up_writer.write(out)
-        await up_writer.drain()
-        started = False
-        async with asyncio.timeout(ANSWER_TIMEOUT_S):
-            while True:
-                event = upstream.next_event()
-                if event is h11.NEED_DATA:
-                    data = await up_reader.read(READ_BYTES)
-                    upstream.receive_data(data)
-                    continue
-                if isinstance(event, h11.InformationalResponse):
-                    continue
-                if isinstance(event, h11.Response):
-                    passed = [
-                        (name, value)
-                        for name, value in event.headers
-                        if name.lower() not in HOP_HEADERS or name.lower() == b"content-length"
-                    ]
-                    await self._send(
-                        conn, h11.Response(status_code=event.status_code, headers=passed)
-                    )
-                    started = conn.answering = True
-                elif isinstance(event, h11.Data):
-                    await self._send(conn, h11.Data(data=event.data))
-                elif isinstance(event, h11.EndOfMessage):
-                    await self._send(conn, h11.EndOfMessage())
-                    return
-                elif isinstance(event, h11.ConnectionClosed):
-                    if not started:
+    async def _fetch(self, request: h11.Request, body: bytes) -> tuple[h11.Response, bytes]:
+        """Serve's whole answer to the request: its head and its body, at most
+        MAX_ANSWER_BYTES (else 502)."""
+        try:
+            reader, writer = await asyncio.wait_for(
+                asyncio.open_connection(*self.upstream, limit=READ_BYTES), PASS_WAIT_S
+            )
+        except (OSError, TimeoutError):
+            raise Refusal(503, "the server is starting or restarting", retry=True) from None
+        try:
+            upstream = h11.Connection(h11.CLIENT, max_incomplete_event_size=MAX_ANSWER_BYTES)
+            headers = [
+                (name, value) for name, value in request.headers if name.lower() not in HOP_HEADERS
+            ]
+            headers += [(b"content-length", str(len(body)).encode()), (b"connection", b"close")]
+            out = upstream.send(
+                h11.Request(method=request.method, target=request.target, headers=headers)
+            )
+            out += upstream.send(h11.Data(data=body)) if body else b""
+            out += upstream.send(h11.EndOfMessage())
+            writer.write(out)
+            await writer.drain()
+            head: h11.Response | None = None
+            pieces: list[bytes] = []
+            size = 0
+            async with asyncio.timeout(ANSWER_TIMEOUT_S):
+                while True:
+                    event = upstream.next_event()
+                    if event is h11.NEED_DATA:
+                        upstream.receive_data(await reader.read(READ_BYTES))
+                    elif isinstance(event, h11.Response):
+                        head = event
+                    elif isinstance(event, h11.Data):
+                        size += len(event.data)
+                        if size > MAX_ANSWER_BYTES:
+                            raise Refusal(502, f"the answer is over {MAX_ANSWER_BYTES} bytes")
+                        pieces.append(bytes(event.data))
+                    elif isinstance(event, h11.EndOfMessage) and head is not None:
+                        return head, b"".join(pieces)
+                    elif isinstance(event, h11.ConnectionClosed):
                         raise Refusal(503, "the server closed before answering", retry=True)
-                    raise ConnectionError("the server closed mid-answer")
+        except h11.ProtocolError:
+            raise Refusal(502, "the server's answer was malformed") from None
+        except TimeoutError:
+            raise Refusal(504, f"no answer within {ANSWER_TIMEOUT_S:g} s") from None
+        finally:
+            writer.close()
+
+    async def _deliver(self, conn: _Conn, head: h11.Response, answer: bytes) -> None:
+        """Send the answer; a client that does not take it within SEND_TIMEOUT_S plus its
+        size at MIN_SEND_BYTES_PER_S loses its connection."""
+        headers = [
+            (name, value)
+            for name, value in head.headers
+            if name.lower() not in HOP_HEADERS or name.lower() == b"content-length"
+        ]
+        conn.answering = True
+        data = conn.h11.send(h11.Response(status_code=head.status_code, headers=headers))
+        data += conn.h11.send(h11.Data(data=answer)) if answer else b""
+        data += conn.h11.send(h11.EndOfMessage())
+        conn.writer.write(data)
+        await asyncio.wait_for(
+            conn.writer.drain(), SEND_TIMEOUT_S + len(data) / MIN_SEND_BYTES_PER_S
+        )
 
     async def _send(self, conn: _Conn, event: h11.Event) -> None:
         data = conn.h11.send(event)

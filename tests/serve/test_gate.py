@@ -299,15 +299,28 @@ def test_a_client_that_goes_away_is_seen_by_the_app(gate: RequestGate, backend: 
     assert backend.disconnected.wait(10)
 
 
-def test_answers_a_client_does_not_read_end_its_connection(gate: RequestGate) -> None:
+def test_answers_a_client_does_not_read_end_its_connection(
+    gate: RequestGate, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Serve's answer is taken whole at once (its place is free), and the client that leaves
+    it unread loses its connection at the send deadline: SEND_TIMEOUT_S plus the answer's size
+    at MIN_SEND_BYTES_PER_S."""
+    monkeypatch.setattr(gate_module, "MIN_SEND_BYTES_PER_S", 2 * 1024 * 1024)
+    deadline_s = SEND_S + 8 * 1024 * 1024 / (2 * 1024 * 1024)
     with socket.create_connection(("127.0.0.1", gate.port), timeout=30) as sock:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        began = time.monotonic()
         sock.sendall(b"GET /big HTTP/1.1\r\nHost: localhost\r\n\r\n")
-        deadline = time.monotonic() + 30
-        while gate.connections and time.monotonic() < deadline:
+        while gate.answer_bytes == 0 and time.monotonic() - began < 10:
+            time.sleep(0.01)
+        assert gate.answer_bytes == 8 * 1024 * 1024  # taken from Serve, waiting for the client
+        assert gate._passing is not None and not gate._passing.locked()
+        while gate.connections and time.monotonic() - began < 60:
             time.sleep(0.1)
+        ended = time.monotonic() - began
         # Ended by the gate while the client still held its socket, unread.
-        assert gate.connections == 0
+        assert gate.connections == 0 and gate.answer_bytes == 0
+        assert deadline_s - 1 < ended < deadline_s + 10
     assert request(gate.port, "GET", "/api/health")[0] == 200
 
 
