@@ -19,6 +19,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 import uvicorn
@@ -31,6 +32,7 @@ from links_ray.cli.bench import hostile_clients
 from links_ray.serve import gate as gate_module
 from links_ray.serve import limits
 from links_ray.serve.gate import GateThread, RequestGate
+from tests.support.serving import links_serve, low_port
 
 #: The short timeouts of these tests (seconds): the head's, the body's pause, a send's.
 HEAD_S, BODY_S, SEND_S = 1.5, 1.5, 1.5
@@ -357,3 +359,37 @@ def test_the_gates_bounds_refuse_with_503_and_never_hold_health(
         assert request(port, "GET", "/echo")[0] == 200
     finally:
         running.stop()
+
+
+@pytest.mark.ray
+def test_links_serve_holds_crowds_of_idle_clients_in_its_gate(
+    lean_dataset: str, tmp_path: Path
+) -> None:
+    """`links serve` as a user starts it: 210 clients that send a retrieval's head and no
+    body, and 210 that send theirs a byte a second. Health, asked every 0.25 s, answers 200
+    within 1 s throughout; each held connection ends with 408 within the body timeout; a real
+    retrieval meanwhile gets 200."""
+    port = low_port()
+    with links_serve(lean_dataset, port, tmp_path / "stderr.txt") as served:
+        watch = HealthWatch(port)
+        answers: list[dict] = []
+
+        def idle() -> None:
+            answers.extend(hostile_clients.crowd(210, lambda: hostile_clients.headers_only(port)))
+
+        def trickle() -> None:
+            answers.extend(hostile_clients.crowd(210, lambda: hostile_clients.trickling(port, 40)))
+
+        crowds = [threading.Thread(target=idle), threading.Thread(target=trickle)]
+        for thread in crowds:
+            thread.start()
+        time.sleep(2.0)
+        status, data = served.post("/api/retrieve", {"points": [[0, 0], [1, 0.5], [2, 0], [1, -1]]})
+        for thread in crowds:
+            thread.join()
+        checks = watch.stop()
+    assert status == 200 and len(data["results"]) == 3
+    assert Counter(answer["status"] for answer in answers) == {408: 420}
+    assert all(answer["seconds"] < limits.BODY_TIMEOUT_S + 5 for answer in answers)
+    assert len(checks) >= 20
+    assert all(status == 200 and seconds < 1.0 for status, seconds in checks), checks
