@@ -106,6 +106,38 @@ WARM_FOUR_BAR = (
 GIL_SWITCH_S = 0.0005
 
 
+def keep_replica_grpc_on_loopback() -> None:
+    """On a Ray whose node address is loopback (what `links serve --host 127.0.0.1` starts),
+    have this replica's inter-deployment gRPC server listen on 127.0.0.1 too.
+
+    Ray 2.60's replica binds that server to every interface (`[::]:0`), with no option to
+    change it, once its constructor has returned; on a loopback node nothing but this machine
+    could reach it anyway, so it is bound where the node is. The helper Ray calls is looked up
+    in its module at that moment, so replacing it there suffices; if a Ray upgrade renames it,
+    this does nothing, and tests/serve/test_serve_sockets.py, which lists every listening
+    socket of `links serve`, says so.
+    """
+    import ipaddress
+
+    try:
+        if not ipaddress.ip_address(ray.util.get_node_ip_address()).is_loopback:
+            return
+        from ray.serve._private import replica
+    except (ValueError, ImportError):
+        return
+    bind = getattr(replica, "add_port_to_grpc_server", None)
+    if bind is None or getattr(bind, "links_on_loopback", False):
+        return
+
+    def bind_on_loopback(server: Any, address: str) -> int:
+        if address.startswith("[::]:"):
+            address = "127.0.0.1:" + address.rsplit(":", 1)[1]
+        return bind(server, address)
+
+    bind_on_loopback.links_on_loopback = True  # type: ignore[attr-defined]
+    replica.add_port_to_grpc_server = bind_on_loopback
+
+
 def replica_cpus() -> float:
     """The CPUs Ray gave this process (a replica's `num_cpus`, fractions kept; 0 if none)."""
     return float(ray.get_runtime_context().get_assigned_resources().get("CPU", 0.0))
@@ -141,6 +173,7 @@ class IndexPartition:
     """
 
     def __init__(self, root: str, part: int, parts: int) -> None:
+        keep_replica_grpc_on_loopback()
         use_replica_cpus()
         self.part, self.parts = part, parts
         self._retrieving = RetrievalSlot(RetrievalIndex.open(root, part=part, parts=parts))
@@ -188,6 +221,7 @@ class LinksApi(LinksApiRoutes):
         partition_timeout_s: float = PARTITION_TIMEOUT_S,
         allowed_hosts: tuple[str, ...] = (),
     ) -> None:
+        keep_replica_grpc_on_loopback()
         use_replica_cpus()
         allow_host_names(allowed_hosts)  # for `serve.guards.HostGuard`, from the first request
         self.root = root
