@@ -246,7 +246,7 @@ class _Maker:
     def latin1(self, text: object, encoding: object = "latin1") -> bytes:
         """`_codecs.encode` as protocols 0-2 use it for bytes: a string to latin-1, nothing
         else (other codecs would let a pickle run arbitrary codec machinery)."""
-        if type(text) is not str or encoding not in LATIN1 or type(encoding) is not str:
+        if type(text) is not str or type(encoding) is not str or encoding not in LATIN1:
             raise _refuse("_codecs.encode is read only for latin-1 text")
         # Latin-1 gives a byte a character: a string from the memo, encoded again and again,
         # is charged each time before it is.

@@ -12,7 +12,14 @@ import pickletools
 import numpy as np
 import pytest
 
-from links_ray.release.opcode_scan import ALLOWED, MAX_MARKS, new_state, refusal, scan
+from links_ray.release.opcode_scan import (
+    ALLOWED,
+    MAX_MARKS,
+    memory_budget,
+    new_state,
+    refusal,
+    scan,
+)
 from tests.release.test_release_pickles import real_values
 from tests.support.fuzz_release_pickles import make_seeds
 
@@ -174,3 +181,28 @@ def test_scan_checks_its_buffers() -> None:
         scan(np.zeros(4, np.int64), new_state())
     with pytest.raises(ValueError, match="state"):
         scan(np.zeros(4, np.uint8), np.zeros(3, np.int64))
+
+
+def test_the_budget_and_the_files_end_give_the_same_verdict_in_any_chunks() -> None:
+    # 100,000 EMPTY_LISTs, each charged a list and its slot (104 bytes): the budget of a
+    # 100 KB file (7.4 MB) runs out at the same opcode however the file is read.
+    lists = b"\x80\x02(" + b"]" * 100_000
+    # A length is refused before all of it is handed on: the unpickler never allocates it.
+    past_end = b"\x80\x04\x8e" + (100).to_bytes(8, "little") + bytes(50)
+    past_frame = b"\x80\x04\x95" + (100).to_bytes(8, "little") + b"N."
+    for data, why, most in (
+        (lists, "would take the file's objects past", memory_budget(len(lists)) // 64),
+        (past_end, "opcode BINBYTES8 (b'\\x8e') at byte 2 gives a length past the end", 10),
+        (past_frame, "opcode FRAME (b'\\x95') at byte 2 gives a length past the end", 10),
+    ):
+        refusals = set()
+        for chunk in (1, 7, 4096, len(data)):
+            state = new_state(len(data))
+            handed = 0
+            for start in range(0, len(data), chunk):
+                handed += scan(np.frombuffer(data[start : start + chunk], np.uint8), state)
+            refusals.add(refusal(state))
+            assert handed <= most, (chunk, handed)
+        assert len(refusals) == 1, refusals
+        (refused,) = refusals
+        assert refused is not None and why in refused, refused
