@@ -1,51 +1,45 @@
-"""The request gate `links serve` puts before Ray Serve: every request is read whole, under
-bounds, before it is passed on, so that a client that sends slowly or not at all holds only
-the gate's memory, never a place in Serve.
+"""The request gate `links serve` puts before Ray Serve (`RequestGate`): every request is read
+whole, under bounds, before it is passed to Serve on loopback, so that a client that sends
+slowly or not at all holds the gate's memory, never one of Serve's places (which Serve gives a
+request as soon as its headers arrive; docs/design/architecture.md says why).
 
-Serve's HTTP server (the replica's, under direct ingress, or its proxy's) gives a request its
-place, among `max_ongoing_requests` and `max_queued_requests`, as soon as its headers arrive,
-while its body is still coming; it takes headers of any size and count, and waits for
-unfinished headers without end. A crowd of idle clients could so fill every place, and Serve
-then refused health itself. The gate (`RequestGate`, an asyncio server on the address the
-user asked for) is where those bounds live:
-
-- a request's head must keep to the head limits of `serve.limits` (414, 431, 408);
-- its body is read under the body pace of `limits.body_deadline` (else 408), within
-  MAX_BODY_BYTES (else 413, refused unread when Content-Length says so), with at most
-  MAX_BODIES_READING bodies and MAX_BODY_BYTES_BUFFERED bytes of them in the gate at once
-  (else 503);
-- a request whose Host `guards.host_allowed` refuses gets 400 before anything else, Serve's
-  own routes (`/-/...`) included;
-- only then is it passed to Serve, on 127.0.0.1, at most MAX_PASSED at once (fewer than the
-  places Serve has, so health, which skips that line, always finds one); Serve's whole answer
-  is taken (so a client that does not read holds no place in Serve) and sent on, within a
-  pace (else the connection ends);
-- a client that goes away while its request is served closes the gate's connection to Serve
-  too, so the app learns of it (`http.disconnect`) and stops the work.
-
-Every refusal is JSON `{"error": ...}`, as the app's own. HTTP parsing is h11's.
+A head keeps to the head limits of `serve.limits` (414, 431, 408) and names an allowed Host
+(`guards.host_allowed`, before any route, Serve's `/-/` ones too); a body keeps to the body
+pace (`limits.body_deadline`, 408) and size (413), within the gate's bounds on bodies and bytes
+at once (503). Then at most MAX_PASSED requests at once go to Serve (health skips that line),
+whose whole answer is taken and sent on within a pace. A client that goes away closes the
+gate's connection to Serve, so the app sees it leave. Refusals are JSON `{"error"}` answers
+(`gate_wire`); HTTP is parsed by h11.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
 import threading
 from collections.abc import Iterable
 
 import h11
 
+from links_ray.serve import limits
+from links_ray.serve.gate_wire import (
+    HOP_HEADERS,
+    BodyBudget,
+    Refusal,
+    RequestLine,
+    head_message,
+    head_status,
+    header_value,
+    refusal_bytes,
+)
 from links_ray.serve.guards import host_allowed, host_refusal
 from links_ray.serve.limits import (
-    BODY_TIMEOUT_S,
     HEAD_TIMEOUT_S,
     MAX_BODY_BYTES,
     MAX_HEAD_BYTES,
     MAX_HEADERS,
     MAX_URL_BYTES,
-    MIN_BODY_BYTES_PER_S,
     body_deadline,
 )
 
@@ -78,59 +72,6 @@ MIN_SEND_BYTES_PER_S = 64 * 1024
 HEALTH_TARGETS = frozenset({b"/api/health", b"/-/healthz"})
 #: Bytes read from a socket at a time.
 READ_BYTES = 64 * 1024
-#: Headers that describe one connection, not the request or answer, and so are not passed on
-#: (h11 frames each side's messages itself).
-HOP_HEADERS = frozenset(
-    {
-        b"connection",
-        b"keep-alive",
-        b"proxy-connection",
-        b"te",
-        b"trailer",
-        b"transfer-encoding",
-        b"upgrade",
-        b"content-length",
-        b"expect",
-    }
-)
-RETRY_AFTER_S = 1
-
-
-class Refusal(Exception):
-    """A request the gate answers itself: its status, message and extra headers."""
-
-    def __init__(self, status: int, message: str, retry: bool = False) -> None:
-        super().__init__(message)
-        self.status = status
-        self.message = message
-        self.retry = retry
-
-
-class _Budget:
-    """The bodies the gate reads at once, and their bytes; used on the event loop only."""
-
-    def __init__(self, bodies: int, body_bytes: int) -> None:
-        self.max_bodies, self.max_bytes = bodies, body_bytes
-        self.bodies = 0
-        self.bytes = 0
-
-    def start_body(self) -> None:
-        if self.bodies >= self.max_bodies:
-            raise Refusal(503, f"busy: {self.bodies} request bodies arriving at once", retry=True)
-        self.bodies += 1
-
-    def take(self, count: int) -> None:
-        if self.bytes + count > self.max_bytes:
-            raise Refusal(
-                503, f"busy: {self.bytes} bytes of request bodies held at once", retry=True
-            )
-        self.bytes += count
-
-    def end_body(self) -> None:
-        self.bodies -= 1
-
-    def give_back(self, count: int) -> None:
-        self.bytes -= count
 
 
 class _Conn:
@@ -160,7 +101,7 @@ class RequestGate:
         self.upstream = (upstream_host, upstream_port)
         self.allowed_hosts = frozenset(allowed_hosts)
         self.connections = 0
-        self.budget = _Budget(MAX_BODIES_READING, MAX_BODY_BYTES_BUFFERED)
+        self.budget = BodyBudget(MAX_BODIES_READING, MAX_BODY_BYTES_BUFFERED)
         self.server: asyncio.Server | None = None
         self._passing: asyncio.Semaphore | None = None
         self.answer_bytes = 0  # of answers taken from Serve, not yet sent
@@ -193,7 +134,7 @@ class RequestGate:
         self.connections += 1
         try:
             if self.connections > MAX_CONNECTIONS:
-                writer.write(_plain_refusal(503, "busy: too many connections at once"))
+                writer.write(refusal_bytes(503, "busy: too many connections at once"))
                 with contextlib.suppress(Exception):
                     await asyncio.wait_for(writer.drain(), SEND_TIMEOUT_S)
                 return
@@ -244,13 +185,13 @@ class RequestGate:
         loop = asyncio.get_running_loop()
         deadline = loop.time() + HEAD_TIMEOUT_S
         idle_until = None if first else loop.time() + KEEP_ALIVE_S
-        line = _RequestLine()
+        line = RequestLine()
         head_bytes = 0
         while True:
             try:
                 event = conn.h11.next_event()
             except h11.RemoteProtocolError as exc:
-                raise Refusal(_head_status(exc), _head_message(exc)) from None
+                raise Refusal(head_status(exc), head_message(exc)) from None
             if isinstance(event, h11.Request):
                 if len(event.headers) > MAX_HEADERS:
                     raise Refusal(431, f"more than {MAX_HEADERS} headers")
@@ -262,7 +203,7 @@ class RequestGate:
                     > MAX_HEAD_BYTES
                 ):
                     raise Refusal(431, f"the request head is over {MAX_HEAD_BYTES} bytes")
-                host = _header(event.headers, b"host")
+                host = header_value(event.headers, b"host")
                 if not host_allowed(host, self.allowed_hosts):
                     raise Refusal(400, host_refusal(host))
                 return event
@@ -292,8 +233,8 @@ class RequestGate:
     async def _read_body(self, conn: _Conn, request: h11.Request) -> bytes:
         """The request's whole body, within the body bounds; its bytes stay counted in the
         budget until the caller gives them back."""
-        declared = _header(request.headers, b"content-length")
-        chunked = _header(request.headers, b"transfer-encoding") is not None
+        declared = header_value(request.headers, b"content-length")
+        chunked = header_value(request.headers, b"transfer-encoding") is not None
         if declared is not None and int(declared) > MAX_BODY_BYTES:
             raise Refusal(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
         if (declared is not None and int(declared) == 0) or (declared is None and not chunked):
@@ -335,9 +276,9 @@ class RequestGate:
                 except TimeoutError:
                     raise Refusal(
                         408,
-                        f"the body came too slowly ({size} bytes in {now - start:.1f} s): it "
-                        f"may pause at most {BODY_TIMEOUT_S:g} s and must keep up "
-                        f"{MIN_BODY_BYTES_PER_S} bytes a second",
+                        f"the body came too slowly ({size} bytes in {loop.time() - start:.1f} s): "
+                        f"it may pause at most {limits.BODY_TIMEOUT_S:g} s and must keep up "
+                        f"{limits.MIN_BODY_BYTES_PER_S} bytes a second",
                     ) from None
                 conn.h11.receive_data(data)
         finally:
@@ -481,7 +422,7 @@ class RequestGate:
         rest of the request is never read)."""
         if conn.answering:
             return
-        conn.writer.write(_plain_refusal(refusal.status, refusal.message, refusal.retry))
+        conn.writer.write(refusal_bytes(refusal.status, refusal.message, refusal.retry))
         with contextlib.suppress(Exception):
             await asyncio.wait_for(conn.writer.drain(), SEND_TIMEOUT_S)
 
@@ -496,75 +437,6 @@ async def _closed(conn: _Conn) -> None:
         conn.h11.receive_data(data)
         if len(conn.h11.trailing_data[0]) > MAX_HEAD_BYTES + MAX_BODY_BYTES:
             return  # more read ahead than one request may hold: treated as gone
-
-
-def _header(headers: Iterable[tuple[bytes, bytes]], name: bytes) -> str | None:
-    for key, value in headers:
-        if key == name:
-            return value.decode("latin-1")
-    return None
-
-
-class _RequestLine:
-    """Counts the request line's bytes as they arrive, piece by piece (never searching what
-    came before again), skipping the empty lines a client may send before a request."""
-
-    def __init__(self) -> None:
-        self.length = 0
-        self.seen = False
-
-    def over(self, data: bytes) -> bool:
-        """Take the next piece; whether the request line is now known to be over
-        MAX_URL_BYTES."""
-        start = 0
-        while not self.seen:
-            end = data.find(b"\n", start)
-            if end < 0:
-                self.length += len(data) - start
-                break
-            self.length += end - start
-            if self.length > 1:  # more than a lone CR: the request line itself
-                self.seen = True
-            else:
-                self.length = 0
-            start = end + 1
-        return self.length > MAX_URL_BYTES
-
-
-def _head_status(exc: h11.RemoteProtocolError) -> int:
-    """431 for a head over the limit (h11's hint), else 400."""
-    return 431 if exc.error_status_hint == 431 else 400
-
-
-def _head_message(exc: h11.RemoteProtocolError) -> str:
-    if exc.error_status_hint == 431:
-        return f"the request head is over {MAX_HEAD_BYTES} bytes"
-    return f"malformed request head: {str(exc)[:120]}"
-
-
-_REASONS = {
-    400: "Bad Request",
-    408: "Request Timeout",
-    413: "Content Too Large",
-    414: "URI Too Long",
-    431: "Request Header Fields Too Large",
-    503: "Service Unavailable",
-}
-
-
-def _plain_refusal(status: int, message: str, retry: bool = False) -> bytes:
-    """A whole JSON refusal, written without h11 (for a head h11 could not read)."""
-    body = json.dumps({"error": message}).encode()
-    lines = [
-        f"HTTP/1.1 {status} {_REASONS.get(status, 'Error')}",
-        "Content-Type: application/json",
-        f"Content-Length: {len(body)}",
-        "X-Content-Type-Options: nosniff",
-        "Connection: close",
-    ]
-    if retry:
-        lines.append(f"Retry-After: {RETRY_AFTER_S}")
-    return ("\r\n".join(lines) + "\r\n\r\n").encode() + body
 
 
 class GateThread:

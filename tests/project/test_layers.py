@@ -62,6 +62,9 @@ FORBIDDEN_IN = {
     "links_ray.serve.kit_models": ("ray",),
     "links_ray.serve.openapi": ("ray",),
     "links_ray.serve.api": ("ray",),
+    "links_ray.serve.gate": ("ray",),
+    "links_ray.serve.gate_wire": ("ray",),
+    "links_ray.serve.limits": ("ray",),
 }
 
 
