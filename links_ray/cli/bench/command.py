@@ -159,7 +159,10 @@ def _serve(args: argparse.Namespace) -> Measured:
 def _hostile(args: argparse.Namespace) -> Measured:
     from links_ray.cli.bench import hostile
 
-    return hostile.bench_hostile(paths=args.paths, root=args.root), hostile.format_hostile
+    measured = hostile.bench_hostile(
+        paths=args.paths, root=args.root, fuzz_seconds=args.fuzz_seconds or 0.0
+    )
+    return measured, hostile.format_hostile
 
 
 # -- the options beyond the size ------------------------------------------------------------
@@ -290,6 +293,12 @@ def _serve_arguments(command: argparse.ArgumentParser) -> None:
 def _hostile_arguments(command: argparse.ArgumentParser) -> None:
     command.add_argument(
         "--root", default=None, help="a curated dataset to serve (default: the cached one)"
+    )
+    command.add_argument(
+        "--fuzz-seconds",
+        type=positive_float,
+        default=None,
+        help="then fuzz the release importer's unpickler this many seconds (default: not at all)",
     )
 
 

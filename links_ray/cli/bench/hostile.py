@@ -1,19 +1,23 @@
-"""`links bench hostile`: a running `links serve` under the worst small inputs it is bounded
-against, while its health is checked every HEALTH_EVERY_S.
+"""`links bench hostile`: a running `links serve` under the worst small inputs and clients a
+single machine can send it, while its health is checked every HEALTH_EVERY_S.
 
 The server is started as a user starts it (`links serve ROOT`, its own Ray), in a process of
 its own. Then, in turn: each of `hostile_inputs.hostile_drawings` is posted to `/api/curve`;
-clients that send a retrieval's headers and never its body hold their connections while one
-more client retrieves; and a last retrieval is asked for. Reported: each answer's status,
-seconds and message; health's latencies and failures throughout; and how much the server's
-process tree (the command, its Ray and the replicas) grew in resident memory above what it
-held when it first answered.
+then each attack of `hostile_clients` runs (`_attacks`: crowds of idle and trickling clients
+with a real request meanwhile, heads too large, too long or endless, clients that never read,
+bodies over the limits, a malformed Content-Length, a foreign Host, a synthesis over its work
+bound); then a last retrieval. Reported for each: its answers' statuses, the slowest, the real
+request's answer, health's checks and worst latency during it, and how much the server's
+process tree (the command and its gate, its Ray and the replicas) grew in resident memory
+above what it held when it first answered. Health is watched from a process of its own.
+With `fuzz_seconds`, the release importer's unpickler is fuzzed last (`pickle_fuzz`).
 """
 
 from __future__ import annotations
 
 import http.client
 import json
+import multiprocessing
 import os
 import signal
 import socket
@@ -21,20 +25,27 @@ import subprocess
 import sys
 import threading
 import time
+from collections import Counter
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from links_ray.cli import report
+from links_ray.cli.bench import hostile_clients
 from links_ray.cli.bench.data import retrieval_dataset
 from links_ray.cli.bench.hostile_inputs import hostile_drawings
 from links_ray.cli.bench.machine import machine_info
-from links_ray.serve.limits import BODY_TIMEOUT_S
+from links_ray.engine.inputs import MAX_POINTS
+from links_ray.engine.synthesis_options import MAX_SYNTHESIS_ITERATIONS
+from links_ray.serve.limits import BODY_TIMEOUT_S, HEAD_TIMEOUT_S, MAX_REQUEST_JOINT_STEPS
 
 #: How often health is asked for, and how long one check may take before it counts as failed.
-HEALTH_EVERY_S, HEALTH_TIMEOUT_S = 0.2, 30.0
-#: Clients that send only a retrieval's headers, all at once.
-SILENT_CLIENTS = 10
+HEALTH_EVERY_S, HEALTH_TIMEOUT_S = 0.25, 30.0
+#: Clients of each crowd (header-only, trickling), all at once, and how long tricklers go on.
+CROWD, TRICKLE_S = 210, 25.0
+#: Points of the bodies over the point limit (about 2 MB of JSON each).
+OVER_POINTS = 80_000
 #: How long the server may take to answer its first health check.
 START_TIMEOUT_S = 600.0
 
@@ -65,35 +76,65 @@ def tree_rss_bytes(pid: int) -> int:
     return total
 
 
+def _watch_health(port: int, pid: int, ready: Any, stop: Any, results: Any) -> None:
+    """In a process of its own (the attacks' client threads would otherwise hold its GIL and
+    count their own waits as the server's): health asked for every HEALTH_EVERY_S and the
+    server's tree memory sampled, each as (time, seconds, failure, rss), until `stop` is set;
+    then the samples put on `results`."""
+    samples = []
+    ready.set()
+    while not stop.is_set():
+        began = time.perf_counter()
+        failure = None
+        try:
+            status, _ = _request(port, "GET", "/api/health", None, HEALTH_TIMEOUT_S)
+            if status != 200:
+                failure = f"HTTP {status}"
+        except OSError as exc:
+            failure = type(exc).__name__
+        seconds = time.perf_counter() - began
+        samples.append((time.time(), seconds, failure, tree_rss_bytes(pid)))
+        stop.wait(max(0.0, HEALTH_EVERY_S - (time.perf_counter() - began)))
+    results.put(samples)
+
+
 class _Watch:
-    """Health asked for every HEALTH_EVERY_S on a connection of its own, and the server's
-    tree memory sampled as often, in a thread, until `stop`."""
+    """Health and the server's memory watched from a process of its own (`_watch_health`);
+    each attack's span of time marked (`mark`), so that its checks are told apart."""
 
     def __init__(self, port: int, pid: int) -> None:
-        self.port, self.pid = port, pid
-        self.latencies: list[float] = []
-        self.failures: list[str] = []
-        self.peak_rss = 0
-        self._done = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
+        context = multiprocessing.get_context("spawn")
+        ready, self._stop = context.Event(), context.Event()
+        self._results = context.Queue()
+        self._process = context.Process(
+            target=_watch_health, args=(port, pid, ready, self._stop, self._results), daemon=True
+        )
+        self._process.start()
+        ready.wait(timeout=120)
+        self.spans: dict[str, tuple[float, float]] = {}
+        self.samples: list[tuple[float, float, str | None, int]] = []
 
-    def _run(self) -> None:
-        while not self._done.is_set():
-            began = time.perf_counter()
-            try:
-                status, _ = _request(self.port, "GET", "/api/health", None, HEALTH_TIMEOUT_S)
-                if status != 200:
-                    self.failures.append(f"HTTP {status}")
-            except OSError as exc:
-                self.failures.append(type(exc).__name__)
-            self.latencies.append(time.perf_counter() - began)
-            self.peak_rss = max(self.peak_rss, tree_rss_bytes(self.pid))
-            self._done.wait(max(0.0, HEALTH_EVERY_S - (time.perf_counter() - began)))
+    def mark(self, phase: str, began: float, ended: float) -> None:
+        """`phase` ran from `began` to `ended` (time.time())."""
+        self.spans[phase] = (began, ended)
+
+    def summary(self, phase: str, baseline: int) -> dict[str, Any]:
+        """Health's checks during `phase`, and how far the server grew above `baseline`."""
+        began, ended = self.spans[phase]
+        checks = [sample for sample in self.samples if began <= sample[0] <= ended]
+        latencies = [seconds for _, seconds, _, _ in checks] or [0.0]
+        return {
+            "checks": len(checks),
+            "failures": [failure for _, _, failure, _ in checks if failure],
+            "health_max_ms": max(latencies) * 1e3,
+            "growth_bytes": max([0] + [rss - baseline for *_, rss in checks]),
+        }
 
     def stop(self) -> None:
-        self._done.set()
-        self._thread.join()
+        """Stop watching; the samples are then in `samples`."""
+        self._stop.set()
+        self.samples = self._results.get(timeout=60)
+        self._process.join(timeout=60)
 
 
 def _request(
@@ -126,41 +167,6 @@ def _timed(port: int, path: str, body: Any) -> dict[str, Any]:
     return {"status": status, "seconds": time.perf_counter() - began, "error": error}
 
 
-def _headers_only(port: int) -> dict[str, Any]:
-    """A retrieval's headers (declaring 100 body bytes) and nothing more: the answer's
-    status and the seconds it took."""
-    began = time.perf_counter()
-    with socket.create_connection(("127.0.0.1", port), timeout=600) as sock:
-        sock.sendall(
-            b"POST /api/retrieve HTTP/1.1\r\nHost: 127.0.0.1\r\n"
-            b"Content-Type: application/json\r\nContent-Length: 100\r\n\r\n"
-        )
-        first = sock.recv(4096)
-    status = int(first.split()[1]) if first.startswith(b"HTTP/") else None
-    return {"status": status, "seconds": time.perf_counter() - began}
-
-
-def _silent_clients(port: int, query: list) -> dict[str, Any]:
-    """SILENT_CLIENTS clients that send headers only, and a real retrieval a second after
-    they have: each one's answer."""
-    answers: list[dict[str, Any]] = []
-    lock = threading.Lock()
-
-    def silent() -> None:
-        answer = _headers_only(port)
-        with lock:
-            answers.append(answer)
-
-    threads = [threading.Thread(target=silent) for _ in range(SILENT_CLIENTS)]
-    for thread in threads:
-        thread.start()
-    time.sleep(1.0)
-    retrieval = _timed(port, "/api/retrieve", {"points": query})
-    for thread in threads:
-        thread.join()
-    return {"silent": sorted(answers, key=lambda a: a["seconds"]), "retrieval": retrieval}
-
-
 def _free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
@@ -181,28 +187,103 @@ def _wait_until_serving(server: subprocess.Popen, port: int) -> None:
     raise RuntimeError(f"links serve did not answer within {START_TIMEOUT_S:g} s")
 
 
-def bench_hostile(paths: int = 60_000, root: str | None = None) -> dict:
+#: A four-bar whose simulation at SIMULATION_STEPS steps is the largest answer the limits
+#: allow a mechanism this size (`serve.limits.MAX_REQUEST_JOINT_STEPS`): what non-reading
+#: clients ask for.
+FOUR_BAR = {
+    "adjacency": [[0, 1, 0, 0], [1, 0, 0, 1], [0, 0, 0, 1], [0, 1, 1, 0]],
+    "node_types": [0, 2, 0, 1],
+    "positions": [[0.5, 0.5], [0.55, 0.5], [0.8, 0.5], [0.6, 0.7]],
+}
+SIMULATION_STEPS = MAX_REQUEST_JOINT_STEPS // 4
+
+
+def _circle(points: int) -> list[list[float]]:
+    turn = np.linspace(0, 2 * np.pi, points, endpoint=False)
+    return np.stack([np.cos(turn), np.sin(turn)], 1).tolist()
+
+
+def _meanwhile(port: int, attack: Callable[[], list[dict]], query: list) -> dict[str, Any]:
+    """`attack`'s answers, and a real retrieval asked for two seconds after it began."""
+    answers: list[dict] = []
+    thread = threading.Thread(target=lambda: answers.extend(attack()))
+    thread.start()
+    time.sleep(2.0)
+    retrieval = hostile_clients.post_json(port, "/api/retrieve", {"points": query})
+    thread.join()
+    return {"answers": answers, "retrieval": retrieval}
+
+
+def _attacks(port: int, query: list) -> dict[str, Callable[[], dict[str, Any]]]:
+    """Every attack after the drawings, by name, in the order they run."""
+    crowd = hostile_clients.crowd
+    stroke = _circle(2 * MAX_POINTS)[:MAX_POINTS]  # half a turn, at the point limit
+    simulation = json.dumps({**FOUR_BAR, "steps": SIMULATION_STEPS}).encode()
+    return {
+        f"{CROWD} header-only clients": lambda: _meanwhile(
+            port, lambda: crowd(CROWD, lambda: hostile_clients.headers_only(port)), query
+        ),
+        f"{CROWD} trickling clients": lambda: _meanwhile(
+            port,
+            lambda: crowd(CROWD, lambda: hostile_clients.trickling(port, TRICKLE_S)),
+            query,
+        ),
+        "8 heads of 20,000 headers": lambda: {
+            "answers": crowd(8, lambda: hostile_clients.many_headers(port))
+        },
+        "a 6 MiB URL in 1 KiB pieces": lambda: {"answers": [hostile_clients.long_url(port)]},
+        "40 heads that never end": lambda: {
+            "answers": crowd(40, lambda: hostile_clients.endless_headers(port))
+        },
+        "150 clients not reading": lambda: {
+            "answers": crowd(150, lambda: hostile_clients.not_reading(port, simulation, 15.0))
+        },
+        "16 bodies of 2 MB over the point limit": lambda: {
+            "answers": crowd(8, lambda: hostile_clients.over_limit_body(port, OVER_POINTS))
+            + crowd(8, lambda: hostile_clients.over_limit_body(port, OVER_POINTS))
+        },
+        "Content-Length of 5,000 digits": lambda: {
+            "answers": [hostile_clients.padded_content_length(port)]
+        },
+        "Serve's /-/routes for a foreign Host": lambda: {
+            "answers": [hostile_clients.foreign_host(port, "/-/routes")]
+        },
+        "synthesis, 10,000 iterations on 10,000 points": lambda: {
+            "answers": [
+                hostile_clients.post_json(
+                    port,
+                    "/api/synthesize",
+                    {"points": stroke, "partial": True, "iterations": MAX_SYNTHESIS_ITERATIONS},
+                )
+            ],
+            "retrieval": hostile_clients.post_json(
+                port, "/api/synthesize", {"points": query, "seconds": 1.0}
+            ),
+        },
+    }
+
+
+def bench_hostile(paths: int = 60_000, root: str | None = None, fuzz_seconds: float = 0.0) -> dict:
     """Serve `root` (default: the cached bench dataset of `paths` curated paths) with `links
-    serve` and send it the hostile inputs, as the module says; the result, by part."""
+    serve` and send it the hostile inputs, as the module says; then fuzz the release importer's
+    unpickler for `fuzz_seconds`, if any. The result, by attack."""
     root = root or retrieval_dataset(paths)
     port = _free_port()
-    env = {**os.environ, "RAY_AUTH_MODE": "disabled"}
     server = subprocess.Popen(
         [sys.executable, "-m", "links_ray", "serve", root, "--port", str(port)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
-        env=env,
         start_new_session=True,
     )
+    attacks: dict[str, dict[str, Any]] = {}
     try:
         _wait_until_serving(server, port)
         time.sleep(2.0)  # what starting left running settles
         baseline = tree_rss_bytes(server.pid)
-        query = np.stack(
-            [np.cos(np.linspace(0, 2 * np.pi, 64)), np.sin(np.linspace(0, 2 * np.pi, 64))], 1
-        ).tolist()
+        query = _circle(64)
         watch = _Watch(port, server.pid)
         try:
+            began = time.time()
             drawings = {
                 name: {
                     "bytes": len(text.encode()),
@@ -210,10 +291,19 @@ def bench_hostile(paths: int = 60_000, root: str | None = None) -> dict:
                 }
                 for name, (file, text) in hostile_drawings().items()
             }
-            silent = _silent_clients(port, query)
+            watch.mark("drawings", began, time.time() + HEALTH_EVERY_S)
+            for name, attack in _attacks(port, query).items():
+                began = time.time()
+                attacks[name] = attack()
+                attacks[name]["seconds"] = time.time() - began
+                time.sleep(3 * HEALTH_EVERY_S)  # health's checks of its end
+                watch.mark(name, began, time.time())
             after = _timed(port, "/api/retrieve", {"points": query})
         finally:
             watch.stop()
+        drawings_watch = watch.summary("drawings", baseline)
+        for name in attacks:
+            attacks[name].update(watch.summary(name, baseline))
     finally:
         server.send_signal(signal.SIGINT)
         try:
@@ -221,30 +311,27 @@ def bench_hostile(paths: int = 60_000, root: str | None = None) -> dict:
         except subprocess.TimeoutExpired:
             os.killpg(server.pid, signal.SIGKILL)
             server.wait()
-    latencies = np.array(watch.latencies)
-    return {
+    result = {
         "machine": machine_info(),
         "root": root,
         "drawings": drawings,
-        "silent_clients": silent,
+        "drawings_health": drawings_watch,
+        "attacks": attacks,
         "retrieval_after": after,
-        "health": {
-            "checks": len(latencies),
-            "failures": watch.failures,
-            "p50_ms": float(np.percentile(latencies, 50) * 1e3),
-            "max_ms": float(latencies.max() * 1e3),
-        },
-        "memory": {
-            "baseline_bytes": baseline,
-            "peak_bytes": watch.peak_rss,
-            "growth_bytes": max(0, watch.peak_rss - baseline),
-        },
+        "baseline_bytes": baseline,
         "body_timeout_s": BODY_TIMEOUT_S,
+        "head_timeout_s": HEAD_TIMEOUT_S,
     }
+    if fuzz_seconds > 0:
+        from links_ray.cli.bench.pickle_fuzz import fuzz_release_pickles
+
+        result["pickle_fuzz"] = fuzz_release_pickles(fuzz_seconds, seed=0)
+    return result
 
 
 def format_hostile(result: dict) -> str:
-    """The result as tables: each hostile input's answer, then health and memory."""
+    """The result as tables: each drawing's answer; each attack's answers, health's worst
+    and the server's growth meanwhile; the unpickler's fuzzing, if run."""
     rows = [
         [
             name,
@@ -255,35 +342,60 @@ def format_hostile(result: dict) -> str:
         ]
         for name, d in result["drawings"].items()
     ]
-    silent = result["silent_clients"]
-    statuses = sorted({answer["status"] for answer in silent["silent"]}, key=str)
-    slowest = max(answer["seconds"] for answer in silent["silent"])
-    rows.append(
-        [
-            f"{len(silent['silent'])} headers-only clients",
-            "0",
-            "/".join(map(str, statuses)),
-            f"{slowest:.2f}",
-            f"the body timeout is {result['body_timeout_s']:g} s",
-        ]
+    health = result["drawings_health"]
+    lines = [
+        report.table(["drawing", "bytes", "status", "seconds", "message"], rows),
+        f"health meanwhile: {health['checks']} checks, {len(health['failures'])} failed, worst "
+        f"{health['health_max_ms']:.0f} ms; server grew {_mib(health['growth_bytes'])}",
+        "",
+    ]
+    rows = []
+    for name, attack in result["attacks"].items():
+        answers = attack["answers"]
+        statuses = Counter(str(answer["status"]) for answer in answers)
+        worst = max((answer["seconds"] for answer in answers), default=0.0)
+        meanwhile = attack.get("retrieval")
+        rows.append(
+            [
+                name,
+                ", ".join(f"{count} x {status}" for status, count in sorted(statuses.items())),
+                f"{worst:.1f}",
+                ""
+                if meanwhile is None
+                else f"{meanwhile['status']} in {meanwhile['seconds']:.2f} s",
+                f"{attack['checks'] - len(attack['failures'])}/{attack['checks']}",
+                f"{attack['health_max_ms']:.0f}",
+                _mib(attack["growth_bytes"]),
+            ]
+        )
+    lines.append(
+        report.table(
+            [
+                "attack",
+                "answers",
+                "slowest s",
+                "a real request meanwhile, or after",
+                "health 200",
+                "health worst ms",
+                "server grew",
+            ],
+            rows,
+        )
     )
-    for name, answer in (
-        ("a retrieval meanwhile", silent["retrieval"]),
-        ("a retrieval after", result["retrieval_after"]),
-    ):
-        rows.append([name, "", answer["status"], f"{answer['seconds']:.2f}", answer["error"] or ""])
-    health, memory = result["health"], result["memory"]
-    return "\n".join(
-        [
-            report.table(["input", "bytes", "status", "seconds", "message"], rows),
-            f"health: {health['checks']} checks every {HEALTH_EVERY_S:g} s, "
-            f"{len(health['failures'])} failed, p50 {health['p50_ms']:.1f} ms, "
-            f"worst {health['max_ms']:.1f} ms",
-            f"server tree memory: {_gib(memory['baseline_bytes'])} serving, peak "
-            f"{_gib(memory['peak_bytes'])}, grew {_gib(memory['growth_bytes'])}",
-        ]
-    )
+    messages = {
+        name: next((a["error"] for a in attack["answers"] if a.get("error")), None)
+        for name, attack in result["attacks"].items()
+    }
+    lines += [f"  {name}: {message[:110]}" for name, message in messages.items() if message]
+    after = result["retrieval_after"]
+    lines.append(f"a retrieval after all: {after['status']} in {after['seconds']:.2f} s")
+    fuzz = result.get("pickle_fuzz")
+    if fuzz is not None:
+        from links_ray.cli.bench.pickle_fuzz import format_pickle_fuzz
+
+        lines += ["", format_pickle_fuzz(fuzz)]
+    return "\n".join(lines)
 
 
-def _gib(count: int) -> str:
-    return f"{count / 2**30:.2f} GiB"
+def _mib(count: int) -> str:
+    return f"{count / 2**20:.0f} MiB"
