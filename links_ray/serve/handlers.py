@@ -21,7 +21,8 @@ index or its partitions' handles, and the admission (`serve.admission`) whose pl
 routes claim and release. This module imports neither: the assembly imports the routes, never
 the other way. Bodies are read and checked by `serve.parsing`; simulations, analyses and
 exports run in the default thread pool, builds of parts in one thread of their own
-(`serve.kits`).
+(`serve.kits`), refinements of syntheses in the gateway's refinement thread, stopped when
+their client goes (`serve.synthesis_run`).
 """
 
 import asyncio
@@ -29,7 +30,6 @@ import functools
 import importlib.resources
 import threading
 import time
-from collections.abc import AsyncIterator
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -47,10 +47,8 @@ from links_ray.engine.mechanism import (
     mobility,
 )
 from links_ray.engine.solver import simulate, simulate_until_lock
-from links_ray.engine.synthesis import refine_retrieved
 from links_ray.engine.synthesis_options import MAX_SYNTHESIS_SECONDS
 from links_ray.engine.synthesis_plan import retrievals
-from links_ray.engine.synthesis_results import SynthesisResults
 from links_ray.interop.curve_worker import CurveReadersBusy
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve import kit_models, models
@@ -75,8 +73,12 @@ from links_ray.serve.responses import (
     JsonResponse,
     error_response,
     json_answer,
-    json_line,
-    logger,
+)
+from links_ray.serve.synthesis_run import (
+    start_refinement,
+    synthesis_answer,
+    synthesis_lines,
+    unless_gone,
 )
 
 #: The routes, as methods of `LinksApiRoutes`; the app (`serve.api`) takes them in.
@@ -192,55 +194,6 @@ def export_file(
             "X-Content-Type-Options": "nosniff",
         },
     )
-
-
-#: A synthesis whose client's server hands it one message after another, none of them the
-#: client's leaving, looks again this often (uvicorn's waits for the next one).
-GONE_POLL_S = 0.25
-
-
-async def _client_gone(request: Request) -> None:
-    """Return once the client of `request`, whose body is read, has gone (`http.disconnect`,
-    or a connection its server can no longer read)."""
-    try:
-        while (await request.receive())["type"] != "http.disconnect":
-            await asyncio.sleep(GONE_POLL_S)
-    except (OSError, RuntimeError):
-        return
-
-
-async def _unless_gone(
-    request: Request,
-    refining: asyncio.Future[tuple[SynthesisResults, float]],
-    stop: threading.Event,
-) -> tuple[SynthesisResults, float]:
-    """`refining`'s outcome. If the client goes first, or this wait is cancelled (Serve
-    cancels a request whose client has gone), `stop` is set: the refinement ends at its next
-    iteration, and its place and the refiner are free for the next synthesis."""
-    gone = asyncio.ensure_future(_client_gone(request))
-    try:
-        await asyncio.wait({refining, gone}, return_when=asyncio.FIRST_COMPLETED)
-    except asyncio.CancelledError:
-        stop.set()
-        raise
-    finally:
-        if gone.done() and not refining.done():
-            stop.set()
-        gone.cancel()
-    return await refining
-
-
-def _synthesis_answer(results: SynthesisResults, took_ms: float, queued_s: float) -> dict[str, Any]:
-    """A synthesis's answer: its results, the milliseconds it took and waited in them, and
-    `unmet` when no candidate kept the constraints."""
-    answer = {
-        "results": list(results),
-        "took_ms": round(took_ms, 3),
-        "queued_ms": round(queued_s * 1e3, 3),
-    }
-    if results.unmet is not None:
-        answer["unmet"] = results.unmet
-    return answer
 
 
 class LinksApiRoutes:
@@ -442,9 +395,9 @@ class LinksApiRoutes:
         or when it would wait longer than its own budget. The budget starts when its
         refinement does (its retrieval counted), and `queued_ms` says how long it waited.
         With `"stream": true` the answer is NDJSON: a `{"progress": ...}` line each time the
-        best so far improves, then the answer's own line (`_synthesis_lines`). Counted work
+        best so far improves, then the answer's own line (`serve.synthesis_run`). Counted work
         past MAX_SYNTHESIS_WORK is refused 400 before any; a synthesis whose client goes
-        stops at its next refinement iteration (`_unless_gone`)."""
+        stops at its next refinement iteration (`serve.synthesis_run`)."""
         points, options, stream = await read_args(request, "/api/synthesize", synthesize_request)
         seconds = options.seconds
         self._admission.claim_synthesis()  # once the body is read and checked, as a retrieval
@@ -463,75 +416,29 @@ class LinksApiRoutes:
             # Counted work is not weakened by waiting; it waits as long as a request may take.
             patience = (MAX_SYNTHESIS_SECONDS if seconds is None else seconds) - waited
             place = await self._admission.wait_for_refiner(budget, patience)
-            loop = asyncio.get_running_loop()
             reports: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
-
-            def refine() -> tuple[SynthesisResults, float]:
-                began = time.perf_counter()
-                results = refine_retrieved(
-                    points,
-                    retrieved,
-                    options,
-                    started=began - retrieval_s,  # waiting spent none of the budget
-                    progress=(
-                        (lambda best: loop.call_soon_threadsafe(reports.put_nowait, best))
-                        if stream
-                        else None
-                    ),
-                    stop=stop,
-                )
-                return results, waited + began - retrieved_at
-
             place.began = time.perf_counter()
-            refining = loop.run_in_executor(self._refining, refine)
+            refining = start_refinement(
+                self._refining,
+                points,
+                retrieved,
+                options,
+                (retrieval_s, waited, retrieved_at),
+                reports if stream else None,
+                stop,
+            )
             # The place is freed when the refinement ends, whether or not anyone still
             # reads its stream (a client gone mid-stream must not hold it for good).
             refining.add_done_callback(functools.partial(self._admission.release_synthesis, place))
             released = False
             if stream:
                 return StreamingResponse(
-                    self._synthesis_lines(reports, refining, start, request, stop),
+                    synthesis_lines(reports, refining, start, request, stop),
                     media_type="application/x-ndjson",
                 )
-            results, queued_s = await _unless_gone(request, refining, stop)
+            results, queued_s = await unless_gone(request, refining, stop)
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
             if released:
                 self._admission.release_synthesis(place)
-        return await json_answer(_synthesis_answer(results, took_ms, queued_s))
-
-    async def _synthesis_lines(
-        self,
-        reports: asyncio.Queue[dict[str, Any]],
-        refining: asyncio.Future[tuple[SynthesisResults, float]],
-        start: float,
-        request: Request,
-        stop: threading.Event,
-    ) -> AsyncIterator[bytes]:
-        """A streamed synthesis: `{"progress": best so far}` lines while it refines, then
-        `{"results", "took_ms", "queued_ms"}` (or `{"error"}` if it failed after the stream
-        began). If the client goes, or the stream is closed, before the refinement ends,
-        `stop` is set."""
-        gone = asyncio.ensure_future(_client_gone(request))
-        try:
-            while not refining.done() or not reports.empty():
-                waiting = asyncio.ensure_future(reports.get())
-                await asyncio.wait({waiting, refining, gone}, return_when=asyncio.FIRST_COMPLETED)
-                if waiting.done():
-                    yield await json_line({"progress": waiting.result()})
-                else:
-                    waiting.cancel()
-                if gone.done():
-                    return
-        finally:
-            if not refining.done():
-                stop.set()
-            gone.cancel()
-        try:
-            results, queued_s = refining.result()
-        except Exception as exc:  # the status is sent: the failure can only be a line
-            logger.warning("links-ray API: a streamed synthesis failed (%s)", type(exc).__name__)
-            yield await json_line({"error": "synthesis failed"})
-            return
-        took_ms = (time.perf_counter() - start) * 1e3
-        yield await json_line(_synthesis_answer(results, took_ms, queued_s))
+        return await json_answer(synthesis_answer(results, took_ms, queued_s))

@@ -58,6 +58,7 @@ FORBIDDEN_IN = {
     "links_ray.serve.guards": ("ray",),
     "links_ray.serve.admission": ("ray",),
     "links_ray.serve.handlers": ("ray",),
+    "links_ray.serve.synthesis_run": ("ray",),
     "links_ray.serve.kits": ("ray",),
     "links_ray.serve.kit_models": ("ray",),
     "links_ray.serve.openapi": ("ray",),
@@ -239,6 +240,10 @@ def test_serve_routes_never_import_the_assembly() -> None:
     assembly takes the routes in. No circle anywhere is tests/project/test_structure.py's."""
     modules = module_names(REPO / PACKAGE)
     assembly = {"links_ray.serve.api", "links_ray.serve.deployments", "links_ray.serve.app"}
-    for route_module in ("links_ray.serve.handlers", "links_ray.serve.openapi"):
+    for route_module in (
+        "links_ray.serve.handlers",
+        "links_ray.serve.synthesis_run",
+        "links_ray.serve.openapi",
+    ):
         path = modules[route_module]
         assert not {name for _, name in imported(path, route_module, set(modules))} & assembly

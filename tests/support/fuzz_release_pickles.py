@@ -13,10 +13,11 @@ batch of it with `links_ray.release.pickles.read_pickles`.
 The property: a case either loads, holding only lists, tuples, plain values and numpy arrays
 and scalars of the release's plain dtypes (`links_ray.cli.bench.pickle_fuzz.not_plain`; the
 seed's own batches, or others when the mutation changed data), or is refused with a one-line
-ReleaseFileError. The grammar fuzzer of `links_ray.cli.bench.pickle_fuzz` builds pickles opcode
-by opcode instead, and measures each file's memory against its budget. Any other exception is a
-violation; a signal ends the run, which its caller sees in the exit status. The run prints its
-counts as one JSON object and exits 1 if there was a violation.
+ReleaseFileError. The grammar fuzzer builds pickles opcode by opcode instead
+(`links_ray.cli.bench.pickle_grammar`) and measures each file's memory against its budget
+(`links_ray.cli.bench.pickle_fuzz`). Any other exception is a violation; a signal ends the
+run, which its caller sees in the exit status. The run prints its counts as one JSON object and
+exits 1 if there was a violation.
 
 Run from the repository root (cases are numbered and each is reproducible on its own):
 
