@@ -51,6 +51,7 @@ from links_ray.serve.limits import (
     MAX_REQUEST_JOINT_STEPS,
     MAX_REQUEST_JOINTS,
     MIN_BODY_BYTES_PER_S,
+    body_deadline,
 )
 from links_ray.serve.models import REQUEST_MODELS
 from links_ray.serve.responses import INLINE_JSON_BYTES, JSON_POOL, ApiError
@@ -174,7 +175,8 @@ def refuse_unknown_fields(body: dict[str, Any], route: str) -> None:
 
 async def read_body(request: Request) -> bytes:
     """The request body, at most MAX_BODY_BYTES (else ApiError 413), cut off with 408 when it
-    pauses for BODY_TIMEOUT_S or falls behind MIN_BODY_BYTES_PER_S (engine.inputs)."""
+    pauses for BODY_TIMEOUT_S or falls behind MIN_BODY_BYTES_PER_S (`limits.body_deadline`,
+    as `links serve`'s request gate reads it first)."""
     loop = asyncio.get_running_loop()
     start = loop.time()
     chunks: list[bytes] = []
@@ -188,8 +190,7 @@ async def read_body(request: Request) -> bytes:
                 if size > MAX_BODY_BYTES:
                     raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
                 chunks.append(chunk)
-                behind = start + BODY_TIMEOUT_S + size / MIN_BODY_BYTES_PER_S
-                deadline.reschedule(min(loop.time() + BODY_TIMEOUT_S, behind))
+                deadline.reschedule(body_deadline(start, loop.time(), size))
     except ClientDisconnect:  # nobody is left to answer; not a server error
         raise ApiError(400, "the client disconnected before sending the whole body") from None
     except TimeoutError:
