@@ -360,16 +360,18 @@ _running_gates: list[GateThread] = []
 
 
 def stop_serving(ray_started: bool) -> None:
-    """Stop Serve, then Ray if this process started it, in bounded time: the replicas drain
-    the requests under way for at most SHUTDOWN_DRAIN_S (a replica with none stops at once),
+    """Stop Serve, then Ray if this process started it, in bounded time: the request gates
+    this process runs stop listening and let the requests they passed on finish, for at most
+    SHUTDOWN_DRAIN_S; the replicas drain what is left for as long (a replica with none stops
+    at once),
     Serve's controller gets SHUTDOWN_STOP_S more to stop them and the proxies, then Ray stops.
     `serve.shutdown()` alone takes no bound (it waits for the controller, then each replica,
     by Serve's own timeouts) and leaves Ray to the interpreter's exit."""
     import ray
 
     signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second one must not cut the drain short
-    while _running_gates:  # no new requests while the replicas drain
-        _running_gates.pop().stop()
+    while _running_gates:  # no new requests; those under way finish first
+        _running_gates.pop().stop(drain_s=SHUTDOWN_DRAIN_S)
     # `serve.shutdown()` with a bound: it takes none; its client's `shutdown` does.
     client = serve.context._get_global_client(raise_if_no_controller_running=False)
     if client is not None:

@@ -106,6 +106,8 @@ class RequestGate:
         self._passing: asyncio.Semaphore | None = None
         self.answer_bytes = 0  # of answers taken from Serve, not yet sent
         self._tasks: set[asyncio.Task] = set()
+        self._serving: set[asyncio.Task] = set()  # those whose request is passed on
+        self.closing = False
 
     async def start(self) -> None:
         """Listen; `port` 0 takes a free one, which `port` then holds."""
@@ -115,14 +117,20 @@ class RequestGate:
         )
         self.port = self.server.sockets[0].getsockname()[1]
 
-    async def close(self) -> None:
-        """Stop listening and end every connection."""
+    async def close(self, drain_s: float = 0.0) -> None:
+        """Stop listening; let the requests passed on finish, for at most `drain_s` seconds
+        (their connections then end), and end every other connection at once."""
+        self.closing = True
         if self.server is not None:
             self.server.close()
+        for task in self._tasks - self._serving:
+            task.cancel()
+        if self._serving:
+            await asyncio.wait(set(self._serving), timeout=drain_s)
         for task in list(self._tasks):
             task.cancel()
         if self._tasks:
-            await asyncio.wait(self._tasks, timeout=5.0)
+            await asyncio.wait(set(self._tasks), timeout=5.0)
         if self.server is not None:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(self.server.wait_closed(), 5.0)
@@ -165,13 +173,19 @@ class RequestGate:
             except Refusal as refusal:
                 await self._refuse(conn, refusal)
                 return
+            task = asyncio.current_task()
+            assert task is not None
+            self._serving.add(task)
             try:
                 await self._pass_on(conn, request, body)
             except Refusal as refusal:
                 await self._refuse(conn, refusal)
                 return
             finally:
+                self._serving.discard(task)
                 self.budget.give_back(len(body))  # held until the request is answered
+            if self.closing:
+                return
             conn.answering = False
             if conn.h11.our_state is h11.MUST_CLOSE or conn.h11.their_state is h11.MUST_CLOSE:
                 return
@@ -468,12 +482,13 @@ class GateThread:
         self._started.set()
         self.loop.run_forever()
 
-    def stop(self) -> None:
-        """End every connection and stop the thread."""
+    def stop(self, drain_s: float = 0.0) -> None:
+        """Stop listening, let the requests passed on finish for at most `drain_s` seconds,
+        end every connection and stop the thread."""
         if not self._thread.is_alive():
             return
-        future = asyncio.run_coroutine_threadsafe(self.gate.close(), self.loop)
+        future = asyncio.run_coroutine_threadsafe(self.gate.close(drain_s), self.loop)
         with contextlib.suppress(Exception):
-            future.result(timeout=10.0)
+            future.result(timeout=drain_s + 15.0)
         self.loop.call_soon_threadsafe(self.loop.stop)
         self._thread.join(timeout=10.0)

@@ -393,3 +393,33 @@ def test_links_serve_holds_crowds_of_idle_clients_in_its_gate(
     assert all(answer["seconds"] < limits.BODY_TIMEOUT_S + 5 for answer in answers)
     assert len(checks) >= 20
     assert all(status == 200 and seconds < 1.0 for status, seconds in checks), checks
+
+
+def test_closing_lets_the_requests_passed_on_finish(backend: Backend) -> None:
+    """At shutdown the gate stops listening, ends idle connections at once, and lets a request
+    already passed on finish (within its drain), its client answered in full."""
+    running = GateThread(RequestGate("127.0.0.1", 0, backend.port))
+    running.start()
+    port = running.gate.port
+    backend.release.clear()
+    backend.waiting.clear()
+    answer: dict = {}
+
+    def hold() -> None:
+        status, _, body = request(port, "GET", "/hold")
+        answer.update(status=status, body=body)
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    idle = socket.create_connection(("127.0.0.1", port), timeout=30)
+    assert backend.waiting.wait(10)
+    threading.Timer(1.0, backend.release.set).start()
+    began = time.monotonic()
+    running.stop(drain_s=20.0)
+    holder.join(timeout=30)
+    assert answer["status"] == 200 and json.loads(answer["body"])["status"] == "released"
+    assert 0.5 < time.monotonic() - began < 10
+    assert idle.recv(10) == b""  # the idle connection was ended, unanswered
+    idle.close()
+    with pytest.raises(OSError):
+        socket.create_connection(("127.0.0.1", port), timeout=5).close()

@@ -25,7 +25,8 @@ import pytest
 import links_ray
 from links_ray.data.commit import committed_shards
 from links_ray.data.store import Store
-from links_ray.engine.synthesis_plan import CANDIDATES
+from links_ray.engine.synthesis_options import DEFAULT_SYNTHESIS_TRANSMISSION_DEG
+from links_ray.engine.synthesis_plan import pooled, retrievals
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.app import build_app
 from tests.support.serving import as_served, retrieved, serving
@@ -156,8 +157,8 @@ def test_synthesis_refines_what_the_partitions_retrieve(
     partitioned: Any, dataset_index: RetrievalIndex, queries: list[np.ndarray]
 ) -> None:
     """/api/synthesize on a partitioned app starts from the merged retrieval's candidates and
-    refines them: each result no worse than its retrieved path, which is among the
-    CANDIDATES one index returns."""
+    refines them: each result no worse than its retrieved path, which is among the paths one
+    index returns for the retrievals synthesis asks for (`synthesis_plan.retrievals`)."""
     _, client = partitioned
     query = queries[0]
     body = {"points": np.asarray(query).tolist(), "k": 2, "seconds": 0.5}
@@ -165,7 +166,15 @@ def test_synthesis_refines_what_the_partitions_retrieve(
     assert status == 200, data
     results = data["results"]
     assert len(results) == 2
-    candidates = {r["path_id"]: r for r in dataset_index.retrieve(query, CANDIDATES)}
+    # What one index returns for the retrievals synthesis asks for: CANDIDATES keeping the
+    # default floor, and more with none.
+    asked = retrievals(2, None, False, DEFAULT_SYNTHESIS_TRANSMISSION_DEG)
+    candidates = {
+        r["path_id"]: r
+        for r in pooled(
+            [dataset_index.retrieve(query, count, floor, joints) for count, joints, floor in asked]
+        )
+    }
     for result in results:
         start = candidates[result["path_id"]]
         assert result["retrieved_chamfer"] == pytest.approx(start["chamfer"], abs=5e-7)
