@@ -123,6 +123,9 @@ class RequestGate:
         self.closing = True
         if self.server is not None:
             self.server.close()
+        # Connections accepted just now have tasks that have not yet run (nor registered):
+        # a moment on the loop lets them, so that they are ended as the others.
+        await asyncio.sleep(0.05)
         for task in self._tasks - self._serving:
             task.cancel()
         if self._serving:

@@ -419,7 +419,11 @@ def test_closing_lets_the_requests_passed_on_finish(backend: Backend) -> None:
     holder.join(timeout=30)
     assert answer["status"] == 200 and json.loads(answer["body"])["status"] == "released"
     assert 0.5 < time.monotonic() - began < 10
-    assert idle.recv(10) == b""  # the idle connection was ended, unanswered
+    try:
+        ended = idle.recv(10)
+    except ConnectionResetError:  # reset, never accepted: ended as surely
+        ended = b""
+    assert ended == b""  # the idle connection was ended, unanswered
     idle.close()
     with pytest.raises(OSError):
         socket.create_connection(("127.0.0.1", port), timeout=5).close()
