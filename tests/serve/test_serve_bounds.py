@@ -241,3 +241,67 @@ def test_a_drawing_that_finds_no_token_in_time_is_told_busy() -> None:
     assert (refused.status, refused.headers) == (503, {"Retry-After": "1"})
     assert refused.message == "busy: no curve reader came free within 0.05 s (all 1 busy)"
     assert read_curve_isolated("tiny.csv", "0,0\n1,1\n2,0\n").points.shape == (400, 2)
+
+
+def _points_body(inner: bytes) -> bytes:
+    return b'{"points":' + inner + b"}"
+
+
+#: The worst small bodies found for the body readers, each as large as the limits let it be
+#: (or as small as it can be), and what its refusal says. Measured with their time in
+#: docs/benchmarks.md (Hostile input): at most about 0.1 s and 34 MiB a 2 MB body.
+_FULL = 2 * 1024 * 1024 - 64
+WORST_BODIES = {
+    "open brackets": (b"[" * _FULL, "brackets"),
+    "arrays of numbers under the bracket count": (
+        _points_body(b"[" + b",".join([b"[" + b",".join([b"1"] * 90) + b"]"] * 2000) + b"]"),
+        "got 90 entries",
+    ),
+    "an integer of 2 million digits": (_points_body(b"1" * (_FULL - 12)), "infinity"),
+    "a float of 2 million digits": (_points_body(b"0." + b"1" * (_FULL - 14)), "got a number"),
+    "an exponent past float64": (_points_body(b"[[1e999999,1],[2,2],[3,1]]"), "infinity"),
+    "a string of escapes": (
+        _points_body(b'"' + b"\\u0000" * ((_FULL - 14) // 6) + b'"'),
+        "got a string",
+    ),
+    "a key repeated 190,000 times": (
+        b"{" + b",".join([b'"points":1'] * 190_000) + b"}",
+        "got a number",
+    ),
+    "150,000 distinct keys": (
+        b"{" + b",".join([b'"k%d":1' % i for i in range(150_000)]) + b"}",
+        "unknown field 'k0'",
+    ),
+    "pairs as strings": (
+        _points_body(b"[" + b",".join([b'["1","2"]'] * 10_000) + b"]"),
+        "two numbers",
+    ),
+    "nesting past the parser's depth": (
+        _points_body(b"[" * 1025 + b"]" * 1025),
+        "nested too deeply",
+    ),
+    "coordinates past the limit": (
+        _points_body(b"[[1e308,1e308],[-1e308,-1e308],[0,1]]"),
+        "within",
+    ),
+}
+
+
+@pytest.mark.parametrize("route", ["/api/retrieve", "/api/synthesize"])
+@pytest.mark.parametrize("name", list(WORST_BODIES))
+def test_the_worst_small_bodies_are_refused_within_a_bounded_memory(name: str, route: str) -> None:
+    """Each is refused 400 naming its problem, and reading it never holds more than 32 times
+    its bytes and a MiB (traced): no body amplifies in the parser or the checks after it."""
+    import tracemalloc
+
+    body, said = WORST_BODIES[name]
+    convert = retrieve_args if route == "/api/retrieve" else synthesize_request
+    tracemalloc.start()
+    try:
+        with pytest.raises(ApiError) as caught:
+            asyncio.run(read_args(request_of(body, route), route, convert))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert caught.value.status == 400 and said in caught.value.message, caught.value.message
+    assert peak <= 32 * len(body) + 2**20, (peak, len(body))
