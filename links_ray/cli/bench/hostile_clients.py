@@ -13,7 +13,7 @@ import json
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 #: How long a client waits for an answer before it gives up (status None).
@@ -56,8 +56,7 @@ def _wanted(data: bytes) -> int:
 
 
 def _connect(port: int) -> socket.socket:
-    sock = socket.create_connection(("127.0.0.1", port), timeout=ANSWER_WAIT_S)
-    return sock
+    return socket.create_connection(("127.0.0.1", port), timeout=ANSWER_WAIT_S)
 
 
 def crowd(clients: int, attack: Callable[[], Answer]) -> list[Answer]:
@@ -96,29 +95,34 @@ def headers_only(port: int) -> Answer:
         return read_answer(sock, began)
 
 
+def _drip(sock: socket.socket, pieces: Iterable[bytes]) -> None:
+    """Send `pieces` a second apart, until the server answers or closes."""
+    for piece in pieces:
+        try:
+            sock.sendall(piece)
+        except OSError:
+            return
+        time.sleep(1.0)
+        sock.setblocking(False)
+        try:
+            if sock.recv(1, socket.MSG_PEEK):
+                return  # answered already
+        except BlockingIOError:
+            pass
+        except OSError:
+            return
+        finally:
+            sock.setblocking(True)
+            sock.settimeout(ANSWER_WAIT_S)
+
+
 def trickling(port: int, seconds: float) -> Answer:
     """A retrieval whose body comes a byte a second for `seconds` (or until refused)."""
     began = time.perf_counter()
     body = json.dumps({"points": [[0, 0], [1, 0.5], [2, 0], [1, -1]]}).encode().ljust(300)
     with _connect(port) as sock:
         sock.sendall(_retrieval_head(len(body)))
-        for byte in body[: int(seconds)]:
-            try:
-                sock.sendall(bytes([byte]))
-            except OSError:
-                break
-            time.sleep(1.0)
-            sock.setblocking(False)
-            try:
-                if sock.recv(1, socket.MSG_PEEK):
-                    break  # answered already
-            except BlockingIOError:
-                pass
-            except OSError:
-                break
-            finally:
-                sock.setblocking(True)
-                sock.settimeout(ANSWER_WAIT_S)
+        _drip(sock, (bytes([byte]) for byte in body[: int(seconds)]))
         return read_answer(sock, began)
 
 
@@ -154,23 +158,7 @@ def endless_headers(port: int, seconds: float = 60.0) -> Answer:
     began = time.perf_counter()
     with _connect(port) as sock:
         sock.sendall(b"GET /api/health HTTP/1.1\r\nHost: 127.0.0.1\r\n")
-        for index in range(int(seconds)):
-            try:
-                sock.sendall(b"x-more-%d: v\r\n" % index)
-            except OSError:
-                break
-            time.sleep(1.0)
-            sock.setblocking(False)
-            try:
-                if sock.recv(1, socket.MSG_PEEK):
-                    break
-            except BlockingIOError:
-                pass
-            except OSError:
-                break
-            finally:
-                sock.setblocking(True)
-                sock.settimeout(ANSWER_WAIT_S)
+        _drip(sock, (b"x-more-%d: v\r\n" % index for index in range(int(seconds))))
         return read_answer(sock, began)
 
 
