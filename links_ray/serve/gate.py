@@ -100,7 +100,6 @@ class RequestGate:
         self.host, self.port = host, port
         self.upstream = (upstream_host, upstream_port)
         self.allowed_hosts = frozenset(allowed_hosts)
-        self.connections = 0
         self.budget = BodyBudget(MAX_BODIES_READING, MAX_BODY_BYTES_BUFFERED)
         self.server: asyncio.Server | None = None
         self._passing: asyncio.Semaphore | None = None
@@ -108,6 +107,11 @@ class RequestGate:
         self._tasks: set[asyncio.Task] = set()
         self._serving: set[asyncio.Task] = set()  # those whose request is passed on
         self.closing = False
+
+    @property
+    def connections(self) -> int:
+        """Connections held now."""
+        return len(self._tasks)
 
     async def start(self) -> None:
         """Listen; `port` 0 takes a free one, which `port` then holds."""
@@ -142,7 +146,6 @@ class RequestGate:
         task = asyncio.current_task()
         assert task is not None
         self._tasks.add(task)
-        self.connections += 1
         try:
             if self.connections > MAX_CONNECTIONS:
                 writer.write(refusal_bytes(503, "busy: too many connections at once"))
@@ -157,7 +160,6 @@ class RequestGate:
         except Exception as exc:  # the gate keeps serving whatever one connection does
             logger.error("links-ray gate: unexpected %s", type(exc).__name__)
         finally:
-            self.connections -= 1
             self._tasks.discard(task)
             writer.close()
             with contextlib.suppress(Exception):
@@ -264,7 +266,6 @@ class RequestGate:
         start = loop.time()
         pieces: list[bytes] = []
         size = 0
-        whole = False
         try:
             if conn.h11.they_are_waiting_for_100_continue:
                 await self._send(conn, h11.InformationalResponse(status_code=100, headers=[]))
@@ -281,7 +282,6 @@ class RequestGate:
                         raise Refusal(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
                     continue
                 if isinstance(event, h11.EndOfMessage):
-                    whole = True
                     return b"".join(pieces)
                 if isinstance(event, h11.ConnectionClosed):
                     raise ConnectionError("the client closed before sending the whole body")
@@ -298,10 +298,11 @@ class RequestGate:
                         f"{limits.MIN_BODY_BYTES_PER_S} bytes a second",
                     ) from None
                 conn.h11.receive_data(data)
+        except BaseException:
+            self.budget.give_back(size)  # a whole body's bytes stay counted until answered
+            raise
         finally:
             self.budget.end_body()
-            if not whole:
-                self.budget.give_back(size)
 
     async def _pass_on(self, conn: _Conn, request: h11.Request, body: bytes) -> None:
         """Pass the request to Serve, in its turn (health skips the line), take Serve's whole
