@@ -7,16 +7,16 @@ the package is built in layers (docs/design/architecture.md), held by tests/proj
 
 from links_ray.data.dataset import load
 from links_ray.data.splits import SPLITS, split_of
-from links_ray.engine.mechanism import (
+from links_ray.engine.kinematics.mechanism import (
     InvalidMechanismError,
     LockingError,
     reduce_mechanism,
 )
-from links_ray.engine.paths import chamfer, circle_variance, is_circle, normalize_path
-from links_ray.engine.sampling import PositionSampler, PositionSearch, sample_positions
-from links_ray.engine.solver import TopologySimulator, simulate, simulate_batch
-from links_ray.engine.synthesis import synthesize
-from links_ray.engine.topology import random_topology
+from links_ray.engine.kinematics.paths import chamfer, circle_variance, is_circle, normalize_path
+from links_ray.engine.kinematics.sampling import PositionSampler, PositionSearch, sample_positions
+from links_ray.engine.kinematics.solver import TopologySimulator, simulate, simulate_batch
+from links_ray.engine.kinematics.topology import random_topology
+from links_ray.engine.synthesis.pipeline import synthesize
 
 __all__ = [
     "SPLITS",

@@ -18,9 +18,9 @@ import numpy as np
 from links_ray.cli import report
 from links_ray.cli.arguments import json_option, non_negative_int, positive_int, print_result
 from links_ray.cli.kernels import note_compiling
-from links_ray.engine.sampling import PositionSampler, Sampler
-from links_ray.engine.solver import TopologySimulator
-from links_ray.engine.topology import random_topology
+from links_ray.engine.kinematics.sampling import PositionSampler, Sampler
+from links_ray.engine.kinematics.solver import TopologySimulator
+from links_ray.engine.kinematics.topology import random_topology
 
 VARIANTS = 5
 

@@ -3,13 +3,13 @@
 The mechanism comes from a JSON file (the API's `{"adjacency", "node_types", "positions"}`,
 or what `links retrieve` and `links synthesize --json` print, picking result N), from stdin
 (`-`), or from a dataset (`ROOT --mechanism-id ID`). It goes out in millimetres
-(`engine.fabrication`): its crank `--crank-mm` long with joint 0 at the origin, or without
+(`engine.fabrication.drawings`): its crank `--crank-mm` long with joint 0 at the origin, or without
 `--crank-mm` a result where its curve was drawn, the drawing's unit read as a millimetre (a
 result's mechanism lies in the drawing's frame; any other mechanism's positions have no unit,
 and its crank is made DEFAULT_CRANK_MM long). As SVG or DXF (`interop.drawings`), a table of
 link lengths and ground pivots (`--json` for the table as JSON), or a Python script that
 builds it with pylinkage. Or, with `--format 3d`, as printable parts
-(`engine.kit`, `interop.parts`): a folder of `bom.json`, `assembly.glb` and
+(`engine.fabrication.kit`, `interop.parts`): a folder of `bom.json`, `assembly.glb` and
 `parts/*.stl`, the sizes from the options of `KIT_FLAGS`.
 """
 
@@ -23,10 +23,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from links_ray.engine import kit
-from links_ray.engine.fabrication import Fabrication, fabrication
-from links_ray.engine.inputs import DEFAULT_CRANK_MM, as_crank_mm, as_int
-from links_ray.engine.kit import KitOptions
+from links_ray.engine.fabrication import kit
+from links_ray.engine.fabrication.drawings import Fabrication, fabrication
+from links_ray.engine.fabrication.kit import KitOptions
+from links_ray.engine.fabrication.limits import DEFAULT_CRANK_MM, as_crank_mm
+from links_ray.engine.inputs import as_int
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
 
 FORMATS = ("svg", "dxf", "table", "pylinkage", "3d")

@@ -10,7 +10,7 @@ import pyarrow.dataset as pads
 
 from links_ray.data.dataset import open_table
 from links_ray.data.store import Store
-from links_ray.engine.solver import simulate
+from links_ray.engine.kinematics.solver import simulate
 
 
 def _pyplot():

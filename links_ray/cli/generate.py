@@ -16,7 +16,7 @@ from links_ray.cli.arguments import (
 )
 from links_ray.cli.kernels import note_compiling
 from links_ray.engine.inputs import MAX_TRANSMISSION_DEG
-from links_ray.engine.topology import TOPOLOGY_RULES
+from links_ray.engine.kinematics.topology import TOPOLOGY_RULES
 
 
 def add_command(commands: argparse._SubParsersAction) -> None:

@@ -28,15 +28,20 @@ class KernelGroup:
     seconds: int  # about how long compiling the group takes on one core
 
 
-SOLVER = KernelGroup("the solver's kernels", "links_ray.engine.solver", "_simulate_one", 15)
-PATHS = KernelGroup("the path kernels", "links_ray.engine.paths", "_normalize_batch", 5)
+SOLVER = KernelGroup(
+    "the solver's kernels", "links_ray.engine.kinematics.solver", "_simulate_one", 15
+)
+PATHS = KernelGroup("the path kernels", "links_ray.engine.kinematics.paths", "_normalize_batch", 5)
 SEARCH = KernelGroup("the search kernels", "links_ray.search.kernels", "_sketch_chamfer", 15)
 REFINE = KernelGroup(
-    "the refinement kernels", "links_ray.engine.refine_kernels", "_nearest_pairs", 5
+    "the refinement kernels", "links_ray.engine.synthesis.refinement.kernels", "_nearest_pairs", 5
 )
 # Its own group: an edit of `step_kernels` alone leaves `refine_kernels`' cache warm.
 STEP = KernelGroup(
-    "the refinement step's kernels", "links_ray.engine.step_kernels", "_chamfer_system", 5
+    "the refinement step's kernels",
+    "links_ray.engine.synthesis.refinement.step_kernels",
+    "_chamfer_system",
+    5,
 )
 #: Every group, as `links warm` checks them.
 ALL_GROUPS = (SOLVER, PATHS, SEARCH, REFINE, STEP)

@@ -1,5 +1,5 @@
 """`links synthesize ROOT --points FILE | --curve FILE`: mechanisms retrieved for a drawn curve
-and refined onto it (`links_ray.engine.synthesis`), offline."""
+and refined onto it (`links_ray.engine.synthesis.pipeline`), offline."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from links_ray.cli.arguments import (
     query_points,
 )
 from links_ray.cli.kernels import note_compiling
-from links_ray.engine.synthesis_options import (
+from links_ray.engine.synthesis.options import (
     DEFAULT_SYNTHESIS_SECONDS,
     DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
     MAX_SYNTHESIS_ITERATIONS,
@@ -96,7 +96,7 @@ def add_command(commands: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     """`links synthesize`: check every option before the index loads, synthesize, print the
     results (and what was unmet)."""
-    from links_ray.engine.synthesis import synthesize
+    from links_ray.engine.synthesis.pipeline import synthesize
     from links_ray.search.index import RetrievalIndex
 
     points, closed = query_points(args)

@@ -53,7 +53,7 @@ def warm(folder: str | None = None) -> dict[str, float]:
     from links_ray.data.schemas import CURATION_TABLES
     from links_ray.data.shards import GenerationPlan, write_shard
     from links_ray.data.store import Store
-    from links_ray.engine.synthesis import synthesize
+    from links_ray.engine.synthesis.pipeline import synthesize
     from links_ray.search.index import RetrievalIndex
 
     seconds: dict[str, float] = {}

@@ -27,7 +27,7 @@ from links_ray.data.lease import Lease, LeaseLost, holder_still
 from links_ray.data.schemas import GENERATION_TABLES
 from links_ray.data.shards import GenerationPlan, Shard, write_shard
 from links_ray.data.store import META, Store, StoreError, refuse_imported
-from links_ray.engine.topology import TOPOLOGY_RULES
+from links_ray.engine.kinematics.topology import TOPOLOGY_RULES
 
 #: Tries of each S3 request inside a shard, to ride out a store's brief refusals.
 WRITE_ATTEMPTS = 10
@@ -72,8 +72,8 @@ def generate(
     """Generate `mechanisms` valid mechanisms into `out` on Ray; returns the run summary.
 
     `topology_rules` picks the topology generator (`links`, the LINKS release's rules, or
-    `feasible`: engine.topology); `min_transmission_deg` above 0 keeps only mechanisms whose
-    least transmission angle reaches it (0, the default, is the paper's distribution).
+    `feasible`: engine.kinematics.topology); `min_transmission_deg` above 0 keeps only mechanisms
+    whose least transmission angle reaches it (0, the default, is the paper's distribution).
 
     `tables` are the tables written: `mechanisms` and any of `simulations` and `negatives`
     (names, or one comma-separated string). Resumable: shards committed by an earlier run of

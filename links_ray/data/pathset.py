@@ -37,10 +37,14 @@ from links_ray.data.schemas import (
 )
 from links_ray.data.store import Store
 from links_ray.engine.inputs import DEFAULT_STEPS
-from links_ray.engine.mechanism import FIXED, analyze_topology, arc_flags
-from links_ray.engine.paths import CIRCLE_VARIANCE_THRESHOLD, circle_variances, normalize_paths
-from links_ray.engine.solver import TopologySimulator
-from links_ray.engine.transmission import joint_transmission_deg
+from links_ray.engine.kinematics.mechanism import FIXED, analyze_topology, arc_flags
+from links_ray.engine.kinematics.paths import (
+    CIRCLE_VARIANCE_THRESHOLD,
+    circle_variances,
+    normalize_paths,
+)
+from links_ray.engine.kinematics.solver import TopologySimulator
+from links_ray.engine.kinematics.transmission import joint_transmission_deg
 
 JOINT_BITS = 5
 #: Mechanisms turned into paths at once (a default shard's 1,000 topologies): bounds a
@@ -158,8 +162,8 @@ def trajectory_paths(mechanisms: pa.Table, trajectories: np.ndarray, n_joints: i
 def _joint_transmission(
     adjacency: np.ndarray, node_types: np.ndarray, trajectories: np.ndarray
 ) -> np.ndarray:
-    """(rows, n) each joint's least transmission angle (`engine.transmission`), topology by
-    topology (consecutive rows of one topology share its solution path)."""
+    """(rows, n) each joint's least transmission angle (`engine.kinematics.transmission`), topology
+    by topology (consecutive rows of one topology share its solution path)."""
     out = np.empty(trajectories.shape[:2], dtype=np.float32)
     changes = np.any(adjacency[1:] != adjacency[:-1], axis=(1, 2))
     changes |= np.any(node_types[1:] != node_types[:-1], axis=1)

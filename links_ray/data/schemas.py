@@ -46,7 +46,8 @@ SCHEMAS: dict[str, pa.Schema] = {
     "mechanisms": pa.schema(
         [
             *_MECHANISM_FIELDS,
-            # The least transmission angle over the turn, in degrees (engine.transmission).
+            # The least transmission angle over the turn, in degrees
+            # (engine.kinematics.transmission).
             pa.field("min_transmission_deg", pa.float32(), nullable=False),
         ]
     ),

@@ -36,16 +36,16 @@ from links_ray.data.schemas import (
 )
 from links_ray.data.store import Store
 from links_ray.engine.inputs import DEFAULT_STEPS, as_transmission_deg
-from links_ray.engine.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS, Topology
-from links_ray.engine.sampling import (
+from links_ray.engine.kinematics.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS, Topology
+from links_ray.engine.kinematics.sampling import (
     SAMPLERS,
     PositionSampler,
     PositionSearch,
     PositionSearchError,
 )
-from links_ray.engine.solver import TopologySimulator
-from links_ray.engine.topology import TOPOLOGY_RULES, grow_topology
-from links_ray.engine.transmission import mechanism_transmission_deg
+from links_ray.engine.kinematics.solver import TopologySimulator
+from links_ray.engine.kinematics.topology import TOPOLOGY_RULES, grow_topology
+from links_ray.engine.kinematics.transmission import mechanism_transmission_deg
 
 VARIANTS = 5
 JOINT_COUNTS = MAX_DATASET_JOINTS - MIN_DATASET_JOINTS + 1
@@ -85,13 +85,13 @@ class Shard:
 class GenerationPlan:
     """What a run produces; equal plans produce equal rows.
 
-    `tables` are the tables written (`mechanisms` always): leaving a table out changes no row
-    of the others, since every topology draws the same whatever is written.
-    `topology_rules` picks the topology generator (engine.topology). `min_transmission_deg`
-    above 0 rejects valid mechanisms whose least transmission angle is below it, and searches
-    on until the topology has its variants (or abandons it when its budget is spent).
-    `grown_from` are the sizes the root held before it grew to `mechanisms`, smallest first
-    (empty for a root made at its size): each growth's shards follow the earlier ones'.
+    `tables` are the tables written (`mechanisms` always): leaving a table out changes no row of the
+    others, since every topology draws the same whatever is written. `topology_rules` picks the
+    topology generator (engine.kinematics.topology). `min_transmission_deg` above 0 rejects valid
+    mechanisms whose least transmission angle is below it, and searches on until the topology has
+    its variants (or abandons it when its budget is spent). `grown_from` are the sizes the root held
+    before it grew to `mechanisms`, smallest first (empty for a root made at its size): each
+    growth's shards follow the earlier ones'.
     """
 
     seed: int

@@ -21,8 +21,8 @@ from links_ray.data.commit import TABLE_STAGE, committed_files, committed_shards
 from links_ray.data.pathset import arc_circle_counts, path_shares
 from links_ray.data.schemas import CURATION_TABLES, TABLE_NAMES
 from links_ray.data.store import META, Store
-from links_ray.engine.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
-from links_ray.engine.sampling import measure_candidates_per_valid
+from links_ray.engine.kinematics.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS
+from links_ray.engine.kinematics.sampling import measure_candidates_per_valid
 
 #: The paper's figures ("Dataset Curation & Processing", "Scale of Infeasibilities"). Its
 #: circle and arc shares add up to its arc-or-circle share: its arcs are the arcs that are not

@@ -1,13 +1,12 @@
 """Limits on user input, and the checks that enforce them.
 
-The Python API, the CLI and the HTTP API check what users give them here, so that each limit
-has one value and one message wherever it is hit. A refused input raises `ValueError` (its
-subclass `InvalidMechanismError` for mechanisms) with a message naming the problem; the HTTP
-API answers it with a 4xx and `{"error": <the message>}`. docs/reference/contract.md, Limits,
-lists them. Limits of one subsystem alone live with it: drawing files in
-`interop.curve_limits`, HTTP requests in `serve.limits`, synthesis options in
-`engine.synthesis_options`, design constraints in `engine.constraints`; the compiled kernels'
-buffer checks are `engine.buffers`.
+The Python API, the CLI and the HTTP API check what users give them here, so that each limit has one
+value and one message wherever it is hit. A refused input raises `ValueError` (its subclass
+`InvalidMechanismError` for mechanisms) with a message naming the problem; the HTTP API answers it
+with a 4xx and `{"error": <the message>}`. docs/reference/contract.md, Limits, lists them. Limits of
+one subsystem alone live with it: drawing files in `interop.curve_limits`, HTTP requests in
+`serve.limits`, synthesis options in `engine.synthesis.options`, design constraints in
+`engine.synthesis.constraints`; the compiled kernels' buffer checks are `engine.buffers`.
 
 Pure numpy: no numba, no Ray.
 """
@@ -42,40 +41,13 @@ MIN_POINTS, MAX_POINTS = 3, 10_000
 MIN_EXTENT = 1e-9
 DEFAULT_K, MIN_K, MAX_K = 3, 1, 100
 
-# -- refinement (engine.refine) ----------------------------------------------------------------
+# -- transmission angles -----------------------------------------------------------------------
 
-#: Largest mechanism refinement takes, in joints: it keeps d(trajectory)/d(positions), joints x
-#: steps x 2 x 2 joints numbers (32 MB at 50 joints and 200 steps).
-MAX_REFINE_JOINTS = 50
-#: Most simulation steps refinement takes (its derivatives grow with the steps).
-MAX_REFINE_STEPS = 1000
-#: Crank steps of the final check of a refined mechanism: finer than any simulation it is given,
-#: so a lock or a dead centre between the simulation's steps is caught.
-REFINE_CHECK_STEPS = 2000
-DEFAULT_REFINE_ITERATIONS, MAX_REFINE_ITERATIONS = 200, 10_000
 #: Least transmission angle, in degrees, every dyad keeps at every check step.
 DEFAULT_MIN_TRANSMISSION_DEG = 3.0
 #: The most any least transmission angle may be asked to be (refinement's margin, generation's
 #: and retrieval's thresholds): near 90 degrees no mechanism of several dyads is left.
 MAX_TRANSMISSION_DEG = 45.0
-
-# -- fabrication drawings (engine.fabrication) -------------------------------------------------
-
-#: The crank length of an exported drawing, in millimetres, by default and at most (100 m).
-DEFAULT_CRANK_MM, MAX_CRANK_MM = 20.0, 1e5
-#: The most an exported drawing may span, in millimetres (1 km): a crank much shorter than the
-#: other links would otherwise blow a drawing up past what any CAD program lays out.
-MAX_DRAWING_MM = 1e6
-
-
-# -- layered builds (engine.collisions, engine.layers) -----------------------------------------
-
-#: Largest mechanism a layered build takes, in joints: every pair of its links is checked over
-#: the turn, and the pairs grow as the square of the joints.
-MAX_LAYERED_JOINTS = 100
-#: Crank steps at which a layered build's pairs are first measured; the check between the steps
-#: (engine.collisions) proves the rest of the turn.
-DEFAULT_COLLISION_STEPS = 360
 
 
 class InvalidMechanismError(ValueError):
@@ -327,7 +299,7 @@ def as_max_joints(value: object, name: str = "max_joints") -> int | None:
     return as_int(name, value, MIN_JOINTS, MAX_DATASET_JOINTS)
 
 
-# -- refinement -------------------------------------------------------------------------------
+# -- transmission angles ---------------------------------------------------------------------------
 
 
 def as_transmission_deg(value: object, name: str = "min_transmission_deg") -> float:
@@ -341,18 +313,7 @@ def as_transmission_deg(value: object, name: str = "min_transmission_deg") -> fl
     return degrees
 
 
-def check_refine_size(n_joints: int, steps: int) -> None:
-    """Refuse a refinement whose derivatives would be too large (MAX_REFINE_JOINTS joints,
-    MAX_REFINE_STEPS steps)."""
-    if n_joints > MAX_REFINE_JOINTS:
-        raise InvalidMechanismError(
-            f"refinement takes at most {MAX_REFINE_JOINTS} joints, got {n_joints}"
-        )
-    if steps > MAX_REFINE_STEPS:
-        raise ValueError(f"refinement takes at most {MAX_REFINE_STEPS} steps, got {steps}")
-
-
-# -- fabrication drawings ---------------------------------------------------------------------
+# -- numbers in a range ---------------------------------------------------------------------
 
 
 def positive_at_most(value: object, name: str, maximum: float, kind: str, unit: str) -> float:
@@ -364,35 +325,6 @@ def positive_at_most(value: object, name: str, maximum: float, kind: str, unit: 
             f"{name} must be more than 0 and at most {maximum:g}{unit}, got {number:g}"
         )
     return number
-
-
-def as_crank_mm(value: object, name: str = "crank_mm") -> float:
-    """A crank length in millimetres: more than 0 and at most MAX_CRANK_MM, or ValueError
-    naming the option `name`."""
-    return positive_at_most(value, name, MAX_CRANK_MM, "a number of millimetres", " mm")
-
-
-# -- layered builds ---------------------------------------------------------------------------
-
-
-def as_bar_sizes(
-    bar_width: object, clearance: object, pin_diameter: object
-) -> tuple[float, float, float]:
-    """A layered build's (bar_width, clearance, pin_diameter), lengths in the unit of the
-    positions: the width and the diameter more than 0, the clearance 0 or more, each at most
-    MAX_COORDINATE, and the pin narrower than the bar (its hole must leave the bar whole);
-    else ValueError naming the problem."""
-    bar_width = positive_at_most(bar_width, "bar_width", MAX_COORDINATE, "a length", "")
-    pin_diameter = positive_at_most(pin_diameter, "pin_diameter", MAX_COORDINATE, "a length", "")
-    clearance = as_real("clearance", clearance, "a length")
-    if not 0.0 <= clearance <= MAX_COORDINATE:  # written so that NaN fails too
-        raise ValueError(f"clearance must be from 0 to {MAX_COORDINATE:g}, got {clearance:g}")
-    if not pin_diameter < bar_width:
-        raise ValueError(
-            f"pin_diameter must be less than bar_width (a pin's hole must leave its bar whole), "
-            f"got {pin_diameter:g} and {bar_width:g}"
-        )
-    return bar_width, clearance, pin_diameter
 
 
 # -- flags ------------------------------------------------------------------------------------

@@ -41,7 +41,7 @@ from links_ray.engine.inputs import (
     as_int,
     shown,
 )
-from links_ray.engine.paths import even_along
+from links_ray.engine.kinematics.paths import even_along
 from links_ray.interop.curve_limits import MAX_CURVE_FILE_BYTES
 from links_ray.interop.dxf_curves import read_dxf
 from links_ray.interop.outlines import CurveFileTooLarge, check_coordinates

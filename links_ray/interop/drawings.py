@@ -1,9 +1,10 @@
-"""A mechanism's fabrication drawing (`engine.fabrication.Fabrication`) as SVG and DXF text.
+"""A mechanism's fabrication drawing (`engine.fabrication.drawings.Fabrication`) as SVG and DXF
+text.
 
-Both hold the same parts in millimetres, y up (joint 0 at the origin, or the drawing's own
-frame: `engine.fabrication.FRAMES`), one layer (an SVG group) per kind of part: `LAYERS`. The
-SVG is written here as text, its user unit one millimetre; the DXF is built with ezdxf
-(imported when one is written) as an R2010 file that declares millimetres (`$INSUNITS` 4,
+Both hold the same parts in millimetres, y up (joint 0 at the origin, or the drawing's own frame:
+`engine.fabrication.drawings.FRAMES`), one layer (an SVG group) per kind of part: `LAYERS`. The SVG
+is written here as text, its user unit one millimetre; the DXF is built with ezdxf (imported when
+one is written) as an R2010 file that declares millimetres (`$INSUNITS` 4,
 `$MEASUREMENT` metric). The traced path is a closed polygon (SVG, id `PATH_ID`) or a closed
 LWPOLYLINE (DXF, layer PATH), so `read_curve` reads it back from either file
 (`drawing.svg#traced-path`, `drawing.dxf#PATH`).
@@ -13,7 +14,7 @@ from __future__ import annotations
 
 import io
 
-from links_ray.engine.fabrication import HOLE_MM, TEXT_MM, Fabrication
+from links_ray.engine.fabrication.drawings import HOLE_MM, TEXT_MM, Fabrication
 from links_ray.engine.node_kinds import FIXED
 
 __all__ = ["DXF_VERSION", "LAYERS", "PATH_ID", "dxf_drawing", "svg_drawing"]

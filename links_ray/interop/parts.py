@@ -1,6 +1,6 @@
-"""A kit's parts (`engine.kit`) as meshes: an STL file a part to print, the whole assembly as
-one glTF binary, the bill of materials beside them; written to a folder, or held in memory
-(and zipped) for the HTTP API.
+"""A kit's parts (`engine.fabrication.kit`) as meshes: an STL file a part to print, the whole
+assembly as one glTF binary, the bill of materials beside them; written to a folder, or held in
+memory (and zipped) for the HTTP API.
 
 The solids are made by manifold3d, whose booleans and extrusions give closed, manifold meshes
 (each part watertight by construction), and written by trimesh (binary STL, and glTF 2.0's
@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from links_ray.engine.kit import (
+from links_ray.engine.fabrication.kit import (
     ASSEMBLY_FILE,
     BOM_FILE,
     PARTS_FOLDER,
@@ -198,7 +198,7 @@ def export_kit(
     out_dir: str | Path,
     options: KitOptions | None = None,
 ) -> dict[str, Any]:
-    """Plan the mechanism as printed parts (`engine.kit.plan_kit`) and write
+    """Plan the mechanism as printed parts (`engine.fabrication.kit.plan_kit`) and write
     `bom.json`, `assembly.glb` and `parts/*.stl` into the folder `out_dir`; the bill of
     materials, as written.
 

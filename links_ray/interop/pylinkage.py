@@ -31,7 +31,7 @@ from links_ray.engine.inputs import (
     as_steps,
     check_positions,
 )
-from links_ray.engine.mechanism import analyze_topology
+from links_ray.engine.kinematics.mechanism import analyze_topology
 from links_ray.engine.node_kinds import ACTUATED, FIXED, SIMPLE
 
 if TYPE_CHECKING:

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from links_ray.engine.inputs import InvalidMechanismError
-from links_ray.engine.mechanism import MAX_DATASET_JOINTS, Topology, analyze_topology
+from links_ray.engine.kinematics.mechanism import MAX_DATASET_JOINTS, Topology, analyze_topology
 from links_ray.engine.node_kinds import ACTUATED, FIXED, SIMPLE
 from links_ray.release.format import RELEASE_STEPS, release_turn
 from links_ray.release.ids import BATCH_STRIDE

@@ -21,9 +21,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from links_ray.engine.mechanism import Topology, analyze_topology
-from links_ray.engine.paths import CIRCLE_VARIANCE_THRESHOLD
-from links_ray.engine.solver import simulate_one
+from links_ray.engine.kinematics.mechanism import Topology, analyze_topology
+from links_ray.engine.kinematics.paths import CIRCLE_VARIANCE_THRESHOLD
+from links_ray.engine.kinematics.solver import simulate_one
 
 __all__ = [
     "RELEASE_CIRCLE_VARIANCE",
@@ -56,7 +56,7 @@ RELEASE_MIDDLE_POINTS = 5
 #: are both its top, differ by nothing else).
 RELEASE_TIE = 1e-6
 #: The circle test's bound on `release_circle_variance`. The release's own bound is not known
-#: here, so it is links-ray's curation bound (`engine.paths.CIRCLE_VARIANCE_THRESHOLD`).
+#: here, so it is links-ray's curation bound (`engine.kinematics.paths.CIRCLE_VARIANCE_THRESHOLD`).
 RELEASE_CIRCLE_VARIANCE = CIRCLE_VARIANCE_THRESHOLD
 #: Curves normalized at once: bounds the float64 scratch (about 30 KB a curve).
 _NORMALIZE_BLOCK = 8192

@@ -47,8 +47,8 @@ from links_ray.engine.inputs import (
     as_positions,
     check_positions,
 )
-from links_ray.engine.solver import TopologySimulator
-from links_ray.engine.transmission import mechanism_transmission_deg
+from links_ray.engine.kinematics.solver import TopologySimulator
+from links_ray.engine.kinematics.transmission import mechanism_transmission_deg
 from links_ray.release.checked_batch import VERDICT_STATS, CheckedBatch, Solution, node_types_of
 from links_ray.release.ids import BATCH_STRIDE
 from links_ray.release.pickles import ReleaseFileError

@@ -24,7 +24,7 @@ import pyarrow as pa
 from links_ray.data.pathset import by_mechanism_id, curated_mask, list_values, path_ids
 from links_ray.data.splits import split_mask
 from links_ray.data.store import META, Store
-from links_ray.engine.mechanism import FIXED
+from links_ray.engine.kinematics.mechanism import FIXED
 from links_ray.release.export_source import open_export
 from links_ray.release.format import (
     RELEASE_FILES,

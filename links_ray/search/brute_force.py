@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from links_ray.engine.inputs import validate_query
-from links_ray.engine.paths import normalization
+from links_ray.engine.kinematics.paths import normalization
 from links_ray.search import kernels
 from links_ray.search.arrays import IndexArrays
 from links_ray.search.query import (

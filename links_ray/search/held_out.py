@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from links_ray.engine.mechanism import analyze_topology, arc_joints
-from links_ray.engine.paths import is_circle, normalize_path
-from links_ray.engine.sampling import PositionSampler
-from links_ray.engine.solver import TopologySimulator
-from links_ray.engine.topology import random_topology
+from links_ray.engine.kinematics.mechanism import analyze_topology, arc_joints
+from links_ray.engine.kinematics.paths import is_circle, normalize_path
+from links_ray.engine.kinematics.sampling import PositionSampler
+from links_ray.engine.kinematics.solver import TopologySimulator
+from links_ray.engine.kinematics.topology import random_topology
 
 
 def held_out_queries(count: int, seed: int) -> list[np.ndarray]:

@@ -46,8 +46,8 @@ from links_ray.engine.inputs import (
     as_transmission_deg,
     validate_query,
 )
-from links_ray.engine.mechanism import reduce_mechanism
-from links_ray.engine.paths import normalization
+from links_ray.engine.kinematics.mechanism import reduce_mechanism
+from links_ray.engine.kinematics.paths import normalization
 from links_ray.search import query as search_query
 from links_ray.search.arrays import IndexArrays
 from links_ray.search.brute_force import brute_force_many

@@ -18,9 +18,9 @@ from dataclasses import dataclass, fields
 import numpy as np
 import pyarrow as pa
 
-from links_ray.engine.mechanism import ACTUATED, FIXED, SIMPLE, analyze_topology
-from links_ray.engine.paths import normalize_paths
-from links_ray.engine.solver import crank_table, trace_joints
+from links_ray.engine.kinematics.mechanism import ACTUATED, FIXED, SIMPLE, analyze_topology
+from links_ray.engine.kinematics.paths import normalize_paths
+from links_ray.engine.kinematics.solver import crank_table, trace_joints
 
 
 @dataclass

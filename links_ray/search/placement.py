@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from links_ray.engine.paths import normalization
-from links_ray.engine.solver import simulate
+from links_ray.engine.kinematics.paths import normalization
+from links_ray.engine.kinematics.solver import simulate
 from links_ray.search.query import variant_map
 
 
@@ -28,7 +28,7 @@ def into_query_frame(
     """The positions (n, 2) of a mechanism moved, turned, scaled and (if the match was
     mirrored) mirrored so that `joint` traces its path where the query was drawn: `variant`
     is the query variant matched (`query.variant_map`), `query_matrix` and `query_offset` the
-    query's normalization (`engine.paths.normalization`). Raises `LockingError` if the
+    query's normalization (`engine.kinematics.paths.normalization`). Raises `LockingError` if the
     mechanism does not turn."""
     traced = simulate(adjacency, node_types, positions)[joint]
     _, matrix, offset = normalization(traced)

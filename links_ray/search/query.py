@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from links_ray.engine.cpus import usable_cpus
-from links_ray.engine.paths import chamfer_to_many
+from links_ray.engine.kinematics.paths import chamfer_to_many
 from links_ray.search import kernels
 from links_ray.search.arrays import IndexArrays
 

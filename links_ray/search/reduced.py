@@ -1,7 +1,7 @@
-"""How many joints each path's reduced mechanism has (`engine.mechanism.reduce_mechanism`: the
-path's joint and every joint its motion depends on, fixed joints included), from the packed
-solution paths of a `MechanismBank`, so that retrieval can keep only simple mechanisms
-without saving anything more per path.
+"""How many joints each path's reduced mechanism has
+(`engine.kinematics.mechanism.reduce_mechanism`: the path's joint and every joint its motion depends
+on, fixed joints included), from the packed solution paths of a `MechanismBank`, so that retrieval
+can keep only simple mechanisms without saving anything more per path.
 
 A solution path lists every joint after the joints it is solved from, so one pass over it
 backwards, from the path's joint, marks every joint that joint needs; the crank's joint 1

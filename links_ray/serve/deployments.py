@@ -46,8 +46,8 @@ from ray.serve.exceptions import (
 from ray.serve.handle import DeploymentHandle, DeploymentResponse
 
 from links_ray.engine.cpus import set_given_cpus
-from links_ray.engine.solver import simulate
-from links_ray.engine.synthesis_plan import pooled
+from links_ray.engine.kinematics.solver import simulate
+from links_ray.engine.synthesis.plan import pooled
 from links_ray.interop.curve_worker import warm_curve_readers
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.admission import (

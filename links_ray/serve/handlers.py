@@ -38,17 +38,17 @@ from fastapi import APIRouter, Request
 from fastapi.responses import HTMLResponse, Response, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
-from links_ray.engine.fabrication import Fabrication, fabrication
-from links_ray.engine.mechanism import (
+from links_ray.engine.fabrication.drawings import Fabrication, fabrication
+from links_ray.engine.kinematics.mechanism import (
     InvalidMechanismError,
     LockingError,
     analyze_topology,
     dataset_rule_violations,
     mobility,
 )
-from links_ray.engine.solver import simulate, simulate_until_lock
-from links_ray.engine.synthesis_options import MAX_SYNTHESIS_SECONDS
-from links_ray.engine.synthesis_plan import retrievals
+from links_ray.engine.kinematics.solver import simulate, simulate_until_lock
+from links_ray.engine.synthesis.options import MAX_SYNTHESIS_SECONDS
+from links_ray.engine.synthesis.plan import retrievals
 from links_ray.interop.curve_worker import CurveReadersBusy
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve import kit_models, models
@@ -179,8 +179,8 @@ def export_file(
     crank_mm: float,
     path_joint: Any,
 ) -> Response:
-    """The mechanism as a file to download (engine.fabrication, written by interop.drawings),
-    or ValueError naming why not."""
+    """The mechanism as a file to download (engine.fabrication.drawings, written by
+    interop.drawings), or ValueError naming why not."""
     drawing = fabrication(adjacency, node_types, positions, crank_mm, path_joint)
     writers = {"svg": svg_drawing, "dxf": dxf_drawing, "table": Fabrication.table_text}
     text = writers[chosen](drawing)

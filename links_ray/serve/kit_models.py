@@ -1,5 +1,5 @@
 """The answer of `POST /api/kit` with format "bom" as pydantic models: the kit's
-`bom.json` (`engine.kit.Kit.bom`), as `/openapi.json` shows it. Its request body is
+`bom.json` (`engine.fabrication.kit.Kit.bom`), as `/openapi.json` shows it. Its request body is
 `serve.models.KitRequest`, beside the others.
 """
 

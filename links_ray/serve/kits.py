@@ -1,15 +1,14 @@
-"""`POST /api/kit`'s work: a mechanism planned as a kit of printable parts (`engine.kit`) and
-made (`interop.parts`), answered as its bill of materials, its assembly's glTF binary or a zip
-of the whole kit.
+"""`POST /api/kit`'s work: a mechanism planned as a kit of printable parts
+(`engine.fabrication.kit`) and made (`interop.parts`), answered as its bill of materials, its
+assembly's glTF binary or a zip of the whole kit.
 
-Making a kit holds a core for its layer plan's counted work (`engine.layers`; bounded behind
-it by `PLAN_SECONDS`) and its parts' making, so a replica makes one at a time, in a thread of
-its own below the event loop (`admission.low_priority_thread`), and holds at most `MAX_KITS`,
-made or waiting: one more is answered 503 with `Retry-After` at once. The mechanism is at most
+Making a kit holds a core for its layer plan's counted work (`engine.fabrication.layers`; bounded
+behind it by `PLAN_SECONDS`) and its parts' making, so a replica makes one at a time, in a thread of
+its own below the event loop (`admission.low_priority_thread`), and holds at most `MAX_KITS`, made
+or waiting: one more is answered 503 with `Retry-After` at once. The mechanism is at most
 `MAX_REQUEST_JOINTS` joints (413), and a kit at most `MAX_KIT_JOINTS` (400, before it takes a
-place), which bounds the checks and the parts, so the time and the memory of making a kit. A
-place is freed when its kit is made, whether or not its client still waits. Nothing here
-imports Ray.
+place), which bounds the checks and the parts, so the time and the memory of making a kit. A place
+is freed when its kit is made, whether or not its client still waits. Nothing here imports Ray.
 """
 
 from __future__ import annotations
@@ -20,9 +19,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 from fastapi.responses import Response
 
-from links_ray.engine.kit import Kit, KitOptions, plan_kit
-from links_ray.engine.layers import LayeringError
-from links_ray.engine.mechanism import LockingError
+from links_ray.engine.fabrication.kit import Kit, KitOptions, plan_kit
+from links_ray.engine.fabrication.layers import LayeringError
+from links_ray.engine.kinematics.mechanism import LockingError
 from links_ray.serve.admission import busy, low_priority_thread
 from links_ray.serve.limits import MAX_KIT_JOINTS
 from links_ray.serve.parsing import KIT_FORMATS

@@ -18,7 +18,7 @@ from links_ray.engine.inputs import (
     MIN_POINTS,
     MIN_STEPS,
 )
-from links_ray.engine.synthesis_options import (
+from links_ray.engine.synthesis.options import (
     DEFAULT_SYNTHESIS_SECONDS,
     DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
     MAX_SYNTHESIS_ITERATIONS,

@@ -11,15 +11,21 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from links_ray.engine.constraints import MAX_LAYERS
+from links_ray.engine.fabrication.kit import (
+    DEFAULT_BAR_WIDTH_MM,
+    DEFAULT_CLEARANCE_MM,
+    DEFAULT_HOLE_DIAMETER_MM,
+    DEFAULT_LAYER_GAP_MM,
+    DEFAULT_LAYER_THICKNESS_MM,
+    DEFAULT_PIN_DIAMETER_MM,
+    DEFAULT_SPACER_DIAMETER_MM,
+)
+from links_ray.engine.fabrication.limits import DEFAULT_CRANK_MM, MAX_CRANK_MM, MAX_DRAWING_MM
 from links_ray.engine.inputs import (
-    DEFAULT_CRANK_MM,
     DEFAULT_K,
     DEFAULT_STEPS,
     MAX_COORDINATE,
-    MAX_CRANK_MM,
     MAX_DATASET_JOINTS,
-    MAX_DRAWING_MM,
     MAX_K,
     MAX_POINTS,
     MAX_STEPS,
@@ -29,16 +35,8 @@ from links_ray.engine.inputs import (
     MIN_POINTS,
     MIN_STEPS,
 )
-from links_ray.engine.kit import (
-    DEFAULT_BAR_WIDTH_MM,
-    DEFAULT_CLEARANCE_MM,
-    DEFAULT_HOLE_DIAMETER_MM,
-    DEFAULT_LAYER_GAP_MM,
-    DEFAULT_LAYER_THICKNESS_MM,
-    DEFAULT_PIN_DIAMETER_MM,
-    DEFAULT_SPACER_DIAMETER_MM,
-)
-from links_ray.engine.synthesis_options import (
+from links_ray.engine.synthesis.constraints import MAX_LAYERS
+from links_ray.engine.synthesis.options import (
     DEFAULT_SYNTHESIS_SECONDS,
     DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
     MAX_SEED,
@@ -411,7 +409,7 @@ class ExportRequest(Request, Mechanism):
 
 
 class KitRequest(Request, Mechanism):
-    """POST /api/kit: the mechanism as printable parts, in millimetres (engine.kit;
+    """POST /api/kit: the mechanism as printable parts, in millimetres (engine.fabrication.kit;
     docs/guides/building.md): the pin narrower than the hole, the hole than the spacer, the
     spacer than the bar."""
 

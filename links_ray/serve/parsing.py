@@ -29,12 +29,12 @@ import orjson
 from fastapi import Request
 from starlette.requests import ClientDisconnect
 
+from links_ray.engine.fabrication.kit import KitOptions
+from links_ray.engine.fabrication.limits import DEFAULT_CRANK_MM, as_crank_mm
 from links_ray.engine.inputs import (
-    DEFAULT_CRANK_MM,
     DEFAULT_K,
     DEFAULT_STEPS,
     MAX_POINTS,
-    as_crank_mm,
     as_flag,
     as_max_joints,
     as_steps,
@@ -42,8 +42,7 @@ from links_ray.engine.inputs import (
     check_point_count,
     validate_query,
 )
-from links_ray.engine.kit import KitOptions
-from links_ray.engine.synthesis_options import DEFAULT_SYNTHESIS_TRANSMISSION_DEG, SynthesisOptions
+from links_ray.engine.synthesis.options import DEFAULT_SYNTHESIS_TRANSMISSION_DEG, SynthesisOptions
 from links_ray.serve.limits import (
     BODY_TIMEOUT_S,
     MAX_BODY_BYTES,

@@ -19,9 +19,9 @@ from typing import Any
 import numpy as np
 from fastapi import Request
 
-from links_ray.engine.synthesis import refine_retrieved
-from links_ray.engine.synthesis_options import SynthesisOptions
-from links_ray.engine.synthesis_results import SynthesisResults
+from links_ray.engine.synthesis.options import SynthesisOptions
+from links_ray.engine.synthesis.pipeline import refine_retrieved
+from links_ray.engine.synthesis.results import SynthesisResults
 from links_ray.serve.responses import json_line, logger
 
 #: A synthesis whose client's server hands it one message after another, none of them the

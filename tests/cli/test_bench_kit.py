@@ -8,13 +8,13 @@ import statistics
 import pytest
 
 from links_ray.cli.bench.kit import bench_kit, format_kit, kit_workload
-from links_ray.engine.fabrication import fabrication
-from links_ray.engine.kit import (
+from links_ray.engine.fabrication.drawings import fabrication
+from links_ray.engine.fabrication.kit import (
     DEFAULT_BAR_WIDTH_MM,
     DEFAULT_CLEARANCE_MM,
     DEFAULT_SPACER_DIAMETER_MM,
 )
-from links_ray.engine.layers import LayeringError, plan_layers
+from links_ray.engine.fabrication.layers import LayeringError, plan_layers
 
 MECHANISMS = 10
 

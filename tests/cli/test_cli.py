@@ -17,9 +17,13 @@ import pytest
 
 import links_ray
 from links_ray.cli.bench import engine as bench
-from links_ray.engine.mechanism import LockingError, analyze_topology, dataset_rule_violations
-from links_ray.engine.reference import simulate_reference
-from links_ray.engine.sampling import measure_candidates_per_valid
+from links_ray.engine.kinematics.mechanism import (
+    LockingError,
+    analyze_topology,
+    dataset_rule_violations,
+)
+from links_ray.engine.kinematics.reference import simulate_reference
+from links_ray.engine.kinematics.sampling import measure_candidates_per_valid
 from tests.support.cli import links
 
 

@@ -24,7 +24,7 @@ from links_ray.cli.bench.curve_set import (
     letter_outlines,
 )
 from links_ray.cli.bench.targets import target_curves
-from links_ray.engine.paths import chamfer
+from links_ray.engine.kinematics.paths import chamfer
 
 FAMILIES = {
     "letter_outline",
@@ -248,7 +248,7 @@ def test_set_groups_sum_up_by_half_and_family() -> None:
 
 def test_even_reference_of_a_stroke_stays_on_the_stroke() -> None:
     from links_ray.cli.bench.synthesis import even_reference
-    from links_ray.engine.paths import even_along
+    from links_ray.engine.kinematics.paths import even_along
 
     corner = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
     stroke = even_along(corner, 200, closed=False)
@@ -339,9 +339,9 @@ def test_traced_curves_are_traced_again_by_their_mechanisms() -> None:
         retraces,
         traced_curves,
     )
-    from links_ray.engine.mechanism import FIXED
-    from links_ray.engine.paths import is_circle, normalize_path
-    from links_ray.engine.solver import simulate
+    from links_ray.engine.kinematics.mechanism import FIXED
+    from links_ray.engine.kinematics.paths import is_circle, normalize_path
+    from links_ray.engine.kinematics.solver import simulate
 
     traced = traced_curves(seed=0, count=6)
     assert list(traced) == [f"traced_{i:02d}" for i in range(6)]

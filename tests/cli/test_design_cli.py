@@ -1,5 +1,6 @@
 """`links synthesize` with constraints, timing, a front and `--max-joints`; bad constraint
-files refused in one line. The engine's own tests of constraints are tests/engine/test_design.py."""
+files refused in one line. The engine's own tests of constraints are
+tests/engine/synthesis/test_design.py."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import json
 from pathlib import Path
 
 from links_ray.interop.curve_limits import MAX_CURVE_FILE_BYTES
-from tests.engine.test_design import misses
+from tests.engine.synthesis.test_design import misses
 from tests.support.cli import links
 from tests.support.serving import hand_drawn
 

@@ -21,7 +21,7 @@ import pytest
 import links_ray
 from links_ray.data.shards import GenerationPlan, write_shard
 from links_ray.data.store import Store
-from links_ray.engine.fabrication import fabrication
+from links_ray.engine.fabrication.drawings import fabrication
 from links_ray.interop.drawings import dxf_drawing
 from tests.support.drawings import dxf_parts, read_dxf
 from tests.support.needs import need_module

@@ -1,6 +1,6 @@
 """`links bench generate --lean`'s profile: every sample of a shard's writing charged to one
-stage, the compiled search the largest (it is most of the work: tests/engine/test_sampling.py
-and the benchmarks page)."""
+stage, the compiled search the largest (it is most of the work:
+tests/engine/kinematics/test_sampling.py and the benchmarks page)."""
 
 from __future__ import annotations
 

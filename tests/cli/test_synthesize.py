@@ -1,15 +1,15 @@
 """`links synthesize` over the Serve tests' dataset: its table, its JSON, counted work that
 repeats, bad options refused in one line; and `links bench synthesize --figure`'s picture.
-The engine's own tests of synthesis are tests/engine/test_synthesis.py."""
+The engine's own tests of synthesis are tests/engine/synthesis/test_synthesis.py."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
-from links_ray.engine.synthesis import synthesize
+from links_ray.engine.synthesis.pipeline import synthesize
 from links_ray.search.index import RetrievalIndex
-from tests.engine.test_synthesis import traced
+from tests.engine.synthesis.test_synthesis import traced
 from tests.support.cli import links
 from tests.support.serving import hand_drawn
 
@@ -93,7 +93,7 @@ def test_a_bench_row_reports_its_floor_and_its_front_as_kits(
 
     from links_ray.cli.bench.synthesis import bench_row
     from links_ray.cli.bench.synthesis_report import front_layers
-    from links_ray.engine.synthesis_layers import kit_layer_count
+    from links_ray.engine.synthesis.kit_layers import kit_layer_count
 
     points = hand_drawn()[0]
     row, _ = bench_row(

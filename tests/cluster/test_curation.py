@@ -32,8 +32,8 @@ from links_ray.data.commit import committed_files, committed_shards, marker_file
 from links_ray.data.pathset import KEEP_SHARE, keep_draw, path_table
 from links_ray.data.schemas import CURATION_TABLES
 from links_ray.data.store import META, Store, StoreError
-from links_ray.engine.paths import circle_variance, normalize_path
-from links_ray.engine.sampling import measure_candidates_per_valid
+from links_ray.engine.kinematics.paths import circle_variance, normalize_path
+from links_ray.engine.kinematics.sampling import measure_candidates_per_valid
 from tests.cluster.test_generation import assert_only_committed_files, read_table
 from tests.support.cli import links
 

@@ -33,7 +33,7 @@ from links_ray.data.commit import committed_files, committed_shards, marker_file
 from links_ray.data.schemas import GENERATION_TABLES as TABLES
 from links_ray.data.shards import NEGATIVE_ID_BASE, GenerationPlan
 from links_ray.data.store import META, Store, StoreError
-from links_ray.engine.mechanism import analyze_topology, dataset_rule_violations
+from links_ray.engine.kinematics.mechanism import analyze_topology, dataset_rule_violations
 from tests.support.local_dataset import generate_and_curate
 from tests.support.needs import missing
 

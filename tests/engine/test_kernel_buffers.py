@@ -18,12 +18,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from links_ray.engine import refine_kernels, step_kernels, transmission, turning
-from links_ray.engine import solver as engine_solver
-from links_ray.engine.paths import chamfer_to_many, normalize_paths
-from links_ray.engine.sampling import PositionSampler
-from links_ray.engine.solver import TopologySimulator, crank_table
-from links_ray.engine.topology import grow_topology
+from links_ray.engine.kinematics import solver as engine_solver
+from links_ray.engine.kinematics import transmission, turning
+from links_ray.engine.kinematics.paths import chamfer_to_many, normalize_paths
+from links_ray.engine.kinematics.sampling import PositionSampler
+from links_ray.engine.kinematics.solver import TopologySimulator, crank_table
+from links_ray.engine.kinematics.topology import grow_topology
+from links_ray.engine.synthesis.refinement import kernels as refine_kernels
+from links_ray.engine.synthesis.refinement import step_kernels
 from links_ray.search import kernels, reduced
 
 STEPS = 40

@@ -19,7 +19,10 @@ from links_ray import (
     simulate,
     simulate_batch,
 )
-from links_ray.engine import constraints, inputs, synthesis_options
+from links_ray.engine import inputs
+from links_ray.engine.fabrication import limits as fabrication_limits
+from links_ray.engine.synthesis import constraints
+from links_ray.engine.synthesis import options as synthesis_options
 
 # A valid crank-rocker with a coupler point: O2, A (crank tip), B, O4, C on the coupler.
 LINKS = [(0, 1), (1, 2), (2, 3), (1, 4), (2, 4)]
@@ -524,7 +527,10 @@ HUGE = 10**400
     [
         (lambda v: synthesis_options.as_seconds(v), "seconds must be a number within"),
         (lambda v: inputs.as_transmission_deg(v, "min_transmission"), "min_transmission must be"),
-        (lambda v: inputs.as_crank_mm(v), "crank_mm must be a number of millimetres within"),
+        (
+            lambda v: fabrication_limits.as_crank_mm(v),
+            "crank_mm must be a number of millimetres within",
+        ),
         (lambda v: constraints.as_constraints({"min_link": v}), "min_link must be a length within"),
         (lambda v: constraints.as_constraints({"max_link_ratio": v}), "max_link_ratio must be"),
         (lambda v: constraints.as_constraints({"pivots": [0, 0, v, 1]}), "pivots must be four"),

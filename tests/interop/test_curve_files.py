@@ -12,7 +12,7 @@ import ezdxf
 import numpy as np
 import pytest
 
-from links_ray.engine.paths import even_along
+from links_ray.engine.kinematics.paths import even_along
 from links_ray.interop.curve_files import read_curve
 from links_ray.interop.curve_limits import MAX_CURVE_FILE_BYTES
 from tests.support.cli import links

@@ -1,6 +1,6 @@
-"""A kit of printable parts and its assembly (engine/kit.py, interop/parts.py): every part a closed
-solid of the size its outline says, the bill of materials the layer plan, and no two parts
-nearer than the clearance at 360 poses of a turn.
+"""A kit of printable parts and its assembly (engine/fabrication/kit.py, interop/parts.py): every
+part a closed solid of the size its outline says, the bill of materials the layer plan, and no two
+parts nearer than the clearance at 360 poses of a turn.
 
 The files are read back with trimesh (STL and GLB), and each part's section at mid-height is
 rebuilt from its mesh's triangles with shapely; the truth comes from closed forms, from the
@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 
 import links_ray
-from links_ray.engine.kit import KitOptions, plan_kit
-from links_ray.engine.layers import LayeringError, plan_layers
-from links_ray.engine.topology import random_topology
+from links_ray.engine.fabrication.kit import KitOptions, plan_kit
+from links_ray.engine.fabrication.layers import LayeringError, plan_layers
+from links_ray.engine.kinematics.topology import random_topology
 from links_ray.interop.parts import GLTF_ROOT, export_kit, kit_files, kit_zip
 from tests.support.needs import need_module
 from tests.support.serving import FOUR_BAR

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 import links_ray
-from links_ray.engine.fabrication import fabrication
+from links_ray.engine.fabrication.drawings import fabrication
 from links_ray.engine.inputs import DEFAULT_MIN_TRANSMISSION_DEG
-from links_ray.engine.mechanism import analyze_topology
-from links_ray.engine.transmission import mechanism_transmission_deg
+from links_ray.engine.kinematics.mechanism import analyze_topology
+from links_ray.engine.kinematics.transmission import mechanism_transmission_deg
 from links_ray.interop.pylinkage import from_pylinkage, pylinkage_script, to_pylinkage
 from tests.support.fourbars import stretched_four_bar
 from tests.support.needs import need_module

@@ -11,7 +11,7 @@ PAGE = REPO / "docs" / "design" / "architecture.md"
 
 
 def package_modules() -> set[str]:
-    """Every module of links_ray as the table names it (`engine/solver`), packages' own
+    """Every module of links_ray as the table names it (`engine/kinematics/solver`), packages' own
     `__init__` and `__main__` aside."""
     package = REPO / "links_ray"
     return {
@@ -42,8 +42,12 @@ def test_the_module_table_names_every_module_once() -> None:
 
 def test_the_table_check_sees_a_missing_and_a_stale_row() -> None:
     page = "## Modules\n\n| module | layer | what |\n|---|---|---|\n"
-    page += "| `engine/solver` | engine | x |\n"
-    assert tabled_modules(page) == ["engine/solver"]
-    assert "engine/paths" in package_modules() - set(tabled_modules(page))
-    stale = page + "| `engine/gone`, `engine/solver` | engine | y |\n"
-    assert tabled_modules(stale) == ["engine/solver", "engine/gone", "engine/solver"]
+    page += "| `engine/kinematics/solver` | engine | x |\n"
+    assert tabled_modules(page) == ["engine/kinematics/solver"]
+    assert "engine/kinematics/paths" in package_modules() - set(tabled_modules(page))
+    stale = page + "| `engine/gone`, `engine/kinematics/solver` | engine | y |\n"
+    assert tabled_modules(stale) == [
+        "engine/kinematics/solver",
+        "engine/gone",
+        "engine/kinematics/solver",
+    ]

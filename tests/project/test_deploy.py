@@ -29,7 +29,7 @@ from urllib.parse import urlsplit
 import pytest
 import yaml
 
-from links_ray.engine.synthesis_options import MAX_SYNTHESIS_SECONDS
+from links_ray.engine.synthesis.options import MAX_SYNTHESIS_SECONDS
 from links_ray.serve.app import APP_ARGS, PARTITION_CPUS, _arg
 from links_ray.serve.deployments import (
     PARTITION_TIMEOUT_S,

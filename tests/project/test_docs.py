@@ -334,7 +334,7 @@ def test_the_site_builds_strict_with_the_reference_pages(
         for method in methods:
             assert f"{method} {path}" in http, f"no section for {method} {path}"
     python = (tmp_path / "site" / "reference" / "python" / "index.html").read_text()
-    for name in ("load", "search.index.RetrievalIndex", "engine.synthesis.synthesize"):
+    for name in ("load", "search.index.RetrievalIndex", "engine.synthesis.pipeline.synthesize"):
         assert f'id="links_ray.{name}"' in python, f"no section for links_ray.{name}"
 
 

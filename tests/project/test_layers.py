@@ -31,11 +31,13 @@ LAYERS = {
     "cluster": 2,
     "release": 2,
     "serve": 3,
-    "cli": 4,
+    "bench": 4,
+    "cli": 5,
 }
 #: Layers only some of the layers above them may import: the release's files are the
-#: command line's business (`links import-release`, `links export-dataset --format release`).
-IMPORTED_ONLY_BY = {"release": ("cli",)}
+#: command line's business (`links import-release`, `links export-dataset --format release`)
+#: and the benchmarks' (the unpickler's fuzzing).
+IMPORTED_ONLY_BY = {"release": ("cli", "bench")}
 #: What the package's own `__init__.py` (`import links_ray`) may load.
 ROOT_MAY_IMPORT = ("engine", "data")
 #: Modules the package's own `__init__.py` may load lazily, on first use of a name.
@@ -48,6 +50,7 @@ FORBIDDEN = {
     "interop": ("ray", "pyarrow", "pandas"),
     "search": ("ray",),
     "release": ("ray",),
+    "bench": (),
 }
 #: Modules that must not import these, even lazily, though their layer may: the serve rooms
 #: that describe, read and answer requests need no Ray (only the deployments and the launch do).
@@ -247,3 +250,71 @@ def test_serve_routes_never_import_the_assembly() -> None:
     ):
         path = modules[route_module]
         assert not {name for _, name in imported(path, route_module, set(modules))} & assembly
+
+
+#: The engine's rooms in order: a room imports the base (`engine.<module>`) and the rooms
+#: before it, never one after it; the base imports no room.
+ENGINE_ROOMS = ("kinematics", "fabrication", "synthesis")
+
+
+def engine_room_of(module: str) -> int | None:
+    """The rank of an engine module's room: 0 for the base, 1 to 3 for the rooms in order,
+    None outside the engine."""
+    parts = module.split(".")
+    if parts[:2] != [PACKAGE, "engine"]:
+        return None
+    if len(parts) > 3 and parts[2] in ENGINE_ROOMS:
+        return 1 + ENGINE_ROOMS.index(parts[2])
+    if len(parts) == 3 and parts[2] in ENGINE_ROOMS:  # a room's own face
+        return 1 + ENGINE_ROOMS.index(parts[2])
+    return 0
+
+
+def engine_room_violations(package_dir: Path) -> list[str]:
+    """Every import, by an engine module, of an engine room after its own."""
+    modules = module_names(package_dir)
+    problems = []
+    for module, path in modules.items():
+        own = engine_room_of(module)
+        if own is None or module == f"{PACKAGE}.engine":
+            continue
+        for line, name in imported(path, module, set(modules)):
+            target = engine_room_of(name)
+            if target is not None and target > own:
+                where = path.relative_to(package_dir.parent).as_posix()
+                problems.append(f"{where}:{line}: {module} imports {name}")
+    return sorted(problems)
+
+
+def test_the_engine_rooms_import_only_the_rooms_before_them() -> None:
+    modules = set(module_names(REPO / PACKAGE))
+    for room in ENGINE_ROOMS:
+        assert f"{PACKAGE}.engine.{room}" in modules
+    assert engine_room_violations(REPO / PACKAGE) == []
+
+
+def test_the_engine_room_rule_catches_an_import_upward(tmp_path: Path) -> None:
+    sources = {
+        "__init__.py": "",
+        "engine/__init__.py": "",
+        "engine/inputs.py": "from links_ray.engine.kinematics import solver\n",
+        "engine/kinematics/__init__.py": "",
+        "engine/kinematics/solver.py": "from links_ray.engine import inputs\n",
+        "engine/fabrication/__init__.py": "",
+        "engine/fabrication/kit.py": (
+            "from links_ray.engine.kinematics import solver\n"
+            "def f():\n    from links_ray.engine.synthesis import pipeline\n"
+        ),
+        "engine/synthesis/__init__.py": "",
+        "engine/synthesis/pipeline.py": "from links_ray.engine.fabrication import kit\n",
+    }
+    for name, text in sources.items():
+        path = tmp_path / PACKAGE / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    assert engine_room_violations(tmp_path / PACKAGE) == [
+        "links_ray/engine/fabrication/kit.py:3: links_ray.engine.fabrication.kit imports "
+        "links_ray.engine.synthesis.pipeline",
+        "links_ray/engine/inputs.py:1: links_ray.engine.inputs imports "
+        "links_ray.engine.kinematics.solver",
+    ]

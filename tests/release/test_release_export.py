@@ -14,10 +14,10 @@ import pytest
 
 import links_ray
 from links_ray.data.pathset import KEEP_SHARE, keep_draw, path_ids
-from links_ray.engine.mechanism import ACTUATED, FIXED, SIMPLE
-from links_ray.engine.sampling import PositionSampler
-from links_ray.engine.solver import TopologySimulator
-from links_ray.engine.topology import grow_topology
+from links_ray.engine.kinematics.mechanism import ACTUATED, FIXED, SIMPLE
+from links_ray.engine.kinematics.sampling import PositionSampler
+from links_ray.engine.kinematics.solver import TopologySimulator
+from links_ray.engine.kinematics.topology import grow_topology
 from links_ray.release.exporter import export_release
 from links_ray.release.format import (
     RELEASE_CIRCLE_VARIANCE,

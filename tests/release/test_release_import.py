@@ -24,9 +24,9 @@ from links_ray.data.lease import Lease, LeaseHeld
 from links_ray.data.pathset import path_table
 from links_ray.data.shards import NEGATIVE_ID_BASE
 from links_ray.data.store import Store, StoreError
-from links_ray.engine.sampling import PositionSampler
-from links_ray.engine.solver import TopologySimulator
-from links_ray.engine.topology import grow_topology
+from links_ray.engine.kinematics.sampling import PositionSampler
+from links_ray.engine.kinematics.solver import TopologySimulator
+from links_ray.engine.kinematics.topology import grow_topology
 from links_ray.release import import_shards
 from links_ray.release.ids import BATCH_STRIDE, SHARDS_PER_BATCH, release_location
 from links_ray.release.importer import import_release
@@ -498,7 +498,7 @@ def test_stats_retrieval_and_synthesis_work_on_the_imported_root(
     imported: tuple[str, dict],
 ) -> None:
     from links_ray.data.stats import dataset_stats
-    from links_ray.engine.synthesis import synthesize
+    from links_ray.engine.synthesis.pipeline import synthesize
     from links_ray.search.index import RetrievalIndex
 
     root, summary = imported

@@ -15,10 +15,15 @@ from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
 from links_ray.data.store import Store
 from links_ray.engine.inputs import as_max_joints, validate_query
-from links_ray.engine.mechanism import reduce_mechanism
+from links_ray.engine.kinematics.mechanism import reduce_mechanism
+from links_ray.engine.kinematics.paths import (
+    chamfer,
+    chamfer_to_many,
+    normalization,
+    normalize_path,
+)
+from links_ray.engine.kinematics.topology import grow_topology
 from links_ray.engine.node_kinds import FIXED
-from links_ray.engine.paths import chamfer, chamfer_to_many, normalization, normalize_path
-from links_ray.engine.topology import grow_topology
 from links_ray.search import build as search_build
 from links_ray.search import cache as search_cache
 from links_ray.search import kernels as kernels
@@ -344,7 +349,7 @@ def test_bounds_of_many_queries_never_exceed_the_true_distance() -> None:
 
 def test_returned_mechanism_traces_the_query_where_it_was_drawn(index: RetrievalIndex) -> None:
     for query in queries():
-        i, j = links_ray.engine.paths.longest_chord(query)
+        i, j = links_ray.engine.kinematics.paths.longest_chord(query)
         chord = np.linalg.norm(query[j] - query[i])
         results = index.retrieve(query, k=3)
         assert len(results) == 3

@@ -18,7 +18,7 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from links_ray.engine.paths import normalize_path
+from links_ray.engine.kinematics.paths import normalize_path
 from links_ray.search.held_out import held_out_queries
 from links_ray.search.index import RetrievalIndex
 from links_ray.search.query import query_variants

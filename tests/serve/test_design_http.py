@@ -1,17 +1,17 @@
 """`POST /api/synthesize` with constraints, timing and a front: the Python API's answer, and
 `unmet` when no candidate can keep a constraint. The engine's own tests of constraints are
-tests/engine/test_design.py."""
+tests/engine/synthesis/test_design.py."""
 
 from __future__ import annotations
 
 import json
 from typing import get_args
 
-from links_ray.engine.constraints import CONSTRAINT_NAMES
-from links_ray.engine.synthesis import synthesize
+from links_ray.engine.synthesis.constraints import CONSTRAINT_NAMES
+from links_ray.engine.synthesis.pipeline import synthesize
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.models import Unmet
-from tests.engine.test_design import misses
+from tests.engine.synthesis.test_design import misses
 from tests.support.serving import Client, hand_drawn
 
 

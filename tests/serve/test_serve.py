@@ -29,9 +29,11 @@ import pytest
 import yaml
 
 import links_ray
-from links_ray.engine import inputs, synthesis_options
-from links_ray.engine.fabrication import fabrication
+from links_ray.engine import inputs
+from links_ray.engine.fabrication import limits as fabrication_limits
+from links_ray.engine.fabrication.drawings import fabrication
 from links_ray.engine.inputs import validate_query
+from links_ray.engine.synthesis import options as synthesis_options
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve import limits as http_limits
 from links_ray.serve.app import bindable_port
@@ -194,8 +196,8 @@ def test_openapi_bodies_carry_the_engines_limits(client: Client) -> None:
     export = paths["/api/export"]["post"]
     body = export["requestBody"]["content"]["application/json"]["schema"]
     fields = schema_of(spec, body)["properties"]
-    assert fields["crank_mm"]["maximum"] == inputs.MAX_CRANK_MM
-    assert fields["crank_mm"]["default"] == inputs.DEFAULT_CRANK_MM
+    assert fields["crank_mm"]["maximum"] == fabrication_limits.MAX_CRANK_MM
+    assert fields["crank_mm"]["default"] == fabrication_limits.DEFAULT_CRANK_MM
     assert fields["format"]["enum"] == ["svg", "dxf", "table"]
     assert {"image/svg+xml", "image/vnd.dxf"} <= set(export["responses"]["200"]["content"])
 
@@ -1364,9 +1366,9 @@ def test_links_serve_answers_from_its_replica_and_stops_on_ctrl_c(
     dataset: str, curated: Any, shards: int | None, tmp_path: Path
 ) -> None:
     """`links serve` starts its own Ray; its request gate answers on --port and passes requests
-    to the replica (the gateway, with --shards), and Ctrl-C (one index) or SIGTERM (shards) stops all, cleanly. On its Ray of 2
-    CPUs, `--shards 2` does not fit at 1 CPU a partition beside the gateway's 1: the partitions
-    share the CPU the gateway leaves, said in one line on stderr."""
+    to the replica (the gateway, with --shards), and Ctrl-C (one index) or SIGTERM (shards) stops
+    all, cleanly. On its Ray of 2 CPUs, `--shards 2` does not fit at 1 CPU a partition beside the
+    gateway's 1: the partitions share the CPU the gateway leaves, said in one line on stderr."""
     port = bindable_port("127.0.0.1", 0)
     sharding = () if shards is None else ("--shards", str(shards))
     errors = tmp_path / "stderr.txt"

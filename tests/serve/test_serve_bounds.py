@@ -22,7 +22,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 
 from links_ray.engine.inputs import MAX_POINTS
-from links_ray.engine.solver import simulate
+from links_ray.engine.kinematics.solver import simulate
 from links_ray.interop.curve_files import read_curve_text
 from links_ray.interop.curve_limits import CURVE_READER_NICENESS, CURVE_READERS, MAX_SVG_ELEMENTS
 from links_ray.interop.curve_worker import read_curve_isolated, warm_curve_readers

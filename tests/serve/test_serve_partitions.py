@@ -25,8 +25,8 @@ import pytest
 import links_ray
 from links_ray.data.commit import committed_shards
 from links_ray.data.store import Store
-from links_ray.engine.synthesis_options import DEFAULT_SYNTHESIS_TRANSMISSION_DEG
-from links_ray.engine.synthesis_plan import pooled, retrievals
+from links_ray.engine.synthesis.options import DEFAULT_SYNTHESIS_TRANSMISSION_DEG
+from links_ray.engine.synthesis.plan import pooled, retrievals
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.app import build_app
 from tests.support.serving import as_served, retrieved, serving

@@ -23,7 +23,7 @@ import pytest
 
 import links_ray
 from links_ray.engine.inputs import MAX_K, MAX_TRANSMISSION_DEG
-from links_ray.engine.mechanism import analyze_topology
+from links_ray.engine.kinematics.mechanism import analyze_topology
 from links_ray.serve.limits import request_limits
 from tests.support.drawings import dxf_parts, read_dxf
 from tests.support.needs import need_module

@@ -2,7 +2,7 @@
 progress stream, bad requests refused (4xx JSON), health answered and the queue's budgets
 kept while syntheses run, counted work past its bound refused up front, and work stopped
 when its client goes. The engine's own tests of synthesis are
-tests/engine/test_synthesis.py."""
+tests/engine/synthesis/test_synthesis.py."""
 
 from __future__ import annotations
 
@@ -19,13 +19,13 @@ import pytest
 
 import links_ray
 from links_ray.engine.inputs import MAX_POINTS, MIN_POINTS
-from links_ray.engine.paths import chamfer
-from links_ray.engine.synthesis import synthesize
-from links_ray.engine.synthesis_options import MAX_SYNTHESIS_WORK
+from links_ray.engine.kinematics.paths import chamfer
+from links_ray.engine.synthesis.options import MAX_SYNTHESIS_WORK
+from links_ray.engine.synthesis.pipeline import synthesize
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.limits import MAX_KIT_JOINTS
-from tests.engine.test_budget import BOUND_POINTS, bound_iterations
-from tests.engine.test_synthesis import ITERATIONS, chord, traced
+from tests.engine.synthesis.test_budget import BOUND_POINTS, bound_iterations
+from tests.engine.synthesis.test_synthesis import ITERATIONS, chord, traced
 from tests.support.serving import Client, hand_drawn
 
 # -- the HTTP API ----------------------------------------------------------------------------

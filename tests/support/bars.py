@@ -1,7 +1,7 @@
 """An exact brute force of bars' distances, for the collision and layer tests
-(tests/engine/test_collisions.py, test_layer_plan.py): every pair's exact segment distance
-at every step of a sampled turn, its own formula (the lines' crossing parameters) compiled
-apart from the engine's (engine/collisions.py).
+(tests/engine/fabrication/test_collisions.py, test_layer_plan.py): every pair's exact segment
+distance at every step of a sampled turn, its own formula (the lines' crossing parameters) compiled
+apart from the engine's (engine/fabrication/collisions.py).
 """
 
 from __future__ import annotations

@@ -81,8 +81,8 @@ def agreement(per_floor: int, seed: int = 0) -> dict[str, tuple[int, int]]:
     the first `per_floor` keeping at least 10 and at least 20 degrees of least transmission
     angle (drawn on until each floor has them, as `links generate --min-transmission` does)."""
     import links_ray
-    from links_ray.engine.mechanism import analyze_topology
-    from links_ray.engine.transmission import mechanism_transmission_deg
+    from links_ray.engine.kinematics.mechanism import analyze_topology
+    from links_ray.engine.kinematics.transmission import mechanism_transmission_deg
 
     rng = np.random.default_rng(seed)
     floors = {"all": 0.0, "10": 10.0, "20": 20.0}

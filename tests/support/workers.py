@@ -43,10 +43,10 @@ LONGEST_FIRST = (
     "tests/cli/test_export_mechanism.py",
     "tests/search/test_retrieval_scale.py",
     "tests/release/test_release_import.py",
-    "tests/engine/test_synthesis.py",
-    "tests/engine/test_collisions.py",
+    "tests/engine/synthesis/test_synthesis.py",
+    "tests/engine/fabrication/test_collisions.py",
     "tests/engine/test_kernel_buffers.py",
-    "tests/engine/test_turning.py",
+    "tests/engine/kinematics/test_turning.py",
 )
 
 

@@ -21,7 +21,7 @@ from links_ray.cli.arguments import (
     print_result,
 )
 from links_ray.cli.bench.synthesis import BENCH_SECONDS
-from links_ray.engine.synthesis_options import (
+from links_ray.engine.synthesis.options import (
     DEFAULT_SYNTHESIS_SECONDS,
     DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
 )

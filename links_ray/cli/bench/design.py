@@ -25,12 +25,12 @@ import numpy as np
 from links_ray.cli.bench.machine import machine_info
 from links_ray.cli.bench.synthesis import OVERRUN_GOAL_MS
 from links_ray.cli.bench.targets import TARGET_POINTS, placed, target_curves
-from links_ray.engine.constraints import as_constraints
-from links_ray.engine.inputs import REFINE_CHECK_STEPS
-from links_ray.engine.synthesis_options import DEFAULT_SYNTHESIS_SECONDS
+from links_ray.engine.synthesis.constraints import as_constraints
+from links_ray.engine.synthesis.limits import REFINE_CHECK_STEPS
+from links_ray.engine.synthesis.options import DEFAULT_SYNTHESIS_SECONDS
 
 if TYPE_CHECKING:
-    from links_ray.engine.synthesis_plan import Retriever
+    from links_ray.engine.synthesis.plan import Retriever
 
 #: "Simple": at most this many joints. The goal: the mean best so simple within SIMPLE_GOAL
 #: times the unconstrained mean.
@@ -52,10 +52,10 @@ def design_constraints(points: np.ndarray) -> dict[str, list[float]]:
 
 def kept(result: dict, given: dict) -> bool:
     """Whether a result keeps `given`, measured afresh over a REFINE_CHECK_STEPS turn."""
-    from links_ray.engine.constraints import extent, violation
     from links_ray.engine.inputs import link_pairs
-    from links_ray.engine.mechanism import analyze_topology
-    from links_ray.engine.solver import simulate
+    from links_ray.engine.kinematics.mechanism import analyze_topology
+    from links_ray.engine.kinematics.solver import simulate
+    from links_ray.engine.synthesis.constraints import extent, violation
 
     mechanism = result["mechanism"]
     topology = analyze_topology(mechanism["adjacency"], mechanism["node_types"])
@@ -80,7 +80,7 @@ def _timed(run: Any) -> tuple[Any, float]:
 
 def design_row(index: Retriever, name: str, points: np.ndarray, seconds: float) -> dict:
     """One curve's row of the design bench (the module docstring says what it holds)."""
-    from links_ray.engine.synthesis import synthesize
+    from links_ray.engine.synthesis.pipeline import synthesize
 
     def run(**design: Any) -> tuple[Any, float]:
         return _timed(lambda: synthesize(index, points, k=3, seconds=seconds, **design))
@@ -114,7 +114,7 @@ def bench_design(
     synthesize`), `seconds` a synthesis (default the synthesis default), over the cached
     data set of `paths` curated paths or `root`."""
     from links_ray.cli.bench.data import retrieval_dataset
-    from links_ray.engine.synthesis import synthesize
+    from links_ray.engine.synthesis.pipeline import synthesize
     from links_ray.search.index import RetrievalIndex
 
     seconds = DEFAULT_SYNTHESIS_SECONDS if seconds is None else seconds

@@ -18,16 +18,20 @@ import numpy as np
 from links_ray.cli import report
 from links_ray.cli.bench.machine import machine_info
 from links_ray.engine.inputs import DEFAULT_STEPS
-from links_ray.engine.mechanism import CRANK_CENTER, CRANK_TIP, MAX_DATASET_JOINTS
-from links_ray.engine.reference import simulate_reference
-from links_ray.engine.sampling import SAMPLERS, PositionSampler, measure_candidates_per_valid
-from links_ray.engine.solver import (
+from links_ray.engine.kinematics.mechanism import CRANK_CENTER, CRANK_TIP, MAX_DATASET_JOINTS
+from links_ray.engine.kinematics.reference import simulate_reference
+from links_ray.engine.kinematics.sampling import (
+    SAMPLERS,
+    PositionSampler,
+    measure_candidates_per_valid,
+)
+from links_ray.engine.kinematics.solver import (
     TopologySimulator,
     simulate,
     simulate_batch,
     topology_cache,
 )
-from links_ray.engine.topology import random_topology
+from links_ray.engine.kinematics.topology import random_topology
 
 #: Table 1 of the paper: seconds to simulate 10,000 random mechanisms (mean of 10 runs).
 PAPER_TABLE1_S = {

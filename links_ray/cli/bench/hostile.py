@@ -37,7 +37,7 @@ from links_ray.cli.bench.data import retrieval_dataset
 from links_ray.cli.bench.hostile_inputs import hostile_drawings
 from links_ray.cli.bench.machine import machine_info
 from links_ray.engine.inputs import MAX_POINTS
-from links_ray.engine.synthesis_options import MAX_SYNTHESIS_ITERATIONS
+from links_ray.engine.synthesis.options import MAX_SYNTHESIS_ITERATIONS
 from links_ray.serve.limits import BODY_TIMEOUT_S, HEAD_TIMEOUT_S, MAX_REQUEST_JOINT_STEPS
 
 #: How often health is asked for, and how long one check may take before it counts as failed.

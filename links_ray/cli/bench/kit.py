@@ -1,6 +1,6 @@
 """`links bench kit`: random dataset mechanisms built as kits at the default sizes, scaled to
-their cranks (`engine.kit.kit_layers`, as a synthesis's `layers` are): how many have no layer
-plan, how many layers the rest take and how often that is proven fewest, and how long a plan
+their cranks (`engine.fabrication.kit.kit_layers`, as a synthesis's `layers` are): how many have no
+layer plan, how many layers the rest take and how often that is proven fewest, and how long a plan
 takes; overall and by joint count.
 
 The mechanisms are `engine.valid_mechanisms`' (random topologies of 8-20 joints, five valid
@@ -19,9 +19,9 @@ import numpy as np
 
 from links_ray.cli.bench.engine import valid_mechanisms
 from links_ray.cli.bench.machine import machine_info
-from links_ray.engine.inputs import DEFAULT_CRANK_MM
-from links_ray.engine.kit import KitOptions, kit_layers
-from links_ray.engine.layers import LayeringError
+from links_ray.engine.fabrication.kit import KitOptions, kit_layers
+from links_ray.engine.fabrication.layers import LayeringError
+from links_ray.engine.fabrication.limits import DEFAULT_CRANK_MM
 
 __all__ = ["VARIANTS", "bench_kit", "format_kit", "kit_workload"]
 

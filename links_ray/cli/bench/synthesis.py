@@ -34,22 +34,23 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from links_ray.bench.ordered import ordered_match
 from links_ray.cli.bench.curve_set import HALVES, curve_set
 from links_ray.cli.bench.machine import machine_info
 from links_ray.cli.bench.synthesis_report import front_layers, quantiles, set_groups
 from links_ray.cli.bench.targets import TARGET_POINTS, placed, target_curves
 from links_ray.cli.warm import WARM_ITERATIONS
-from links_ray.engine.inputs import DEFAULT_STEPS, REFINE_CHECK_STEPS
-from links_ray.engine.ordered import ordered_match
-from links_ray.engine.paths import chamfer, even_along, longest_chord
-from links_ray.engine.solver import simulate
-from links_ray.engine.synthesis_options import (
+from links_ray.engine.inputs import DEFAULT_STEPS
+from links_ray.engine.kinematics.paths import chamfer, even_along, longest_chord
+from links_ray.engine.kinematics.solver import simulate
+from links_ray.engine.synthesis.limits import REFINE_CHECK_STEPS
+from links_ray.engine.synthesis.options import (
     DEFAULT_SYNTHESIS_SECONDS,
     DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
 )
 
 if TYPE_CHECKING:
-    from links_ray.engine.synthesis_plan import Retriever
+    from links_ray.engine.synthesis.plan import Retriever
 
 #: Seconds each curve is given: the most that keeps the median under MEDIAN_SECONDS_GOAL
 #: (retrieval and the answer included).
@@ -89,7 +90,7 @@ def even_reference(points: np.ndarray, steps: int = DEFAULT_STEPS, closed: bool 
 
 
 def ordered_score(points: np.ndarray, path: np.ndarray) -> float:
-    """The ordered distance (`engine.ordered`) from a closed drawing's `points`, evenly spaced,
+    """The ordered distance (`bench.ordered`) from a closed drawing's `points`, evenly spaced,
     to a traced `path`, divided by the drawing's longest chord."""
     return ordered_match(points, path).distance / chord_length(points)
 
@@ -145,9 +146,9 @@ def bench_row(
     rows run before it; its `seconds` alone vary. `seconds`: the budget (default the synthesis
     default). `min_transmission` and `front` as `synthesize` takes them (the module says what
     the row then holds)."""
-    from links_ray.engine.synthesis import synthesize
-    from links_ray.engine.synthesis_layers import kit_layer_count
-    from links_ray.engine.synthesis_results import fit
+    from links_ray.engine.synthesis.kit_layers import kit_layer_count
+    from links_ray.engine.synthesis.pipeline import synthesize
+    from links_ray.engine.synthesis.results import fit
 
     seconds = DEFAULT_SYNTHESIS_SECONDS if seconds is None else seconds
     asked = {"k": 3, "partial": partial, "min_transmission": min_transmission, "front": front}
@@ -244,7 +245,7 @@ def bench_synthesize(
     (all if empty); ValueError names one that is not there. `root`: a dataset to use instead of
     the cached one of `paths`. `min_transmission` and `front`: `bench_row`'s."""
     from links_ray.cli.bench.data import retrieval_dataset
-    from links_ray.engine.synthesis import synthesize
+    from links_ray.engine.synthesis.pipeline import synthesize
     from links_ray.search.index import RetrievalIndex
 
     if use_set:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from links_ray.engine.paths import even_along
+from links_ray.engine.kinematics.paths import even_along
 
 #: Points per target curve: about as dense as a mouse stroke the studio records, and dense
 #: enough that the point-sampled chamfer of an exact fit is small (see bench.synthesis).

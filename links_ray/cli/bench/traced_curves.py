@@ -21,12 +21,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from links_ray.engine.inputs import DEFAULT_STEPS, REFINE_CHECK_STEPS
-from links_ray.engine.mechanism import analyze_topology, arc_flags
-from links_ray.engine.paths import is_circle, normalize_path
-from links_ray.engine.sampling import PositionSampler, PositionSearchError
-from links_ray.engine.solver import TopologySimulator, simulate
-from links_ray.engine.topology import random_topology
+from links_ray.engine.inputs import DEFAULT_STEPS
+from links_ray.engine.kinematics.mechanism import analyze_topology, arc_flags
+from links_ray.engine.kinematics.paths import is_circle, normalize_path
+from links_ray.engine.kinematics.sampling import PositionSampler, PositionSearchError
+from links_ray.engine.kinematics.solver import TopologySimulator, simulate
+from links_ray.engine.kinematics.topology import random_topology
+from links_ray.engine.synthesis.limits import REFINE_CHECK_STEPS
 
 #: Curves drawn, and the default seed of their generator.
 TRACED_CURVES = 12

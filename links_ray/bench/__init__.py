@@ -1,0 +1,1 @@
+"""The benchmarks behind `links bench`: what each measures, against which target."""
