@@ -29,7 +29,7 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         "--mechanisms",
         type=positive_int,
         required=True,
-        help="valid mechanisms the root holds; more than a root holds grows it in place",
+        help="valid mechanisms the root holds; more than a root holds extends it in place",
     )
     generate.add_argument("--seed", type=non_negative_int, default=0)
     generate.add_argument(

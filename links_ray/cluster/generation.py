@@ -101,7 +101,7 @@ def generate(
             "tables": list(GENERATION_TABLES),
             "topology_rules": "feasible",
             "min_transmission_deg": 0.0,
-            "grown_from": [],
+            "extended_from": [],
         }
         refuse_imported(store)
         plan = _plan_on_root(store, plan, before_options)
@@ -151,25 +151,27 @@ def generate(
 
 def _plan_on_root(store: Store, asked: GenerationPlan, defaults: dict) -> GenerationPlan:
     """The plan a run asking for `asked` carries out at `store`, recorded in `run.json`: `asked`
-    on a new root, the recorded plan to resume it, or the recorded plan grown to
+    on a new root, the recorded plan to resume it, or the recorded plan extended to
     `asked.mechanisms` when that is more (StoreError if the root holds another run)."""
     recorded = store.read_json(f"{META}/run.json")
     if recorded is not None:
+        if "grown_from" in recorded:  # the key's name in roots written before 0.5
+            recorded["extended_from"] = recorded.pop("grown_from")
         recorded = {**defaults, **recorded}
         try:
             held = GenerationPlan(**recorded)
         except (TypeError, ValueError):
             held = None  # unreadable as a plan: claim names what differs
-        if held is not None and replace(held, mechanisms=asked.mechanisms, grown_from=()) == (
-            replace(asked, grown_from=())
+        if held is not None and replace(held, mechanisms=asked.mechanisms, extended_from=()) == (
+            replace(asked, extended_from=())
         ):
             try:
-                grown = held.grown_to(asked.mechanisms)
+                extended = held.extended_to(asked.mechanisms)
             except ValueError as exc:
                 raise StoreError(f"{store.uri}: {exc}") from None
-            if grown != held:
-                store.write_json(f"{META}/run.json", grown.config())
-            return grown
+            if extended != held:
+                store.write_json(f"{META}/run.json", extended.config())
+            return extended
     store.claim(f"{META}/run.json", asked.config(), defaults=defaults)
     return asked
 

@@ -5,7 +5,7 @@ reduced set of ten million curated paths).
 Each path id gets a key, `splitmix64(path_id, DRAW_SALT + seed)`; the draw is the `paths`
 paths of smallest key. Keys of distinct ids are distinct, so the draw holds exactly
 `min(paths, curated)` paths with no tie to break, and which paths it holds depends on the
-seed and the ids alone: not on files, shards or partitions. A draw of a grown root keeps
+seed and the ids alone: not on files, shards or partitions. A draw of an extended root keeps
 every earlier path whose key is still among the smallest. The salt keeps the draw's keys
 apart from curation's own seeded choice (`pathset.keep_draw` with the curation seed), which
 they would otherwise favour.

@@ -8,10 +8,10 @@ file per table into a single `n_joints` partition.
 
 Ids: ``mechanism_id = 5 i + variant``; a negative's id is ``NEGATIVE_ID_BASE + 5 i + k``.
 
-A root grows in place: the plan of a grown root lists the sizes it held before
-(`grown_from`), and each growth adds the shards of the mechanism ids it adds, numbered after the
-earlier ones. Earlier shards are never rewritten, so their rows stay bit for bit; a topology
-split by a growth writes its remaining variants in the new shards.
+A root is extended in place: the plan of an extended root lists the sizes it held before
+(`extended_from`), and each extension adds the shards of the mechanism ids it adds, numbered
+after the earlier ones. Earlier shards are never rewritten, so their rows stay bit for bit; a
+topology split by an extension writes its remaining variants in the new shards.
 
 The engine and pyarrow: no Ray.
 """
@@ -57,9 +57,9 @@ TOPOLOGIES_PER_BATCH = 100
 #: exhausts it is replaced by the next one its generator draws, and counted as abandoned.
 SEARCH_BUDGET = {"rejection": 1_000_000, "sequential": 10_000}
 NEGATIVE_ID_BASE = 1 << 62
-#: Growths a root's plan may record: each adds a set of shards, so a run record listing
+#: Extensions a root's plan may record: each adds a set of shards, so a run record listing
 #: millions (written by hand, or by a hostile source) would make a plan of millions of shards.
-MAX_GROWTHS = 1000
+MAX_EXTENSIONS = 1000
 #: 2: the `min_transmission_deg` column, the turn checked between steps, `topology_rules`.
 FORMAT_VERSION = 2
 
@@ -67,7 +67,7 @@ FORMAT_VERSION = 2
 @dataclass(frozen=True)
 class Shard:
     """A work unit: topologies `first`, `first + 13`, ... (`count` of them), all `n_joints`,
-    writing those of their mechanisms whose ids are in `[low_id, high_id)` (their growth's)."""
+    writing those of their mechanisms whose ids are in `[low_id, high_id)` (their extension's)."""
 
     shard_id: int
     n_joints: int
@@ -89,9 +89,9 @@ class GenerationPlan:
     others, since every topology draws the same whatever is written. `topology_rules` picks the
     topology generator (engine.kinematics.topology). `min_transmission_deg` above 0 rejects valid
     mechanisms whose least transmission angle is below it, and searches on until the topology has
-    its variants (or abandons it when its budget is spent). `grown_from` are the sizes the root held
-    before it grew to `mechanisms`, smallest first (empty for a root made at its size): each
-    growth's shards follow the earlier ones'.
+    its variants (or abandons it when its budget is spent). `extended_from` are the sizes
+    the root held before it was extended to `mechanisms`, smallest first (empty for a root made
+    at its size): each extension's shards follow the earlier ones'.
     """
 
     seed: int
@@ -104,7 +104,7 @@ class GenerationPlan:
     tables: tuple[str, ...] = GENERATION_TABLES
     topology_rules: str = TOPOLOGY_RULES[0]
     min_transmission_deg: float = 0.0
-    grown_from: tuple[int, ...] = ()
+    extended_from: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("seed", "mechanisms", "topologies_per_shard"):
@@ -129,7 +129,9 @@ class GenerationPlan:
         object.__setattr__(self, "min_transmission_deg", degrees)
         tables = choose_tables(self.tables, GENERATION_TABLES, required="mechanisms")
         object.__setattr__(self, "tables", tables)
-        object.__setattr__(self, "grown_from", _checked_sizes(self.grown_from, self.mechanisms))
+        object.__setattr__(
+            self, "extended_from", _checked_sizes(self.extended_from, self.mechanisms)
+        )
 
     @property
     def topologies(self) -> int:
@@ -138,24 +140,29 @@ class GenerationPlan:
 
     def config(self) -> dict:
         """The plan as `run.json` records it (JSON types: lists for tuples)."""
-        return {**asdict(self), "tables": list(self.tables), "grown_from": list(self.grown_from)}
+        return {
+            **asdict(self),
+            "tables": list(self.tables),
+            "extended_from": list(self.extended_from),
+        }
 
-    def grown_to(self, mechanisms: int) -> GenerationPlan:
-        """This plan's root grown to `mechanisms`: every row it holds kept, the rest added."""
+    def extended_to(self, mechanisms: int) -> GenerationPlan:
+        """This plan's root extended to `mechanisms`: every row it holds kept, the rest added."""
         if mechanisms < self.mechanisms:
             raise ValueError(
-                f"the root holds {self.mechanisms:,} mechanisms: a root grows, it never "
+                f"the root holds {self.mechanisms:,} mechanisms: a root is extended, it never "
                 f"shrinks (asked for {mechanisms:,}); use a new root for fewer"
             )
         if mechanisms == self.mechanisms:
             return self
-        return replace(self, mechanisms=mechanisms, grown_from=(*self.grown_from, self.mechanisms))
+        extended_from = (*self.extended_from, self.mechanisms)
+        return replace(self, mechanisms=mechanisms, extended_from=extended_from)
 
     def shards(self) -> list[Shard]:
         """Every shard of the run, in a fixed order: those of the first size, then each
-        growth's."""
+        extension's."""
         shards: list[Shard] = []
-        bounds = (0, *self.grown_from, self.mechanisms)
+        bounds = (0, *self.extended_from, self.mechanisms)
         for low_id, high_id in pairwise(bounds):
             shards += self._shards_of_ids(low_id, high_id, first_shard_id=len(shards))
         return shards
@@ -183,20 +190,20 @@ class GenerationPlan:
 
 
 def _checked_sizes(sizes: object, mechanisms: int) -> tuple[int, ...]:
-    """`grown_from` as a tuple, checked: increasing positive sizes, each below `mechanisms`."""
+    """`extended_from` as a tuple, checked: increasing positive sizes, each below `mechanisms`."""
     if isinstance(sizes, str) or not isinstance(sizes, tuple | list):
-        raise ValueError(f"grown_from must be a list of sizes, got {sizes!r}")
+        raise ValueError(f"extended_from must be a list of sizes, got {sizes!r}")
     checked = tuple(sizes)
-    if len(checked) > MAX_GROWTHS:
+    if len(checked) > MAX_EXTENSIONS:
         raise ValueError(
-            f"grown_from must hold at most {MAX_GROWTHS:,} sizes, got {len(checked):,}"
+            f"extended_from must hold at most {MAX_EXTENSIONS:,} sizes, got {len(checked):,}"
         )
     for size in checked:
         if isinstance(size, bool) or not isinstance(size, int | np.integer):
-            raise ValueError(f"grown_from must hold integers, got {size!r}")
+            raise ValueError(f"extended_from must hold integers, got {size!r}")
     if any(a >= b for a, b in pairwise((0, *checked, mechanisms))):
         raise ValueError(
-            f"grown_from must be sizes from 1 up, each below the next and below mechanisms "
+            f"extended_from must be sizes from 1 up, each below the next and below mechanisms "
             f"({mechanisms}), got {list(checked)}"
         )
     return tuple(int(size) for size in checked)
@@ -349,7 +356,7 @@ def _search_topology(
 def _generate_topology(
     plan: GenerationPlan, shard: Shard, topology_id: int, rows: dict[str, _Rows], stats: dict
 ) -> None:
-    """Topology `topology_id`'s rows whose ids are the shard's. A topology split by a growth
+    """Topology `topology_id`'s rows whose ids are the shard's. A topology split by an extension
     is searched again for its later variants, its search and negatives counted once: by the
     shard that writes its first variant."""
     first_id = plan.variants * topology_id

@@ -324,7 +324,7 @@ class SynthesisResult(BaseModel):
     interval: Interval | None = None
     n_joints: int = Field(description="joints of `mechanism` (reduced to what the path needs)")
     n_links: int = Field(description="links of `mechanism`, the crank included")
-    grown_joints: int = Field(
+    coupler_points: int = Field(
         0,
         description=(
             "joints the polish added to the stored mechanism (the last traces); 0 when "

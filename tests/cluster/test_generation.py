@@ -199,18 +199,18 @@ def test_another_run_in_the_same_place_is_refused(reference_run: dict) -> None:
         generate(reference_run["out"], 137, seed=4, progress=False, topologies_per_shard=2)
 
 
-def test_a_root_grows_in_place_to_the_rows_of_a_fresh_run(
+def test_a_root_is_extended_in_place_to_the_rows_of_a_fresh_run(
     ray_cluster: str, tmp_path: Path, reference_run: dict
 ) -> None:
     """More mechanisms asked of a finished root extend its plan: its files stay as they
     were, the new shards add the rest, and the rows are those of a fresh run of the larger
     size (written here without Ray, as each generator actor writes its shards)."""
-    root = tmp_path / "grown"
+    root = tmp_path / "extended"
     shutil.copytree(reference_run["out"], root)
     before = {p: p.read_bytes() for p in root.rglob("*.parquet")}
     summary = generate(str(root), 200, seed=3, progress=False, topologies_per_shard=2)
     assert summary["complete"] and summary["rows"]["mechanisms"] == 200
-    assert summary["plan"]["grown_from"] == [137]
+    assert summary["plan"]["extended_from"] == [137]
     # Its rate is of the rows it made: the 137 it found took none of its seconds.
     assert summary["mechanisms_this_run"] == 200 - 137
     assert summary["mechanisms_per_second"] == pytest.approx(63 / summary["seconds"])
@@ -223,7 +223,7 @@ def test_a_root_grows_in_place_to_the_rows_of_a_fresh_run(
     refused = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert refused.returncode == 2
     assert refused.stderr == (
-        f"links generate: error: {root}: the root holds 200 mechanisms: a root grows, it never "
+        f"links generate: error: {root}: the root holds 200 mechanisms: a root is extended, it never "
         "shrinks (asked for 137); use a new root for fewer\n"
     )
     assert json.loads((root / META / "run.json").read_text())["mechanisms"] == 200

@@ -1,5 +1,5 @@
 """Train / validation / test splits by topology: their shares, their stability as a dataset
-grows, and `load` and `ray_dataset` with `split=` against the split of every row's topology,
+is extended, and `load` and `ray_dataset` with `split=` against the split of every row's topology,
 found by joining on the `mechanisms` table (not by the id arithmetic the split uses)."""
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def _generated(root: Path, mechanisms: int) -> str:
 
 
 @pytest.fixture(scope="module")
-def grown(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, str]:
+def coupler_point_children(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, str]:
     """The same plan at 40 and at 80 mechanisms (8 and 16 topologies)."""
     folder = tmp_path_factory.mktemp("splits")
     return _generated(folder / "small", 40), _generated(folder / "large", 80)
@@ -99,31 +99,31 @@ def test_bad_fractions_are_value_errors(fractions: object, message: str) -> None
         links_ray.split_of([1, 2, 3], fractions)
 
 
-def test_bad_ids_and_split_names_are_value_errors(grown: tuple[str, str]) -> None:
+def test_bad_ids_and_split_names_are_value_errors(extended: tuple[str, str]) -> None:
     with pytest.raises(ValueError, match="must be integers"):
         links_ray.split_of([0.5])
     with pytest.raises(ValueError, match="non-negative"):
         links_ray.split_of([-1])
     with pytest.raises(ValueError, match="split must be one of train, validation, test"):
-        links_ray.load(grown[0], "mechanisms", split="dev")
+        links_ray.load(extended[0], "mechanisms", split="dev")
     with pytest.raises(ValueError, match="must sum to 1"):
-        links_ray.load(grown[0], "mechanisms", split="test", split_fractions=(0.5, 0.1, 0.1))
+        links_ray.load(extended[0], "mechanisms", split="test", split_fractions=(0.5, 0.1, 0.1))
 
 
-def test_mechanism_ids_give_their_topology(grown: tuple[str, str]) -> None:
+def test_mechanism_ids_give_their_topology(extended: tuple[str, str]) -> None:
     """The id arithmetic the split relies on, against the stored topology ids, negatives too."""
     for table in ("mechanisms", "negatives"):
-        rows = links_ray.load(grown[1], table, columns=["mechanism_id", "topology_id"])
+        rows = links_ray.load(extended[1], table, columns=["mechanism_id", "topology_id"])
         assert len(rows)
         topologies = mechanism_topology(rows["mechanism_id"].to_numpy())
         assert np.array_equal(topologies, rows["topology_id"].to_numpy())
 
 
-def test_rows_keep_their_split_as_the_dataset_grows(grown: tuple[str, str]) -> None:
+def test_rows_keep_their_split_as_the_dataset_is_extended(extended: tuple[str, str]) -> None:
     """Generated again at twice the size with the same seed, each table's rows of one split
     are a subset of the larger dataset's rows of that split, the same rows; and every row is
     in the split of its topology."""
-    small, large = grown
+    small, large = extended
     for table in GENERATION:
         key = ROW_ID[table]
         everything = links_ray.load(small, table)
@@ -132,11 +132,11 @@ def test_rows_keep_their_split_as_the_dataset_grows(grown: tuple[str, str]) -> N
         assert sorted(ids) == sorted(everything[key]), table  # a partition of the rows
         for split, rows in parts.items():
             assert (links_ray.split_of(_topologies(small, table, rows)) == split).all()
-            grown_rows = links_ray.load(large, table, split=split).set_index(key)
-            assert set(rows[key]) <= set(grown_rows.index), (table, split)
-            assert len(grown_rows) >= len(rows)
+            extended_rows = links_ray.load(large, table, split=split).set_index(key)
+            assert set(rows[key]) <= set(extended_rows.index), (table, split)
+            assert len(extended_rows) >= len(rows)
             for row in rows.itertuples():
-                other = grown_rows.loc[getattr(row, key)]
+                other = extended_rows.loc[getattr(row, key)]
                 column = "trajectories" if table == "simulations" else "positions"
                 assert np.array_equal(getattr(row, column), other[column])
     counts = [len(links_ray.load(large, "mechanisms", split=s)) for s in links_ray.SPLITS]

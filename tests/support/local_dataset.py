@@ -26,7 +26,7 @@ def generate_and_curate(
     """Write `plan`'s shards and their curation (`curation_tables`, stored as `path_store`)
     into `root` (a folder or store URI); returns `root`. Shards the root holds already are
     kept, as a resumed `links generate` and `links curate` keep them: a plan grown from the
-    root's (`GenerationPlan.grown_to`) adds its new shards only."""
+    root's (`GenerationPlan.extended_to`) adds its new shards only."""
     store = Store.open(root)
     store.write_json(f"{META}/run.json", plan.config())
     generated = committed_shards(store, "shards")

@@ -183,7 +183,7 @@ def bench_row(
         "ordered": None if partial else ordered_score(points, np.array(best["path"])),
         "dense": None if partial else dense_score(points, best),
         "joints": len(best["mechanism"]["node_types"]),
-        "grown_joints": best["grown_joints"],
+        "coupler_points": best["coupler_points"],
         "transmission_deg": best["min_transmission_deg"],
         "path_id": best["path_id"],
     }

@@ -16,7 +16,7 @@ from links_ray.engine.inputs import DEFAULT_STEPS, link_pairs
 from links_ray.engine.kinematics.mechanism import LockingError, Topology, analyze_topology
 from links_ray.engine.kinematics.solver import simulate
 from links_ray.engine.synthesis.constraints import KEPT, Constraints, Violation, joined, violation
-from links_ray.engine.synthesis.coupler_points import grown_mechanisms
+from links_ray.engine.synthesis.coupler_points import with_coupler_point
 from links_ray.engine.synthesis.limits import check_refine_size
 from links_ray.engine.synthesis.refinement.checks import below_margin, check_mechanism, target_error
 from links_ray.engine.synthesis.refinement.loop import DAMPING_START, Refinement, refine_validated
@@ -45,18 +45,18 @@ class Candidate:
     converged: bool = False
     damping: float = DAMPING_START  # where the last kept refinement of `positions` ended
     rounds: int = 0  # long-pass rounds it has had
-    growths: int = (
-        0  # joints grown onto the retrieved mechanism (`engine.synthesis.coupler_points`)
+    coupler_points: int = (
+        0  # coupler points added to the retrieved mechanism (`engine.synthesis.coupler_points`)
     )
-    parent: Candidate | None = None  # the candidate it was grown from
-    grew: bool = False  # whether it has been grown
+    parent: Candidate | None = None  # the candidate it was given a coupler point from
+    branched: bool = False  # whether its coupler-point children have been made
 
     @property
     def retrieved_as(self) -> Candidate:
-        """The candidate, as retrieved, that this one grew from (itself if it did not grow)."""
+        """The candidate, as retrieved, that this one comes from (itself if it was retrieved)."""
         return self if self.parent is None else self.parent.retrieved_as
 
-    def grown(
+    def coupler_point_children(
         self,
         target: Target,
         constraints: Constraints | None,
@@ -64,13 +64,13 @@ class Candidate:
         offset: float,
         max_joints: int,
     ) -> list[Candidate]:
-        """New candidates, each this one's best positions grown by a coupler point `offset`
+        """New candidates, each this one's best positions given a coupler point `offset`
         from the tracing joint, which traces instead, with at most `max_joints` joints
-        (`engine.synthesis.coupler_points.grown_mechanisms`); those that lock or cannot be traced
+        (`engine.synthesis.coupler_points.with_coupler_point`); those that lock or cannot be traced
         are left out."""
-        self.grew = True
+        self.branched = True
         children = []
-        for adjacency, node_types, positions in grown_mechanisms(
+        for adjacency, node_types, positions in with_coupler_point(
             self.topology, self.positions, self.joint, offset, max_joints
         ):
             try:
@@ -88,7 +88,7 @@ class Candidate:
             )
             if child is not None:
                 child.retrieved = self.retrieved
-                child.growths = self.growths + 1
+                child.coupler_points = self.coupler_points + 1
                 child.parent = self
                 children.append(child)
         return children

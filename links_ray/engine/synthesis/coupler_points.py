@@ -1,4 +1,4 @@
-"""Growing a mechanism by one joint: a coupler point on a link of the joint that traces.
+"""A coupler point added to a mechanism: one more joint, on a link of the joint that traces.
 
 When refinement stalls, the mechanism has no freedom left that lowers the fit. One more joint,
 fixed to a link of the tracing joint (a rigid triangle: the new joint's two links keep their
@@ -18,24 +18,24 @@ import numpy as np
 from links_ray.engine.kinematics.mechanism import Topology
 from links_ray.engine.node_kinds import SIMPLE
 
-__all__ = ["GROWN_MAX_JOINTS", "grown_mechanisms"]
+__all__ = ["COUPLER_POINT_MAX_JOINTS", "with_coupler_point"]
 
 #: A mechanism grows only while it has fewer joints than this (the dataset's largest).
-GROWN_MAX_JOINTS = 20
+COUPLER_POINT_MAX_JOINTS = 20
 
 
-def grown_mechanisms(
+def with_coupler_point(
     topology: Topology,
     positions: np.ndarray,
     joint: int,
     offset: float,
-    max_joints: int = GROWN_MAX_JOINTS,
+    max_joints: int = COUPLER_POINT_MAX_JOINTS,
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """(adjacency, node_types, positions) of each way to grow the mechanism by a coupler
+    """(adjacency, node_types, positions) of each way to add a coupler
     point on a link of `joint`: one for each neighbour of `joint` it shares a link with, the new
     joint (the last) `offset` from `joint` square to that link, on the side away from the
-    mechanism's centre. Empty if the grown mechanism would have more than `max_joints` joints
-    (at most GROWN_MAX_JOINTS), or `joint` has no neighbour farther than `offset`."""
+    mechanism's centre. Empty if the mechanism with it would have more than `max_joints` joints
+    (at most COUPLER_POINT_MAX_JOINTS), or `joint` has no neighbour farther than `offset`."""
     n = topology.n_joints
     if positions.shape != (n, 2):
         raise ValueError(f"positions must be ({n}, 2), got {positions.shape}")
@@ -43,11 +43,11 @@ def grown_mechanisms(
         raise ValueError(f"joint must be in 0..{n - 1}, got {joint}")
     if not offset > 0.0:
         raise ValueError(f"offset must be positive, got {offset}")
-    if n >= min(max_joints, GROWN_MAX_JOINTS):
+    if n >= min(max_joints, COUPLER_POINT_MAX_JOINTS):
         return []
     centre = positions.mean(axis=0)
     node_types = np.append(topology.node_types, np.int8(SIMPLE)).astype(np.int8)
-    grown = []
+    added = []
     for neighbour in np.flatnonzero(topology.adjacency[joint]):
         along = positions[joint] - positions[neighbour]
         length = float(np.hypot(*along))
@@ -60,5 +60,5 @@ def grown_mechanisms(
         adjacency[:n, :n] = topology.adjacency
         adjacency[n, [joint, neighbour]] = adjacency[[joint, neighbour], n] = 1
         at = np.vstack([positions, positions[joint] + offset * square])
-        grown.append((adjacency, node_types.copy(), at))
-    return grown
+        added.append((adjacency, node_types.copy(), at))
+    return added

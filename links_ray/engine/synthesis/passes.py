@@ -39,7 +39,7 @@ import numpy as np
 from links_ray.engine.inputs import DEFAULT_MIN_TRANSMISSION_DEG
 from links_ray.engine.synthesis.budget import Budget
 from links_ray.engine.synthesis.candidates import WORST_RANK, Candidate, candidate
-from links_ray.engine.synthesis.coupler_points import GROWN_MAX_JOINTS
+from links_ray.engine.synthesis.coupler_points import COUPLER_POINT_MAX_JOINTS
 from links_ray.engine.synthesis.kit_layers import LayerCounts, layer_deadline, plans_layers
 from links_ray.engine.synthesis.options import SynthesisOptions
 from links_ray.engine.synthesis.pareto import pareto_front
@@ -70,12 +70,11 @@ HOP_ITERATIONS = 300
 #: which pulls harder on the parts of the drawing the path is far from; the long pass and
 #: restarts then weigh pairs as the chamfer does (IRLS_WEIGHT_FLOOR).
 SHORT_WEIGHT_FLOOR = 0.15
-#: The polish: once no more than POLISH_LEFT of the budget is left, the best candidate alone #: goes
-#: on, and whenever it has converged it grows a coupler point on a link of its tracing #: joint
-#: (`engine.synthesis.coupler_points`) GROWTH_OFFSET of the drawing's chord from it, at most
-#: MAX_GROWTHS
-#: times along one line of descent.
-POLISH_LEFT, GROWTH_OFFSET, MAX_GROWTHS = 0.2, 0.02, 3
+#: The polish: once no more than POLISH_LEFT of the budget is left, the best candidate alone
+#: goes on, and whenever it has converged it is given a coupler point on a link of its tracing
+#: joint (`engine.synthesis.coupler_points`) COUPLER_POINT_OFFSET of the drawing's chord from
+#: it, at most MAX_COUPLER_POINTS times along one line of descent.
+POLISH_LEFT, COUPLER_POINT_OFFSET, MAX_COUPLER_POINTS = 0.2, 0.02, 3
 #: Least seconds between two progress reports (the best so far) of one synthesis.
 PROGRESS_INTERVAL_S = 0.2
 #: With timing, the candidates the short pass leaves best go on, timed: choosing each one's
@@ -278,7 +277,7 @@ class SynthesisPasses:
     def polish(self, waiting: list[Candidate]) -> list[Candidate]:
         """Once no more than POLISH_LEFT of the budget is left, the best candidate alone goes
         on: the other finalists stop and `waiting` is emptied. Then, and again whenever the best
-        has converged, its grown children (`Candidate.grown`), which join the candidates and
+        has converged, its children with a coupler point (`Candidate.coupler_point_children`), which join the candidates and
         are returned to wait for a finalist's place: the answer gets new freedom where it
         traces. Not for a front (which ranks by joints) or a timed target."""
         if self.options.front or self.timed is not None or not self.candidates:
@@ -292,11 +291,11 @@ class SynthesisPasses:
             # By name, not by `converged`: a round under way when the polish begins may
             # still keep a step, which would set it moving again.
             self.stopped = {id(c) for c in self.finalists if c is not best}
-        elif not best.converged or best.grew or best.growths >= MAX_GROWTHS:
+        elif not best.converged or best.branched or best.coupler_points >= MAX_COUPLER_POINTS:
             return []
-        most = self.options.max_joints or GROWN_MAX_JOINTS
-        offset = GROWTH_OFFSET * self.target.chord
-        children = best.grown(
+        most = self.options.max_joints or COUPLER_POINT_MAX_JOINTS
+        offset = COUPLER_POINT_OFFSET * self.target.chord
+        children = best.coupler_point_children(
             self.target, self.options.constraints, self.min_transmission_deg, offset, most
         )
         self.candidates += children
@@ -330,7 +329,9 @@ class SynthesisPasses:
         `unmet` says what the nearest missed when none keeps them. A front's results, and
         every result of one given `max_layers`, carry their `layers`
         (`engine.synthesis.kit_layers`)."""
-        ranked = sorted(self.candidates, key=lambda c: (*c.rank(), c.result["path_id"], c.growths))
+        ranked = sorted(
+            self.candidates, key=lambda c: (*c.rank(), c.result["path_id"], c.coupler_points)
+        )
         # One answer for each retrieved mechanism: the best of it and what grew from it.
         seen: set[int] = set()
         candidates = []

@@ -75,9 +75,9 @@ def as_result(
             "positions": positions.tolist(),
         },
         "mechanism_joint": candidate.joint,
-        # Joints grown onto the retrieved mechanism (`engine.synthesis.coupler_points`): 0 when it
+        # Coupler points added to the retrieved mechanism (`engine.synthesis.coupler_points`): 0 when it
         # is the retrieved one, moved.
-        "grown_joints": candidate.growths,
+        "coupler_points": candidate.coupler_points,
         "n_joints": topology.n_joints,
         "n_links": int(np.count_nonzero(np.triu(topology.adjacency, 1))),
         # As the dataset's paths state it: the joint's dyads, at the stored steps.

@@ -1,12 +1,12 @@
-"""Growing a mechanism by a coupler point (engine.synthesis.coupler_points), against the closed-form
+"""Adding a coupler point to a mechanism (engine.synthesis.coupler_points), against the closed-form
 four-bar.
 
-* A four-bar grown at its rocker tip B gets one mechanism a link of B: on the coupler A-B, the
+* A four-bar given a coupler point at its rocker tip B gets one mechanism a link of B: on the coupler A-B, the
   new joint traces Freudenstein's coupler curve of the point at (b, +-offset) in the coupler's
   frame; on the rocker O4-B, a circle about O4. The old joints trace what they traced.
 * The new joint starts `offset` from the tracing joint, square to its link, away from the
   mechanism's centre.
-* No growth past GROWN_MAX_JOINTS; bad input is a ValueError naming it.
+* No coupler point past COUPLER_POINT_MAX_JOINTS; bad input is a ValueError naming it.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import pytest
 
 import links_ray
 from links_ray.engine.kinematics.mechanism import analyze_topology
-from links_ray.engine.synthesis.coupler_points import GROWN_MAX_JOINTS, grown_mechanisms
+from links_ray.engine.synthesis.coupler_points import COUPLER_POINT_MAX_JOINTS, with_coupler_point
 from tests.engine.kinematics.test_solver import (
     fourbar_lengths,
     fourbar_positions,
@@ -36,14 +36,14 @@ def fourbar() -> tuple[object, np.ndarray]:
     return analyze_topology(adjacency, node_types), positions
 
 
-def test_a_grown_four_bar_traces_the_closed_form_coupler_point() -> None:
+def test_a_four_bar_with_a_coupler_point_traces_the_closed_form_coupler_point() -> None:
     topology, positions = fourbar()
     offset = 0.05
-    grown = grown_mechanisms(topology, positions, 2, offset)
-    assert len(grown) == 2  # B's links: the coupler (to A) and the rocker (to O4)
+    added = with_coupler_point(topology, positions, 2, offset)
+    assert len(added) == 2  # B's links: the coupler (to A) and the rocker (to O4)
     parent = fourbar_truth(positions, STEPS)
     _, b, c, _ = fourbar_lengths(positions)
-    for adjacency, node_types, at in grown:
+    for adjacency, node_types, at in added:
         assert adjacency.shape == (5, 5) and list(node_types) == [0, 2, 1, 0, 1]
         neighbour = next(int(k) for k in np.flatnonzero(adjacency[4]) if k != 2)
         assert np.count_nonzero(adjacency[4]) == 2
@@ -67,17 +67,17 @@ def test_a_grown_four_bar_traces_the_closed_form_coupler_point() -> None:
         assert step @ (at[2] - positions.mean(axis=0)) > 0
 
 
-def test_growth_again_and_again_stops_at_the_largest_mechanism() -> None:
-    """Each grown joint traces in turn and is grown on: every mechanism is a valid topology
-    that turns, until GROWN_MAX_JOINTS."""
+def test_coupler_points_again_and_again_stop_at_the_largest_mechanism() -> None:
+    """Each coupler point traces in turn and is given one of its own: every mechanism is a valid topology
+    that turns, until COUPLER_POINT_MAX_JOINTS."""
     topology, positions = fourbar()
     joint = 2
-    while topology.n_joints < GROWN_MAX_JOINTS:
-        adjacency, node_types, positions = grown_mechanisms(topology, positions, joint, 0.02)[0]
+    while topology.n_joints < COUPLER_POINT_MAX_JOINTS:
+        adjacency, node_types, positions = with_coupler_point(topology, positions, joint, 0.02)[0]
         topology = analyze_topology(adjacency, node_types)
         joint = topology.n_joints - 1
         assert links_ray.simulate(adjacency, node_types, positions, STEPS).shape[0] == joint + 1
-    assert grown_mechanisms(topology, positions, joint, 0.02) == []
+    assert with_coupler_point(topology, positions, joint, 0.02) == []
 
 
 @pytest.mark.parametrize(
@@ -89,15 +89,15 @@ def test_growth_again_and_again_stops_at_the_largest_mechanism() -> None:
         ({"positions": np.zeros((3, 2))}, r"positions must be \(4, 2\)"),
     ],
 )
-def test_bad_growth_is_a_value_error(change: dict, message: str) -> None:
+def test_a_bad_coupler_point_is_a_value_error(change: dict, message: str) -> None:
     topology, positions = fourbar()
     asked = {"positions": positions, "joint": 2, "offset": 0.05} | change
     with pytest.raises(ValueError, match=message):
-        grown_mechanisms(topology, asked["positions"], asked["joint"], asked["offset"])
+        with_coupler_point(topology, asked["positions"], asked["joint"], asked["offset"])
 
 
-def test_growth_keeps_the_joints_asked_for() -> None:
-    """A synthesis asked for at most `max_joints` grows only up to them."""
+def test_coupler_points_keep_the_joints_asked_for() -> None:
+    """A synthesis asked for at most `max_joints` adds coupler points only up to them."""
     topology, positions = fourbar()
-    assert grown_mechanisms(topology, positions, 2, 0.05, max_joints=4) == []
-    assert len(grown_mechanisms(topology, positions, 2, 0.05, max_joints=5)) == 2
+    assert with_coupler_point(topology, positions, 2, 0.05, max_joints=4) == []
+    assert len(with_coupler_point(topology, positions, 2, 0.05, max_joints=5)) == 2

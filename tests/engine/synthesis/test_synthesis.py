@@ -90,7 +90,7 @@ def test_an_unrefined_retrieval_measures_the_retrievals_chamfer(
 def test_synthesis_refines_and_reports_what_it_traces(
     dataset_index: RetrievalIndex, queries: list
 ) -> None:
-    improved = grew = raised = 0
+    improved = pointed = raised = 0
     for query in [queries[0], *hand_drawn()[:2]]:
         results = synthesize(dataset_index, query, k=3, seed=0, iterations=ITERATIONS)
         assert len(results) == 3
@@ -130,16 +130,16 @@ def test_synthesis_refines_and_reports_what_it_traces(
             assert result["chamfer"] <= result["retrieved_chamfer"] + 1e-12
             improved += result["chamfer"] < 0.9 * result["retrieved_chamfer"]
             mechanism = start_from["mechanism"]
-            # Grown joints (engine.synthesis.coupler_points) come last, each hung on two joints
+            # Coupler points (engine.synthesis.coupler_points) come last, each hung on two joints
             # before it, and the last traces; the retrieved mechanism is the rest, moved.
-            n, grown = len(mechanism["node_types"]), result["grown_joints"]
-            assert result["n_joints"] == n + grown
+            n, added = len(mechanism["node_types"]), result["coupler_points"]
+            assert result["n_joints"] == n + added
             assert np.array_equal(adjacency[:n, :n], mechanism["adjacency"])
-            for joint in range(n, n + grown):
+            for joint in range(n, n + added):
                 assert np.count_nonzero(adjacency[joint, :joint]) == 2
-            grew += grown > 0
-            if grown:
-                assert result["mechanism_joint"] == n + grown - 1
+            pointed += added > 0
+            if added:
+                assert result["mechanism_joint"] == n + added - 1
             assert_valid(
                 np.array(mechanism["adjacency"]),
                 np.array(mechanism["node_types"]),
@@ -153,7 +153,7 @@ def test_synthesis_refines_and_reports_what_it_traces(
         # The best refined beats the best retrieved: refinement found something.
         assert results[0]["chamfer"] < min(r["chamfer"] for r in retrieved.values())
     assert improved >= 6
-    assert grew >= 1  # the polish grew an answer
+    assert pointed >= 1  # the polish gave an answer a coupler point
     assert raised >= 1  # an answer whose start lay below the floor, raised to it
 
 
