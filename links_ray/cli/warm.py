@@ -49,9 +49,9 @@ def warm(folder: str | None = None) -> dict[str, float]:
             return warm(scratch)
     from links_ray.cli.demo import run_demo
     from links_ray.cluster.curation import ShardCurator
+    from links_ray.data.generation import GenerationPlan, write_shard
     from links_ray.data.lease import Lease
     from links_ray.data.schemas import CURATION_TABLES
-    from links_ray.data.shards import GenerationPlan, write_shard
     from links_ray.data.store import Store
     from links_ray.engine.synthesis.pipeline import synthesize
     from links_ray.search.index import RetrievalIndex

@@ -22,8 +22,8 @@ from ray.util.annotations import RayDeprecationWarning
 from links_ray.cluster.connect import connect
 from links_ray.cluster.progress import Progress
 from links_ray.data.commit import committed_shards, remove_uncommitted
+from links_ray.data.curation import KEEP_SHARE, curate_shard, path_shares
 from links_ray.data.lease import Lease, LeaseLost, holder_still
-from links_ray.data.pathset import KEEP_SHARE, curate_shard, path_shares
 from links_ray.data.schemas import CURATION_TABLES, check_path_store, choose_tables
 from links_ray.data.store import META, Store, StoreError, diagnose, refuse_imported
 from links_ray.engine.inputs import DEFAULT_STEPS
@@ -87,7 +87,7 @@ class ShardCurator:
         self, shard_id: int, n_joints: int, mechanisms_file: str, simulations_file: str
     ) -> dict:
         """Write one shard's chosen tables, then its marker, while this run holds the root;
-        returns the marker (`data.pathset.curate_shard`)."""
+        returns the marker (`data.curation.curate_shard`)."""
 
         def still_holder() -> None:
             if not holder_still(self.store, "writer", self.lease_token):

@@ -23,9 +23,9 @@ from links_ray.cluster.actor_pool import ShardPool
 from links_ray.cluster.connect import connect
 from links_ray.cluster.progress import Progress
 from links_ray.data.commit import committed_shards, remove_uncommitted
+from links_ray.data.generation import GenerationPlan, Shard, write_shard
 from links_ray.data.lease import Lease, LeaseLost, holder_still
 from links_ray.data.schemas import GENERATION_TABLES
-from links_ray.data.shards import GenerationPlan, Shard, write_shard
 from links_ray.data.store import META, Store, StoreError, refuse_imported
 from links_ray.engine.kinematics.topology import TOPOLOGY_RULES
 
@@ -176,7 +176,7 @@ def _plan_on_root(store: Store, asked: GenerationPlan, defaults: dict) -> Genera
     return asked
 
 
-#: The counts each shard's marker holds (data.shards.generate_shard), summed by joint count.
+#: The counts each shard's marker holds (data.generation.generate_shard), summed by joint count.
 SHARD_COUNTS = (
     "topologies",
     "mechanisms",

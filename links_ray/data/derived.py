@@ -25,7 +25,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from links_ray.data.commit import SHARD_NAME, committed_files, committed_shards
-from links_ray.data.pathset import (
+from links_ray.data.curation import (
     JOINT_BITS,
     MECHANISMS_PER_BATCH,
     by_mechanism_id,

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from links_ray.data.pathset import splitmix64
+from links_ray.data.curation import splitmix64
 from links_ray.data.store import Store
 
 __all__ = ["DRAW_SALT", "MAX_DRAW_PATHS", "MAX_DRAW_SEED", "DrawnPaths", "PathDraw"]

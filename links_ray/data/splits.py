@@ -18,8 +18,8 @@ import numpy as np
 import pyarrow as pa
 from numpy.typing import ArrayLike
 
-from links_ray.data.pathset import keep_draw
-from links_ray.data.shards import mechanism_topology
+from links_ray.data.curation import keep_draw
+from links_ray.data.generation import mechanism_topology
 
 SPLITS = ("train", "validation", "test")
 DEFAULT_FRACTIONS = (0.8, 0.1, 0.1)

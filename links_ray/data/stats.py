@@ -18,7 +18,7 @@ import numpy as np
 import pyarrow as pa
 
 from links_ray.data.commit import TABLE_STAGE, committed_files, committed_shards
-from links_ray.data.pathset import arc_circle_counts, path_shares
+from links_ray.data.curation import arc_circle_counts, path_shares
 from links_ray.data.schemas import CURATION_TABLES, TABLE_NAMES
 from links_ray.data.store import META, Store
 from links_ray.engine.kinematics.mechanism import MAX_DATASET_JOINTS, MIN_DATASET_JOINTS

@@ -31,8 +31,7 @@ from itertools import groupby
 import numpy as np
 import pyarrow as pa
 
-from links_ray.data.derived import file_schema, has_points, rows_of_ids
-from links_ray.data.pathset import (
+from links_ray.data.curation import (
     JOINT_BITS,
     MECHANISMS_PER_BATCH,
     by_mechanism_id,
@@ -41,6 +40,7 @@ from links_ray.data.pathset import (
     simulated_trajectories,
     trajectory_paths,
 )
+from links_ray.data.derived import file_schema, has_points, rows_of_ids
 from links_ray.data.splits import split_mask
 from links_ray.data.store import META, Store
 from links_ray.engine.inputs import DEFAULT_STEPS

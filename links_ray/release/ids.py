@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from links_ray.data.shards import NEGATIVE_ID_BASE, VARIANTS
+from links_ray.data.generation import NEGATIVE_ID_BASE, VARIANTS
 
 __all__ = ["BATCH_STRIDE", "SHARDS_PER_BATCH", "release_location"]
 

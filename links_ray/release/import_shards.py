@@ -24,13 +24,14 @@ import numpy as np
 import pyarrow as pa
 
 from links_ray.data.commit import ShardWriter
-from links_ray.data.pathset import (
+from links_ray.data.curation import (
     MECHANISMS_PER_BATCH,
     arc_circle_counts,
     curated_mask,
     path_ids,
     trajectory_paths,
 )
+from links_ray.data.generation import NEGATIVE_ID_BASE, VARIANTS
 from links_ray.data.schemas import (
     CURATION_TABLES,
     SCHEMAS,
@@ -39,7 +40,6 @@ from links_ray.data.schemas import (
     choose_tables,
     list_array,
 )
-from links_ray.data.shards import NEGATIVE_ID_BASE, VARIANTS
 from links_ray.data.store import Store
 from links_ray.engine.inputs import (
     DEFAULT_STEPS,

@@ -46,8 +46,8 @@ from typing import Any
 import numpy as np
 
 from links_ray.data.commit import committed_shards, remove_uncommitted
+from links_ray.data.curation import KEEP_SHARE, path_shares
 from links_ray.data.lease import Lease
-from links_ray.data.pathset import KEEP_SHARE, path_shares
 from links_ray.data.schemas import CURATION_TABLES, GENERATION_TABLES
 from links_ray.data.store import IMPORTED_SOURCE, META, Store
 from links_ray.engine.inputs import DEFAULT_STEPS

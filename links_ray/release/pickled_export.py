@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
-from links_ray.data.pathset import by_mechanism_id, curated_mask, list_values, path_ids
+from links_ray.data.curation import by_mechanism_id, curated_mask, list_values, path_ids
 from links_ray.data.splits import split_mask
 from links_ray.data.store import META, Store
 from links_ray.engine.kinematics.mechanism import FIXED

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import links_ray
-from links_ray.cli.bench import engine as bench
+from links_ray.bench import engine as bench
 from links_ray.engine.kinematics.mechanism import (
     LockingError,
     analyze_topology,

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import links_ray
-from links_ray.data.shards import GenerationPlan, write_shard
+from links_ray.data.generation import GenerationPlan, write_shard
 from links_ray.data.store import Store
 from links_ray.engine.kinematics.paths import CIRCLE_VARIANCE_THRESHOLD
 from links_ray.release.exporter import CURVE_SETS, export_release

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import links_ray
-from links_ray.data.shards import GenerationPlan, write_shard
+from links_ray.data.generation import GenerationPlan, write_shard
 from links_ray.data.store import Store
 from links_ray.engine.fabrication.drawings import fabrication
 from links_ray.interop.drawings import dxf_drawing

@@ -91,8 +91,8 @@ def test_a_bench_row_reports_its_floor_and_its_front_as_kits(
     same answers again, as counted work repeats)."""
     import numpy as np
 
-    from links_ray.cli.bench.synthesis import bench_row
-    from links_ray.cli.bench.synthesis_report import front_layers
+    from links_ray.bench.synthesis import bench_row
+    from links_ray.bench.synthesis_report import front_layers
     from links_ray.engine.synthesis.kit_layers import kit_layer_count
 
     points = hand_drawn()[0]

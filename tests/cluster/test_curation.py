@@ -29,7 +29,7 @@ from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
 from links_ray.data import pathset, schemas
 from links_ray.data.commit import committed_files, committed_shards, marker_file
-from links_ray.data.pathset import KEEP_SHARE, keep_draw, path_table
+from links_ray.data.curation import KEEP_SHARE, keep_draw, path_table
 from links_ray.data.schemas import CURATION_TABLES
 from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.kinematics.paths import circle_variance, normalize_path

@@ -30,8 +30,8 @@ from links_ray.cluster import generation
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
 from links_ray.data.commit import committed_files, committed_shards, marker_file
+from links_ray.data.generation import NEGATIVE_ID_BASE, GenerationPlan
 from links_ray.data.schemas import GENERATION_TABLES as TABLES
-from links_ray.data.shards import NEGATIVE_ID_BASE, GenerationPlan
 from links_ray.data.store import META, Store, StoreError
 from links_ray.engine.kinematics.mechanism import analyze_topology, dataset_rule_violations
 from tests.support.local_dataset import generate_and_curate
@@ -223,8 +223,8 @@ def test_a_root_is_extended_in_place_to_the_rows_of_a_fresh_run(
     refused = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert refused.returncode == 2
     assert refused.stderr == (
-        f"links generate: error: {root}: the root holds 200 mechanisms: a root is extended, it never "
-        "shrinks (asked for 137); use a new root for fewer\n"
+        f"links generate: error: {root}: the root holds 200 mechanisms: a root is extended, it "
+        "never shrinks (asked for 137); use a new root for fewer\n"
     )
     assert json.loads((root / META / "run.json").read_text())["mechanisms"] == 200
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pyarrow as pa
 
 import links_ray
-from links_ray.data.shards import GenerationPlan
+from links_ray.data.generation import GenerationPlan
 from tests.support.local_dataset import generate_and_curate
 
 TABLES = ("mechanisms", "simulations", "negatives", "paths", "curated")

@@ -36,8 +36,8 @@ from links_ray.data.commit import (
     remove_uncommitted,
 )
 from links_ray.data.dataset import PARTITIONING, open_table
+from links_ray.data.generation import GenerationPlan, Shard, generate_shard, write_shard
 from links_ray.data.schemas import GENERATION_TABLES
-from links_ray.data.shards import GenerationPlan, Shard, generate_shard, write_shard
 from links_ray.data.store import Store, StoreError
 from tests.support.cli import links
 
@@ -143,7 +143,7 @@ def test_a_failed_commit_shows_nothing_and_is_redone(
 KILLED_WRITER = textwrap.dedent(
     """
     import os, sys
-    from links_ray.data.shards import GenerationPlan, Shard, generate_shard, write_shard
+    from links_ray.data.generation import GenerationPlan, Shard, generate_shard, write_shard
     from links_ray.data.store import Store
 
     root, step = sys.argv[1], sys.argv[2]

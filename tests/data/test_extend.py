@@ -1,6 +1,6 @@
 """A root is extended in place: the same seed's plan extended, earlier shards kept bit for bit, the
 extended root's rows those of a fresh run of the larger size, and extending deterministic. Shards
-are written as a generator actor writes them (`data.shards.write_shard`), without Ray;
+are written as a generator actor writes them (`data.generation.write_shard`), without Ray;
 tests/cluster/test_generation.py extends a root through `links generate` itself."""
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import pytest
 
 import links_ray
 from links_ray.data.commit import committed_shards
+from links_ray.data.generation import GenerationPlan
 from links_ray.data.schemas import GENERATION_TABLES
-from links_ray.data.shards import GenerationPlan
 from links_ray.data.store import Store
 from tests.support.local_dataset import generate_and_curate
 
@@ -110,7 +110,9 @@ def test_a_plan_is_extended_but_never_shrinks() -> None:
     assert PLAN.extended_to(FIRST) is PLAN
     # The root's shards are the extended plan's first ones, as they were: none is redone.
     assert extended.shards()[: len(PLAN.shards())] == PLAN.shards()
-    with pytest.raises(ValueError, match="holds 137 mechanisms: a root is extended, it never shrinks"):
+    with pytest.raises(
+        ValueError, match="holds 137 mechanisms: a root is extended, it never shrinks"
+    ):
         PLAN.extended_to(100)
     with pytest.raises(ValueError, match="extended_from must hold at most 1,000 sizes, got 5,000"):
         GenerationPlan(seed=5, mechanisms=10**6, extended_from=list(range(1, 5001)))

@@ -13,8 +13,8 @@ import pyarrow.dataset as pads
 import pytest
 
 import links_ray
+from links_ray.data.generation import GenerationPlan, mechanism_topology, write_shard
 from links_ray.data.schemas import TABLE_NAMES
-from links_ray.data.shards import GenerationPlan, mechanism_topology, write_shard
 from links_ray.data.store import Store
 
 GENERATION = ("mechanisms", "simulations", "negatives")

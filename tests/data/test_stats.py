@@ -12,8 +12,8 @@ import numpy as np
 import pyarrow.dataset as pads
 import pytest
 
+from links_ray.data.generation import GenerationPlan
 from links_ray.data.schemas import TABLE_NAMES
-from links_ray.data.shards import GenerationPlan
 from links_ray.data.stats import TRANSMISSION_QUANTILES, dataset_stats
 from tests.support.local_dataset import generate_and_curate
 

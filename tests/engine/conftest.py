@@ -17,7 +17,7 @@ import pytest
 @pytest.fixture(scope="session")
 def dataset(tmp_path_factory: pytest.TempPathFactory) -> str:
     """300 mechanisms, generated and curated in this process (seed 5, 10 topologies a shard)."""
-    from links_ray.data.shards import GenerationPlan
+    from links_ray.data.generation import GenerationPlan
     from tests.support.local_dataset import generate_and_curate
 
     out = str(tmp_path_factory.mktemp("engine") / "links")

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import links_ray
-from links_ray.cli.bench.pickle_fuzz import format_pickle_fuzz, fuzz_examples
+from links_ray.bench.pickle_fuzz import format_pickle_fuzz, fuzz_examples
 from links_ray.release.opcode_scan import memory_budget
 from links_ray.release.pickles import ReleaseFileError, read_pickles
 

@@ -13,7 +13,7 @@ import pyarrow.parquet as pq
 import pytest
 
 import links_ray
-from links_ray.data.pathset import KEEP_SHARE, keep_draw, path_ids
+from links_ray.data.curation import KEEP_SHARE, keep_draw, path_ids
 from links_ray.engine.kinematics.mechanism import ACTUATED, FIXED, SIMPLE
 from links_ray.engine.kinematics.sampling import PositionSampler
 from links_ray.engine.kinematics.solver import TopologySimulator

@@ -20,9 +20,9 @@ import pyarrow as pa
 import pytest
 
 from links_ray.data.commit import ShardWriter, committed_files, committed_shards
+from links_ray.data.curation import path_table
+from links_ray.data.generation import NEGATIVE_ID_BASE
 from links_ray.data.lease import Lease, LeaseHeld
-from links_ray.data.pathset import path_table
-from links_ray.data.shards import NEGATIVE_ID_BASE
 from links_ray.data.store import Store, StoreError
 from links_ray.engine.kinematics.sampling import PositionSampler
 from links_ray.engine.kinematics.solver import TopologySimulator

@@ -13,8 +13,8 @@ import pytest
 
 import links_ray
 from links_ray.data.commit import committed_files
+from links_ray.data.curation import keep_draw
 from links_ray.data.path_draw import MAX_DRAW_PATHS, MAX_DRAW_SEED, DrawnPaths, PathDraw
-from links_ray.data.pathset import keep_draw
 from links_ray.data.store import Store
 from links_ray.search.cache import cache_folder
 from links_ray.search.index import RetrievalIndex

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import links_ray
+from links_ray.bench.held_out import held_out_queries
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
 from links_ray.data.store import Store
@@ -30,7 +31,6 @@ from links_ray.search import kernels as kernels
 from links_ray.search import query as search_query
 from links_ray.search.build import _nearest_centroid, distance_fields, sketch_paths
 from links_ray.search.cache import cache_folder
-from links_ray.search.held_out import held_out_queries
 from links_ray.search.index import RetrievalIndex
 from links_ray.search.query import _about_least, distance_table, query_variants, variant_map
 from links_ray.search.reduced import reduced_joints

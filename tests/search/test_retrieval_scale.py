@@ -18,8 +18,8 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
+from links_ray.bench.held_out import held_out_queries
 from links_ray.engine.kinematics.paths import normalize_path
-from links_ray.search.held_out import held_out_queries
 from links_ray.search.index import RetrievalIndex
 from links_ray.search.query import query_variants
 from links_ray.serve.app import build_app, fit_partition_cpus

@@ -28,7 +28,7 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
 
-from links_ray.cli.bench import hostile_clients
+from links_ray.bench import hostile_clients
 from links_ray.serve import gate as gate_module
 from links_ray.serve import limits
 from links_ray.serve.gate import GateThread, RequestGate

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from links_ray.cli.bench.kit import kit_workload
+from links_ray.bench.kit import kit_workload
 from links_ray.engine.fabrication.kit import KitOptions, plan_kit
 from links_ray.serve.kits import MAX_KITS
 from links_ray.serve.limits import MAX_KIT_JOINTS

@@ -1062,7 +1062,7 @@ def test_the_worst_small_drawings_are_answered_and_health_stays_up(client: Clien
     """The drawings that once froze a replica for minutes or filled its memory (`links bench
     hostile` sends the same) are each answered: read, or refused 413 naming the limit they
     pass; health is answered between them, and the replica's readers are ready for more."""
-    from links_ray.cli.bench.hostile_inputs import hostile_drawings
+    from links_ray.bench.hostile_inputs import hostile_drawings
 
     expected = {
         "style 40,000 chars": 200,

@@ -20,10 +20,7 @@ import numpy as np
 import pytest
 
 import links_ray
-from links_ray.search.index import RetrievalIndex
-from links_ray.serve.app import build_app
-from links_ray.serve.limits import MAX_REQUEST_JOINT_STEPS
-from links_ray.serve.load_clients import (
+from links_ray.bench.load_clients import (
     finish_load,
     health_probes,
     largest_simulation,
@@ -31,6 +28,9 @@ from links_ray.serve.load_clients import (
     probe_loop,
     retrieval_load,
 )
+from links_ray.search.index import RetrievalIndex
+from links_ray.serve.app import build_app
+from links_ray.serve.limits import MAX_REQUEST_JOINT_STEPS
 from tests.support.serving import FOUR_BAR, as_served, retrieved, serving
 
 #: Results per query in the comparisons.

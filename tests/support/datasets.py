@@ -32,7 +32,7 @@ def lean_dataset(tmp_path_factory: pytest.TempPathFactory) -> str:
     tests/support/local_dataset.py). The Serve app the HTTP tests talk to serves it, and they
     check its answers against `dataset`'s, which stores every table: HTTP over a lean root
     answers as over a stored one."""
-    from links_ray.data.shards import GenerationPlan
+    from links_ray.data.generation import GenerationPlan
     from tests.support.local_dataset import generate_and_curate
 
     out = str(tmp_path_factory.mktemp("serve-lean") / "links")
@@ -87,7 +87,7 @@ def curated(dataset: str) -> Any:
 def queries() -> list:
     """The serving tests' queries: paths of mechanisms held out of the Serve tests' dataset,
     in random frames, and hand-drawn curves."""
-    from links_ray.search.held_out import held_out_queries
+    from links_ray.bench.held_out import held_out_queries
     from tests.support.serving import hand_drawn
 
     return held_out_queries(6, seed=31) + hand_drawn()

@@ -11,11 +11,11 @@ seed, integer arguments set to edge values, pieces of another seed spliced in) a
 batch of it with `links_ray.release.pickles.read_pickles`.
 
 The property: a case either loads, holding only lists, tuples, plain values and numpy arrays
-and scalars of the release's plain dtypes (`links_ray.cli.bench.pickle_fuzz.not_plain`; the
+and scalars of the release's plain dtypes (`links_ray.bench.pickle_fuzz.not_plain`; the
 seed's own batches, or others when the mutation changed data), or is refused with a one-line
 ReleaseFileError. The grammar fuzzer builds pickles opcode by opcode instead
-(`links_ray.cli.bench.pickle_grammar`) and measures each file's memory against its budget
-(`links_ray.cli.bench.pickle_fuzz`). Any other exception is a violation; a signal ends the
+(`links_ray.bench.pickle_grammar`) and measures each file's memory against its budget
+(`links_ray.bench.pickle_fuzz`). Any other exception is a violation; a signal ends the
 run, which its caller sees in the exit status. The run prints its counts as one JSON object and
 exits 1 if there was a violation.
 
@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from links_ray.cli.bench.pickle_fuzz import not_plain
+from links_ray.bench.pickle_fuzz import not_plain
 from links_ray.release.pickles import ReleaseFileError, read_pickles
 
 #: Integer arguments written into opcodes: edges of sizes, signs and widths.

@@ -1,8 +1,8 @@
 """A dataset generated and curated in this process, without Ray: the engine's tests read it.
 
 The rows are those of `links generate` and `links curate` with the same plan and seed: each
-generation shard is `data.shards.write_shard` (what a generator actor runs), and each
-curation shard is `data.pathset.curate_shard` (what a curator actor runs), committed with the
+generation shard is `data.generation.write_shard` (what a generator actor runs), and each
+curation shard is `data.curation.curate_shard` (what a curator actor runs), committed with the
 same markers. Only the scheduling (Ray's actors) and the leases are left out.
 tests/cluster/test_local_dataset.py checks that Ray's run gives these rows.
 """
@@ -10,9 +10,9 @@ tests/cluster/test_local_dataset.py checks that Ray's run gives these rows.
 from __future__ import annotations
 
 from links_ray.data.commit import committed_shards
-from links_ray.data.pathset import curate_shard
+from links_ray.data.curation import curate_shard
+from links_ray.data.generation import GenerationPlan, write_shard
 from links_ray.data.schemas import CURATION_TABLES
-from links_ray.data.shards import GenerationPlan, write_shard
 from links_ray.data.store import META, Store
 
 

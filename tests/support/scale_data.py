@@ -120,7 +120,7 @@ def cached(name: str, key: str, build: Callable[[Path], None]) -> Iterator[Path]
 def build_dataset(folder: Path) -> None:
     """Generate mechanisms and curate paths into `folder`, in this process: the rows of
     `links generate` and `links curate` with the same plan (tests/support/local_dataset.py)."""
-    from links_ray.data.shards import GenerationPlan
+    from links_ray.data.generation import GenerationPlan
     from tests.support.local_dataset import generate_and_curate
 
     plan = GenerationPlan(

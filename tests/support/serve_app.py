@@ -43,8 +43,8 @@ def stop_shared_app() -> None:
 def _start_shared_app(dataset: str, serve_port: int) -> Client:
     from ray import serve
 
+    from links_ray.bench.load_clients import wait_for_port
     from links_ray.serve.app import build_app
-    from links_ray.serve.load_clients import wait_for_port
 
     wait_for_port(serve_port)  # an app of a test's own may still be letting go of it
     proxy_port = low_port()

@@ -101,7 +101,7 @@ def serving(app: Any, port: int) -> Iterator[Client]:
     `client` fixture's app is shut down first; no other app may be running."""
     from ray import serve
 
-    from links_ray.serve.load_clients import wait_for_port
+    from links_ray.bench.load_clients import wait_for_port
     from tests.support.serve_app import stop_shared_app
 
     stop_shared_app()  # the `client` fixture's app, kept between modules, holds `port`

@@ -6,7 +6,7 @@ to print (`kit`), with their limits (`limits`). Imports kinematics, never synthe
 from links_ray.engine.fabrication.collisions import Collisions, find_collisions
 from links_ray.engine.fabrication.drawings import Fabrication, fabrication
 from links_ray.engine.fabrication.kit import Kit, KitOptions, plan_kit
-from links_ray.engine.fabrication.layers import LayerPlan, LayeringError, plan_layers
+from links_ray.engine.fabrication.layers import LayeringError, LayerPlan, plan_layers
 
 __all__ = [
     "Collisions",

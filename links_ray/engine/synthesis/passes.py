@@ -276,10 +276,10 @@ class SynthesisPasses:
 
     def polish(self, waiting: list[Candidate]) -> list[Candidate]:
         """Once no more than POLISH_LEFT of the budget is left, the best candidate alone goes
-        on: the other finalists stop and `waiting` is emptied. Then, and again whenever the best
-        has converged, its children with a coupler point (`Candidate.coupler_point_children`), which join the candidates and
-        are returned to wait for a finalist's place: the answer gets new freedom where it
-        traces. Not for a front (which ranks by joints) or a timed target."""
+        on: the other finalists stop and `waiting` is emptied. Then, and again whenever the best has
+        converged, its children with a coupler point (`Candidate.coupler_point_children`), which
+        join the candidates and are returned to wait for a finalist's place: the answer gets new
+        freedom where it traces. Not for a front (which ranks by joints) or a timed target."""
         if self.options.front or self.timed is not None or not self.candidates:
             return []
         if self.budget.left() > POLISH_LEFT:

@@ -75,8 +75,8 @@ def as_result(
             "positions": positions.tolist(),
         },
         "mechanism_joint": candidate.joint,
-        # Coupler points added to the retrieved mechanism (`engine.synthesis.coupler_points`): 0 when it
-        # is the retrieved one, moved.
+        # Coupler points added to the retrieved mechanism (`engine.synthesis.coupler_points`): 0
+        # when it is the retrieved one, moved.
         "coupler_points": candidate.coupler_points,
         "n_joints": topology.n_joints,
         "n_links": int(np.count_nonzero(np.triu(topology.adjacency, 1))),

@@ -1,9 +1,10 @@
-"""Adding a coupler point to a mechanism (engine.synthesis.coupler_points), against the closed-form
-four-bar.
+"""Adding a coupler point to a mechanism (engine.synthesis.coupler_points), against the
+closed-form four-bar.
 
-* A four-bar given a coupler point at its rocker tip B gets one mechanism a link of B: on the coupler A-B, the
-  new joint traces Freudenstein's coupler curve of the point at (b, +-offset) in the coupler's
-  frame; on the rocker O4-B, a circle about O4. The old joints trace what they traced.
+* A four-bar given a coupler point at its rocker tip B gets one mechanism a link of B: on the
+  coupler A-B, the new joint traces Freudenstein's coupler curve of the point at (b, +-offset)
+  in the coupler's frame; on the rocker O4-B, a circle about O4. The old joints trace what they
+  traced.
 * The new joint starts `offset` from the tracing joint, square to its link, away from the
   mechanism's centre.
 * No coupler point past COUPLER_POINT_MAX_JOINTS; bad input is a ValueError naming it.
@@ -68,8 +69,8 @@ def test_a_four_bar_with_a_coupler_point_traces_the_closed_form_coupler_point() 
 
 
 def test_coupler_points_again_and_again_stop_at_the_largest_mechanism() -> None:
-    """Each coupler point traces in turn and is given one of its own: every mechanism is a valid topology
-    that turns, until COUPLER_POINT_MAX_JOINTS."""
+    """Each coupler point traces in turn and is given one of its own: every mechanism is a valid
+    topology that turns, until COUPLER_POINT_MAX_JOINTS."""
     topology, positions = fourbar()
     joint = 2
     while topology.n_joints < COUPLER_POINT_MAX_JOINTS:

@@ -1,5 +1,5 @@
-"""The curve set of `links bench synthesize --set` (links_ray.cli.bench.curve_set): its size, names,
-families, halves fixed by name, even spacing, closure, letters read from two different fonts,
+"""The curve set of `links bench synthesize --set` (links_ray.bench.curves.curve_set): its size,
+names, families, halves fixed by name, even spacing, closure, letters read from two different fonts,
 random curves that never cross themselves, self-crossing curves that cross as their kind says,
 traced curves that their mechanisms trace again, GCP-HOLO's curves held out, and determinism."""
 
@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from links_ray.cli.bench.curve_set import (
+from links_ray.bench.curves.curve_set import (
     CURVE_POINTS,
     FONTS,
     LETTERS,
@@ -23,7 +23,7 @@ from links_ray.cli.bench.curve_set import (
     half_of,
     letter_outlines,
 )
-from links_ray.cli.bench.targets import target_curves
+from links_ray.bench.targets import target_curves
 from links_ray.engine.kinematics.paths import chamfer
 
 FAMILIES = {
@@ -220,7 +220,7 @@ def test_missing_font_names_the_package(tmp_path: Path) -> None:
 
 
 def test_set_groups_sum_up_by_half_and_family() -> None:
-    from links_ray.cli.bench.synthesis_report import set_groups
+    from links_ray.bench.synthesis_report import set_groups
 
     def row(family: str, half: str, retrieved: float, refined: float, seconds: float) -> dict:
         return {"family": family, "half": half, "retrieved": retrieved, "refined": refined,
@@ -247,7 +247,7 @@ def test_set_groups_sum_up_by_half_and_family() -> None:
 
 
 def test_even_reference_of_a_stroke_stays_on_the_stroke() -> None:
-    from links_ray.cli.bench.synthesis import even_reference
+    from links_ray.bench.synthesis import even_reference
     from links_ray.engine.kinematics.paths import even_along
 
     corner = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
@@ -258,8 +258,8 @@ def test_even_reference_of_a_stroke_stays_on_the_stroke() -> None:
 
 
 def test_a_set_curve_frame_depends_on_its_name_and_seed_only() -> None:
-    from links_ray.cli.bench.synthesis import name_rng
-    from links_ray.cli.bench.targets import placed
+    from links_ray.bench.synthesis import name_rng
+    from links_ray.bench.targets import placed
 
     curve = target_curves(50)["bean"]
     first = placed(curve, name_rng(0, "cam_dwell"))
@@ -273,7 +273,7 @@ def test_a_bench_row_of_counted_work_is_reproduced_bit_for_bit(
 ) -> None:
     """Deterministic mode: a row of `links bench synthesize --set --iterations N` is the same
     whether run with the others or alone (`--curve`), and whatever the threads."""
-    from links_ray.cli.bench.synthesis import bench_synthesize
+    from links_ray.bench.synthesis import bench_synthesize
     from links_ray.engine import cpus
 
     # An open stroke and a closed curve, the latter's row after the other's in the first run.
@@ -311,7 +311,7 @@ def brute_force_crossings(loop: np.ndarray) -> int:
 def test_self_crossing_curves_cross_as_often_as_their_kind(curves: list[SetCurve]) -> None:
     """Counted on the set's evenly spaced points, pair by pair, apart from the generator's own
     count: an eight, a dual loop and an hourglass cross once, a trefoil three times."""
-    from links_ray.cli.bench.crossing_curves import KIND_CROSSINGS, crossings
+    from links_ray.bench.curves.crossing import KIND_CROSSINGS, crossings
 
     crossing = [curve for curve in curves if curve.family == "self_crossing"]
     assert {curve.name.rsplit("_", 1)[0] for curve in crossing} == {
@@ -333,7 +333,7 @@ def test_traced_curves_are_traced_again_by_their_mechanisms() -> None:
     """Each traced curve is the path of a valid mechanism of 6-12 joints: simulated again, the
     mechanism draws it exactly; the joint is not linked to a fixed one (no arc), and the curve
     is neither a circle nor a swing to and fro."""
-    from links_ray.cli.bench.traced_curves import (
+    from links_ray.bench.curves.traced import (
         TRACED_JOINTS,
         TRACED_STEPS,
         retraces,
@@ -368,7 +368,7 @@ def test_traced_curves_are_traced_again_by_their_mechanisms() -> None:
 def test_gcp_holo_curves_are_stored_with_their_source() -> None:
     """The field's benchmark: GCP-HOLO's eight test curves (as many points as published) and
     four foot paths, closed, their source named."""
-    from links_ray.cli.bench.gcp_holo import gcp_holo_curves, gcp_holo_source
+    from links_ray.bench.curves.gcp_holo import gcp_holo_curves, gcp_holo_source
 
     curves = gcp_holo_curves()
     sizes = {name: len(points) for name, points in curves["test"].items()}
@@ -394,7 +394,7 @@ def test_gcp_holo_curves_are_stored_with_their_source() -> None:
     assert source["repository"].endswith("gcp_holo") and len(source["commit"]) == 40
     assert "noncommercial" in source["license"]
     # The eight, the hourglass, the trefoils and the dual loop cross themselves; the moon not.
-    from links_ray.cli.bench.crossing_curves import crossings
+    from links_ray.bench.curves.crossing import crossings
 
     assert crossings(curves["test"]["holo_eight"]) >= 1
     assert crossings(curves["test"]["holo_moon"]) == 0
@@ -403,8 +403,8 @@ def test_gcp_holo_curves_are_stored_with_their_source() -> None:
 def test_the_time_dial_reports_each_family_at_each_budget(dataset: str) -> None:
     """`bench_dial` runs the set at every budget and gives each half and family's mean and
     median at each: the same figures as the run at that budget."""
-    from links_ray.cli.bench.synthesis import bench_dial
-    from links_ray.cli.bench.synthesis_report import format_dial
+    from links_ray.bench.synthesis import bench_dial
+    from links_ray.bench.synthesis_report import format_dial
 
     names = ("cam_dwell", "crossing_eight_0")
     result = bench_dial(budgets=(0.2, 0.5), root=dataset, use_set=True, only=names)

@@ -65,7 +65,7 @@ def post_load(
         "pause_s": LOAD_PAUSE_S,
     }
     process = subprocess.Popen(
-        [sys.executable, "-c", "from links_ray.serve.load_clients import _load; _load()"],
+        [sys.executable, "-c", "from links_ray.bench.load_clients import _load; _load()"],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,

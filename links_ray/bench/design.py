@@ -22,9 +22,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from links_ray.cli.bench.machine import machine_info
-from links_ray.cli.bench.synthesis import OVERRUN_GOAL_MS
-from links_ray.cli.bench.targets import TARGET_POINTS, placed, target_curves
+from links_ray.bench.machine import machine_info
+from links_ray.bench.synthesis import OVERRUN_GOAL_MS
+from links_ray.bench.targets import TARGET_POINTS, placed, target_curves
 from links_ray.engine.synthesis.constraints import as_constraints
 from links_ray.engine.synthesis.limits import REFINE_CHECK_STEPS
 from links_ray.engine.synthesis.options import DEFAULT_SYNTHESIS_SECONDS
@@ -113,7 +113,7 @@ def bench_design(
     """The design bench over the target curves in the frames of `seed` (those of `links bench
     synthesize`), `seconds` a synthesis (default the synthesis default), over the cached
     data set of `paths` curated paths or `root`."""
-    from links_ray.cli.bench.data import retrieval_dataset
+    from links_ray.bench.data import retrieval_dataset
     from links_ray.engine.synthesis.pipeline import synthesize
     from links_ray.search.index import RetrievalIndex
 

@@ -13,11 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from links_ray.cli import report
-from links_ray.cli.bench.data import retrieval_dataset
-from links_ray.cli.bench.machine import machine_info
-from links_ray.search.held_out import held_out_queries
-from links_ray.serve.load_clients import (
+from links_ray.bench.data import retrieval_dataset
+from links_ray.bench.held_out import held_out_queries
+from links_ray.bench.load_clients import (
     finish_load,
     health_probes,
     largest_simulation,
@@ -26,6 +24,8 @@ from links_ray.serve.load_clients import (
     retrieval_load,
     wait_for_port,
 )
+from links_ray.bench.machine import machine_info
+from links_ray.cli import report
 
 #: Clients posting the largest bodies at once, in the last run.
 LARGEST_BODY_CLIENTS = 8

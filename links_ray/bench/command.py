@@ -1,4 +1,5 @@
-"""`links bench NAME`: every benchmark, one table of them, and one runner.
+"""`links bench NAME`: every benchmark, one table of them, and one runner (the `links` command
+line loads this module only for `links bench`).
 
 Each benchmark measures (its module imported only then: several start Ray), its messages kept
 off stdout, which is the result's; the result is then printed as a table or, with `--json`, as
@@ -13,6 +14,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from links_ray.bench.synthesis import BENCH_SECONDS
 from links_ray.cli.arguments import (
     json_option,
     non_negative_int,
@@ -20,7 +22,6 @@ from links_ray.cli.arguments import (
     positive_int,
     print_result,
 )
-from links_ray.cli.bench.synthesis import BENCH_SECONDS
 from links_ray.engine.synthesis.options import (
     DEFAULT_SYNTHESIS_SECONDS,
     DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
@@ -45,25 +46,25 @@ class Benchmark:
 
 
 def _simulate(args: argparse.Namespace) -> Measured:
-    from links_ray.cli.bench import engine
+    from links_ray.bench import engine
 
     return engine.bench_simulate(repeats=args.repeats), engine.format_simulate
 
 
 def _simulate_one(args: argparse.Namespace) -> Measured:
-    from links_ray.cli.bench import engine
+    from links_ray.bench import engine
 
     return engine.bench_simulate_one(mechanisms=args.mechanisms), engine.format_simulate_one
 
 
 def _sample(args: argparse.Namespace) -> Measured:
-    from links_ray.cli.bench import engine
+    from links_ray.bench import engine
 
     return engine.bench_sample(per_joint_count=args.topologies), engine.format_sample
 
 
 def _generate(args: argparse.Namespace) -> Measured:
-    from links_ray.cli.bench import generate  # imports Ray: only when asked for
+    from links_ray.bench import generate  # imports Ray: only when asked for
 
     result = generate.bench_generate(mechanisms=args.mechanisms, lean=args.lean)
     return result, generate.format_generate
@@ -79,7 +80,7 @@ def _generate_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _retrieve(args: argparse.Namespace) -> Measured:
-    from links_ray.cli.bench import retrieve
+    from links_ray.bench import retrieve
 
     result = retrieve.bench_retrieve(
         paths=args.paths, rebuild=not args.reuse_index, root=args.root, seed=args.seed
@@ -88,10 +89,10 @@ def _retrieve(args: argparse.Namespace) -> Measured:
 
 
 def _synthesize(args: argparse.Namespace) -> Measured:
-    from links_ray.cli.bench import synthesis, synthesis_report
+    from links_ray.bench import synthesis, synthesis_report
 
     if args.design:
-        from links_ray.cli.bench import design
+        from links_ray.bench import design
 
         if args.set or args.curve or args.iterations is not None or args.figure or args.dial:
             raise ValueError(
@@ -122,7 +123,7 @@ def _synthesize(args: argparse.Namespace) -> Measured:
 
 
 def _kit(args: argparse.Namespace) -> Measured:
-    from links_ray.cli.bench import kit
+    from links_ray.bench import kit
 
     return kit.bench_kit(mechanisms=args.mechanisms, seed=args.seed), kit.format_kit
 
@@ -137,13 +138,13 @@ def _kit_arguments(command: argparse.ArgumentParser) -> None:
 
 
 def _import_release(args: argparse.Namespace) -> Measured:
-    from links_ray.cli.bench import release
+    from links_ray.bench import release
 
     return release.bench_import(batches=args.batches), release.format_import
 
 
 def _serve(args: argparse.Namespace) -> Measured:
-    from links_ray.cli.bench import serve
+    from links_ray.bench import serve
 
     result = serve.bench_serve(
         shards=args.shards,
@@ -157,7 +158,7 @@ def _serve(args: argparse.Namespace) -> Measured:
 
 
 def _hostile(args: argparse.Namespace) -> Measured:
-    from links_ray.cli.bench import hostile
+    from links_ray.bench import hostile
 
     measured = hostile.bench_hostile(
         paths=args.paths, root=args.root, fuzz_seconds=args.fuzz_seconds or 0.0
@@ -216,7 +217,7 @@ def _synthesize_arguments(command: argparse.ArgumentParser) -> None:
     command.add_argument(
         "--set",
         action="store_true",
-        help="the curve set of links_ray.cli.bench.curve_set (a tuning and a held-out half) "
+        help="the curve set of links_ray.bench.curves.curve_set (a tuning and a held-out half) "
         "instead of the 8 targets, reported per half and family; the figure shows the held-out "
         "half (needs the bench extra)",
     )
@@ -376,10 +377,10 @@ BENCHMARKS = (
 )
 
 
-def add_command(commands: argparse._SubParsersAction) -> None:
-    """Register `links bench` and each benchmark under it on the `links` command's
-    subparsers."""
-    bench_parser = commands.add_parser("bench", help="benchmarks")
+def add_command(commands: argparse._SubParsersAction, summary: str) -> None:
+    """Register `links bench` (`summary` said of it in `links --help`) and each benchmark under it
+    on the `links` command's subparsers."""
+    bench_parser = commands.add_parser("bench", help=summary)
     benches = bench_parser.add_subparsers(dest="bench", required=True)
     for benchmark in BENCHMARKS:
         command = benches.add_parser(benchmark.name, help=benchmark.help)

@@ -1,6 +1,6 @@
 """What `links bench synthesize` reports besides its rows: the curve set's groups by half and
 family, the answers' transmission and the fronts' layers summed up, and the bench and its time
-dial as Markdown tables (`links_ray.cli.bench.synthesis` measures)."""
+dial as Markdown tables (`links_ray.bench.synthesis` measures)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import statistics
 
 import numpy as np
 
-from links_ray.cli.bench.curve_set import HALVES
+from links_ray.bench.curves.curve_set import HALVES
 
 #: Families grouped in the set's report as `smooth_closed`.
 SMOOTH_CLOSED = ("gait", "cam", "random_smooth")

@@ -7,7 +7,7 @@ import statistics
 
 import pytest
 
-from links_ray.cli.bench.kit import bench_kit, format_kit, kit_workload
+from links_ray.bench.kit import bench_kit, format_kit, kit_workload
 from links_ray.engine.fabrication.drawings import fabrication
 from links_ray.engine.fabrication.kit import (
     DEFAULT_BAR_WIDTH_MM,

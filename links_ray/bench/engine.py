@@ -15,8 +15,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from links_ray.bench.machine import machine_info
 from links_ray.cli import report
-from links_ray.cli.bench.machine import machine_info
 from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.kinematics.mechanism import CRANK_CENTER, CRANK_TIP, MAX_DATASET_JOINTS
 from links_ray.engine.kinematics.reference import simulate_reference

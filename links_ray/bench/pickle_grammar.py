@@ -1,4 +1,4 @@
-"""The grammar of the release pickle fuzzer (`cli.bench.pickle_fuzz`): a Hypothesis strategy
+"""The grammar of the release pickle fuzzer (`bench.pickle_fuzz`): a Hypothesis strategy
 (`pickles`) of release-file-shaped bytes, built opcode by opcode.
 
 A value is None, a bool, an int of any width, a float, a string (short, 4- and 8-byte lengths,

@@ -6,11 +6,11 @@ from __future__ import annotations
 import os
 import time
 
+from links_ray.bench.data import folder_bytes
+from links_ray.bench.machine import machine_info
 from links_ray.cli import report
-from links_ray.cli.bench.data import folder_bytes
-from links_ray.cli.bench.machine import machine_info
+from links_ray.data.generation import TOPOLOGIES_PER_SHARD
 from links_ray.data.schemas import GENERATION_TABLES
-from links_ray.data.shards import TOPOLOGIES_PER_SHARD
 
 #: Valid mechanisms a core-second: of a run writing every table, and of a lean run (the
 #: `mechanisms` table alone), whose rate makes 100 million a run of under two hours here.
@@ -38,7 +38,7 @@ def bench_generate(
     """
     import tempfile
 
-    from links_ray.cli.bench.shard_profile import profile_shard
+    from links_ray.bench.shard_profile import profile_shard
     from links_ray.cluster.connect import connect
     from links_ray.cluster.generation import generate
 

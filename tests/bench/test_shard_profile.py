@@ -4,8 +4,8 @@ tests/engine/kinematics/test_sampling.py and the benchmarks page)."""
 
 from __future__ import annotations
 
-from links_ray.cli.bench.generate import format_generate
-from links_ray.cli.bench.shard_profile import OTHER, STAGES, profile_shard
+from links_ray.bench.generate import format_generate
+from links_ray.bench.shard_profile import OTHER, STAGES, profile_shard
 
 
 def test_a_shards_time_is_charged_to_its_stages() -> None:

@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from links_ray.cli.bench.machine import machine_info
+from links_ray.bench.machine import machine_info
 
 #: Mechanisms a batch, as in the release.
 BATCH = 100_000
@@ -30,7 +30,7 @@ BATCH = 100_000
 #: report the exporting parent's peak).
 _IMPORT = """
 import json, sys, time
-from links_ray.cli.bench.release import high_water_bytes
+from links_ray.bench.release import high_water_bytes
 from links_ray.release.importer import import_release
 start = time.perf_counter()
 summary = import_release(sys.argv[1], sys.argv[2])
@@ -48,7 +48,7 @@ def high_water_bytes() -> int:
 def bench_import(batches: int = 2, paths: int = 1_000_000) -> dict:
     """Export `batches` batches of BATCH mechanisms of the cached data set of `paths` curated
     paths in the release's layout, import them, and report both (the module docstring)."""
-    from links_ray.cli.bench.data import retrieval_dataset
+    from links_ray.bench.data import retrieval_dataset
     from links_ray.release.pickled_export import export_release_files
 
     root = retrieval_dataset(paths)

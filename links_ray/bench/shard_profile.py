@@ -49,7 +49,7 @@ def profile_shard(topologies: int = 5200, seed: int = 0, interval_s: float = 0.0
     """Write one lean shard of `topologies` topologies (all 13 joint counts) into a temporary
     folder, sampling where its time goes; returns the seconds, the mechanisms a second and
     each stage's share of the samples."""
-    from links_ray.data.shards import JOINT_COUNTS, GenerationPlan, write_shard
+    from links_ray.data.generation import JOINT_COUNTS, GenerationPlan, write_shard
     from links_ray.data.store import Store
 
     per_size = max(1, topologies // JOINT_COUNTS)

@@ -13,11 +13,11 @@ import urllib.request
 
 import numpy as np
 
-from links_ray.cli.bench.data import folder_bytes, retrieval_dataset
-from links_ray.cli.bench.machine import machine_info
+from links_ray.bench.data import folder_bytes, retrieval_dataset
+from links_ray.bench.held_out import held_out_queries
+from links_ray.bench.machine import machine_info
 from links_ray.data.path_draw import PathDraw
 from links_ray.engine.kinematics.paths import normalize_path
-from links_ray.search.held_out import held_out_queries
 
 #: Measures the memory an index takes once loaded, in a fresh process: resident set growth.
 _RESIDENT_PROBE = """

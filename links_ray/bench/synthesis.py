@@ -1,4 +1,4 @@
-"""`links bench synthesize`: the shipped target curves (`links_ray.cli.bench.targets`), each
+"""`links bench synthesize`: the shipped target curves (`links_ray.bench.targets`), each
 placed in a random frame, synthesized over the cached benchmark data set (`retrieval_dataset`).
 
 Per curve: the retrieval-only chamfer (the best retrieved path's), the refined chamfer (the
@@ -8,7 +8,7 @@ the chamfer between the curve's points and the curve itself at DEFAULT_STEPS poi
 spaced along it, which is about what a mechanism tracing the curve exactly at an even speed
 would score (the point-sampled chamfer is not 0 even then).
 
-With `--set` (`use_set`) the curves are those of `links_ray.cli.bench.curve_set` instead, letter
+With `--set` (`use_set`) the curves are those of `links_ray.bench.curves.curve_set` instead, letter
 strokes synthesized as partial strokes; each curve's frame is drawn from the seed and its name,
 so a row does not depend on the curves before it. Besides the rows it reports, per half and per
 family (and the smooth closed families together), the mean and median refined chamfer, the
@@ -34,11 +34,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from links_ray.bench.curves.curve_set import HALVES, curve_set
+from links_ray.bench.machine import machine_info
 from links_ray.bench.ordered import ordered_match
-from links_ray.cli.bench.curve_set import HALVES, curve_set
-from links_ray.cli.bench.machine import machine_info
-from links_ray.cli.bench.synthesis_report import front_layers, quantiles, set_groups
-from links_ray.cli.bench.targets import TARGET_POINTS, placed, target_curves
+from links_ray.bench.synthesis_report import front_layers, quantiles, set_groups
+from links_ray.bench.targets import TARGET_POINTS, placed, target_curves
 from links_ray.cli.warm import WARM_ITERATIONS
 from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.kinematics.paths import chamfer, even_along, longest_chord
@@ -244,7 +244,7 @@ def bench_synthesize(
     the `bench` extra), reported by half and family too. `only`: the names of the curves to run
     (all if empty); ValueError names one that is not there. `root`: a dataset to use instead of
     the cached one of `paths`. `min_transmission` and `front`: `bench_row`'s."""
-    from links_ray.cli.bench.data import retrieval_dataset
+    from links_ray.bench.data import retrieval_dataset
     from links_ray.engine.synthesis.pipeline import synthesize
     from links_ray.search.index import RetrievalIndex
 

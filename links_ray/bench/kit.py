@@ -17,8 +17,8 @@ from collections import Counter
 
 import numpy as np
 
-from links_ray.cli.bench.engine import valid_mechanisms
-from links_ray.cli.bench.machine import machine_info
+from links_ray.bench.engine import valid_mechanisms
+from links_ray.bench.machine import machine_info
 from links_ray.engine.fabrication.kit import KitOptions, kit_layers
 from links_ray.engine.fabrication.layers import LayeringError
 from links_ray.engine.fabrication.limits import DEFAULT_CRANK_MM

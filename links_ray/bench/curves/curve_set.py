@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from links_ray.cli.bench.crossing_curves import crossing_curves
-from links_ray.cli.bench.gcp_holo import FIELD_PREFIX, gcp_holo_curves
-from links_ray.cli.bench.targets import TARGET_POINTS
-from links_ray.cli.bench.traced_curves import traced_curves
+from links_ray.bench.curves.crossing import crossing_curves
+from links_ray.bench.curves.gcp_holo import FIELD_PREFIX, gcp_holo_curves
+from links_ray.bench.curves.traced import traced_curves
+from links_ray.bench.targets import TARGET_POINTS
 from links_ray.engine.kinematics.paths import even_along
 
 #: Points per curve, as for the shipped targets.

@@ -31,11 +31,11 @@ from typing import Any
 
 import numpy as np
 
+from links_ray.bench import hostile_clients
+from links_ray.bench.data import retrieval_dataset
+from links_ray.bench.hostile_inputs import hostile_drawings
+from links_ray.bench.machine import machine_info
 from links_ray.cli import report
-from links_ray.cli.bench import hostile_clients
-from links_ray.cli.bench.data import retrieval_dataset
-from links_ray.cli.bench.hostile_inputs import hostile_drawings
-from links_ray.cli.bench.machine import machine_info
 from links_ray.engine.inputs import MAX_POINTS
 from links_ray.engine.synthesis.options import MAX_SYNTHESIS_ITERATIONS
 from links_ray.serve.limits import BODY_TIMEOUT_S, HEAD_TIMEOUT_S, MAX_REQUEST_JOINT_STEPS
@@ -323,7 +323,7 @@ def bench_hostile(paths: int = 60_000, root: str | None = None, fuzz_seconds: fl
         "head_timeout_s": HEAD_TIMEOUT_S,
     }
     if fuzz_seconds > 0:
-        from links_ray.cli.bench.pickle_fuzz import fuzz_release_pickles
+        from links_ray.bench.pickle_fuzz import fuzz_release_pickles
 
         result["pickle_fuzz"] = fuzz_release_pickles(fuzz_seconds, seed=0)
     return result
@@ -391,7 +391,7 @@ def format_hostile(result: dict) -> str:
     lines.append(f"a retrieval after all: {after['status']} in {after['seconds']:.2f} s")
     fuzz = result.get("pickle_fuzz")
     if fuzz is not None:
-        from links_ray.cli.bench.pickle_fuzz import format_pickle_fuzz
+        from links_ray.bench.pickle_fuzz import format_pickle_fuzz
 
         lines += ["", format_pickle_fuzz(fuzz)]
     return "\n".join(lines)

@@ -1,2 +1,0 @@
-"""`links bench`: the benchmarks (`command` registers them), their cached dataset, and the
-curves and drawings they measure with."""
