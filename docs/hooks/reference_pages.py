@@ -34,9 +34,9 @@ def cli_parser() -> argparse.ArgumentParser:
 
 def openapi_document() -> dict[str, Any]:
     """The HTTP app's OpenAPI document, as `GET /openapi.json` serves it: built from the app's
-    routes by `serve.openapi`, which needs no Ray."""
-    from links_ray.serve.api import api
-    from links_ray.serve.openapi import openapi_document
+    routes by `serve.http.openapi`, which needs no Ray."""
+    from links_ray.serve.http.asgi import api
+    from links_ray.serve.http.openapi import openapi_document
 
     return openapi_document(api.routes)
 

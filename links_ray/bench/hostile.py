@@ -38,7 +38,7 @@ from links_ray.bench.machine import machine_info
 from links_ray.cli import report
 from links_ray.engine.inputs import MAX_POINTS
 from links_ray.engine.synthesis.options import MAX_SYNTHESIS_ITERATIONS
-from links_ray.serve.limits import BODY_TIMEOUT_S, HEAD_TIMEOUT_S, MAX_REQUEST_JOINT_STEPS
+from links_ray.serve.http.limits import BODY_TIMEOUT_S, HEAD_TIMEOUT_S, MAX_REQUEST_JOINT_STEPS
 
 #: How often health is asked for, and how long one check may take before it counts as failed.
 HEALTH_EVERY_S, HEALTH_TIMEOUT_S = 0.25, 30.0
@@ -188,7 +188,7 @@ def _wait_until_serving(server: subprocess.Popen, port: int) -> None:
 
 
 #: A four-bar whose simulation at SIMULATION_STEPS steps is the largest answer the limits
-#: allow a mechanism this size (`serve.limits.MAX_REQUEST_JOINT_STEPS`): what non-reading
+#: allow a mechanism this size (`serve.http.limits.MAX_REQUEST_JOINT_STEPS`): what non-reading
 #: clients ask for.
 FOUR_BAR = {
     "adjacency": [[0, 1, 0, 0], [1, 0, 0, 1], [0, 0, 0, 1], [0, 1, 1, 0]],

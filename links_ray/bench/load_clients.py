@@ -19,7 +19,7 @@ from decimal import Decimal
 
 import numpy as np
 
-from links_ray.serve.limits import MAX_BODY_BYTES, MAX_REQUEST_JOINT_STEPS, MAX_REQUEST_JOINTS
+from links_ray.serve.http.limits import MAX_BODY_BYTES, MAX_REQUEST_JOINT_STEPS, MAX_REQUEST_JOINTS
 
 #: Seconds a load client waits after a 503 that names no `Retry-After` (it waits as long as
 #: one asks, as a well-behaved client does).

@@ -5,7 +5,7 @@ value and one message wherever it is hit. A refused input raises `ValueError` (i
 `InvalidMechanismError` for mechanisms) with a message naming the problem; the HTTP API answers it
 with a 4xx and `{"error": <the message>}`. docs/reference/contract.md, Limits, lists them. Limits of
 one subsystem alone live with it: drawing files in `interop.curve_limits`, HTTP requests in
-`serve.limits`, synthesis options in `engine.synthesis.options`, design constraints in
+`serve.http.limits`, synthesis options in `engine.synthesis.options`, design constraints in
 `engine.synthesis.constraints`; the compiled kernels' buffer checks are `engine.buffers`.
 
 Pure numpy: no numba, no Ray.

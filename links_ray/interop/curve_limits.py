@@ -40,6 +40,6 @@ CURVE_READER_MEMORY_BYTES = 1024 * 1024 * 1024
 CURVE_READERS = 2
 CURVE_READER_WAIT_S = 2.0
 #: The niceness a reader process runs at (Linux), whatever its caller's: below a server's
-#: threads, its retrievals' too (`serve.admission.RETRIEVAL_NICENESS`), since a file may keep
+#: threads, its retrievals' too (`serve.http.admission.RETRIEVAL_NICENESS`), since a file may keep
 #: a reader busy for CURVE_READ_SECONDS; above Ray's workers (15).
 CURVE_READER_NICENESS = 10

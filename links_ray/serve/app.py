@@ -5,11 +5,11 @@ docs/reference/contract.md and the web studio.
 index split into `IndexPartition` deployments: `serve.deployments`), and `app_builder` does the
 same for Serve config files (deploy/serve/serve_config.yaml), whose `shards` arg, like `links
 serve --shards N`, is the number of partitions. The app the gateway answers with is
-`serve.api`'s, its routes `serve.handlers`'.
+`serve.http.asgi`'s, its routes `serve.http.routes`'.
 
 `run_server` (what `links serve` runs) starts its own Ray and puts the request gate
-(`serve.gate`) on the address asked for: it reads each request whole, under the bounds of
-`serve.limits`, and only then passes it to Serve on loopback, so that slow or idle clients hold
+(`serve.http.gate`) on the address asked for: it reads each request whole, under the bounds of
+`serve.http.limits`, and only then passes it to Serve on loopback, so that slow or idle clients hold
 none of Serve's places. With one replica (the gateway, with partitions), the replica answers
 the gate itself: Ray Serve's *direct ingress*, which spares every request the actor hop to
 Serve's HTTP proxy and a second one to fetch the body. With several replicas, the proxy
@@ -36,7 +36,6 @@ from ray.serve.deployment import Application
 from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
 from links_ray.data.store import Store
-from links_ray.serve.admission import MAX_RETRIEVALS
 from links_ray.serve.deployments import (
     PARTITION_TIMEOUT_S,
     REPLICA_ENV,
@@ -44,8 +43,9 @@ from links_ray.serve.deployments import (
     IndexPartition,
     LinksApi,
 )
-from links_ray.serve.gate import GateThread, RequestGate
-from links_ray.serve.guards import as_host_names
+from links_ray.serve.http.admission import MAX_RETRIEVALS
+from links_ray.serve.http.gate import GateThread, RequestGate
+from links_ray.serve.http.middleware import as_host_names
 
 #: CPUs a partition replica reserves unless told otherwise (`--shard-cpus`, and unless
 #: `fit_partition_cpus` gives it less on a Ray that `links serve` started itself); Ray counts
@@ -276,7 +276,7 @@ def run_server(
     `shards`, split the index into that many partitions, `IndexPartition` deployments
     (`build_app`), each replica reserving `shard_cpus` CPUs (default PARTITION_CPUS).
 
-    When this call starts Ray, the request gate (`serve.gate`) answers on host:port and passes
+    When this call starts Ray, the request gate (`serve.http.gate`) answers on host:port and passes
     whole requests to Serve on loopback: to the replica itself when there is one (of the
     gateway, with partitions; `direct_ingress_env`), else to Serve's proxy. On a Ray that was
     running already, Serve's proxy answers on host:port itself. On a Ray it starts itself,

@@ -1,7 +1,7 @@
 """The Serve deployments, `LinksApi` (the gateway) and `IndexPartition`, and their limits.
 
 Each gateway replica opens the retrieval index once, in its constructor, and answers HTTP with
-the app of `serve.api`. Its admission (`serve.admission`) bounds the retrievals and syntheses
+the app of `serve.http.asgi`. Its admission (`serve.http.admission`) bounds the retrievals and syntheses
 it holds: one more is answered 503 with `Retry-After` at once, and Serve's own
 `max_ongoing_requests` and `max_queued_requests` bound everything else. Retrievals run one at a
 time in a thread beside the index, syntheses refine one at a time in a thread of their own, so
@@ -19,7 +19,7 @@ partition that is unavailable, or partitions that do not all answer within
 `PARTITION_TIMEOUT_S`, give 503 with `Retry-After`.
 
 Stopping replicas drain the requests under way for at most `SHUTDOWN_DRAIN_S`. The routes
-themselves are `serve.handlers`' `LinksApiRoutes`, which `LinksApi` inherits.
+themselves are `serve.http.routes`' `LinksApiRoutes`, which `LinksApi` inherits.
 """
 
 import asyncio
@@ -50,7 +50,7 @@ from links_ray.engine.kinematics.solver import simulate
 from links_ray.engine.synthesis.plan import pooled
 from links_ray.interop.curve_worker import warm_curve_readers
 from links_ray.search.index import RetrievalIndex
-from links_ray.serve.admission import (
+from links_ray.serve.http.admission import (
     MAX_RETRIEVALS,
     RETRY_AFTER_S,
     Admission,
@@ -58,10 +58,10 @@ from links_ray.serve.admission import (
     busy,
     low_priority_thread,
 )
-from links_ray.serve.api import api
-from links_ray.serve.guards import allow_host_names
-from links_ray.serve.handlers import LinksApiRoutes, studio_files
-from links_ray.serve.responses import ApiError, logger
+from links_ray.serve.http.asgi import api
+from links_ray.serve.http.middleware import allow_host_names
+from links_ray.serve.http.responses import ApiError, logger
+from links_ray.serve.http.routes import LinksApiRoutes, studio_files
 
 #: Ray starts worker processes at niceness 15, below its own control plane (GCS, raylet,
 #: dashboard agent) at 0. A replica answers users, and its parallel kernels wait for their
@@ -211,7 +211,7 @@ class LinksApi(LinksApiRoutes):
     """The HTTP API of one gateway replica: the retrieval index of `root`, opened once; or,
     given `partitions` (deployment handles of `IndexPartition` 0..N-1, in order), the gateway
     that asks them all and merges their answers, holding no index itself. It answers requests
-    for its addresses, localhost and `allowed_hosts` (`serve.guards.HostGuard`)."""
+    for its addresses, localhost and `allowed_hosts` (`serve.http.middleware.HostGuard`)."""
 
     def __init__(
         self,
@@ -223,7 +223,9 @@ class LinksApi(LinksApiRoutes):
     ) -> None:
         keep_replica_grpc_on_loopback()
         use_replica_cpus()
-        allow_host_names(allowed_hosts)  # for `serve.guards.HostGuard`, from the first request
+        allow_host_names(
+            allowed_hosts
+        )  # for `serve.http.middleware.HostGuard`, from the first request
         self.root = root
         self.partitions = list(partitions or [])
         self.partition_timeout_s = partition_timeout_s

@@ -39,7 +39,7 @@ from links_ray.interop.curve_worker import (
 )
 from links_ray.interop.dxf_curves import read_dxf
 from links_ray.interop.outlines import FLAT_POINTS, CurveFileTooLarge
-from links_ray.serve.admission import RETRIEVAL_NICENESS
+from links_ray.serve.http.admission import RETRIEVAL_NICENESS
 
 SVG = '<svg xmlns="http://www.w3.org/2000/svg">{}</svg>'
 PLAIN = '<path id="wing" d="M 0 0 C 10 20 30 -10 40 5 L 35 -12 Q 20 -25 4 -6 Z"/>'

@@ -37,8 +37,8 @@ from links_ray.serve.deployments import (
     SHUTDOWN_DRAIN_S,
     LinksApi,
 )
-from links_ray.serve.guards import as_host_names
-from links_ray.serve.limits import MAX_BODY_BYTES
+from links_ray.serve.http.limits import MAX_BODY_BYTES
+from links_ray.serve.http.middleware import as_host_names
 
 REPO = Path(__file__).resolve().parents[2]
 DEPLOY = REPO / "deploy"
@@ -125,7 +125,7 @@ def app_routes() -> set[str]:
     """The paths of the Serve app's routes (`{name}` for a parameter), from its OpenAPI
     document (`api.routes` itself holds Serve's wrapper of the class's routes once
     `serve.ingress` has run), and the document's own path."""
-    from links_ray.serve.api import api, api_openapi
+    from links_ray.serve.http.asgi import api, api_openapi
 
     return {*api_openapi()["paths"], api.openapi_url}
 

@@ -1,15 +1,16 @@
 """The package's layers hold: a module imports only its own layer or lower ones.
 
 engine (numpy/numba) < data (pyarrow), interop (other libraries, drawing files) < search,
-cluster, release (the LINKS release's own files) < serve < cli, where data and interop are
-peers, and so are search, cluster and release (none of them imports another). Of the layers
-above it, only cli imports release. `links_ray/__init__.py` may import engine and data only,
-but for `links_ray.ray_dataset`, which it loads from the cluster layer when first asked for (so
-that `import links_ray` still loads no Ray: `test_import_links_ray_loads_no_ray`). The engine
-and interop import no Ray, pyarrow or pandas; data, search and release import no Ray. Read
-from the source with `ast`, imports inside functions included: a lazy import is still a
-dependency.
-"""
+cluster, release (the LINKS release's own files) < serve < cli < bench, where data and interop
+are peers, and so are search, cluster and release (none of them imports another). Of the layers
+above it, only cli and bench import release. `links_ray/__init__.py` may import engine and data
+only, but for `links_ray.ray_dataset`, which it loads from the cluster layer when first asked
+for (so that `import links_ray` still loads no Ray: `test_import_links_ray_loads_no_ray`); and
+the command line loads the benchmarks only for `links bench`. The engine and interop import no
+Ray, pyarrow or pandas; data, search and release import no Ray, nor does the HTTP layer
+(`serve.http`). Inside the engine, kinematics < fabrication < synthesis over a shared base.
+Read from the source with `ast`, imports inside functions included: a lazy import is still a
+dependency."""
 
 from __future__ import annotations
 
@@ -31,8 +32,8 @@ LAYERS = {
     "cluster": 2,
     "release": 2,
     "serve": 3,
-    "bench": 4,
-    "cli": 5,
+    "cli": 4,
+    "bench": 5,
 }
 #: Layers only some of the layers above them may import: the release's files are the
 #: command line's business (`links import-release`, `links export-dataset --format release`)
@@ -42,6 +43,9 @@ IMPORTED_ONLY_BY = {"release": ("cli", "bench")}
 ROOT_MAY_IMPORT = ("engine", "data")
 #: Modules the package's own `__init__.py` may load lazily, on first use of a name.
 ROOT_LAZY = ("links_ray.cluster.datasets",)
+#: The one import of a layer above: `links bench` loads the benchmarks' room (which uses the
+#: command line's helpers) only when asked for, in the command line's `main`.
+UPWARD_LAZY = {"links_ray.cli.main": ("links_ray.bench.command",)}
 #: Third-party packages a layer must not import, even lazily.
 FORBIDDEN = {
     "root": ("ray",),
@@ -52,24 +56,20 @@ FORBIDDEN = {
     "release": ("ray",),
     "bench": (),
 }
-#: Modules that must not import these, even lazily, though their layer may: the serve rooms
-#: that describe, read and answer requests need no Ray (only the deployments and the launch do).
-FORBIDDEN_IN = {
-    "links_ray.serve.models": ("ray",),
-    "links_ray.serve.parsing": ("ray",),
-    "links_ray.serve.responses": ("ray",),
-    "links_ray.serve.guards": ("ray",),
-    "links_ray.serve.admission": ("ray",),
-    "links_ray.serve.handlers": ("ray",),
-    "links_ray.serve.synthesis_run": ("ray",),
-    "links_ray.serve.kits": ("ray",),
-    "links_ray.serve.kit_models": ("ray",),
-    "links_ray.serve.openapi": ("ray",),
-    "links_ray.serve.api": ("ray",),
-    "links_ray.serve.gate": ("ray",),
-    "links_ray.serve.gate_wire": ("ray",),
-    "links_ray.serve.limits": ("ray",),
-}
+#: Subpackages that must not import these, even lazily, though their layer may: the HTTP
+#: layer (routes, schemas, bodies, responses, middleware, admission, limits, the gate) needs no
+#: Ray; only the Serve deployments and the application around it do.
+FORBIDDEN_UNDER = {"links_ray.serve.http": ("ray",)}
+
+
+def forbidden_in(module: str) -> tuple[str, ...]:
+    """What `module` must not import because of the subpackage it is in."""
+    return tuple(
+        name
+        for package, names in FORBIDDEN_UNDER.items()
+        if module == package or module.startswith(f"{package}.")
+        for name in names
+    )
 
 
 def layer_of(module: str) -> str | None:
@@ -108,10 +108,12 @@ def violations(package_dir: Path) -> list[str]:
             continue
         for line, name in imported(path, module, set(modules)):
             top = name.split(".")[0]
-            if top in FORBIDDEN.get(own, ()) + FORBIDDEN_IN.get(module, ()):
+            if top in FORBIDDEN.get(own, ()) + forbidden_in(module):
                 problems.append(f"{where}:{line}: {own} imports {name}")
             target = layer_of(name)
             if own == "root" and name in ROOT_LAZY:
+                continue
+            if name in UPWARD_LAZY.get(module, ()):
                 continue
             if target is not None and not may_import(own, target):
                 problems.append(f"{where}:{line}: {own} imports {name} ({target})")
@@ -119,7 +121,7 @@ def violations(package_dir: Path) -> list[str]:
 
 
 def test_every_import_goes_to_its_own_layer_or_lower() -> None:
-    assert set(FORBIDDEN_IN) <= set(module_names(REPO / PACKAGE))
+    assert set(FORBIDDEN_UNDER) <= set(module_names(REPO / PACKAGE))
     assert violations(REPO / PACKAGE) == []
 
 
@@ -153,7 +155,8 @@ def broken_package(tmp_path: Path) -> Path:
         "cluster/run.py": "from links_ray.search import index\nimport ray\n",
         "serve/__init__.py": "",
         "serve/app.py": "import links_ray\nfrom links_ray.cli import main\n",
-        "serve/parsing.py": "def f():\n    from ray import serve\n",
+        "serve/http/__init__.py": "",
+        "serve/http/bodies.py": "def f():\n    from ray import serve\n",
         "serve/export.py": "from links_ray.release import exporter\n",
         "release/__init__.py": "",
         "release/exporter.py": "from links_ray.search import index\nimport ray\n",
@@ -184,7 +187,7 @@ def test_the_rule_catches_what_breaks_it(broken_package: Path) -> None:
         "links_ray/search/index.py:5: search imports links_ray.cluster.run (cluster)",
         "links_ray/serve/app.py:2: serve imports links_ray.cli.main (cli)",
         "links_ray/serve/export.py:1: serve imports links_ray.release.exporter (release)",
-        "links_ray/serve/parsing.py:2: serve imports ray",
+        "links_ray/serve/http/bodies.py:2: serve imports ray",
         "links_ray/stray.py: in no layer",
     ]
 
@@ -238,18 +241,19 @@ def test_the_face_rule_catches_a_room_importing_its_face(tmp_path: Path) -> None
     ]
 
 
-def test_serve_routes_never_import_the_assembly() -> None:
-    """The routes never import the assembly (the app, the deployments, the launch): the
-    assembly takes the routes in. No circle anywhere is tests/project/test_structure.py's."""
+def test_the_http_layer_never_imports_the_serve_assembly() -> None:
+    """The HTTP layer (`serve.http`) never imports the Serve deployments or the application
+    built from them, and its routes never import the ASGI app that takes them in: the assembly
+    takes the layer in. No circle anywhere is tests/project/test_structure.py's."""
     modules = module_names(REPO / PACKAGE)
-    assembly = {"links_ray.serve.api", "links_ray.serve.deployments", "links_ray.serve.app"}
-    for route_module in (
-        "links_ray.serve.handlers",
-        "links_ray.serve.synthesis_run",
-        "links_ray.serve.openapi",
-    ):
-        path = modules[route_module]
-        assert not {name for _, name in imported(path, route_module, set(modules))} & assembly
+    assembly = {"links_ray.serve.deployments", "links_ray.serve.app"}
+    http = [module for module in modules if module.startswith("links_ray.serve.http.")]
+    assert "links_ray.serve.http.routes" in http
+    for module in http:
+        imports = {name for _, name in imported(modules[module], module, set(modules))}
+        assert not imports & assembly, module
+        if module != "links_ray.serve.http.asgi":
+            assert "links_ray.serve.http.asgi" not in imports, module
 
 
 #: The engine's rooms in order: a room imports the base (`engine.<module>`) and the rooms

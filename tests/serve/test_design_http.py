@@ -10,7 +10,7 @@ from typing import get_args
 from links_ray.engine.synthesis.constraints import CONSTRAINT_NAMES
 from links_ray.engine.synthesis.pipeline import synthesize
 from links_ray.search.index import RetrievalIndex
-from links_ray.serve.models import Unmet
+from links_ray.serve.http.schemas import Unmet
 from tests.engine.synthesis.test_design import misses
 from tests.support.serving import Client, hand_drawn
 

@@ -1,4 +1,4 @@
-"""The request gate (`links_ray.serve.gate`) before a real HTTP server (uvicorn, as under
+"""The request gate (`links_ray.serve.http.gate`) before a real HTTP server (uvicorn, as under
 Serve), over real sockets on loopback: requests pass whole and answers come back; heads and
 bodies over their limits are refused as they arrive (414, 431, 408, 413, 400); crowds of idle
 and trickling clients hold only the gate, while health and real requests are answered; a
@@ -29,9 +29,9 @@ from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
 
 from links_ray.bench import hostile_clients
-from links_ray.serve import gate as gate_module
-from links_ray.serve import limits
-from links_ray.serve.gate import GateThread, RequestGate
+from links_ray.serve.http import gate as gate_module
+from links_ray.serve.http import limits
+from links_ray.serve.http.gate import GateThread, RequestGate
 from tests.support.serving import links_serve, low_port
 
 #: The short timeouts of these tests (seconds): the head's, the body's pause, a send's.

@@ -20,8 +20,8 @@ import pytest
 
 from links_ray.bench.kit import kit_workload
 from links_ray.engine.fabrication.kit import KitOptions, plan_kit
-from links_ray.serve.kits import MAX_KITS
-from links_ray.serve.limits import MAX_KIT_JOINTS
+from links_ray.serve.http.kits import MAX_KITS
+from links_ray.serve.http.limits import MAX_KIT_JOINTS
 from tests.interop.test_parts import UNBUILDABLE, random_mechanism
 from tests.support.needs import need_module
 from tests.support.serving import FOUR_BAR, LOCKING_FOUR_BAR, Client

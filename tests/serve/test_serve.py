@@ -35,8 +35,8 @@ from links_ray.engine.fabrication.drawings import fabrication
 from links_ray.engine.inputs import validate_query
 from links_ray.engine.synthesis import options as synthesis_options
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
-from links_ray.serve import limits as http_limits
 from links_ray.serve.app import bindable_port
+from links_ray.serve.http import limits as http_limits
 from tests.support.drawings import dxf_parts, read_dxf
 from tests.support.fourbars import stretched_four_bar, window_slack
 from tests.support.serving import (
@@ -104,13 +104,13 @@ def test_openapi_describes_the_routes(client: Client) -> None:
 
 
 def test_the_docs_document_is_the_served_one(client: Client) -> None:
-    """`serve.openapi` builds, without Ray or Serve, the document a replica serves: the docs'
+    """`serve.http.openapi` builds, without Ray or Serve, the document a replica serves: the docs'
     HTTP reference is made from it (no `self` parameter of the routes' methods in either).
     Built as the docs hook builds it: in a fresh process that imports no Ray."""
     probe = (
         "import json, sys\n"
-        "from links_ray.serve.api import api\n"
-        "from links_ray.serve.openapi import openapi_document\n"
+        "from links_ray.serve.http.asgi import api\n"
+        "from links_ray.serve.http.openapi import openapi_document\n"
         "assert 'ray' not in sys.modules\n"
         "print(json.dumps(openapi_document(api.routes)))"
     )
@@ -203,7 +203,7 @@ def test_openapi_bodies_carry_the_engines_limits(client: Client) -> None:
 
 
 def test_limits_are_the_engines_and_enforced(client: Client) -> None:
-    """GET /api/limits is serve/limits.py's limits, and each is where requests start to be
+    """GET /api/limits is serve/http/limits.py's limits, and each is where requests start to be
     refused."""
     status, limits = client.get("/api/limits")
     assert status == 200 and limits == http_limits.request_limits()
@@ -924,7 +924,7 @@ def test_lying_content_length_is_refused(client: Client) -> None:
 def test_large_answers_render_in_pieces_as_one_call_would() -> None:
     """`render_json` gives the bytes one `json.dumps` call gives (JsonResponse's), for answers
     of every shape, in pieces of at most about JSON_PIECE_NUMBERS numbers."""
-    from links_ray.serve.responses import JSON_PIECE_NUMBERS, _dumps, _json_pieces, render_json
+    from links_ray.serve.http.responses import JSON_PIECE_NUMBERS, _dumps, _json_pieces, render_json
 
     rng = np.random.default_rng(3)
     trajectories = rng.uniform(-1, 1, (100, 1000, 2))
@@ -1090,7 +1090,7 @@ def test_clients_that_send_only_headers_hold_no_place(client: Client, curated: A
     """Ten clients that send a retrieval's headers and never its body each get 408 once
     BODY_TIMEOUT_S have passed, and meanwhile an eleventh, real retrieval is answered 200:
     a place among a replica's MAX_RETRIEVALS is claimed only once a body has been read."""
-    from links_ray.serve.admission import MAX_RETRIEVALS
+    from links_ray.serve.http.admission import MAX_RETRIEVALS
 
     timeout = http_limits.BODY_TIMEOUT_S
     silent = MAX_RETRIEVALS + 2

@@ -1,8 +1,8 @@
 """Bounds a request meets before its work: list lengths counted before any entry is read, large
 bodies parsed and converted off the event loop, and drawings read with tokens of their own.
 
-No Ray: the request bodies go through `serve.parsing` as the routes read them (real starlette
-requests over an ASGI receive channel), and drawings through `serve.admission.CurveReads` and
+No Ray: the request bodies go through `serve.http.bodies` as the routes read them (real starlette
+requests over an ASGI receive channel), and drawings through `serve.http.admission.CurveReads` and
 real reader processes.
 """
 
@@ -26,15 +26,20 @@ from links_ray.engine.kinematics.solver import simulate
 from links_ray.interop.curve_files import read_curve_text
 from links_ray.interop.curve_limits import CURVE_READER_NICENESS, CURVE_READERS, MAX_SVG_ELEMENTS
 from links_ray.interop.curve_worker import read_curve_isolated, warm_curve_readers
-from links_ray.serve.admission import MAX_CURVE_READS, RETRIEVAL_NICENESS, Admission, CurveReads
-from links_ray.serve.parsing import (
+from links_ray.serve.http.admission import (
+    MAX_CURVE_READS,
+    RETRIEVAL_NICENESS,
+    Admission,
+    CurveReads,
+)
+from links_ray.serve.http.bodies import (
     MAX_BODY_CONTAINERS,
     read_args,
     retrieve_args,
     simulate_args,
     synthesize_request,
 )
-from links_ray.serve.responses import INLINE_JSON_BYTES, ApiError
+from links_ray.serve.http.responses import INLINE_JSON_BYTES, ApiError
 from tests.support.fourbars import stretched_four_bar
 
 #: A drawn curve within every limit.

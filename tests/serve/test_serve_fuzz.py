@@ -1,7 +1,7 @@
 """Every route, fed generated bodies: each answer is 2xx or 4xx with a JSON error, never 5xx,
 and the server keeps answering its health check.
 
-Bodies are built by Hypothesis from each route's request model (`serve.models`): a valid body
+Bodies are built by Hypothesis from each route's request model (`serve.http.schemas`): a valid body
 with one field swapped for arbitrary JSON or an edge value (integers past float64, lone
 surrogates, deep nesting, huge and tiny numbers, wrong types), unknown fields, arbitrary JSON
 values, and raw bytes. Each route runs a fixed number of examples, derandomized, so a run
@@ -18,7 +18,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from links_ray.serve.models import REQUEST_MODELS
+from links_ray.serve.http.schemas import REQUEST_MODELS
 from tests.support.serving import FOUR_BAR, Client
 
 #: Examples each route runs; synthesis fewer, since each valid body among them refines every

@@ -30,7 +30,7 @@ from links_ray.bench.load_clients import (
 )
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.app import build_app
-from links_ray.serve.limits import MAX_REQUEST_JOINT_STEPS
+from links_ray.serve.http.limits import MAX_REQUEST_JOINT_STEPS
 from tests.support.serving import FOUR_BAR, as_served, retrieved, serving
 
 #: Results per query in the comparisons.

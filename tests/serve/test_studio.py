@@ -24,7 +24,7 @@ import pytest
 import links_ray
 from links_ray.engine.inputs import MAX_K, MAX_TRANSMISSION_DEG
 from links_ray.engine.kinematics.mechanism import analyze_topology
-from links_ray.serve.limits import request_limits
+from links_ray.serve.http.limits import request_limits
 from tests.support.drawings import dxf_parts, read_dxf
 from tests.support.needs import need_module
 from tests.support.serving import FOUR_BAR, LOCKING_FOUR_BAR, Client
@@ -842,7 +842,7 @@ def test_curve_route_reads_a_drawing_as_the_cli_does(client: Client, tmp_path: P
     the same file, sent as text; a file it cannot read is a 400 naming the file's problem."""
     from links_ray.interop.curve_files import read_curve, read_curve_text
     from links_ray.interop.curve_limits import MAX_CURVE_FILE_BYTES
-    from links_ray.serve.limits import MAX_BODY_BYTES
+    from links_ray.serve.http.limits import MAX_BODY_BYTES
 
     svg = tmp_path / "drawing.svg"
     svg.write_text(DRAWING)

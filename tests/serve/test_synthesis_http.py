@@ -23,7 +23,7 @@ from links_ray.engine.kinematics.paths import chamfer
 from links_ray.engine.synthesis.options import MAX_SYNTHESIS_WORK
 from links_ray.engine.synthesis.pipeline import synthesize
 from links_ray.search.index import RetrievalIndex
-from links_ray.serve.limits import MAX_KIT_JOINTS
+from links_ray.serve.http.limits import MAX_KIT_JOINTS
 from tests.engine.synthesis.test_budget import BOUND_POINTS, bound_iterations
 from tests.engine.synthesis.test_synthesis import ITERATIONS, chord, traced
 from tests.support.serving import Client, hand_drawn

@@ -2,15 +2,15 @@
 
 Built from the app's routes without Ray: the docs hook (docs/hooks/reference_pages.py) calls
 `openapi_document` in a process that never starts Serve, and a replica serves the same
-document (`serve.api.api_openapi`). FastAPI's own document is amended in three ways:
+document (`serve.http.asgi.api_openapi`). FastAPI's own document is amended in three ways:
 
-- the request bodies' schemas from `serve.models` are added, since the routes read their
+- the request bodies' schemas from `serve.http.schemas` are added, since the routes read their
   bodies themselves and FastAPI does not see their models;
-- the routes are methods (`serve.handlers.LinksApiRoutes`) whose `self` Serve binds to the
+- the routes are methods (`serve.http.routes.LinksApiRoutes`) whose `self` Serve binds to the
   replica when it takes the app in (`serve.ingress`); before that FastAPI takes `self` for a
   query parameter, which no client sends, so it is left out;
 - FastAPI's 422 `{"detail"}` for a malformed parameter is the 400 `{"error"}` this API
-  answers (`serve.api`), as `models.ErrorResponse` says.
+  answers (`serve.http.asgi`), as `schemas.ErrorResponse` says.
 """
 
 import json
@@ -21,7 +21,6 @@ from fastapi.openapi.utils import get_openapi
 from starlette.routing import BaseRoute
 
 from links_ray import __version__
-from links_ray.serve import models
 
 #: The document's title; the app's too.
 TITLE = "links-ray"
@@ -62,7 +61,7 @@ def openapi_document(routes: Sequence[BaseRoute]) -> dict[str, Any]:
                     answers.setdefault("400", ERROR_400)
     for name in ("HTTPValidationError", "ValidationError"):
         schemas.pop(name, None)
-    for model in models.REQUEST_MODELS.values():
+    for model in schemas.REQUEST_MODELS.values():
         schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
         schemas.update(schema.pop("$defs", {}))
         schemas[model.__name__] = schema

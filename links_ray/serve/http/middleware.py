@@ -11,7 +11,7 @@ import ipaddress
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from links_ray.serve.responses import error_response, logger, nosniff
+from links_ray.serve.http.responses import error_response, logger, nosniff
 
 
 class InternalErrorGuard:

@@ -7,7 +7,7 @@ over `MAX_BODY_BYTES`, a mechanism over `MAX_REQUEST_JOINTS` or a simulation ove
 application/json`). This module
 checks only what JSON alone can get wrong (types, booleans for numbers, array lengths) first;
 the values are checked by the engine's own validators, whose ValueErrors become 400s. Each
-refusal is an `ApiError` naming the problem. `serve.models` describes the same bodies for
+refusal is an `ApiError` naming the problem. `serve.http.schemas` describes the same bodies for
 `/openapi.json`.
 
 Counts come before contents: a body's brackets are counted before it is parsed
@@ -43,7 +43,7 @@ from links_ray.engine.inputs import (
     validate_query,
 )
 from links_ray.engine.synthesis.options import DEFAULT_SYNTHESIS_TRANSMISSION_DEG, SynthesisOptions
-from links_ray.serve.limits import (
+from links_ray.serve.http.limits import (
     BODY_TIMEOUT_S,
     MAX_BODY_BYTES,
     MAX_CURVE_NAME_CHARS,
@@ -52,8 +52,8 @@ from links_ray.serve.limits import (
     MIN_BODY_BYTES_PER_S,
     body_deadline,
 )
-from links_ray.serve.models import REQUEST_MODELS
-from links_ray.serve.responses import INLINE_JSON_BYTES, JSON_POOL, ApiError
+from links_ray.serve.http.responses import INLINE_JSON_BYTES, JSON_POOL, ApiError
+from links_ray.serve.http.schemas import REQUEST_MODELS
 
 
 def _kind(value: object) -> str:

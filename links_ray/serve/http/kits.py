@@ -22,10 +22,10 @@ from fastapi.responses import Response
 from links_ray.engine.fabrication.kit import Kit, KitOptions, plan_kit
 from links_ray.engine.fabrication.layers import LayeringError
 from links_ray.engine.kinematics.mechanism import LockingError
-from links_ray.serve.admission import busy, low_priority_thread
-from links_ray.serve.limits import MAX_KIT_JOINTS
-from links_ray.serve.parsing import KIT_FORMATS
-from links_ray.serve.responses import ApiError, error_response, json_answer
+from links_ray.serve.http.admission import busy, low_priority_thread
+from links_ray.serve.http.bodies import KIT_FORMATS
+from links_ray.serve.http.limits import MAX_KIT_JOINTS
+from links_ray.serve.http.responses import ApiError, error_response, json_answer
 
 __all__ = ["LINE", "MAX_KITS", "KitLine", "answer_kit", "make"]
 

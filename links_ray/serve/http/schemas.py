@@ -1,7 +1,7 @@
 """The HTTP API's request and response bodies as pydantic models: what `/openapi.json` shows.
 
 Every bound comes from `links_ray.engine.inputs`, where the limits are defined once. The
-routes read and check a body with the engine's own validators (`serve.parsing`), so a refused
+routes read and check a body with the engine's own validators (`serve.http.bodies`), so a refused
 request names its problem in the engine's words, and 10,000 drawn points are checked by NumPy,
 not field by field; the models are the schema those checks enforce, and the shapes the routes
 answer with.
@@ -43,7 +43,7 @@ from links_ray.engine.synthesis.options import (
     MAX_SYNTHESIS_ITERATIONS,
     MAX_SYNTHESIS_SECONDS,
 )
-from links_ray.serve.limits import MAX_CURVE_NAME_CHARS, MAX_REQUEST_JOINTS
+from links_ray.serve.http.limits import MAX_CURVE_NAME_CHARS, MAX_REQUEST_JOINTS
 
 Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
 #: [x, y]
@@ -246,7 +246,7 @@ class HealthResponse(BaseModel):
 
 
 class LimitsResponse(BaseModel):
-    """GET /api/limits: `serve.limits.request_limits()`."""
+    """GET /api/limits: `serve.http.limits.request_limits()`."""
 
     min_points: int
     max_points: int
@@ -460,8 +460,8 @@ REQUEST_MODELS: dict[str, type[BaseModel]] = {
 
 def request_body(path: str) -> dict[str, Any]:
     """The OpenAPI `requestBody` of a POST route (its `openapi_extra`): its model in
-    `REQUEST_MODELS`. The routes read their bodies themselves (`serve.parsing`: size, media
-    type, the engine's checks), so FastAPI does not see the model; `serve.openapi` adds its
+    `REQUEST_MODELS`. The routes read their bodies themselves (`serve.http.bodies`: size, media
+    type, the engine's checks), so FastAPI does not see the model; `serve.http.openapi` adds its
     schema to the document."""
     name = REQUEST_MODELS[path].__name__
     schema = {"$ref": f"#/components/schemas/{name}"}

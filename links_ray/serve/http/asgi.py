@@ -1,9 +1,9 @@
 """The FastAPI app `api` that the Serve deployments answer with, assembled in one place.
 
-It takes the routes of `serve.handlers` in, puts the guards of `serve.guards` before them,
+It takes the routes of `serve.http.routes` in, puts the guards of `serve.http.middleware` before them,
 answers every refusal as a 4xx `{"error": "<what is wrong>"}` (`ApiError`, and FastAPI's own
 refusals of unknown routes and methods and malformed parameters), and serves the document of
-`serve.openapi` at `GET /openapi.json`. Nothing here imports Ray: the deployments
+`serve.http.openapi` at `GET /openapi.json`. Nothing here imports Ray: the deployments
 (`serve.deployments`) take this app in with `serve.ingress`.
 """
 
@@ -14,10 +14,10 @@ from fastapi.exceptions import RequestValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from links_ray import __version__
-from links_ray.serve.guards import HostGuard, InternalErrorGuard
-from links_ray.serve.handlers import router
-from links_ray.serve.openapi import TITLE, openapi_document
-from links_ray.serve.responses import ApiError, JsonResponse, error_response
+from links_ray.serve.http.middleware import HostGuard, InternalErrorGuard
+from links_ray.serve.http.openapi import TITLE, openapi_document
+from links_ray.serve.http.responses import ApiError, JsonResponse, error_response
+from links_ray.serve.http.routes import router
 
 # `/openapi.json` describes the routes; no interactive docs page, which would load its
 # scripts from a CDN.
@@ -35,7 +35,7 @@ api.add_middleware(HostGuard)  # added last, so it runs first
 
 
 def api_openapi() -> dict[str, Any]:
-    """The app's OpenAPI document (`serve.openapi`), made once: by the first request for it,
+    """The app's OpenAPI document (`serve.http.openapi`), made once: by the first request for it,
     after Serve has bound the routes to the replica."""
     if api.openapi_schema is None:
         api.openapi_schema = openapi_document(api.routes)

@@ -10,19 +10,19 @@
 | `POST /api/export` | 200 the mechanism as an SVG, DXF or table file in mm (an attachment) |
 | `POST /api/curve` | 200 `{"points", "closed"}`: a drawing's curve, read in a reader process |
 | `POST /api/kit` | 200 a mechanism's printable parts: its bill (JSON), GLB or a zip |
-| `GET /api/limits` | the limits a request meets (`serve.limits.request_limits`) |
-| `GET /openapi.json` | the API described, bodies and bounds included (`serve.openapi`) |
+| `GET /api/limits` | the limits a request meets (`serve.http.limits.request_limits`) |
+| `GET /openapi.json` | the API described, bodies and bounds included (`serve.http.openapi`) |
 | `GET /` | the web studio (`links_ray/serve/studio/index.html`) |
 | `GET /studio/<file>` | the studio's scripts, style sheet and vendored files, from the package |
 
-The routes are methods of `LinksApiRoutes`, declared on `router`, which the app (`serve.api`)
+The routes are methods of `LinksApiRoutes`, declared on `router`, which the app (`serve.http.asgi`)
 takes in; the gateway deployment `LinksApi` (`serve.deployments`) inherits them and holds the
-index or its partitions' handles, and the admission (`serve.admission`) whose places these
+index or its partitions' handles, and the admission (`serve.http.admission`) whose places these
 routes claim and release. This module imports neither: the assembly imports the routes, never
-the other way. Bodies are read and checked by `serve.parsing`; simulations, analyses and
+the other way. Bodies are read and checked by `serve.http.bodies`; simulations, analyses and
 exports run in the default thread pool, builds of parts in one thread of their own
-(`serve.kits`), refinements of syntheses in the gateway's refinement thread, stopped when
-their client goes (`serve.synthesis_run`).
+(`serve.http.kits`), refinements of syntheses in the gateway's refinement thread, stopped when
+their client goes (`serve.http.synthesis_run`).
 """
 
 import asyncio
@@ -51,12 +51,9 @@ from links_ray.engine.synthesis.options import MAX_SYNTHESIS_SECONDS
 from links_ray.engine.synthesis.plan import retrievals
 from links_ray.interop.curve_worker import CurveReadersBusy
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
-from links_ray.serve import kit_models, models
-from links_ray.serve.admission import Admission, Place, RetrievalSlot
-from links_ray.serve.kits import answer_kit
-from links_ray.serve.limits import request_limits
-from links_ray.serve.models import request_body
-from links_ray.serve.parsing import (
+from links_ray.serve.http import kit_schemas, schemas
+from links_ray.serve.http.admission import Admission, Place, RetrievalSlot
+from links_ray.serve.http.bodies import (
     EXPORT_FORMATS,
     KIT_FORMATS,
     analyze_args,
@@ -68,20 +65,23 @@ from links_ray.serve.parsing import (
     simulate_args,
     synthesize_request,
 )
-from links_ray.serve.responses import (
+from links_ray.serve.http.kits import answer_kit
+from links_ray.serve.http.limits import request_limits
+from links_ray.serve.http.responses import (
     ApiError,
     JsonResponse,
     error_response,
     json_answer,
 )
-from links_ray.serve.synthesis_run import (
+from links_ray.serve.http.schemas import request_body
+from links_ray.serve.http.synthesis_run import (
     start_refinement,
     synthesis_answer,
     synthesis_lines,
     unless_gone,
 )
 
-#: The routes, as methods of `LinksApiRoutes`; the app (`serve.api`) takes them in.
+#: The routes, as methods of `LinksApiRoutes`; the app (`serve.http.asgi`) takes them in.
 router = APIRouter()
 
 #: The studio's files (plain HTML, CSS and JavaScript modules; no build step) and their types.
@@ -235,7 +235,7 @@ class LinksApiRoutes:
         (`vendor/<package>-<version>/<file>`); 404 for any other name."""
         return studio_response(name)
 
-    @router.get("/api/health", response_model=models.HealthResponse)
+    @router.get("/api/health", response_model=schemas.HealthResponse)
     async def api_health(self) -> JsonResponse:
         """`{"status": "ok", "paths": <indexed paths>}`, and with partitions their paths."""
         if self._retrieving is not None:
@@ -244,17 +244,17 @@ class LinksApiRoutes:
         parts = [{"part": part, "paths": paths} for part, paths in enumerate(counts)]
         return JsonResponse({"status": "ok", "paths": sum(counts), "shards": parts})
 
-    @router.get("/api/limits", response_model=models.LimitsResponse)
+    @router.get("/api/limits", response_model=schemas.LimitsResponse)
     async def api_limits(self) -> JsonResponse:
         """The limits every request meets (the studio reads its own from here)."""
         return JsonResponse(request_limits())
 
     @router.post(
         "/api/simulate",
-        response_model=models.SimulateResponse,
+        response_model=schemas.SimulateResponse,
         responses={
-            422: {"model": models.LockingResponse, "description": "it locks"},
-            **models.error_responses(400, 413, 415),
+            422: {"model": schemas.LockingResponse, "description": "it locks"},
+            **schemas.error_responses(400, 413, 415),
         },
         openapi_extra=request_body("/api/simulate"),
     )
@@ -271,8 +271,8 @@ class LinksApiRoutes:
 
     @router.post(
         "/api/analyze",
-        response_model=models.AnalyzeResponse,
-        responses=models.error_responses(400, 413, 415),
+        response_model=schemas.AnalyzeResponse,
+        responses=schemas.error_responses(400, 413, 415),
         openapi_extra=request_body("/api/analyze"),
     )
     async def api_analyze(self, request: Request) -> Response:
@@ -292,8 +292,8 @@ class LinksApiRoutes:
                 "description": "the file, as an attachment",
                 "content": {media: {} for media, _ in EXPORT_FORMATS.values()},
             },
-            **models.error_responses(400, 413, 415),
-            422: {"model": models.LockingResponse},
+            **schemas.error_responses(400, 413, 415),
+            422: {"model": schemas.LockingResponse},
         },
         openapi_extra=request_body("/api/export"),
     )
@@ -313,7 +313,7 @@ class LinksApiRoutes:
 
     @router.post(
         "/api/kit",
-        response_model=kit_models.KitResponse,
+        response_model=kit_schemas.KitResponse,
         responses={
             200: {
                 "description": 'format "bom": the bill of materials; "glb", "zip": the file, '
@@ -321,11 +321,11 @@ class LinksApiRoutes:
                 "content": {media: {} for media, _ in KIT_FORMATS.values()},
             },
             422: {
-                "model": models.ErrorResponse,
+                "model": schemas.ErrorResponse,
                 "description": "no stacking of layers keeps every pin clear; or it locks "
                 "(with step and node)",
             },
-            **models.error_responses(400, 413, 415, 501, 503),
+            **schemas.error_responses(400, 413, 415, 501, 503),
         },
         openapi_extra=request_body("/api/kit"),
     )
@@ -339,8 +339,8 @@ class LinksApiRoutes:
 
     @router.post(
         "/api/curve",
-        response_model=models.CurveFileResponse,
-        responses=models.error_responses(400, 413, 415, 422, 503),
+        response_model=schemas.CurveFileResponse,
+        responses=schemas.error_responses(400, 413, 415, 422, 503),
         openapi_extra=request_body("/api/curve"),
     )
     async def api_curve(self, request: Request) -> Response:
@@ -362,8 +362,8 @@ class LinksApiRoutes:
 
     @router.post(
         "/api/retrieve",
-        response_model=models.RetrieveResponse,
-        responses=models.error_responses(400, 413, 415, 503),
+        response_model=schemas.RetrieveResponse,
+        responses=schemas.error_responses(400, 413, 415, 503),
         openapi_extra=request_body("/api/retrieve"),
     )
     async def api_retrieve(self, request: Request) -> Response:
@@ -384,8 +384,8 @@ class LinksApiRoutes:
 
     @router.post(
         "/api/synthesize",
-        response_model=models.SynthesizeResponse,
-        responses=models.error_responses(400, 413, 415, 503),
+        response_model=schemas.SynthesizeResponse,
+        responses=schemas.error_responses(400, 413, 415, 503),
         openapi_extra=request_body("/api/synthesize"),
     )
     async def api_synthesize(self, request: Request) -> Response:
@@ -395,9 +395,9 @@ class LinksApiRoutes:
         or when it would wait longer than its own budget. The budget starts when its
         refinement does (its retrieval counted), and `queued_ms` says how long it waited.
         With `"stream": true` the answer is NDJSON: a `{"progress": ...}` line each time the
-        best so far improves, then the answer's own line (`serve.synthesis_run`). Counted work
+        best so far improves, then the answer's own line (`serve.http.synthesis_run`). Counted work
         past MAX_SYNTHESIS_WORK is refused 400 before any; a synthesis whose client goes
-        stops at its next refinement iteration (`serve.synthesis_run`)."""
+        stops at its next refinement iteration (`serve.http.synthesis_run`)."""
         points, options, stream = await read_args(request, "/api/synthesize", synthesize_request)
         seconds = options.seconds
         self._admission.claim_synthesis()  # once the body is read and checked, as a retrieval

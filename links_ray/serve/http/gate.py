@@ -3,7 +3,7 @@ whole, under bounds, before it is passed to Serve on loopback, so that a client 
 slowly or not at all holds the gate's memory, never one of Serve's places (which Serve gives a
 request as soon as its headers arrive; docs/design/architecture.md says why).
 
-A head keeps to the head limits of `serve.limits` (414, 431, 408) and names an allowed Host
+A head keeps to the head limits of `serve.http.limits` (414, 431, 408) and names an allowed Host
 (`guards.host_allowed`, before any route, Serve's `/-/` ones too); a body keeps to the body
 pace (`limits.body_deadline`, 408) and size (413), within the gate's bounds on bodies and bytes
 at once (503). Then at most MAX_PASSED requests at once go to Serve (health skips that line),
@@ -22,8 +22,8 @@ from collections.abc import Iterable
 
 import h11
 
-from links_ray.serve import limits
-from links_ray.serve.gate_wire import (
+from links_ray.serve.http import limits
+from links_ray.serve.http.gate_wire import (
     HOP_HEADERS,
     BodyBudget,
     Refusal,
@@ -33,8 +33,7 @@ from links_ray.serve.gate_wire import (
     header_value,
     refusal_bytes,
 )
-from links_ray.serve.guards import host_allowed, host_refusal
-from links_ray.serve.limits import (
+from links_ray.serve.http.limits import (
     HEAD_TIMEOUT_S,
     MAX_BODY_BYTES,
     MAX_HEAD_BYTES,
@@ -42,8 +41,9 @@ from links_ray.serve.limits import (
     MAX_URL_BYTES,
     body_deadline,
 )
+from links_ray.serve.http.middleware import host_allowed, host_refusal
 
-logger = logging.getLogger("links_ray.serve.gate")
+logger = logging.getLogger("links_ray.serve.http.gate")
 
 #: An idle kept-alive connection is closed after KEEP_ALIVE_S without a byte.
 KEEP_ALIVE_S = 5.0

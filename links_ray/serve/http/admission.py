@@ -12,7 +12,7 @@ Retrievals run in a thread of their own, one at a time, beside the index they se
 (`RetrievalSlot`). Both threads run at `RETRIEVAL_NICENESS`, below the event loop that answers
 health checks. Drawings (`/api/curve`) are read with tokens and threads of their own
 (`CurveReads`), never the thread pool's that simulations, analyses and exports share.
-Nothing here imports Ray: the routes (`serve.handlers`) and the deployments
+Nothing here imports Ray: the routes (`serve.http.routes`) and the deployments
 (`serve.deployments`) both use it.
 """
 
@@ -31,7 +31,7 @@ import numpy as np
 from links_ray.interop.curve_files import Curve
 from links_ray.interop.curve_limits import CURVE_READER_WAIT_S, CURVE_READERS
 from links_ray.interop.curve_worker import read_curve_isolated
-from links_ray.serve.responses import ApiError
+from links_ray.serve.http.responses import ApiError
 
 if TYPE_CHECKING:  # only a type here: the routes, and the docs, need no index module
     from links_ray.search.index import RetrievalIndex

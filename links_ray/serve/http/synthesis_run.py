@@ -2,7 +2,7 @@
 refinement thread (`start_refinement`), answered whole (`unless_gone`, `synthesis_answer`) or
 streamed as NDJSON lines (`synthesis_lines`), and stopped when its client goes.
 
-The route (`serve.handlers.LinksApiRoutes.api_synthesize`) reads the request, claims its place
+The route (`serve.http.routes.LinksApiRoutes.api_synthesize`) reads the request, claims its place
 and retrieves the candidates; what follows is here. A client's leaving is seen as its server's
 `http.disconnect` (`client_gone`) or as Serve cancelling the route's wait; either sets the
 refinement's `stop`, and it ends at its next iteration, freeing its place and the refiner.
@@ -22,7 +22,7 @@ from fastapi import Request
 from links_ray.engine.synthesis.options import SynthesisOptions
 from links_ray.engine.synthesis.pipeline import refine_retrieved
 from links_ray.engine.synthesis.results import SynthesisResults
-from links_ray.serve.responses import json_line, logger
+from links_ray.serve.http.responses import json_line, logger
 
 #: A synthesis whose client's server hands it one message after another, none of them the
 #: client's leaving, looks again this often (uvicorn's waits for the next one).

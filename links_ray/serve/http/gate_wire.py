@@ -1,4 +1,4 @@
-"""What the request gate (`serve.gate`) counts, reads and writes besides h11: its refusals,
+"""What the request gate (`serve.http.gate`) counts, reads and writes besides h11: its refusals,
 whole JSON answers written as bytes; the bodies and bytes it holds at once; the request line's
 length, counted as it arrives; the headers that belong to one connection, not passed on.
 """
@@ -10,8 +10,8 @@ from collections.abc import Iterable
 
 import h11
 
-from links_ray.serve.admission import RETRY_AFTER_S
-from links_ray.serve.limits import MAX_HEAD_BYTES, MAX_URL_BYTES
+from links_ray.serve.http.admission import RETRY_AFTER_S
+from links_ray.serve.http.limits import MAX_HEAD_BYTES, MAX_URL_BYTES
 
 #: Headers that describe one connection, not the request or answer, and so are not passed on
 #: (h11 frames each side's messages itself).

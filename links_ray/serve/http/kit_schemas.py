@@ -1,6 +1,6 @@
 """The answer of `POST /api/kit` with format "bom" as pydantic models: the kit's
 `bom.json` (`engine.fabrication.kit.Kit.bom`), as `/openapi.json` shows it. Its request body is
-`serve.models.KitRequest`, beside the others.
+`serve.http.schemas.KitRequest`, beside the others.
 """
 
 from typing import Any, Literal
