@@ -36,15 +36,9 @@ from ray.serve.deployment import Application
 from links_ray.data.commit import committed_shards
 from links_ray.data.dataset import open_table
 from links_ray.data.store import Store
-from links_ray.serve.deployments import (
-    PARTITION_TIMEOUT_S,
-    REPLICA_ENV,
-    SHUTDOWN_DRAIN_S,
-    IndexPartition,
-    LinksApi,
-)
-from links_ray.serve.http.admission import MAX_RETRIEVALS
+from links_ray.serve.deployments import REPLICA_ENV, SHUTDOWN_DRAIN_S, IndexPartition, LinksApi
 from links_ray.serve.http.gate import GateThread, RequestGate
+from links_ray.serve.http.limits import MAX_RETRIEVALS, PARTITION_TIMEOUT_S
 from links_ray.serve.http.middleware import as_host_names
 
 #: CPUs a partition replica reserves unless told otherwise (`--shard-cpus`, and unless

@@ -1,12 +1,12 @@
 """The Serve deployments, `LinksApi` (the gateway) and `IndexPartition`, and their limits.
 
-Each gateway replica opens the retrieval index once, in its constructor, and answers HTTP with
-the app of `serve.http.asgi`. Its admission (`serve.http.admission`) bounds the retrievals and syntheses
+Each gateway replica opens the retrieval index once, in its constructor, and answers HTTP with the
+app of `serve.http.asgi`. Its admission (`serve.http.admission`) bounds the retrievals and syntheses
 it holds: one more is answered 503 with `Retry-After` at once, and Serve's own
-`max_ongoing_requests` and `max_queued_requests` bound everything else. Retrievals run one at a
-time in a thread beside the index, syntheses refine one at a time in a thread of their own, so
-health checks and simulations, in the default thread pool, are answered meanwhile. Each
-replica's threads are its `num_cpus` (`use_replica_cpus`).
+`max_ongoing_requests` and `max_queued_requests` bound everything else. Retrievals run one at a time
+in a thread beside the index, syntheses refine one at a time in a thread of their own, so health
+checks and simulations, in the default thread pool, are answered meanwhile. Each replica's threads
+are its `num_cpus` (`use_replica_cpus`).
 
 With the index split into N partitions (`build_app(root, shards=N)`, `links serve --shards N`):
 N `IndexPartition` deployments each open part P of the index (`RetrievalIndex.open(root,
@@ -50,15 +50,16 @@ from links_ray.engine.kinematics.solver import simulate
 from links_ray.engine.synthesis.plan import pooled
 from links_ray.interop.curve_worker import warm_curve_readers
 from links_ray.search.index import RetrievalIndex
-from links_ray.serve.http.admission import (
-    MAX_RETRIEVALS,
-    RETRY_AFTER_S,
-    Admission,
-    RetrievalSlot,
-    busy,
-    low_priority_thread,
-)
+from links_ray.serve.http.admission import Admission, RetrievalSlot, busy, low_priority_thread
 from links_ray.serve.http.asgi import api
+from links_ray.serve.http.limits import (
+    GATEWAY_MAX_ONGOING,
+    GATEWAY_MAX_QUEUED,
+    MAX_RETRIEVALS,
+    PARTITION_MAX_ONGOING,
+    PARTITION_TIMEOUT_S,
+    RETRY_AFTER_S,
+)
 from links_ray.serve.http.middleware import allow_host_names
 from links_ray.serve.http.responses import ApiError, logger
 from links_ray.serve.http.routes import LinksApiRoutes, studio_files
@@ -67,16 +68,6 @@ from links_ray.serve.http.routes import LinksApiRoutes, studio_files
 #: dashboard agent) at 0. A replica answers users, and its parallel kernels wait for their
 #: slowest thread, so it runs at 0.
 REPLICA_ENV = {"RAY_worker_niceness": "0"}
-#: Serve's own bounds on a gateway replica: requests it runs at once, and requests waiting
-#: for one of those slots. Beyond them Serve answers 503 with `Retry-After` itself (its body is
-#: Serve's plain text, not JSON). Far above MAX_RETRIEVALS, so that health checks and
-#: simulations never wait behind retrievals.
-GATEWAY_MAX_ONGOING, GATEWAY_MAX_QUEUED = 100, 100
-#: Retrievals a partition replica takes at once (it runs them one after another); further
-#: ones wait in the callers' routers, which send them to the partition's least busy replica.
-PARTITION_MAX_ONGOING = 4
-#: How long the gateway waits for all the partitions' answers before answering 503.
-PARTITION_TIMEOUT_S = 30.0
 #: Seconds a stopping replica lets the requests under way finish (Serve's
 #: `graceful_shutdown_timeout_s`); then it is stopped whatever it holds. Syntheses at their
 #: default budget and every other request finish well within it.

@@ -19,7 +19,7 @@ with contextlib.redirect_stdout(io.StringIO()) as out:
         main(sys.argv[1:])
     except SystemExit:
         pass
-loaded = sorted(m for m in sys.modules if m == "links_ray.bench" or m.startswith("links_ray.bench."))
+loaded = sorted(m for m in sys.modules if m.split(".")[:2] == ["links_ray", "bench"])
 print(json.dumps([loaded, out.getvalue()]))
 """
 

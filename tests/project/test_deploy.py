@@ -31,13 +31,8 @@ import yaml
 
 from links_ray.engine.synthesis.options import MAX_SYNTHESIS_SECONDS
 from links_ray.serve.app import APP_ARGS, PARTITION_CPUS, _arg
-from links_ray.serve.deployments import (
-    PARTITION_TIMEOUT_S,
-    REPLICA_ENV,
-    SHUTDOWN_DRAIN_S,
-    LinksApi,
-)
-from links_ray.serve.http.limits import MAX_BODY_BYTES
+from links_ray.serve.deployments import REPLICA_ENV, SHUTDOWN_DRAIN_S, LinksApi
+from links_ray.serve.http.limits import MAX_BODY_BYTES, PARTITION_TIMEOUT_S
 from links_ray.serve.http.middleware import as_host_names
 
 REPO = Path(__file__).resolve().parents[2]

@@ -20,8 +20,7 @@ import pytest
 
 from links_ray.bench.kit import kit_workload
 from links_ray.engine.fabrication.kit import KitOptions, plan_kit
-from links_ray.serve.http.kits import MAX_KITS
-from links_ray.serve.http.limits import MAX_KIT_JOINTS
+from links_ray.serve.http.limits import MAX_KIT_JOINTS, MAX_KITS
 from tests.interop.test_parts import UNBUILDABLE, random_mechanism
 from tests.support.needs import need_module
 from tests.support.serving import FOUR_BAR, LOCKING_FOUR_BAR, Client

@@ -1090,7 +1090,7 @@ def test_clients_that_send_only_headers_hold_no_place(client: Client, curated: A
     """Ten clients that send a retrieval's headers and never its body each get 408 once
     BODY_TIMEOUT_S have passed, and meanwhile an eleventh, real retrieval is answered 200:
     a place among a replica's MAX_RETRIEVALS is claimed only once a body has been read."""
-    from links_ray.serve.http.admission import MAX_RETRIEVALS
+    from links_ray.serve.http.limits import MAX_RETRIEVALS
 
     timeout = http_limits.BODY_TIMEOUT_S
     silent = MAX_RETRIEVALS + 2

@@ -26,19 +26,9 @@ from links_ray.engine.kinematics.solver import simulate
 from links_ray.interop.curve_files import read_curve_text
 from links_ray.interop.curve_limits import CURVE_READER_NICENESS, CURVE_READERS, MAX_SVG_ELEMENTS
 from links_ray.interop.curve_worker import read_curve_isolated, warm_curve_readers
-from links_ray.serve.http.admission import (
-    MAX_CURVE_READS,
-    RETRIEVAL_NICENESS,
-    Admission,
-    CurveReads,
-)
-from links_ray.serve.http.bodies import (
-    MAX_BODY_CONTAINERS,
-    read_args,
-    retrieve_args,
-    simulate_args,
-    synthesize_request,
-)
+from links_ray.serve.http.admission import RETRIEVAL_NICENESS, Admission, CurveReads
+from links_ray.serve.http.bodies import read_args, retrieve_args, simulate_args, synthesize_request
+from links_ray.serve.http.limits import MAX_BODY_CONTAINERS, MAX_CURVE_READS
 from links_ray.serve.http.responses import INLINE_JSON_BYTES, ApiError
 from tests.support.fourbars import stretched_four_bar
 

@@ -31,6 +31,12 @@ import numpy as np
 from links_ray.interop.curve_files import Curve
 from links_ray.interop.curve_limits import CURVE_READER_WAIT_S, CURVE_READERS
 from links_ray.interop.curve_worker import read_curve_isolated
+from links_ray.serve.http.limits import (
+    MAX_CURVE_READS,
+    MAX_RETRIEVALS,
+    MAX_SYNTHESES,
+    RETRY_AFTER_S,
+)
 from links_ray.serve.http.responses import ApiError
 
 if TYPE_CHECKING:  # only a type here: the routes, and the docs, need no index module
@@ -41,20 +47,6 @@ if TYPE_CHECKING:  # only a type here: the routes, and the docs, need no index m
 #: niceness (Linux niceness is per thread, and new threads inherit it), below the replica's
 #: event loop and thread pool and any gateway on the same node, still above Ray's workers.
 RETRIEVAL_NICENESS = 5
-#: Retrievals one gateway replica holds at once, running or waiting for the index (its own
-#: or the partitions'). One more is answered at once with 503, `Retry-After` and a JSON
-#: `error`.
-MAX_RETRIEVALS = 8
-#: Syntheses one gateway replica holds at once, running or waiting. Each holds the replica's
-#: cores for its whole budget (up to MAX_SYNTHESIS_SECONDS), so few; one more is answered 503.
-#: One that would wait for the refinement thread longer than its own budget is answered 503
-#: too: waiting does not shorten its refinement, whose budget starts when it starts.
-MAX_SYNTHESES = 2
-#: Seconds a refused client is asked to wait (`Retry-After`).
-RETRY_AFTER_S = 1
-#: Drawings one gateway replica holds at once, being read (CURVE_READERS at a time) or waiting
-#: for a reader; one more is answered at once with 503.
-MAX_CURVE_READS = 4 * CURVE_READERS
 
 
 def busy(message: str, retry_after: float = RETRY_AFTER_S) -> ApiError:

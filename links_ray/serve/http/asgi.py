@@ -1,7 +1,7 @@
 """The FastAPI app `api` that the Serve deployments answer with, assembled in one place.
 
-It takes the routes of `serve.http.routes` in, puts the guards of `serve.http.middleware` before them,
-answers every refusal as a 4xx `{"error": "<what is wrong>"}` (`ApiError`, and FastAPI's own
+It takes the routes of `serve.http.routes` in, puts the guards of `serve.http.middleware` before
+them, answers every refusal as a 4xx `{"error": "<what is wrong>"}` (`ApiError`, and FastAPI's own
 refusals of unknown routes and methods and malformed parameters), and serves the document of
 `serve.http.openapi` at `GET /openapi.json`. Nothing here imports Ray: the deployments
 (`serve.deployments`) take this app in with `serve.ingress`.

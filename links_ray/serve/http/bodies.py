@@ -46,7 +46,9 @@ from links_ray.engine.synthesis.options import DEFAULT_SYNTHESIS_TRANSMISSION_DE
 from links_ray.serve.http.limits import (
     BODY_TIMEOUT_S,
     MAX_BODY_BYTES,
+    MAX_BODY_CONTAINERS,
     MAX_CURVE_NAME_CHARS,
+    MAX_JSON_DEPTH,
     MAX_REQUEST_JOINT_STEPS,
     MAX_REQUEST_JOINTS,
     MIN_BODY_BYTES_PER_S,
@@ -97,12 +99,6 @@ Args = TypeVar("Args")
 
 #: Routes whose bodies carry free text (a drawing's file), in which brackets are characters.
 TEXT_ROUTES = frozenset({"/api/curve"})
-#: The most brackets (`[` and `{`) a body of any other route may hold: each array and object
-#: opens with one, and no body that keeps the limits holds more than its points' MAX_POINTS
-#: pairs, or a mechanism's rows and positions, and a few lists and objects besides. Counting
-#: them takes a millisecond on a 2 MB body; parsing one of that many arrays holds the GIL
-#: (orjson's, in any thread) about a hundred times as long.
-MAX_BODY_CONTAINERS = max(MAX_POINTS, 2 * MAX_REQUEST_JOINTS) + 16
 
 
 async def read_json_object(request: Request, route: str) -> dict[str, Any]:
@@ -222,10 +218,6 @@ def parse_json_object(body: bytes) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ApiError(400, f"the body must be a JSON object, got {_kind(data)}")
     return data
-
-
-#: How deep orjson reads nested arrays and objects.
-MAX_JSON_DEPTH = 1024
 
 
 def _refusal(body: bytes, refused: orjson.JSONDecodeError) -> str:

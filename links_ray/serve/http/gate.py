@@ -35,10 +35,19 @@ from links_ray.serve.http.gate_wire import (
 )
 from links_ray.serve.http.limits import (
     HEAD_TIMEOUT_S,
+    MAX_ANSWER_BYTES,
+    MAX_ANSWER_BYTES_HELD,
+    MAX_BODIES_READING,
     MAX_BODY_BYTES,
+    MAX_BODY_BYTES_BUFFERED,
+    MAX_CONNECTIONS,
     MAX_HEAD_BYTES,
     MAX_HEADERS,
+    MAX_PASSED,
     MAX_URL_BYTES,
+    MIN_SEND_BYTES_PER_S,
+    PASS_WAIT_S,
+    SEND_TIMEOUT_S,
     body_deadline,
 )
 from links_ray.serve.http.middleware import host_allowed, host_refusal
@@ -47,27 +56,8 @@ logger = logging.getLogger("links_ray.serve.http.gate")
 
 #: An idle kept-alive connection is closed after KEEP_ALIVE_S without a byte.
 KEEP_ALIVE_S = 5.0
-#: Connections the gate holds at once; one more is answered 503 and closed.
-MAX_CONNECTIONS = 1024
-#: Bodies being read at once, and their bytes held at once: one more is refused 503.
-MAX_BODIES_READING = 512
-MAX_BODY_BYTES_BUFFERED = 128 * 1024 * 1024
-#: Requests passed to Serve at once; more wait, up to PASS_WAIT_S, then 503. Below Serve's
-#: places for the gateway (`deployments.GATEWAY_MAX_ONGOING`), so that health, which does not
-#: wait in this line, always finds one.
-MAX_PASSED = 16
-PASS_WAIT_S = 10.0
 #: Seconds Serve may take to answer a request passed on (syntheses are bounded far below it).
 ANSWER_TIMEOUT_S = 600.0
-#: The gate takes Serve's whole answer before sending it, so that a client that does not
-#: read holds the gate's memory, not a place in Serve: at most MAX_ANSWER_BYTES an answer
-#: (else 502), and no request is passed on while MAX_ANSWER_BYTES_HELD of answers wait for
-#: their clients. A client must take its answer within SEND_TIMEOUT_S, plus its size at
-#: MIN_SEND_BYTES_PER_S, or its connection ends.
-MAX_ANSWER_BYTES = 64 * 1024 * 1024
-MAX_ANSWER_BYTES_HELD = 128 * 1024 * 1024
-SEND_TIMEOUT_S = 10.0
-MIN_SEND_BYTES_PER_S = 64 * 1024
 #: Requests that skip the line for Serve: health checks, which must never wait behind work.
 HEALTH_TARGETS = frozenset({b"/api/health", b"/-/healthz"})
 #: Bytes read from a socket at a time.

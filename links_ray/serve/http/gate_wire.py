@@ -10,8 +10,7 @@ from collections.abc import Iterable
 
 import h11
 
-from links_ray.serve.http.admission import RETRY_AFTER_S
-from links_ray.serve.http.limits import MAX_HEAD_BYTES, MAX_URL_BYTES
+from links_ray.serve.http.limits import MAX_HEAD_BYTES, MAX_URL_BYTES, RETRY_AFTER_S
 
 #: Headers that describe one connection, not the request or answer, and so are not passed on
 #: (h11 frames each side's messages itself).

@@ -24,13 +24,10 @@ from links_ray.engine.fabrication.layers import LayeringError
 from links_ray.engine.kinematics.mechanism import LockingError
 from links_ray.serve.http.admission import busy, low_priority_thread
 from links_ray.serve.http.bodies import KIT_FORMATS
-from links_ray.serve.http.limits import MAX_KIT_JOINTS
+from links_ray.serve.http.limits import MAX_KIT_JOINTS, MAX_KITS
 from links_ray.serve.http.responses import ApiError, error_response, json_answer
 
 __all__ = ["LINE", "MAX_KITS", "KitLine", "answer_kit", "make"]
-
-#: Kits one replica holds at once, made or waiting for its one kit thread.
-MAX_KITS = 2
 
 
 class KitLine:

@@ -3,11 +3,11 @@
 Every bad request gets a 4xx with a JSON `{"error": "<what is wrong>"}`: routes raise
 `ApiError`, which the app (`serve.http.asgi`) turns into that answer (`error_response`).
 
-Answers are compact JSON that refuses NaN and infinity (`JsonResponse`). A large answer is
-rendered in pieces (`render_json`) in `JSON_POOL`'s one thread, off the event loop that answers
-health checks (`json_answer`); large request bodies are parsed there too (`serve.http.bodies`).
-Every answer says `X-Content-Type-Options: nosniff` (`nosniff`, which `serve.http.middleware.HostGuard`
-applies to all).
+Answers are compact JSON that refuses NaN and infinity (`JsonResponse`). A large answer is rendered
+in pieces (`render_json`) in `JSON_POOL`'s one thread, off the event loop that answers health checks
+(`json_answer`); large request bodies are parsed there too (`serve.http.bodies`). Every answer says
+`X-Content-Type-Options: nosniff` (`nosniff`, which `serve.http.middleware.HostGuard` applies to
+all).
 """
 
 import asyncio
