@@ -90,12 +90,11 @@ MAX_KITS = 2
 
 # -- bodies as JSON --------------------------------------------------------------------------------
 
-#: The most brackets (`[` and `{`) a body may hold, but a drawing's (`bodies.TEXT_ROUTES`): each
-#: array and object
-#: opens with one, and no body that keeps the limits holds more than its points' MAX_POINTS
-#: pairs, or a mechanism's rows and positions, and a few lists and objects besides. Counting
-#: them takes a millisecond on a 2 MB body; parsing one of that many arrays holds the GIL
-#: (orjson's, in any thread) about a hundred times as long.
+#: The most brackets (`[` and `{`) a body may hold, but a drawing's (`bodies.TEXT_ROUTES`):
+#: each array and object opens with one, and no body that keeps the limits holds more than its
+#: points' MAX_POINTS pairs, or a mechanism's rows and positions, and a few lists and objects
+#: besides. Counting them takes a millisecond on a 2 MB body; parsing one of that many arrays
+#: holds the GIL (orjson's, in any thread) about a hundred times as long.
 MAX_BODY_CONTAINERS = max(MAX_POINTS, 2 * MAX_REQUEST_JOINTS) + 16
 #: How deep orjson reads nested arrays and objects.
 MAX_JSON_DEPTH = 1024
