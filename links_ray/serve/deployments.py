@@ -19,7 +19,8 @@ partition that is unavailable, or partitions that do not all answer within
 `PARTITION_TIMEOUT_S`, give 503 with `Retry-After`.
 
 Stopping replicas drain the requests under way for at most `SHUTDOWN_DRAIN_S`. The routes
-themselves are `serve.http.routes`' `LinksApiRoutes`, which `LinksApi` inherits.
+themselves are `serve.http.routes`' `LinksApiRoutes`, which `LinksApi` inherits, giving them
+their retrieval backend: `serve.http.backend.LocalIndex`, or `PartitionedIndex` here.
 """
 
 import asyncio
@@ -47,11 +48,11 @@ from ray.serve.handle import DeploymentHandle, DeploymentResponse
 
 from links_ray.engine.cpus import set_given_cpus
 from links_ray.engine.kinematics.solver import simulate
-from links_ray.engine.synthesis.plan import pooled
 from links_ray.interop.curve_worker import warm_curve_readers
 from links_ray.search.index import RetrievalIndex
-from links_ray.serve.http.admission import Admission, RetrievalSlot, busy, low_priority_thread
+from links_ray.serve.http.admission import Admission, busy, low_priority_thread
 from links_ray.serve.http.asgi import api
+from links_ray.serve.http.backend import LocalIndex, RetrievalBackend, RetrievalSlot
 from links_ray.serve.http.limits import (
     GATEWAY_MAX_ONGOING,
     GATEWAY_MAX_QUEUED,
@@ -167,11 +168,11 @@ class IndexPartition:
         keep_replica_grpc_on_loopback()
         use_replica_cpus()
         self.part, self.parts = part, parts
-        self._retrieving = RetrievalSlot(RetrievalIndex.open(root, part=part, parts=parts))
+        self._slot = RetrievalSlot(RetrievalIndex.open(root, part=part, parts=parts))
 
     async def info(self) -> dict[str, int]:
         """`{"part", "parts", "paths"}` of this partition."""
-        return {"part": self.part, "parts": self.parts, "paths": len(self._retrieving.index)}
+        return {"part": self.part, "parts": self.parts, "paths": len(self._slot.index)}
 
     async def retrieve(
         self,
@@ -181,11 +182,12 @@ class IndexPartition:
         max_joints: int | None = None,
     ) -> list[dict]:
         """The k best results of this part, best first (`RetrievalIndex.retrieve`)."""
-        return await self._retrieving.retrieve(points, k, min_transmission, max_joints)
+        results, _ = await self._slot.retrieve_waited(points, k, min_transmission, max_joints)
+        return results
 
     def __del__(self) -> None:
-        if hasattr(self, "_retrieving"):
-            self._retrieving.close()
+        if hasattr(self, "_slot"):
+            self._slot.close()
 
 
 @serve.deployment(
@@ -218,18 +220,16 @@ class LinksApi(LinksApiRoutes):
             allowed_hosts
         )  # for `serve.http.middleware.HostGuard`, from the first request
         self.root = root
-        self.partitions = list(partitions or [])
-        self.partition_timeout_s = partition_timeout_s
         self._admission = Admission(max_retrievals)
-        self._partition_paths: list[int] | None = None  # learned from the partitions once
-        self._retrieving: RetrievalSlot | None = None
         # Refinement runs here, one synthesis at a time (each uses every core itself), at the
         # retrievals' niceness, never in the thread pool health checks and simulations use.
         self._refining = low_priority_thread("links-synthesize")
-        if self.partitions:
+        self._backend: RetrievalBackend
+        if partitions:
+            self._backend = PartitionedIndex(list(partitions), partition_timeout_s)
             simulate(*WARM_FOUR_BAR, steps=8)  # loads the solver /api/simulate uses
         else:  # warming the index also loads the solver /api/simulate uses
-            self._retrieving = RetrievalSlot(RetrievalIndex.open(root))
+            self._backend = LocalIndex(RetrievalIndex.open(root))
         studio_files()  # a package without the studio fails here, not on a user's first visit
         warm_curve_readers()  # the processes /api/curve reads drawings in
         # What the replica holds from here on (the index, the compiled kernels, the libraries'
@@ -244,73 +244,57 @@ class LinksApi(LinksApiRoutes):
         sys.setswitchinterval(GIL_SWITCH_S)
 
     def __del__(self) -> None:
-        if getattr(self, "_retrieving", None) is not None:
-            self._retrieving.close()
+        if hasattr(self, "_backend"):
+            self._backend.close()
         if hasattr(self, "_refining"):
             self._refining.shutdown(wait=False, cancel_futures=True)
 
-    async def _retrieve(
-        self, points: np.ndarray, k: int, min_transmission_deg: float, max_joints: int | None = None
-    ) -> list[dict]:
-        """The k best results for a query: from this replica's index (a ValueError it raises
-        answered 400), or the partitions' answers merged."""
-        if self._retrieving is not None:
-            try:
-                return await self._retrieving.retrieve(points, k, min_transmission_deg, max_joints)
-            except ValueError as exc:
-                raise ApiError(400, str(exc)) from None
+
+class PartitionedIndex(RetrievalBackend):
+    """The index split into partitions (`IndexPartition` deployments 0..N-1, by their handles,
+    in order): every partition is asked at once for its own top k, and the k best of their
+    answers kept (`merge_results`). A partition that is unavailable, or partitions that do
+    not all answer within `timeout_s`, are ApiError 503."""
+
+    def __init__(self, partitions: list[DeploymentHandle], timeout_s: float) -> None:
+        self.partitions = partitions
+        self.timeout_s = timeout_s
+        self._paths: list[int] | None = None  # learned from the partitions once
+
+    async def retrieve_waited(
+        self,
+        points: np.ndarray,
+        k: int,
+        min_transmission_deg: float,
+        max_joints: int | None = None,
+    ) -> tuple[list[dict], float]:
+        """The partitions' answers merged; no wait counted here (retrievals wait in the
+        partitions' replicas)."""
         answers = await self._ask_partitions(
             "retrieve", points, k, min_transmission_deg, max_joints
         )
-        return merge_results(answers, k)
+        return merge_results(answers, k), 0.0
 
-    async def _synthesis_candidates(
-        self, points: np.ndarray, wanted: list[tuple[int, int | None, float]]
-    ) -> tuple[list[dict], float]:
-        """A synthesis's retrieved candidates (`synthesis.retrievals`: (count, max_joints,
-        min_transmission_deg) each, `pooled`), counted against the retrieval limit as one
-        retrieval (503 beyond it), and the seconds they waited behind other retrievals (0 with
-        partitions: they wait in the partitions' replicas)."""
-        self._admission.claim_retrieval()
-        try:
-            answers, waited = [], 0.0
-            for count, most, min_transmission_deg in wanted:
-                if self._retrieving is not None:
-                    answer, wait = await self._retrieving.retrieve_waited(
-                        points, count, min_transmission_deg, most
-                    )
-                    answers.append(answer)
-                    waited += wait
-                else:
-                    parts = await self._ask_partitions(
-                        "retrieve", points, count, min_transmission_deg, most
-                    )
-                    answers.append(merge_results(parts, count))
-            return pooled(answers), waited
-        finally:
-            self._admission.release_retrieval()
-
-    async def _partition_counts(self) -> list[int]:
-        """Each partition's paths, asked once (a partition's index does not change while it
-        serves)."""
-        if self._partition_paths is None:
+    async def health(self) -> dict[str, Any]:
+        """The partitions' paths, asked once (a partition's index does not change while it
+        serves): in all, and each partition's."""
+        if self._paths is None:
             infos = await self._ask_partitions("info")
-            self._partition_paths = [info["paths"] for info in infos]
-        return self._partition_paths
+            self._paths = [info["paths"] for info in infos]
+        parts = [{"part": part, "paths": paths} for part, paths in enumerate(self._paths)]
+        return {"paths": sum(self._paths), "shards": parts}
 
     async def _ask_partitions(self, method: str, *args: Any) -> list[Any]:
         """Every partition's answer to `method(*args)`, in order, asked at once; ApiError 503
-        if one is unavailable or they do not all answer within `partition_timeout_s`."""
+        if one is unavailable or they do not all answer within `timeout_s`."""
         tasks = [
             asyncio.ensure_future(self._ask_partition(part, getattr(handle, method).remote(*args)))
             for part, handle in enumerate(self.partitions)
         ]
         try:
-            return await asyncio.wait_for(asyncio.gather(*tasks), self.partition_timeout_s)
+            return await asyncio.wait_for(asyncio.gather(*tasks), self.timeout_s)
         except TimeoutError:
-            raise busy(
-                f"the index partitions did not answer within {self.partition_timeout_s:g} s"
-            ) from None
+            raise busy(f"the index partitions did not answer within {self.timeout_s:g} s") from None
         finally:
             for task in tasks:  # after a failure, stop asking the others
                 task.cancel()

@@ -25,7 +25,7 @@ def generate_and_curate(
 ) -> str:
     """Write `plan`'s shards and their curation (`curation_tables`, stored as `path_store`)
     into `root` (a folder or store URI); returns `root`. Shards the root holds already are
-    kept, as a resumed `links generate` and `links curate` keep them: a plan grown from the
+    kept, as a resumed `links generate` and `links curate` keep them: a plan extended from the
     root's (`GenerationPlan.extended_to`) adds its new shards only."""
     store = Store.open(root)
     store.write_json(f"{META}/run.json", plan.config())

@@ -9,11 +9,10 @@ for the refinement thread, which refines one at a time; one that would wait long
 own budget is refused 503 too.
 
 Retrievals run in a thread of their own, one at a time, beside the index they search
-(`RetrievalSlot`). Both threads run at `RETRIEVAL_NICENESS`, below the event loop that answers
-health checks. Drawings (`/api/curve`) are read with tokens and threads of their own
-(`CurveReads`), never the thread pool's that simulations, analyses and exports share.
-Nothing here imports Ray: the routes (`serve.http.routes`) and the deployments
-(`serve.deployments`) both use it.
+(`backend.RetrievalSlot`). Both threads run at `RETRIEVAL_NICENESS`, below the event loop that
+answers health checks. Drawings (`/api/curve`) are read with tokens and threads of their own
+(`CurveReads`), never the thread pool's that simulations, analyses and exports share. Nothing here
+imports Ray: the routes (`serve.http.routes`) and the deployments (`serve.deployments`) both use it.
 """
 
 from __future__ import annotations
@@ -24,9 +23,6 @@ import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from typing import TYPE_CHECKING
-
-import numpy as np
 
 from links_ray.interop.curve_files import Curve
 from links_ray.interop.curve_limits import CURVE_READER_WAIT_S, CURVE_READERS
@@ -38,9 +34,6 @@ from links_ray.serve.http.limits import (
     RETRY_AFTER_S,
 )
 from links_ray.serve.http.responses import ApiError
-
-if TYPE_CHECKING:  # only a type here: the routes, and the docs, need no index module
-    from links_ray.search.index import RetrievalIndex
 
 #: Retrievals are the throughput work; health checks and simulations must be answered at
 #: once. So the thread that retrieves, and the kernels' worker threads it starts, run at this
@@ -225,46 +218,3 @@ def _lower_priority() -> None:
             os.setpriority(os.PRIO_PROCESS, thread, RETRIEVAL_NICENESS)
     except (AttributeError, OSError):  # not Linux
         pass
-
-
-class RetrievalSlot:
-    """An index and the one thread its retrievals run in: one at a time (the index's compiled
-    kernels are parallel, and the JIT's workqueue threading layer, its fallback without TBB
-    or OpenMP, cannot take concurrent callers), never in the thread pool that simulations
-    and analyses run in, and at `RETRIEVAL_NICENESS`. The index is warmed in that thread, so
-    the kernels' worker threads exist, at that niceness, before the first user asks."""
-
-    def __init__(self, index: RetrievalIndex) -> None:
-        self.index = index
-        self.pool = low_priority_thread("links-retrieve")
-        self.pool.submit(index.warm).result()
-
-    async def retrieve(
-        self, points: np.ndarray, k: int, min_transmission: float, max_joints: int | None = None
-    ) -> list[dict]:
-        """`RetrievalIndex.retrieve`'s answer, from the slot's thread."""
-        return await asyncio.get_running_loop().run_in_executor(
-            self.pool, self.index.retrieve, points, k, min_transmission, max_joints
-        )
-
-    async def retrieve_waited(
-        self,
-        points: np.ndarray,
-        k: int,
-        min_transmission: float,
-        max_joints: int | None = None,
-    ) -> tuple[list[dict], float]:
-        """`retrieve`'s answer, and the seconds it waited behind other retrievals."""
-        asked = time.perf_counter()
-        began: list[float] = []
-
-        def run() -> list[dict]:
-            began.append(time.perf_counter())
-            return self.index.retrieve(points, k, min_transmission, max_joints)
-
-        results = await asyncio.get_running_loop().run_in_executor(self.pool, run)
-        return results, began[0] - asked
-
-    def close(self) -> None:
-        """Stop the thread, dropping retrievals not yet begun."""
-        self.pool.shutdown(wait=False, cancel_futures=True)

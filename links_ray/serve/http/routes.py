@@ -15,13 +15,14 @@
 | `GET /` | the web studio (`links_ray/serve/studio/index.html`) |
 | `GET /studio/<file>` | the studio's scripts, style sheet and vendored files, from the package |
 
-The routes are methods of `LinksApiRoutes`, declared on `router`, which the app (`serve.http.asgi`)
-takes in; the gateway deployment `LinksApi` (`serve.deployments`) inherits them and holds the
-index or its partitions' handles, and the admission (`serve.http.admission`) whose places these
-routes claim and release. This module imports neither: the assembly imports the routes, never
-the other way. Bodies are read and checked by `serve.http.bodies`; simulations, analyses and
-exports run in the default thread pool, builds of parts in one thread of their own
-(`serve.http.kits`), refinements of syntheses in the gateway's refinement thread, stopped when
+The routes are methods of `LinksApiRoutes`, declared on `router`, which the app
+(`serve.http.asgi`) takes in; the gateway deployment `LinksApi` (`serve.deployments`) inherits
+them and gives them the index behind them, a `serve.http.backend.RetrievalBackend`, and the
+admission (`serve.http.admission`) whose places these routes claim and release. This module
+imports neither the app nor the deployments: the assembly imports the routes, never the other
+way. Bodies are read and checked by `serve.http.bodies`; simulations, analyses and exports run
+in the default thread pool, builds of parts in one thread of their own (`serve.http.kits`),
+refinements of syntheses in the gateway's refinement thread, stopped when
 their client goes (`serve.http.synthesis_run`).
 """
 
@@ -52,7 +53,8 @@ from links_ray.engine.synthesis.plan import retrievals
 from links_ray.interop.curve_worker import CurveReadersBusy
 from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve.http import kit_schemas, schemas
-from links_ray.serve.http.admission import Admission, Place, RetrievalSlot
+from links_ray.serve.http.admission import Admission, Place
+from links_ray.serve.http.backend import RetrievalBackend
 from links_ray.serve.http.bodies import (
     EXPORT_FORMATS,
     KIT_FORMATS,
@@ -198,31 +200,13 @@ def export_file(
 
 class LinksApiRoutes:
     """The routes of the HTTP API, as methods of the gateway deployment `LinksApi`
-    (`serve.deployments`), which inherits them and provides what they use: its index
-    (`_retrieving`, None when the index is split into partitions), its admission of
-    retrievals and syntheses (`_admission`), its refinement thread (`_refining`) and the
-    three ways to the index below (`_retrieve`, `_synthesis_candidates`, `_partition_counts`).
-    """
+    (`serve.deployments`), which inherits them and gives them what they use: the index behind
+    them (`_backend`, a `RetrievalBackend`: one index, or its partitions), its admission of
+    retrievals and syntheses (`_admission`) and its refinement thread (`_refining`)."""
 
-    _retrieving: RetrievalSlot | None
+    _backend: RetrievalBackend
     _admission: Admission
     _refining: ThreadPoolExecutor
-
-    async def _retrieve(
-        self, points: np.ndarray, k: int, min_transmission_deg: float, max_joints: int | None = None
-    ) -> list[dict]:
-        """The k best results for a query, best first."""
-        raise NotImplementedError
-
-    async def _synthesis_candidates(
-        self, points: np.ndarray, wanted: list[tuple[int, int | None]], min_transmission_deg: float
-    ) -> tuple[list[dict], float]:
-        """A synthesis's retrieved candidates, and the seconds they waited for the index."""
-        raise NotImplementedError
-
-    async def _partition_counts(self) -> list[int]:
-        """Each index partition's paths, in partition order."""
-        raise NotImplementedError
 
     @router.get("/", response_class=HTMLResponse)
     async def api_studio(self) -> Response:
@@ -238,11 +222,7 @@ class LinksApiRoutes:
     @router.get("/api/health", response_model=schemas.HealthResponse)
     async def api_health(self) -> JsonResponse:
         """`{"status": "ok", "paths": <indexed paths>}`, and with partitions their paths."""
-        if self._retrieving is not None:
-            return JsonResponse({"status": "ok", "paths": len(self._retrieving.index)})
-        counts = await self._partition_counts()
-        parts = [{"part": part, "paths": paths} for part, paths in enumerate(counts)]
-        return JsonResponse({"status": "ok", "paths": sum(counts), "shards": parts})
+        return JsonResponse({"status": "ok", **await self._backend.health()})
 
     @router.get("/api/limits", response_model=schemas.LimitsResponse)
     async def api_limits(self) -> JsonResponse:
@@ -376,7 +356,7 @@ class LinksApiRoutes:
         self._admission.claim_retrieval()
         try:
             start = time.perf_counter()
-            results = await self._retrieve(points, k, min_transmission_deg, most)
+            results = await self._backend.retrieve(points, k, min_transmission_deg, most)
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
             self._admission.release_retrieval()
@@ -409,7 +389,11 @@ class LinksApiRoutes:
             wanted = retrievals(
                 options.k, options.max_joints, options.front, options.min_transmission_deg
             )
-            retrieved, waited = await self._synthesis_candidates(points, wanted)
+            self._admission.claim_retrieval()  # counted as one retrieval: 503 beyond the limit
+            try:
+                retrieved, waited = await self._backend.retrieve_pooled(points, wanted)
+            finally:
+                self._admission.release_retrieval()
             retrieved_at = time.perf_counter()
             retrieval_s = retrieved_at - start - waited
             budget = None if seconds is None else max(0.0, seconds - retrieval_s)
