@@ -21,6 +21,7 @@ from fastapi.openapi.utils import get_openapi
 from starlette.routing import BaseRoute
 
 from links_ray import __version__
+from links_ray.serve.http import schemas as bodies_described
 
 #: The document's title; the app's too.
 TITLE = "links-ray"
@@ -61,7 +62,7 @@ def openapi_document(routes: Sequence[BaseRoute]) -> dict[str, Any]:
                     answers.setdefault("400", ERROR_400)
     for name in ("HTTPValidationError", "ValidationError"):
         schemas.pop(name, None)
-    for model in schemas.REQUEST_MODELS.values():
+    for model in bodies_described.REQUEST_MODELS.values():
         schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
         schemas.update(schema.pop("$defs", {}))
         schemas[model.__name__] = schema
