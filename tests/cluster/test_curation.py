@@ -27,7 +27,8 @@ import pytest
 import links_ray
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
-from links_ray.data import pathset, schemas
+from links_ray.data import curation as data_curation
+from links_ray.data import schemas
 from links_ray.data.commit import committed_files, committed_shards, marker_file
 from links_ray.data.curation import KEEP_SHARE, keep_draw, path_table
 from links_ray.data.schemas import CURATION_TABLES
@@ -389,10 +390,10 @@ def test_paths_of_big_shards_split_their_list_arrays(
     assert whole.column("points").num_chunks == 1
     limit = 7 * 200 * 2  # seven paths of 200 points
     monkeypatch.setattr(schemas, "MAX_LIST_VALUES", limit)
-    monkeypatch.setattr(pathset, "MAX_LIST_VALUES", limit)
-    monkeypatch.setattr(pathset, "MECHANISMS_PER_BATCH", 3)
+    monkeypatch.setattr(data_curation, "MAX_LIST_VALUES", limit)
+    monkeypatch.setattr(data_curation, "MECHANISMS_PER_BATCH", 3)
     for source in (simulations, None):
-        batches = list(pathset.path_batches(mechanisms, source, n))
+        batches = list(data_curation.path_batches(mechanisms, source, n))
         assert len(batches) == -(-len(mechanisms) // 3)
         split = pa.concat_tables(batches)
         chunks = split.column("points").chunks
