@@ -196,8 +196,8 @@ def json_file(path: str | None, option: str) -> object:
 
 def print_result(args: argparse.Namespace, result: dict, formatted: Callable[[dict], str]) -> None:
     """A command's result: one JSON object with --json, else the human-readable table; for
-    the commands the contract has print JSON (`stats`, `retrieve`), JSON also when the output
-    is not a terminal (a script reading it), unless --table."""
+    a command registered with `json_option(..., piped=True)` (`retrieve`, whose output scripts
+    read as JSON), JSON also when the output is not a terminal, unless --table."""
     table = getattr(args, "table", None)
     piped = table is not None and not table and not sys.stdout.isatty()
     report.emit(result, formatted, args.json or piped)

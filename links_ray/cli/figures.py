@@ -37,7 +37,8 @@ def _sample(
 
 
 def write_figures(root: str | Store, folder: str | Path, stats: dict, seed: int = 0) -> list[str]:
-    """Write the figures for `stats` (from `dataset_stats`) into `folder`; returns their paths."""
+    """Write the figures for `stats` (from `dataset_stats`) into `folder`; returns their paths
+    (candidates per valid's only when they were measured or recorded)."""
     plt = _pyplot()
     store = root if isinstance(root, Store) else Store.open(root, writable=False)
     out = Path(folder)
@@ -45,14 +46,16 @@ def write_figures(root: str | Store, folder: str | Path, stats: dict, seed: int 
     rng = np.random.default_rng(seed)
     written = []
 
-    sizes = sorted(int(n) for n in stats["candidates_per_valid"])
-    figure, axes = plt.subplots(figsize=(6, 4))
-    axes.semilogy(sizes, [stats["candidates_per_valid"][str(n)] for n in sizes], "o-")
-    axes.axhline(500, color="grey", linestyle="--", label="paper: >500 on average")
-    axes.set(xlabel="joints", ylabel="candidates per valid mechanism")
-    axes.set_title("Infeasibility of random initial positions", fontsize=10)
-    axes.legend()
-    written.append(_save(figure, out / "candidates_per_valid.png", plt))
+    candidates = stats["candidates_per_valid"]
+    if candidates is not None:  # None when not measured: no figure of it
+        sizes = sorted(int(n) for n in candidates)
+        figure, axes = plt.subplots(figsize=(6, 4))
+        axes.semilogy(sizes, [candidates[str(n)] for n in sizes], "o-")
+        axes.axhline(500, color="grey", linestyle="--", label="paper: >500 on average")
+        axes.set(xlabel="joints", ylabel="candidates per valid mechanism")
+        axes.set_title("Infeasibility of random initial positions", fontsize=10)
+        axes.legend()
+        written.append(_save(figure, out / "candidates_per_valid.png", plt))
 
     mechanisms = stats["counts"]["mechanisms"]
     if mechanisms:

@@ -193,26 +193,28 @@ def format_index(summary: dict) -> str:
 
 def format_stats(stats: dict) -> str:
     """Rows by joint count, shares beside the paper's, transmission angles, candidates per
-    valid mechanism and throughput."""
+    valid mechanism (a column when known, else the line saying why not) and throughput."""
     counts = stats["counts"]
     tables = [name for name, entry in counts.items() if entry]
+    columns = {
+        name: {n: count(rows) for n, rows in by_joints(counts[name]["by_joint_count"])}
+        for name in tables
+    }
+    missing = dict.fromkeys(tables, count(0))
+    totals = [count(counts[name]["rows"]) for name in tables]
     candidates = stats["candidates_per_valid"]
-    sizes = sorted(
-        {n for name in tables for n, _ in by_joints(counts[name]["by_joint_count"])}
-        | {n for n, _ in by_joints(candidates)}
-    )
-    per_size = {name: dict(by_joints(counts[name]["by_joint_count"])) for name in tables}
-    wanted = dict(by_joints(candidates))
-    rows = [
-        [n, *(count(per_size[name].get(n, 0)) for name in tables), number(wanted.get(n))]
-        for n in sizes
-    ]
-    rows.append(["all", *(count(counts[name]["rows"]) for name in tables), ""])
+    if candidates is not None:  # None when not measured: no column, the line below says why
+        columns["candidates/valid"] = {n: number(value) for n, value in by_joints(candidates)}
+        missing["candidates/valid"] = number(None)
+        totals.append("")
+    sizes = sorted({n for column in columns.values() for n in column})
+    rows = [[n, *(column.get(n, missing[name]) for name, column in columns.items())] for n in sizes]
+    rows.append(["all", *totals])
     lines = [
         f"{stats['root']}: "
         + ", ".join(f"{count(counts[name]['rows'])} {name}" for name in tables),
         "",
-        table(["joints", *tables, "candidates/valid"], rows, names=0),
+        table(["joints", *columns], rows, names=0),
         f"candidates/valid: {stats['candidates_per_valid_source']}",
     ]
     shares = stats["shares"]

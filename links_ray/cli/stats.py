@@ -1,5 +1,6 @@
-"""`links stats ROOT [--plots DIR]`: a dataset's statistics (`links_ray.data.stats`), and its
-figures as PNG (`links_ray.cli.figures`)."""
+"""`links stats ROOT [--json] [--plots DIR] [--measure-candidates N]`: a dataset's statistics
+(`links_ray.data.stats`) as a table, or JSON with `--json`, and its figures as PNG
+(`links_ray.cli.figures`)."""
 
 from __future__ import annotations
 
@@ -15,20 +16,23 @@ def add_command(commands: argparse._SubParsersAction) -> None:
     stats.add_argument("root", help="dataset root: a folder or s3://...")
     stats.add_argument("--plots", default=None, help="folder for the PNG figures")
     stats.add_argument(
-        "--sample-topologies",
+        "--measure-candidates",
         type=positive_int,
-        default=3,
-        help="topologies per joint count when candidates per valid must be measured here",
+        default=None,
+        metavar="N",
+        help="measure candidates per valid mechanism: the paper's rejection sampler on N random "
+        "topologies per joint count, five variants each (default: not measured; taken from "
+        "the generation run when it used the rejection sampler)",
     )
-    json_option(stats, "every statistic", piped=True)
+    json_option(stats, "every statistic")
     stats.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> None:
-    """`links stats`: measure, draw the figures if asked, print every statistic."""
+    """`links stats`: count, measure if asked, draw the figures if asked, print the result."""
     from links_ray.data.stats import dataset_stats
 
-    stats = dataset_stats(args.root, sample_topologies=args.sample_topologies)
+    stats = dataset_stats(args.root, sample_topologies=args.measure_candidates)
     if args.plots:
         from links_ray.cli.figures import write_figures
 

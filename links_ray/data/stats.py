@@ -2,8 +2,8 @@
 
 Counts per table and joint count, paths per mechanism, the shares of circles and arcs before
 and after curation, the distribution of the mechanisms' least transmission angles, candidates
-tried per valid mechanism by joint count (from the run when it used the paper's
-rejection sampler, otherwise measured here on a sample of topologies), and the throughput the
+tried per valid mechanism by joint count (from the run when it used the paper's rejection
+sampler, measured here only when asked: see `candidates_per_valid`), and the throughput the
 runs recorded. No Ray, and memory bounded whatever the size: counts come from the commit
 markers, flags and the angles' histogram are counted a file at a time, and only the
 mechanisms' least transmission angles are held whole (4 bytes a mechanism, up to twice that
@@ -158,8 +158,67 @@ def _made_paths(markers: list[dict]) -> tuple[dict | None, dict | None]:
     return counts, _shares_of(**totals)
 
 
-def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
-    """The statistics of the dataset at `root` as one JSON-ready dict."""
+#: How `candidates_per_valid` measures the rejection sampler: position sets found per topology,
+#: and the candidates after which a topology is abandoned (all of them counted).
+MEASURE_VARIANTS = 5
+MEASURE_MAX_CANDIDATES = 200_000
+#: What a reader is told when candidates per valid were not measured, after the reason.
+ASK_TO_MEASURE = (
+    "--measure-candidates N measures the rejection sampler on N topologies per joint count"
+)
+
+
+def candidates_per_valid(
+    run: dict | None, sample_topologies: int | None, seed: int
+) -> tuple[dict[str, float] | None, str, dict | None]:
+    """Candidates tried per valid mechanism by joint count, where they come from, and the
+    sample measured here (None unless measured here).
+
+    The figure depends on the topology generator, the rejection sampler, the seed and the
+    sample size, never on the root's rows, and measuring it took most of `links stats`' time
+    at every call. So it is measured only when asked (`sample_topologies` topologies per
+    joint count, `MEASURE_VARIANTS` position sets each), else taken from the generation run
+    when that used the rejection sampler (its own count of the candidates it tried), else
+    None with the reason. It is not recorded in the root: stats opens roots read-only (they
+    may be on S3, or another's), and a figure that does not depend on a root's rows does not
+    belong with them.
+    """
+    if sample_topologies is not None:
+        measured = measure_candidates_per_valid(
+            range(MIN_DATASET_JOINTS, MAX_DATASET_JOINTS + 1),
+            sample_topologies,
+            MEASURE_VARIANTS,
+            np.random.default_rng(seed),
+            "rejection",
+            max_candidates=MEASURE_MAX_CANDIDATES,
+        )
+        sample = {
+            "sampler": "rejection",
+            "topologies_per_joint_count": sample_topologies,
+            "variants": MEASURE_VARIANTS,
+            "max_candidates": MEASURE_MAX_CANDIDATES,
+            "seed": seed,
+        }
+        source = (
+            f"measured here: the rejection sampler on {sample_topologies} random topologies per "
+            f"joint count, {MEASURE_VARIANTS} variants each"
+        )
+        return {str(n): e["candidates_per_valid"] for n, e in measured.items()}, source, sample
+    if run and run["plan"]["sampler"] == "rejection":
+        from_run = {
+            size: entry["candidates_per_valid"] for size, entry in run["by_joint_count"].items()
+        }
+        return from_run, "the generation run (rejection sampler)", None
+    why = "the root was made by the sequential sampler" if run else "no generation run recorded"
+    return None, f"not measured ({why}); {ASK_TO_MEASURE}", None
+
+
+def dataset_stats(root: str, sample_topologies: int | None = None, seed: int = 0) -> dict:
+    """The statistics of the dataset at `root` as one JSON-ready dict; candidates per valid
+    measured on `sample_topologies` topologies per joint count only when given
+    (`candidates_per_valid`)."""
+    if sample_topologies is not None and sample_topologies < 1:
+        raise ValueError(f"sample_topologies must be a positive integer, got {sample_topologies}")
     store = Store.open(root, writable=False)
     run = store.read_json(f"{META}/summary.json")
     curation = store.read_json(f"{META}/curation_summary.json")
@@ -172,26 +231,7 @@ def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
         counts["paths"], shares["paths"] = _made_paths(list(markers["curation"].values()))
     paths, mechanisms = counts["paths"], counts["mechanisms"]
     paths_per_mechanism = paths and mechanisms and paths["rows"] / mechanisms["rows"]
-
-    if run and run["plan"]["sampler"] == "rejection":
-        candidates = {
-            size: entry["candidates_per_valid"] for size, entry in run["by_joint_count"].items()
-        }
-        source = "the generation run (rejection sampler)"
-    else:
-        measured = measure_candidates_per_valid(
-            range(MIN_DATASET_JOINTS, MAX_DATASET_JOINTS + 1),
-            sample_topologies,
-            5,
-            np.random.default_rng(seed),
-            "rejection",
-            max_candidates=200_000,
-        )
-        candidates = {str(n): entry["candidates_per_valid"] for n, entry in measured.items()}
-        source = (
-            f"measured here: the rejection sampler on {sample_topologies} random topologies per "
-            "joint count, five variants each (the data itself was made by the sequential sampler)"
-        )
+    candidates, source, sample = candidates_per_valid(run, sample_topologies, seed)
     return {
         "root": store.uri,
         "counts": counts,
@@ -200,6 +240,7 @@ def dataset_stats(root: str, sample_topologies: int = 3, seed: int = 0) -> dict:
         "min_transmission_deg": _transmission(store, markers, mechanisms),
         "candidates_per_valid": candidates,
         "candidates_per_valid_source": source,
+        "candidates_per_valid_sample": sample,
         "throughput": {
             "generation": run
             and {

@@ -27,7 +27,8 @@ import pytest
 import links_ray
 from links_ray.cluster.curation import curate
 from links_ray.cluster.generation import generate
-from links_ray.data import pathset, schemas
+from links_ray.data import curation as data_curation
+from links_ray.data import schemas
 from links_ray.data.commit import committed_files, committed_shards, marker_file
 from links_ray.data.curation import KEEP_SHARE, keep_draw, path_table
 from links_ray.data.schemas import CURATION_TABLES
@@ -389,10 +390,10 @@ def test_paths_of_big_shards_split_their_list_arrays(
     assert whole.column("points").num_chunks == 1
     limit = 7 * 200 * 2  # seven paths of 200 points
     monkeypatch.setattr(schemas, "MAX_LIST_VALUES", limit)
-    monkeypatch.setattr(pathset, "MAX_LIST_VALUES", limit)
-    monkeypatch.setattr(pathset, "MECHANISMS_PER_BATCH", 3)
+    monkeypatch.setattr(data_curation, "MAX_LIST_VALUES", limit)
+    monkeypatch.setattr(data_curation, "MECHANISMS_PER_BATCH", 3)
     for source in (simulations, None):
-        batches = list(pathset.path_batches(mechanisms, source, n))
+        batches = list(data_curation.path_batches(mechanisms, source, n))
         assert len(batches) == -(-len(mechanisms) // 3)
         split = pa.concat_tables(batches)
         chunks = split.column("points").chunks
@@ -464,10 +465,10 @@ def test_load_filters_and_reshapes(curated_run: dict) -> None:
 def test_stats_cli_reports_and_draws(curated_run: dict, tmp_path: Path) -> None:
     """Counts against the plan and the rows, shares counted from the rows, candidates per valid
     mechanism as measured directly with the same seed (the run used the sequential sampler, so
-    `links stats` measures the rejection sampler itself)."""
+    `links stats --measure-candidates` measures the rejection sampler itself)."""
     plots = tmp_path / "plots"
     result = links(
-        "stats", curated_run["out"], "--plots", str(plots), "--sample-topologies", "1", "--json"
+        "stats", curated_run["out"], "--plots", str(plots), "--measure-candidates", "1", "--json"
     )
     assert result.returncode == 0, result.stderr
     stats = json.loads(result.stdout)
@@ -499,6 +500,7 @@ def test_stats_cli_reports_and_draws(curated_run: dict, tmp_path: Path) -> None:
         str(n): entry["candidates_per_valid"] for n, entry in measured.items()
     }
     assert stats["candidates_per_valid_source"].startswith("measured here")
+    assert stats["candidates_per_valid_sample"]["topologies_per_joint_count"] == 1
     assert stats["paper"]["shares"] == {
         "circle": 0.34,
         "arc_not_circle": 0.28,
@@ -520,19 +522,18 @@ def test_stats_cli_reports_and_draws(curated_run: dict, tmp_path: Path) -> None:
 
 
 def test_stats_cli_prints_a_short_table(curated_run: dict) -> None:
-    """For a person (a terminal, or --table): one row per joint count, 8 to 20 in that order,
-    holding the rows each table has of that size; the shares beside the paper's; a screenful
-    in all. Read by a script (not a terminal), JSON, as the contract says."""
-    piped = links("stats", curated_run["out"], "--sample-topologies", "1")
-    assert piped.returncode == 0, piped.stderr
-    assert json.loads(piped.stdout)["counts"]
-    result = links("stats", curated_run["out"], "--sample-topologies", "1", "--table")
+    """For a person, on a terminal or not (as here): one row per joint count, 8 to 20 in that
+    order, holding the rows each table has of that size; the shares beside the paper's; a
+    screenful in all. Candidates per valid are not measured unless asked: no column of them,
+    a line saying how to ask."""
+    result = links("stats", curated_run["out"])
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()
     assert len(lines) <= 40 and max(map(len, lines)) <= 200
     header = lines.index(next(line for line in lines if line.startswith("joints")))
     names = lines[header].split()
-    assert names[:6] == ["joints", "mechanisms", "simulations", "negatives", "paths", "curated"]
+    assert names == ["joints", "mechanisms", "simulations", "negatives", "paths", "curated"]
+    assert any(line.startswith("candidates/valid: not measured (") for line in lines)
     rows = [line.split() for line in lines[header + 1 : header + 14]]
     assert [int(row[0]) for row in rows] == list(range(8, 21))
     for table in ("mechanisms", "paths", "curated"):

@@ -268,7 +268,8 @@ for links in chains:
 
 The four links move; `links <command> --help` prints the options, `links --version` the version.
 `links-ray` is on PyPI, `links_ray.load` reads tables, `--head` starts a head, `--seed 1`
-draws again, `--min-transmission DEG`, `links stats ROOT [--plots DIR] [--json \\| --table]`.
+draws again, `--min-transmission DEG`, `links stats ROOT [--plots DIR] [--json]`,
+`links retrieve ROOT [--json \\| --table]`.
 `POST /api/retrieve` at http://127.0.0.1:8000/api/retrieve, `GET /api/limits`, `/api/...`,
 links_ray/serve/http/asgi/x.
 """

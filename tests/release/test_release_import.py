@@ -502,7 +502,7 @@ def test_stats_retrieval_and_synthesis_work_on_the_imported_root(
     from links_ray.search.index import RetrievalIndex
 
     root, summary = imported
-    stats = dataset_stats(root, sample_topologies=1)
+    stats = dataset_stats(root)
     assert stats["counts"]["mechanisms"]["rows"] == summary["mechanisms"]
     assert stats["counts"]["curated"]["rows"] == summary["curated"]
     index = RetrievalIndex.open(root)
@@ -533,7 +533,7 @@ def test_stats_retrieve_and_synthesize_commands_on_the_imported_root(
         assert done.returncode == 0, done.stderr
         return json.loads(done.stdout)
 
-    stats = answer("stats", root, "--sample-topologies", "1")
+    stats = answer("stats", root)
     assert stats["counts"]["curated"]["rows"] == summary["curated"]
     assert stats["counts"]["mechanisms"]["rows"] == summary["mechanisms"]
     (target,) = [
