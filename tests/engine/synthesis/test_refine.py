@@ -23,8 +23,6 @@ import pytest
 
 import links_ray
 from links_ray import LockingError, TopologySimulator, chamfer, random_topology, simulate
-from links_ray.engine import refine as refine_module
-from links_ray.engine import refine_checks
 from links_ray.engine.inputs import MAX_TRANSMISSION_DEG, MIN_POINTS
 from links_ray.engine.kinematics.mechanism import analyze_topology
 from links_ray.engine.kinematics.paths import longest_chord
@@ -34,6 +32,8 @@ from links_ray.engine.synthesis.limits import (
     MAX_REFINE_STEPS,
     REFINE_CHECK_STEPS,
 )
+from links_ray.engine.synthesis.refinement import checks as refine_checks
+from links_ray.engine.synthesis.refinement import loop as refine_module
 from links_ray.engine.synthesis.refinement.entry import refine, refine_many
 from links_ray.engine.synthesis.refinement.kernels import (
     best_interval,
