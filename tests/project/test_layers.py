@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.package_imports import PACKAGE, REPO, imported, module_names
+from tests.support.package_imports import PACKAGE, REPO, imported, module_names, planted_package
 
 #: Rank of each layer: a module may import its own layer and layers of lower rank.
 LAYERS = {
@@ -167,11 +167,7 @@ def broken_package(tmp_path: Path) -> Path:
         ),
         "stray.py": "import numpy\n",
     }
-    for name, text in sources.items():
-        path = tmp_path / PACKAGE / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text)
-    return tmp_path / PACKAGE
+    return planted_package(tmp_path, sources)
 
 
 def test_the_rule_catches_what_breaks_it(broken_package: Path) -> None:
@@ -229,10 +225,7 @@ def test_the_face_rule_catches_a_room_importing_its_face(tmp_path: Path) -> None
         ),
         "search/build.py": "def f():\n    from links_ray.search import index\n",
     }
-    for name, text in sources.items():
-        path = tmp_path / PACKAGE / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text)
+    planted_package(tmp_path, sources)
     assert face_violations(tmp_path / PACKAGE) == [
         "links_ray/search/build.py:2: links_ray.search.build imports its face "
         "links_ray.search.index",
@@ -312,10 +305,7 @@ def test_the_engine_room_rule_catches_an_import_upward(tmp_path: Path) -> None:
         "engine/synthesis/__init__.py": "",
         "engine/synthesis/pipeline.py": "from links_ray.engine.fabrication import kit\n",
     }
-    for name, text in sources.items():
-        path = tmp_path / PACKAGE / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text)
+    planted_package(tmp_path, sources)
     assert engine_room_violations(tmp_path / PACKAGE) == [
         "links_ray/engine/fabrication/kit.py:3: links_ray.engine.fabrication.kit imports "
         "links_ray.engine.synthesis.pipeline",

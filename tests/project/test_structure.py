@@ -10,7 +10,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-from tests.support.package_imports import PACKAGE, REPO, imported, module_names
+from tests.support.package_imports import PACKAGE, REPO, imported, module_names, planted_package
 
 #: The most lines a module may have; a module of numba kernels (it imports numba) may have
 #: more, since a kernel and its plain-array entry point read best side by side.
@@ -101,10 +101,7 @@ def test_the_cycle_check_finds_a_planted_circle(tmp_path: Path) -> None:
         "serve/x.py": "from . import y\n",
         "serve/y.py": "import links_ray.serve.x\n",
     }
-    for name, text in sources.items():
-        path = tmp_path / PACKAGE / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text)
+    planted_package(tmp_path, sources)
     assert cycles(import_graph(tmp_path / PACKAGE)) == [
         ["links_ray.engine.a", "links_ray.engine.b", "links_ray.engine.c"],
         ["links_ray.serve.x", "links_ray.serve.y"],

@@ -52,3 +52,13 @@ def imported(path: Path, module: str, known: set[str]) -> list[tuple[int, str]]:
         ):
             found.append((node.lineno, node.args[0].value))
     return found
+
+
+def planted_package(root: Path, sources: dict[str, str]) -> Path:
+    """A small package shaped like ours under `root`, its modules' text by path
+    (`"engine/solver.py"`), for the checks of the imports to fail on; returns its folder."""
+    for name, text in sources.items():
+        path = root / PACKAGE / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    return root / PACKAGE
