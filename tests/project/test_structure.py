@@ -1,4 +1,5 @@
-"""The package's shape: imports run one way, and every module is a room a newcomer can read.
+"""The package's shape: imports run one way, every module is a room a newcomer can read, and
+every test file one a reader can hold.
 
 Read from the source with `ast`, counting every import: top-level, type-only (under
 `if TYPE_CHECKING:`) and inside functions. A type-only import is still a dependency a reader
@@ -16,6 +17,8 @@ from tests.support.package_imports import PACKAGE, REPO, imported, module_names,
 #: more, since a kernel and its plain-array entry point read best side by side.
 MAX_MODULE_LINES = 500
 MAX_KERNEL_MODULE_LINES = 700
+#: Lines a test file may hold: past it, a file is split by topic.
+MAX_TEST_FILE_LINES = 800
 
 
 def import_graph(package_dir: Path) -> dict[str, set[str]]:
@@ -128,6 +131,15 @@ def test_every_module_is_a_room_of_readable_size() -> None:
         limit = MAX_KERNEL_MODULE_LINES if imports_numba(path) else MAX_MODULE_LINES
         if lines > limit:
             too_long.append(f"{module}: {lines} lines (at most {limit})")
+    assert too_long == []
+
+
+def test_every_test_file_is_of_readable_size() -> None:
+    too_long = [
+        f"{path.relative_to(REPO)}: {lines} lines (at most {MAX_TEST_FILE_LINES})"
+        for path in sorted((REPO / "tests").rglob("*.py"))
+        if (lines := len(path.read_text().splitlines())) > MAX_TEST_FILE_LINES
+    ]
     assert too_long == []
 
 
