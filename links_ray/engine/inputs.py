@@ -93,12 +93,23 @@ def as_real(name: str, value: object, kind: str = "a number") -> float:
 
 def as_real_array(name: str, value: object, wanted: str) -> np.ndarray:
     """`value` (nested sequences of numbers) as a float64 array, or ValueError saying `name`
-    must be `wanted`: for ragged or non-numeric entries, integers beyond float64's range and
-    nesting too deep to walk. The caller checks the shape and finiteness."""
+    must be `wanted`: for ragged or non-numeric entries (text too, which NumPy would read as
+    numbers), integers beyond float64's range and nesting too deep to walk. The caller checks
+    the shape and finiteness."""
     try:
-        return np.asarray(value, dtype=np.float64)
+        array = np.asarray(value)
+        if array.dtype.kind == "O" and all(_is_real(entry) for entry in array.flat):
+            array = array.astype(np.float64)  # integers beyond int64 are numbers all the same
+        if array.dtype.kind not in "biuf":
+            raise ValueError(name)
+        return array.astype(np.float64)
     except (TypeError, ValueError, OverflowError, RecursionError):
         raise ValueError(f"{name} must be {wanted}") from None
+
+
+def _is_real(value: object) -> bool:
+    """Whether `value` is a real number, as `as_real` takes them (bools are not)."""
+    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
 
 
 def as_int(

@@ -135,9 +135,12 @@ def test_openapi_describes_the_route(client: Client) -> None:
     operation = spec["paths"]["/api/kit"]["post"]
     body = operation["requestBody"]["content"]["application/json"]["schema"]
     request = spec["components"]["schemas"][body["$ref"].rpartition("/")[2]]["properties"]
-    assert request["crank_mm"]["default"] == 20 and request["crank_mm"]["maximum"] == 1e5
+    # Sizes take null for their defaults: each is the first of an anyOf with null.
+    crank, clearance = request["crank_mm"], request["clearance_mm"]
+    assert crank["default"] == 20 and crank["anyOf"][0]["maximum"] == 1e5
     assert request["format"]["enum"] == ["bom", "glb", "zip"]
-    assert request["clearance_mm"]["minimum"] == 0 and request["bar_width_mm"]["default"] == 8
+    assert clearance["anyOf"][0]["minimum"] == 0 and request["bar_width_mm"]["default"] == 8
+    assert request["node_types"]["maxItems"] == MAX_KIT_JOINTS
     answers = operation["responses"]
     assert {"200", "400", "413", "415", "422", "501", "503"} <= set(answers)
     assert {"model/gltf-binary", "application/zip"} <= set(answers["200"]["content"])

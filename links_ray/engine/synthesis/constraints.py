@@ -37,6 +37,7 @@ from links_ray.engine.inputs import (
 __all__ = [
     "CONSTRAINT_NAMES",
     "MAX_LAYERS",
+    "MAX_LINK_RATIO",
     "Constraints",
     "Violation",
     "as_constraints",
@@ -60,6 +61,8 @@ CONSTRAINT_NAMES = (
 #: mechanism synthesis answers has at most MAX_DATASET_JOINTS joints, each of which adds at
 #: most two links.
 MAX_LAYERS = 2 * MAX_DATASET_JOINTS
+#: The most `max_link_ratio` may be: far past any linkage a hand can build.
+MAX_LINK_RATIO = 1e6
 
 
 @dataclass(frozen=True)
@@ -123,7 +126,9 @@ def as_constraints(value: object) -> Constraints | None:
     }
     ratio = None
     if "max_link_ratio" in given:
-        ratio = positive_at_most(given["max_link_ratio"], "max_link_ratio", 1e6, "a number", "")
+        ratio = positive_at_most(
+            given["max_link_ratio"], "max_link_ratio", MAX_LINK_RATIO, "a number", ""
+        )
         if ratio < 1.0:
             raise ValueError(f"max_link_ratio must be at least 1, got {ratio:g}")
     low, high = lengths.get("min_link"), lengths.get("max_link")

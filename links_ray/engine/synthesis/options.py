@@ -35,6 +35,7 @@ __all__ = [
     "MAX_SYNTHESIS_ITERATIONS",
     "MAX_SYNTHESIS_SECONDS",
     "MAX_SYNTHESIS_WORK",
+    "MAX_TIMING_DEG",
     "SynthesisOptions",
     "as_seconds",
     "as_timing",
@@ -63,6 +64,8 @@ MAX_SYNTHESIS_WORK = 15_000_000
 #: Iterations each retrieved candidate costs whatever `iterations` says: its preparation, and
 #: the short pass's first round (`synthesis_passes.FIRST_ROUND`), which every candidate gets.
 CANDIDATE_ITERATIONS = 10
+#: The most a `timing` angle may be, either way, in degrees: thousands of turns.
+MAX_TIMING_DEG = 1e6
 #: Seeds are what numpy's generators take whole: non-negative, here within 64 bits.
 MAX_SEED = 2**64 - 1
 
@@ -97,8 +100,8 @@ def as_timing(timing: object, count: int, partial: bool) -> np.ndarray | None:
     degrees = as_real_array("timing", timing, "true or a list of angles in degrees")
     if degrees.ndim != 1 or len(degrees) != count:
         raise ValueError(f"timing must give one angle per point: {count}, got {degrees.size}")
-    if not np.all(np.isfinite(degrees)) or np.any(np.abs(degrees) > 1e6):
-        raise ValueError("timing must be finite angles in degrees within +-1e6")
+    if not np.all(np.isfinite(degrees)) or np.any(np.abs(degrees) > MAX_TIMING_DEG):
+        raise ValueError(f"timing must be finite angles in degrees within +-{MAX_TIMING_DEG:g}")
     return np.radians(degrees - degrees[0])
 
 

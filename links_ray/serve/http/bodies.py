@@ -1,14 +1,14 @@
 """Request bodies read and checked: what each route takes from its JSON body.
 
 A body is read within the engine's limits (`links_ray.engine.inputs`): 408 for a body that
-pauses `BODY_TIMEOUT_S` or falls behind `MIN_BODY_BYTES_PER_S` (`read_body`), 413 for a body
-over `MAX_BODY_BYTES`, a mechanism over `MAX_REQUEST_JOINTS` or a simulation over
-`MAX_REQUEST_JOINT_STEPS`, 415 for a body not declared as JSON (`Content-Type:
-application/json`). This module
-checks only what JSON alone can get wrong (types, booleans for numbers, array lengths) first;
-the values are checked by the engine's own validators, whose ValueErrors become 400s. Each
-refusal is an `ApiError` naming the problem. `serve.http.schemas` describes the same bodies for
-`/openapi.json`.
+pauses `BODY_TIMEOUT_S` or falls behind `MIN_BODY_BYTES_PER_S` and 413 for a body over
+`MAX_BODY_BYTES` (`json_body.read_body`), 413 for a mechanism over `MAX_REQUEST_JOINTS` or a
+simulation over `MAX_REQUEST_JOINT_STEPS`, 415 for a body not declared as JSON (`Content-Type:
+application/json`). Each route's converter (`CONVERTERS`) checks what JSON alone can get wrong
+(types, booleans for numbers, array lengths) first; the values are checked by the engine's own
+validators, whose ValueErrors become 400s. Each refusal is an `ApiError` naming the problem.
+`serve.http.schemas` describes the same bodies for `/openapi.json`, and
+tests/serve/test_bodies_agree.py holds the two to each other, bound by bound.
 
 Counts come before contents: a body's brackets are counted before it is parsed
 (`MAX_BODY_CONTAINERS`), and each list's length before any of its entries is looked at, so
@@ -18,24 +18,24 @@ where it is freed too.
 """
 
 import asyncio
-import json
 import math
 from collections.abc import Callable
 from dataclasses import fields
 from typing import Any, TypeVar
 
 import numpy as np
-import orjson
 from fastapi import Request
-from starlette.requests import ClientDisconnect
 
 from links_ray.engine.fabrication.kit import KitOptions
 from links_ray.engine.fabrication.limits import DEFAULT_CRANK_MM, as_crank_mm
 from links_ray.engine.inputs import (
     DEFAULT_K,
     DEFAULT_STEPS,
+    MAX_COORDINATE,
     MAX_POINTS,
     as_flag,
+    as_graph,
+    as_int,
     as_max_joints,
     as_steps,
     as_transmission_deg,
@@ -43,36 +43,18 @@ from links_ray.engine.inputs import (
     validate_query,
 )
 from links_ray.engine.synthesis.options import DEFAULT_SYNTHESIS_TRANSMISSION_DEG, SynthesisOptions
+from links_ray.serve.http.json_body import json_kind as _kind
+from links_ray.serve.http.json_body import parse_json_object, read_body
 from links_ray.serve.http.limits import (
-    BODY_TIMEOUT_S,
     MAX_BODY_BYTES,
     MAX_BODY_CONTAINERS,
     MAX_CURVE_NAME_CHARS,
-    MAX_JSON_DEPTH,
+    MAX_KIT_JOINTS,
     MAX_REQUEST_JOINT_STEPS,
     MAX_REQUEST_JOINTS,
-    MIN_BODY_BYTES_PER_S,
-    body_deadline,
 )
 from links_ray.serve.http.responses import INLINE_JSON_BYTES, JSON_POOL, ApiError
 from links_ray.serve.http.schemas import REQUEST_MODELS
-
-
-def _kind(value: object) -> str:
-    """The JSON type of `value` for messages (never the value: it may be huge)."""
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return "a boolean"
-    if isinstance(value, int | float):
-        return "a number"
-    if isinstance(value, str):
-        return "a string"
-    if isinstance(value, list):
-        return "an array"
-    if isinstance(value, dict):
-        return "an object"
-    return type(value).__name__
 
 
 def _is_number(value: object) -> bool:
@@ -84,14 +66,6 @@ def _is_finite(value: int | float) -> bool:
         return math.isfinite(float(value))
     except OverflowError:  # an integer beyond float64
         return False
-
-
-class _NotANumber(ValueError):
-    """NaN, Infinity or -Infinity in a body: words JavaScript's JSON.stringify never writes."""
-
-
-def _refuse_constant(name: str) -> float:
-    raise _NotANumber(f"{name} is not a JSON number (numbers must be finite)")
 
 
 #: What a route makes of its body (`read_args`).
@@ -111,6 +85,12 @@ async def read_json_object(request: Request, route: str) -> dict[str, Any]:
 
 def _as_is(body: dict[str, Any]) -> dict[str, Any]:
     return body
+
+
+async def read_route_args(request: Request, route: str) -> Any:
+    """The arguments of a POST to `route`: its body read by `read_args` with the route's
+    converter in `CONVERTERS`."""
+    return await read_args(request, route, CONVERTERS[route])
 
 
 async def read_args(
@@ -168,79 +148,6 @@ def refuse_unknown_fields(body: dict[str, Any], route: str) -> None:
             raise ApiError(400, f"unknown field {shown!r}: {route} takes {', '.join(known)}")
 
 
-async def read_body(request: Request) -> bytes:
-    """The request body, at most MAX_BODY_BYTES (else ApiError 413), cut off with 408 when it
-    pauses for BODY_TIMEOUT_S or falls behind MIN_BODY_BYTES_PER_S (`limits.body_deadline`,
-    as `links serve`'s request gate reads it first)."""
-    loop = asyncio.get_running_loop()
-    start = loop.time()
-    chunks: list[bytes] = []
-    size = 0
-    try:
-        # A point in the loop's time, from the start: a client that sends the headers and
-        # nothing more is cut off as surely as one that stops halfway.
-        async with asyncio.timeout_at(start + BODY_TIMEOUT_S) as deadline:
-            async for chunk in request.stream():
-                size += len(chunk)
-                if size > MAX_BODY_BYTES:
-                    raise ApiError(413, f"the body is over the limit of {MAX_BODY_BYTES} bytes")
-                chunks.append(chunk)
-                deadline.reschedule(body_deadline(start, loop.time(), size))
-    except ClientDisconnect:  # nobody is left to answer; not a server error
-        raise ApiError(400, "the client disconnected before sending the whole body") from None
-    except TimeoutError:
-        # The rest of the body is never read: the connection is closed after the answer.
-        raise ApiError(
-            408,
-            f"the body came too slowly ({size} bytes in {loop.time() - start:.1f} s): it may "
-            f"pause at most {BODY_TIMEOUT_S:g} s and must keep up {MIN_BODY_BYTES_PER_S} "
-            "bytes a second",
-            headers={"Connection": "close"},
-        ) from None
-    return b"".join(chunks)
-
-
-def parse_json_object(body: bytes) -> dict[str, Any]:
-    """`body` parsed as a JSON object, or ApiError 400 naming the problem.
-
-    orjson is the one parser of request bodies: it holds the GIL for its whole call too, but
-    for several times less than json on a large body of numbers, and it bounds what a body can
-    ask of it (nesting 1024 deep at most; every number a float64 or a 64-bit integer, larger
-    integers read as floats, infinite ones refused). json reads a refused body again only to
-    word the refusal better (NaN, a line and column), and its answer is never used: a body
-    one parser refuses is refused."""
-    if not body.strip():
-        raise ApiError(400, "the body is empty: expected a JSON object")
-    try:
-        data = orjson.loads(body)
-    except orjson.JSONDecodeError as exc:
-        raise ApiError(400, _refusal(body, exc)) from None
-    if not isinstance(data, dict):
-        raise ApiError(400, f"the body must be a JSON object, got {_kind(data)}")
-    return data
-
-
-def _refusal(body: bytes, refused: orjson.JSONDecodeError) -> str:
-    """Why orjson refused `body`, in json's words where they say more (NaN and Infinity, a
-    line and column), else in orjson's."""
-    not_json = "the body is not valid JSON"
-    if refused.msg == "depth limit exceeded":
-        return f"{not_json}: nested too deeply (more than {MAX_JSON_DEPTH} levels)"
-    try:
-        json.loads(body, parse_constant=_refuse_constant)
-    except UnicodeDecodeError:
-        return "the body is not UTF-8 text"
-    except json.JSONDecodeError as exc:
-        return f"{not_json}: {exc.msg} (line {exc.lineno}, column {exc.colno})"
-    except _NotANumber as exc:
-        return f"{not_json}: {exc}"
-    except RecursionError:
-        return f"{not_json}: nested too deeply (more than {MAX_JSON_DEPTH} levels)"
-    except ValueError:  # an integer of too many digits, which orjson's words say
-        pass
-    return f"{not_json}: {refused.msg} (line {refused.lineno}, column {refused.colno})"
-
-
 def _required(body: dict[str, Any], name: str) -> Any:
     if name not in body:
         raise ApiError(400, f"missing field {name!r}")
@@ -267,12 +174,8 @@ def _numbers(name: str, value: object, count: int, entries: str) -> list:
     return value
 
 
-#: Coordinates `_plain_pairs` passes: finite, and integers that NumPy reads as int64.
-PLAIN_COORDINATE = float(2**62)
-
-
 def _plain_pairs(pairs: list) -> bool:
-    """Whether `pairs` holds only [x, y] lists of JSON numbers within +-PLAIN_COORDINATE: one
+    """Whether `pairs` holds only [x, y] lists of JSON numbers within +-MAX_COORDINATE: one
     pass over a drawn curve's points, much quicker than `_pairs`' loop that names the first
     bad entry, which only a refused curve needs."""
     return all(
@@ -280,14 +183,15 @@ def _plain_pairs(pairs: list) -> bool:
         and len(pair) == 2
         and type(pair[0]) in (float, int)
         and type(pair[1]) in (float, int)
-        and -PLAIN_COORDINATE < pair[0] < PLAIN_COORDINATE
-        and -PLAIN_COORDINATE < pair[1] < PLAIN_COORDINATE
+        and -MAX_COORDINATE <= pair[0] <= MAX_COORDINATE
+        and -MAX_COORDINATE <= pair[1] <= MAX_COORDINATE
         for pair in pairs
     )
 
 
 def _pairs(name: str, value: object, count: int | None = None) -> list[list[float]]:
-    """`value` as a list of finite [x, y] number pairs (`count` of them if given)."""
+    """`value` as a list of [x, y] number pairs within +-MAX_COORDINATE (`count` of them if
+    given), refused in the engine's words (`inputs.check_positions`, `as_drawn_points`)."""
     if not isinstance(value, list):
         raise ApiError(400, f"{name} must be an array of [x, y] pairs, got {_kind(value)}")
     if count is not None and len(value) != count:
@@ -305,6 +209,8 @@ def _pairs(name: str, value: object, count: int | None = None) -> list[list[floa
                 raise ApiError(400, f"{name}[{i}] must hold two numbers, got {_kind(coordinate)}")
             if not _is_finite(coordinate):
                 raise ApiError(400, f"{name}[{i}] must hold finite numbers")
+            if abs(coordinate) > MAX_COORDINATE:
+                raise ApiError(400, f"{name} must lie within +-{MAX_COORDINATE:g}")
     return value
 
 
@@ -370,7 +276,8 @@ def _min_transmission(body: dict[str, Any]) -> float:
 
 
 def topology_args(body: dict[str, Any]) -> tuple[list, list]:
-    """(adjacency, node_types) of a /api/simulate or /api/analyze body, shapes checked."""
+    """(adjacency, node_types) of a /api/simulate or /api/analyze body: shapes checked, then
+    entries, kinds and joint count as the engine checks a graph (`inputs.as_graph`)."""
     adjacency = _required(body, "adjacency")
     node_types = _required(body, "node_types")
     if not isinstance(adjacency, list) or not adjacency:
@@ -382,15 +289,16 @@ def topology_args(body: dict[str, Any]) -> tuple[list, list]:
     for i, row in enumerate(adjacency):
         _numbers(f"adjacency[{i}]", row, n, "0 or 1")
     _numbers("node_types", node_types, n, "0, 1 or 2")
+    _checked(as_graph, adjacency, node_types)
     return adjacency, node_types
 
 
 def analyze_args(body: dict[str, Any]) -> tuple[list, list, list | None, int]:
     """(adjacency, node_types, positions, steps) of a /api/analyze body: as /api/simulate's,
-    positions None (and DEFAULT_STEPS) when it gives none."""
+    positions None when it gives none (its steps checked all the same)."""
     if body.get("positions") is None:
         adjacency, node_types = topology_args(body)
-        return adjacency, node_types, None, DEFAULT_STEPS
+        return adjacency, node_types, None, _steps(body)
     return simulate_args(body)
 
 
@@ -403,8 +311,7 @@ def simulate_args(body: dict[str, Any]) -> tuple[list, list, list, int]:
     adjacency, node_types = topology_args(body)
     n = len(adjacency)
     positions = _pairs("positions", _required(body, "positions"), count=n)
-    steps = body.get("steps")
-    steps = DEFAULT_STEPS if steps is None else _checked(as_steps, steps)
+    steps = _steps(body)
     if n * steps > MAX_REQUEST_JOINT_STEPS:
         raise ApiError(
             413,
@@ -412,6 +319,12 @@ def simulate_args(body: dict[str, Any]) -> tuple[list, list, list, int]:
             f"the limit is {MAX_REQUEST_JOINT_STEPS} joint-steps",
         )
     return adjacency, node_types, positions, steps
+
+
+def _steps(body: dict[str, Any]) -> int:
+    """A body's `steps` (DEFAULT_STEPS when absent or null), or ApiError naming it."""
+    steps = body.get("steps")
+    return DEFAULT_STEPS if steps is None else _checked(as_steps, steps)
 
 
 #: /api/export's formats: (media type, file suffix) of each.
@@ -434,8 +347,10 @@ def export_args(body: dict[str, Any]) -> tuple[list, list, list, str, float, Any
         )
     crank = body.get("crank_mm")
     crank_mm = DEFAULT_CRANK_MM if crank is None else _checked(as_crank_mm, crank)
-    # The engine checks path_joint: an integer naming a moving joint.
-    return adjacency, node_types, positions, chosen, crank_mm, body.get("path_joint")
+    path_joint = body.get("path_joint")
+    if path_joint is not None:  # a joint; the engine says whether it moves
+        path_joint = _checked(as_int, "path_joint", path_joint, 0, len(adjacency) - 1)
+    return adjacency, node_types, positions, chosen, crank_mm, path_joint
 
 
 #: /api/kit's formats: (media type, file suffix) of each; "bom" answers JSON.
@@ -450,9 +365,16 @@ KIT_OPTIONS = tuple(field.name for field in fields(KitOptions) if field.name != 
 
 def kit_args(body: dict[str, Any]) -> tuple[list, list, list, KitOptions, str]:
     """(adjacency, node_types, positions, options, format) of a /api/kit body, or
-    ApiError naming the problem: the options checked once (`KitOptions`), the crank
-    DEFAULT_CRANK_MM long when not given; the engine checks the mechanism itself."""
+    ApiError naming the problem: at most MAX_KIT_JOINTS joints, the options checked once
+    (`KitOptions`), the crank DEFAULT_CRANK_MM long when not given; the engine checks the
+    mechanism itself."""
     adjacency, node_types = topology_args(body)
+    if len(node_types) > MAX_KIT_JOINTS:  # before the kit takes one of the replica's places
+        raise ApiError(
+            400,
+            f"a kit is built of at most {MAX_KIT_JOINTS} joints here (MAX_KIT_JOINTS), got "
+            f"{len(node_types)}: its layer plan would hold the server too long",
+        )
     positions = _pairs("positions", _required(body, "positions"), count=len(adjacency))
     chosen = body.get("format", "bom")
     if not isinstance(chosen, str) or chosen not in KIT_FORMATS:
@@ -480,3 +402,22 @@ def _string(body: dict[str, Any], field: str, value: object) -> str:
     if field != "text" and not 1 <= len(value) <= MAX_CURVE_NAME_CHARS:
         raise ApiError(400, f"{field} must be 1 to {MAX_CURVE_NAME_CHARS} characters long")
     return value
+
+
+#: The converter of each POST route's body (`read_route_args`): the one place a route's name
+#: meets its converter, for exactly the routes of `REQUEST_MODELS` (checked at import), whose
+#: models tests/serve/test_bodies_agree.py holds to the converters field by field.
+CONVERTERS: dict[str, Callable[[dict[str, Any]], Any]] = {
+    "/api/simulate": simulate_args,
+    "/api/analyze": analyze_args,
+    "/api/retrieve": retrieve_args,
+    "/api/synthesize": synthesize_request,
+    "/api/export": export_args,
+    "/api/curve": curve_args,
+    "/api/kit": kit_args,
+}
+if CONVERTERS.keys() != REQUEST_MODELS.keys():  # at import: a route without both never serves
+    raise RuntimeError(
+        f"bodies.CONVERTERS names {sorted(CONVERTERS)}, schemas.REQUEST_MODELS "
+        f"{sorted(REQUEST_MODELS)}: every POST route needs its converter and its model"
+    )

@@ -6,9 +6,10 @@ Making a kit holds a core for its layer plan's counted work (`engine.fabrication
 behind it by `PLAN_SECONDS`) and its parts' making, so a replica makes one at a time, in a thread of
 its own below the event loop (`admission.low_priority_thread`), and holds at most `MAX_KITS`, made
 or waiting: one more is answered 503 with `Retry-After` at once. The mechanism is at most
-`MAX_REQUEST_JOINTS` joints (413), and a kit at most `MAX_KIT_JOINTS` (400, before it takes a
-place), which bounds the checks and the parts, so the time and the memory of making a kit. A place
-is freed when its kit is made, whether or not its client still waits. Nothing here imports Ray.
+`MAX_REQUEST_JOINTS` joints (413), and a kit at most `MAX_KIT_JOINTS` (400, by `bodies.kit_args`,
+before it takes a place), which bounds the checks and the parts, so the time and the memory of
+making a kit. A place is freed when its kit is made, whether or not its client still waits.
+Nothing here imports Ray.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from links_ray.engine.fabrication.layers import LayeringError
 from links_ray.engine.kinematics.mechanism import LockingError
 from links_ray.serve.http.admission import busy, low_priority_thread
 from links_ray.serve.http.bodies import KIT_FORMATS
-from links_ray.serve.http.limits import MAX_KIT_JOINTS, MAX_KITS
+from links_ray.serve.http.limits import MAX_KITS
 from links_ray.serve.http.responses import ApiError, error_response, json_answer
 
 __all__ = ["LINE", "MAX_KITS", "KitLine", "answer_kit", "make"]
@@ -77,16 +78,10 @@ def make(
 async def answer_kit(
     adjacency: list, node_types: list, positions: list, options: KitOptions, chosen: str
 ) -> Response:
-    """The kit of `/api/kit`, made in the kit thread; ApiError naming why not: 400 for a
-    mechanism of more than MAX_KIT_JOINTS joints (at once) and other refusals, 422 when no
-    stacking of layers keeps every pin clear or the mechanism locks, 501 without the 3D
-    libraries, 503 when busy."""
-    if len(node_types) > MAX_KIT_JOINTS:
-        raise ApiError(
-            400,
-            f"a kit is built of at most {MAX_KIT_JOINTS} joints here (MAX_KIT_JOINTS), got "
-            f"{len(node_types)}: its layer plan would hold the server too long",
-        )
+    """The kit of `/api/kit` (its body read by `bodies.kit_args`, which refuses a mechanism of
+    more than MAX_KIT_JOINTS joints), made in the kit thread; ApiError naming why not: 400 for
+    the engine's refusals, 422 when no stacking of layers keeps every pin clear or the
+    mechanism locks, 501 without the 3D libraries, 503 when busy."""
     LINE.claim()
     start = time.perf_counter()
     loop = asyncio.get_running_loop()

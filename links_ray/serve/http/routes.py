@@ -55,18 +55,7 @@ from links_ray.interop.drawings import dxf_drawing, svg_drawing
 from links_ray.serve.http import kit_schemas, schemas
 from links_ray.serve.http.admission import Admission, Place
 from links_ray.serve.http.backend import RetrievalBackend
-from links_ray.serve.http.bodies import (
-    EXPORT_FORMATS,
-    KIT_FORMATS,
-    analyze_args,
-    curve_args,
-    export_args,
-    kit_args,
-    read_args,
-    retrieve_args,
-    simulate_args,
-    synthesize_request,
-)
+from links_ray.serve.http.bodies import EXPORT_FORMATS, KIT_FORMATS, read_route_args
 from links_ray.serve.http.kits import answer_kit
 from links_ray.serve.http.limits import request_limits
 from links_ray.serve.http.responses import (
@@ -240,7 +229,7 @@ class LinksApiRoutes:
     )
     async def api_simulate(self, request: Request) -> Response:
         """Trajectories [n][steps][2] of a mechanism, 422 if it locks, 4xx if malformed."""
-        args = await read_args(request, "/api/simulate", simulate_args)
+        args = await read_route_args(request, "/api/simulate")
         try:
             trajectories = await run_in_threadpool(simulate, *args)
         except LockingError as exc:
@@ -257,7 +246,7 @@ class LinksApiRoutes:
     )
     async def api_analyze(self, request: Request) -> Response:
         """Degree of freedom, dyadic solvability and, given positions, where it locks."""
-        args = await read_args(request, "/api/analyze", analyze_args)
+        args = await read_route_args(request, "/api/analyze")
         try:
             found = await run_in_threadpool(analyze_mechanism, *args)
         except ValueError as exc:  # degenerate positions: named as /api/simulate names them
@@ -281,7 +270,7 @@ class LinksApiRoutes:
         """The mechanism as an SVG, DXF or table file in millimetres, its crank `crank_mm`
         long (default 20), with the path of `path_joint` if given; 422 if that path locks,
         other 4xx JSON if it cannot."""
-        args = await read_args(request, "/api/export", export_args)
+        args = await read_route_args(request, "/api/export")
         try:
             return await run_in_threadpool(export_file, *args)
         except LockingError as exc:  # only with a path: a locking mechanism has none
@@ -314,7 +303,7 @@ class LinksApiRoutes:
         20): the bill of materials as JSON, the assembly as GLB or the whole build as a zip
         (`format`); 422 when no stacking of layers keeps every pin clear (or it locks), other
         4xx JSON for bad input, 503 with `Retry-After` when MAX_KITS are under way."""
-        args = await read_args(request, "/api/kit", kit_args)
+        args = await read_route_args(request, "/api/kit")
         return await answer_kit(*args)
 
     @router.post(
@@ -329,7 +318,7 @@ class LinksApiRoutes:
         closed; 400 naming what is wrong with the file, 413 naming a limit on what it holds,
         422 when reading it overran a reader's time or memory, 503 when every reader is busy
         (`interop.curve_worker`)."""
-        name, text, part = await read_args(request, "/api/curve", curve_args)
+        name, text, part = await read_route_args(request, "/api/curve")
         try:
             # In a reader process: no drawing can hold this replica's GIL, memory or time;
             # waiting for one takes none of the thread pool's tokens.
@@ -349,7 +338,7 @@ class LinksApiRoutes:
     async def api_retrieve(self, request: Request) -> Response:
         """The k curated paths nearest to a drawn curve, best first, with their mechanisms;
         503 with `Retry-After` when MAX_RETRIEVALS are already under way here."""
-        args = await read_args(request, "/api/retrieve", retrieve_args)
+        args = await read_route_args(request, "/api/retrieve")
         points, k, min_transmission_deg, most = args
         # Claimed once the body is read and checked: a client that sends its body slowly, or
         # never, holds a connection until the body timeout, never a place of the index.
@@ -378,7 +367,7 @@ class LinksApiRoutes:
         best so far improves, then the answer's own line (`serve.http.synthesis_run`). Counted work
         past MAX_SYNTHESIS_WORK is refused 400 before any; a synthesis whose client goes
         stops at its next refinement iteration (`serve.http.synthesis_run`)."""
-        points, options, stream = await read_args(request, "/api/synthesize", synthesize_request)
+        points, options, stream = await read_route_args(request, "/api/synthesize")
         seconds = options.seconds
         self._admission.claim_synthesis()  # once the body is read and checked, as a retrieval
         place: Place | None = None

@@ -1,10 +1,12 @@
 """The HTTP API's request and response bodies as pydantic models: what `/openapi.json` shows.
 
-Every bound comes from `links_ray.engine.inputs`, where the limits are defined once. The
-routes read and check a body with the engine's own validators (`serve.http.bodies`), so a refused
-request names its problem in the engine's words, and 10,000 drawn points are checked by NumPy,
-not field by field; the models are the schema those checks enforce, and the shapes the routes
-answer with.
+Every bound comes from the limit the body's check enforces (`links_ray.engine.inputs`, the
+synthesis options and constraints, fabrication's limits, `serve.http.limits`), defined once. The
+routes read and check a body with the engine's own validators (`serve.http.bodies.CONVERTERS`),
+so a refused request names its problem in the engine's words, and 10,000 drawn points are
+checked by NumPy, not field by field; the models are the schema those checks enforce
+(tests/serve/test_bodies_agree.py holds each model to its converter, bound by bound), and the
+shapes the routes answer with.
 """
 
 from typing import Annotated, Any, Literal
@@ -35,35 +37,45 @@ from links_ray.engine.inputs import (
     MIN_POINTS,
     MIN_STEPS,
 )
-from links_ray.engine.synthesis.constraints import MAX_LAYERS
+from links_ray.engine.node_kinds import ACTUATED, FIXED
+from links_ray.engine.synthesis.constraints import MAX_LAYERS, MAX_LINK_RATIO
 from links_ray.engine.synthesis.options import (
     DEFAULT_SYNTHESIS_SECONDS,
     DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
     MAX_SEED,
     MAX_SYNTHESIS_ITERATIONS,
     MAX_SYNTHESIS_SECONDS,
+    MAX_TIMING_DEG,
 )
-from links_ray.serve.http.limits import MAX_CURVE_NAME_CHARS, MAX_REQUEST_JOINTS
+from links_ray.serve.http.limits import MAX_CURVE_NAME_CHARS, MAX_KIT_JOINTS, MAX_REQUEST_JOINTS
 
 Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
 #: [x, y]
 Point = Annotated[list[Coordinate], Field(min_length=2, max_length=2)]
 Joints = Field(min_length=MIN_JOINTS, max_length=MAX_REQUEST_JOINTS)
+#: An adjacency entry, and a joint's kind (`engine.node_kinds`): integers in a range rather than
+#: Literals, which would take true for 1 as Python does; JSON's booleans are no numbers here.
+Link = Annotated[int, Field(ge=0, le=1)]
+Kind = Annotated[int, Field(ge=FIXED, le=ACTUATED)]
+#: A crank angle of `timing`, degrees.
+Angle = Annotated[float, Field(ge=-MAX_TIMING_DEG, le=MAX_TIMING_DEG)]
 
 
 class Request(BaseModel):
-    """A request body: a JSON object; a field it does not name is refused (400)."""
+    """A request body: a JSON object; a field it does not name is refused (400). Strict, as
+    the routes read JSON: no text for a number, no boolean for an integer. A field whose
+    schema allows null takes it for its default."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
 
 
 class Mechanism(BaseModel):
     """docs/reference/contract.md, Mechanisms: joint 0 fixed, joint 1 the crank's tip."""
 
-    adjacency: Annotated[list[list[Literal[0, 1]]], Joints] = Field(
+    adjacency: Annotated[list[list[Link]], Joints] = Field(
         description="n x n, symmetric, zero diagonal: 1 where two joints are linked"
     )
-    node_types: Annotated[list[Literal[0, 1, 2]], Joints] = Field(
+    node_types: Annotated[list[Kind], Joints] = Field(
         description="per joint: 0 fixed, 1 simple, 2 actuated (joint 1 only)"
     )
     positions: Annotated[list[Point], Joints] = Field(description="initial [x, y] per joint")
@@ -72,24 +84,24 @@ class Mechanism(BaseModel):
 class SimulateRequest(Request, Mechanism):
     """POST /api/simulate. Joints x steps is at most `max_joint_steps` (GET /api/limits)."""
 
-    steps: int = Field(DEFAULT_STEPS, ge=MIN_STEPS, le=MAX_STEPS, description="crank steps")
+    steps: int | None = Field(DEFAULT_STEPS, ge=MIN_STEPS, le=MAX_STEPS, description="crank steps")
 
 
 class AnalyzeRequest(Request):
     """POST /api/analyze: a topology, and optionally positions to simulate."""
 
-    adjacency: Annotated[list[list[Literal[0, 1]]], Joints]
-    node_types: Annotated[list[Literal[0, 1, 2]], Joints]
+    adjacency: Annotated[list[list[Link]], Joints]
+    node_types: Annotated[list[Kind], Joints]
     positions: Annotated[list[Point], Joints] | None = None
-    steps: int = Field(DEFAULT_STEPS, ge=MIN_STEPS, le=MAX_STEPS)
+    steps: int | None = Field(DEFAULT_STEPS, ge=MIN_STEPS, le=MAX_STEPS)
 
 
 class CurveRequest(Request):
     """A drawn curve, not all one point, and the answers wanted for it."""
 
     points: Annotated[list[Point], Field(min_length=MIN_POINTS, max_length=MAX_POINTS)]
-    k: int = Field(DEFAULT_K, ge=MIN_K, le=MAX_K, description="results wanted")
-    min_transmission: float = Field(
+    k: int | None = Field(DEFAULT_K, ge=MIN_K, le=MAX_K, description="results wanted")
+    min_transmission: float | None = Field(
         0.0,
         ge=0.0,
         le=MAX_TRANSMISSION_DEG,
@@ -121,10 +133,17 @@ class DesignConstraints(Request):
         None, description="every joint inside this box through the whole crank turn"
     )
     max_link_ratio: float | None = Field(
-        None, ge=1.0, description="the longest link at most this many times the shortest"
+        None,
+        ge=1.0,
+        le=MAX_LINK_RATIO,
+        description="the longest link at most this many times the shortest",
     )
-    min_link: float | None = Field(None, gt=0.0, description="every link at least this long")
-    max_link: float | None = Field(None, gt=0.0, description="every link at most this long")
+    min_link: float | None = Field(
+        None, gt=0.0, le=MAX_COORDINATE, description="every link at least this long"
+    )
+    max_link: float | None = Field(
+        None, gt=0.0, le=MAX_COORDINATE, description="every link at most this long"
+    )
     max_layers: int | None = Field(
         None,
         ge=1,
@@ -140,7 +159,7 @@ class SynthesizeRequest(CurveRequest):
     """POST /api/synthesize: retrieval, then refinement within `seconds`, or for a fixed
     number of `iterations`."""
 
-    seconds: float = Field(
+    seconds: float | None = Field(
         DEFAULT_SYNTHESIS_SECONDS,
         gt=0.0,
         le=MAX_SYNTHESIS_SECONDS,
@@ -152,13 +171,13 @@ class SynthesizeRequest(CurveRequest):
         le=MAX_SYNTHESIS_ITERATIONS,
         description="counted work instead of a time budget: equal requests, bit-equal answers",
     )
-    min_transmission: float = Field(
+    min_transmission: float | None = Field(
         DEFAULT_SYNTHESIS_TRANSMISSION_DEG,
         ge=0.0,
         le=MAX_TRANSMISSION_DEG,
         description="the least transmission angle kept, degrees (0: refinement's own margin)",
     )
-    seed: int = Field(0, ge=0, le=MAX_SEED, description="seed of the random restarts")
+    seed: int | None = Field(0, ge=0, le=MAX_SEED, description="seed of the random restarts")
     partial: bool = Field(False, description="the drawing is part of a curve: match a run")
     max_joints: int | None = MaxJoints
     front: bool = Field(
@@ -171,7 +190,7 @@ class SynthesizeRequest(CurveRequest):
     constraints: DesignConstraints | None = Field(
         None, description="kept by every result; `unmet` in the answer when none can"
     )
-    timing: bool | list[float] | None = Field(
+    timing: bool | list[Angle] | None = Field(
         None,
         description=(
             "true: the points are reached at equal crank steps over a turn, in order, from a "
@@ -402,10 +421,14 @@ class ExportRequest(Request, Mechanism):
     """POST /api/export: the mechanism drawn in millimetres, answered as a file."""
 
     format: Literal["svg", "dxf", "table"] = Field("svg", description="the file's format")
-    crank_mm: float = Field(
+    crank_mm: float | None = Field(
         DEFAULT_CRANK_MM, gt=0, le=MAX_CRANK_MM, description="the crank's length in mm"
     )
-    path_joint: int | None = Field(None, description="a moving joint whose path is drawn too")
+    path_joint: int | None = Field(None, ge=0, description="a moving joint whose path is drawn too")
+
+
+#: A kit's joints: at most MAX_KIT_JOINTS, fewer than any other mechanism of a request.
+KitJoints = Field(min_length=MIN_JOINTS, max_length=MAX_KIT_JOINTS)
 
 
 class KitRequest(Request, Mechanism):
@@ -413,32 +436,39 @@ class KitRequest(Request, Mechanism):
     docs/guides/building.md): the pin narrower than the hole, the hole than the spacer, the
     spacer than the bar."""
 
+    adjacency: Annotated[list[list[Link]], KitJoints] = Field(
+        description="n x n, symmetric, zero diagonal: 1 where two joints are linked"
+    )
+    node_types: Annotated[list[Kind], KitJoints] = Field(
+        description="per joint: 0 fixed, 1 simple, 2 actuated (joint 1 only)"
+    )
+    positions: Annotated[list[Point], KitJoints] = Field(description="initial [x, y] per joint")
     format: Literal["bom", "glb", "zip"] = Field(
         "bom", description="bom: the bill as JSON; glb: the assembly; zip: the whole kit"
     )
-    crank_mm: float = Field(
+    crank_mm: float | None = Field(
         DEFAULT_CRANK_MM, gt=0, le=MAX_CRANK_MM, description="the crank's length in mm"
     )
-    bar_width_mm: float = Field(DEFAULT_BAR_WIDTH_MM, gt=0, le=MAX_DRAWING_MM)
-    hole_diameter_mm: float = Field(DEFAULT_HOLE_DIAMETER_MM, gt=0, le=MAX_DRAWING_MM)
-    pin_diameter_mm: float = Field(DEFAULT_PIN_DIAMETER_MM, gt=0, le=MAX_DRAWING_MM)
-    spacer_diameter_mm: float = Field(
+    bar_width_mm: float | None = Field(DEFAULT_BAR_WIDTH_MM, gt=0, le=MAX_DRAWING_MM)
+    hole_diameter_mm: float | None = Field(DEFAULT_HOLE_DIAMETER_MM, gt=0, le=MAX_DRAWING_MM)
+    pin_diameter_mm: float | None = Field(DEFAULT_PIN_DIAMETER_MM, gt=0, le=MAX_DRAWING_MM)
+    spacer_diameter_mm: float | None = Field(
         DEFAULT_SPACER_DIAMETER_MM,
         gt=0,
         le=MAX_DRAWING_MM,
         description="the spacers' outside: the pins' width in the layer plan",
     )
-    clearance_mm: float = Field(
+    clearance_mm: float | None = Field(
         DEFAULT_CLEARANCE_MM,
         ge=0,
         le=MAX_DRAWING_MM,
         description="the least gap between parts on one layer over the whole turn",
     )
-    layer_thickness_mm: float = Field(DEFAULT_LAYER_THICKNESS_MM, gt=0, le=MAX_DRAWING_MM)
-    layer_gap_mm: float = Field(
+    layer_thickness_mm: float | None = Field(DEFAULT_LAYER_THICKNESS_MM, gt=0, le=MAX_DRAWING_MM)
+    layer_gap_mm: float | None = Field(
         DEFAULT_LAYER_GAP_MM, ge=0, le=MAX_DRAWING_MM, description="kept by washers"
     )
-    ground_on_base: bool = Field(False, description="fixed pins stand on a base plate")
+    ground_on_base: bool | None = Field(False, description="fixed pins stand on a base plate")
 
 
 def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
