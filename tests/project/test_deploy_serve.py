@@ -4,7 +4,8 @@ Every YAML file parses into Kubernetes objects or Serve configs; every Serve con
 deploy/serve/ and each RayService's serveConfigV2) builds the links app with args it takes, and
 its deployment overrides keep the replicas' environment; each RayService's workers offer Ray the
 CPUs its replicas reserve, the head none, and give the replicas time to drain.
-(tests/serve/test_serve.py checks the private Serve config's and RayService's own values.)
+(tests/serve/test_serve_config.py checks the private Serve config's and RayService's own
+values.)
 
 Each check returns the problems it finds, and `test_a_planted_mistake_is_found` shows each one
 finding a mistake planted in a copy (tests/support/manifests.py holds the parsed manifests and

@@ -7,7 +7,8 @@ mechanism and the request alone: /api/simulate's trajectories, joint 0 moved to 
 scaled so that the crank is `crank_mm` long, each layer `layer_thickness_mm + layer_gap_mm`
 above the one below (docs/guides/building.md), plus the view's explode spacing per layer.
 
-Screenshots go where test_studio.py's go (LINKS_STUDIO_SCREENSHOTS, else a temporary folder).
+Screenshots go where the other test_studio_*.py files' go (LINKS_STUDIO_SCREENSHOTS, else a
+temporary folder).
 """
 
 from __future__ import annotations

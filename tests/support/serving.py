@@ -1,5 +1,6 @@
-"""Helpers for tests of the Serve app: a small JSON client over `http.client`, running an app,
-and mechanisms and curves the tests share."""
+"""Helpers for tests of the Serve app: a small JSON client over `http.client`, running an app
+(in this process, or `links serve` in a child), checks of its answers, and mechanisms and curves
+the tests share."""
 
 from __future__ import annotations
 
@@ -24,6 +25,10 @@ FOUR_BAR = {
 }
 #: The coupler (1-3) and rocker (2-3) are too short to span joints 1 and 2 over a full turn.
 LOCKING_FOUR_BAR = {**FOUR_BAR, "positions": [[0.5, 0.5], [0.55, 0.5], [0.62, 0.5], [0.585, 0.52]]}
+#: Four points of a curve: the drawing the HTTP tests send where any will do.
+POINTS = [[0.0, 0.0], [1.0, 0.5], [2.0, 0.0], [3.0, 1.0]]
+#: What `links serve` may take to exit after SIGTERM once no request is under way.
+EXIT_S = 10.0
 
 
 class Client:
@@ -74,6 +79,30 @@ class Client:
     def post(self, path: str, body: Any) -> tuple[int, Any]:
         status, _, data = self.request("POST", path, body)
         return status, data
+
+
+def post_ok(client: Client, path: str, body: Any) -> tuple[int, Any]:
+    """(status, JSON body) of a POST that must be answered 200."""
+    status, data = client.post(path, body)
+    assert status == 200, data
+    return status, data
+
+
+def check_error(status: int, headers: dict[str, str], data: Any, expected: int, words: str) -> None:
+    """A refusal: status `expected` (never a 5xx) with a JSON {"error"} holding `words`."""
+    assert status < 500, (status, data)
+    assert status == expected, (status, data)
+    assert headers.get("content-type", "").startswith("application/json")
+    assert isinstance(data, dict) and set(data) == {"error"}, data
+    assert words in data["error"], data["error"]
+
+
+def curated_shards(root: str) -> int:
+    """How many shards the curation of the dataset at `root` committed."""
+    from links_ray.data.commit import committed_shards
+    from links_ray.data.store import Store
+
+    return len(committed_shards(Store.open(root), "curation"))
 
 
 def low_port() -> int:
@@ -186,6 +215,24 @@ def retrieved(client: Client, query: np.ndarray, k: int) -> list[dict]:
 def as_served(results: list[dict]) -> list[dict]:
     """Results as they come back over HTTP (JSON round-trips floats exactly)."""
     return json.loads(json.dumps(results))
+
+
+def listening_process(port: int) -> str:
+    """The command line of the process listening on TCP port `port` of 127.0.0.1 ('' if none),
+    from /proc: which process answers, not only that something does."""
+    inodes = set()
+    for line in Path("/proc/net/tcp").read_text().splitlines()[1:]:
+        fields = line.split()
+        if fields[1] == f"0100007F:{port:04X}" and fields[3] == "0A":  # LISTEN
+            inodes.add(f"socket:[{fields[9]}]")
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            fds = os.listdir(f"/proc/{pid}/fd")
+            if any(os.readlink(f"/proc/{pid}/fd/{fd}") in inodes for fd in fds):
+                return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:  # gone, or not ours to read
+            continue
+    return ""
 
 
 def descendants(pid: int) -> dict[int, str]:

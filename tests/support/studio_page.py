@@ -1,6 +1,6 @@
-"""The studio in a browser tab, with helpers that act as a user would (tests/serve/test_studio.py
-and the tests of an imported root); the `browser` fixture (support/browser.py) launches Debian's
-Chromium."""
+"""The studio in a browser tab, with helpers that act as a user would (tests/serve/test_studio_*.py
+and the tests of an imported root), and the engine's own answers the studio's tests check the
+page against; the `browser` fixture (support/browser.py) launches Debian's Chromium."""
 
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ from tests.support.serving import FOUR_BAR
 CHROMIUM = os.environ.get("LINKS_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
 VIEWPORT = {"width": 1400, "height": 1000}
+#: The steps of a turn the studio simulates.
+STEPS = 200
 
 
 class Studio:
@@ -146,3 +148,38 @@ def open_studio(browser: Any, port: int) -> Iterator[Studio]:
         assert studio.unexpected_errors() == []
     finally:
         context.close()
+
+
+def simulate(mechanism: dict[str, Any]) -> np.ndarray:
+    """The engine's trajectories of `mechanism` over STEPS steps, as the studio asks for them."""
+    import links_ray
+
+    return links_ray.simulate(
+        mechanism["adjacency"], mechanism["node_types"], mechanism["positions"], STEPS
+    )
+
+
+def assert_assembled(mechanism: dict[str, Any], trajectories: np.ndarray) -> None:
+    """Every pose keeps every link's length, the crank turns by 2 pi / STEPS a step, and each
+    solved joint stays on its starting side of its two parents: the dyad has one solution."""
+    from links_ray.engine.kinematics.mechanism import analyze_topology
+
+    start = np.array(mechanism["positions"])
+    topology = analyze_topology(mechanism["adjacency"], mechanism["node_types"])
+    steps = trajectories.shape[1]
+    for i, j in zip(*np.nonzero(np.triu(topology.adjacency)), strict=True):
+        lengths = np.linalg.norm(trajectories[i] - trajectories[j], axis=1)
+        np.testing.assert_allclose(lengths, np.linalg.norm(start[i] - start[j]), atol=1e-9)
+    crank = trajectories[1] - start[0]
+    turned = np.unwrap(np.arctan2(crank[:, 1], crank[:, 0]))
+    np.testing.assert_allclose(turned - turned[0], 2 * np.pi * np.arange(steps) / STEPS)
+
+    def side(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.sign(
+            (b[..., 0] - a[..., 0]) * (p[..., 1] - a[..., 1])
+            - (b[..., 1] - a[..., 1]) * (p[..., 0] - a[..., 0])
+        )
+
+    for j, a, b in topology.order:
+        expected = side(start[j], start[a], start[b])
+        assert np.all(side(trajectories[j], trajectories[a], trajectories[b]) == expected)
