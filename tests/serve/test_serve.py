@@ -44,6 +44,7 @@ from tests.support.serving import (
     LOCKING_FOUR_BAR,
     TWO_CPU_RAY,
     Client,
+    as_served,
     command_line,
     descendants,
     links_serve,
@@ -425,11 +426,11 @@ def test_retrieve_keeps_to_mechanisms_of_at_most_max_joints(
     for query in queries[:3]:
         body = {"points": np.asarray(query).tolist(), "k": 5}
         _, data = _post(client, "/api/retrieve", {**body, "max_joints": most})
-        expected = json.loads(json.dumps(dataset_index.retrieve(query, 5, max_joints=most)))
+        expected = as_served(dataset_index.retrieve(query, 5, max_joints=most))
         assert len(expected) == 5 and data["results"] == expected
         assert all(result["n_joints"] <= most for result in data["results"])
         _, unrestricted = _post(client, "/api/retrieve", {**body, "max_joints": None})
-        assert unrestricted["results"] == json.loads(json.dumps(dataset_index.retrieve(query, 5)))
+        assert unrestricted["results"] == as_served(dataset_index.retrieve(query, 5))
     smallest = int(counts.min())
     if smallest > inputs.MIN_JOINTS:
         _, data = _post(client, "/api/retrieve", {**body, "max_joints": smallest - 1})
