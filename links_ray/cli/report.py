@@ -12,6 +12,8 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
+import numpy as np
+
 from links_ray.data.store import META
 
 #: The shares of `links stats`, in the order and words a person reads them.
@@ -25,7 +27,15 @@ _SHARE_NAMES = {
 
 def emit(result: dict, human: Callable[[dict], str], as_json: bool) -> None:
     """Print `result` as one JSON object with `--json`, else as `human` renders it."""
-    print(json.dumps(result) if as_json else human(result))
+    print(json.dumps(result, default=_jsonable) if as_json else human(result))
+
+
+def _jsonable(value: object) -> object:
+    """`json.dumps` fallback for numpy arrays and scalars: where a retrieval result's arrays
+    become lists, the numbers `tolist` gives (those of a list made before printing)."""
+    if isinstance(value, np.ndarray | np.generic):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON serializable")
 
 
 # -- numbers --------------------------------------------------------------------------------

@@ -48,6 +48,7 @@ from links_ray.engine.inputs import (
 )
 from links_ray.engine.kinematics.mechanism import reduce_mechanism
 from links_ray.engine.kinematics.paths import normalization
+from links_ray.engine.synthesis.plan import RetrievalResult
 from links_ray.search import query as search_query
 from links_ray.search.arrays import IndexArrays
 from links_ray.search.brute_force import brute_force_many
@@ -328,41 +329,47 @@ class RetrievalIndex:
         k: int = DEFAULT_K,
         min_transmission: object = 0.0,
         max_joints: object = None,
-    ) -> list[dict]:
+    ) -> list[RetrievalResult]:
         """The k best results for a query, best first, each with its mechanism in the query's
         frame (docs/reference/contract.md, HTTP API, describes a result), among the paths
         whose least transmission angle is at least `min_transmission` degrees and whose
         reduced mechanism has at most `max_joints` joints (None: any) (fewer than k if fewer
-        do). Raises ValueError naming a bad query, k, min_transmission or max_joints."""
+        do). A result's `points` and its mechanism's `adjacency`, `node_types` and `positions`
+        are numpy arrays made for the answer, none of them the index's own
+        (`engine.synthesis.plan.RetrievalResult`). Raises ValueError naming a bad query, k,
+        min_transmission or max_joints."""
         query, k = validate_query(points, k)
         min_transmission_deg = as_transmission_deg(min_transmission, "min_transmission")
         most = as_max_joints(max_joints)
         normalized, query_matrix, query_offset = normalization(query)
         ranked = self.ranked(normalized, k, min_transmission=min_transmission_deg, max_joints=most)
         rows = np.array([row for row, _, _ in ranked], dtype=np.int64)
-        paths = self.paths(rows)
-        results = []
-        for (row, distance, variant), path in zip(ranked, paths, strict=True):
+        # float64, the values the stored float32 points hold: what the answer has always held.
+        paths = self.paths(rows).astype(np.float64)
+        path_ids = self.path_ids(rows)
+        results: list[RetrievalResult] = []
+        for i, (row, distance, variant) in enumerate(ranked):
             joint = int(self.joint[row])
+            mechanism_row = int(self.mechanism_row[row])
             adjacency, node_types, positions, index = reduce_mechanism(
-                *self.bank.mechanism(int(self.mechanism_row[row])), joint
+                *self.bank.mechanism(mechanism_row), joint
             )
             placed = into_query_frame(
                 adjacency, node_types, positions, index, variant, query_matrix, query_offset
             )
             results.append(
                 {
-                    "path_id": int(self.path_ids(np.array([row]))[0]),
-                    "mechanism_id": int(self.bank.ids[self.mechanism_row[row]]),
+                    "path_id": int(path_ids[i]),
+                    "mechanism_id": int(self.bank.ids[mechanism_row]),
                     "joint": joint,
                     "chamfer": distance,
                     "min_transmission_deg": degrees_or_none(self.transmission[row]),
                     "n_joints": len(node_types),
-                    "points": path.astype(float).tolist(),
+                    "points": paths[i],
                     "mechanism": {
-                        "adjacency": adjacency.tolist(),
-                        "node_types": node_types.tolist(),
-                        "positions": placed.tolist(),
+                        "adjacency": adjacency,
+                        "node_types": node_types,
+                        "positions": placed,
                     },
                     "mechanism_joint": index,
                 }

@@ -48,6 +48,7 @@ from ray.serve.handle import DeploymentHandle, DeploymentResponse
 
 from links_ray.engine.cpus import set_given_cpus
 from links_ray.engine.kinematics.solver import simulate
+from links_ray.engine.synthesis.plan import RetrievalResult
 from links_ray.interop.curve_worker import warm_curve_readers
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.http.admission import Admission, busy, low_priority_thread
@@ -141,9 +142,10 @@ def use_replica_cpus() -> None:
     set_given_cpus(replica_cpus())
 
 
-def merge_results(answers: list[list[dict]], k: int) -> list[dict]:
+def merge_results(answers: list[list[RetrievalResult]], k: int) -> list[RetrievalResult]:
     """The k best of several partitions' answers (each best first), ordered as one index orders
-    them: by chamfer distance, ties to the lower path id."""
+    them: by chamfer distance, ties to the lower path id. The results are kept as they came,
+    their arrays too (they cross the deployment handles pickled, never as JSON)."""
     merged = [result for answer in answers for result in answer]
     merged.sort(key=lambda result: (result["chamfer"], result["path_id"]))
     return merged[:k]
@@ -180,8 +182,9 @@ class IndexPartition:
         k: int,
         min_transmission: float = 0.0,
         max_joints: int | None = None,
-    ) -> list[dict]:
-        """The k best results of this part, best first (`RetrievalIndex.retrieve`)."""
+    ) -> list[RetrievalResult]:
+        """The k best results of this part, best first (`RetrievalIndex.retrieve`), their
+        arrays pickled to the gateway as they are."""
         results, _ = await self._slot.retrieve_waited(points, k, min_transmission, max_joints)
         return results
 
@@ -267,7 +270,7 @@ class PartitionedIndex(RetrievalBackend):
         k: int,
         min_transmission_deg: float,
         max_joints: int | None = None,
-    ) -> tuple[list[dict], float]:
+    ) -> tuple[list[RetrievalResult], float]:
         """The partitions' answers merged; no wait counted here (retrievals wait in the
         partitions' replicas)."""
         answers = await self._ask_partitions(

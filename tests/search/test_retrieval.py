@@ -35,6 +35,7 @@ from links_ray.search.index import RetrievalIndex
 from links_ray.search.query import _about_least, distance_table, query_variants, variant_map
 from links_ray.search.reduced import reduced_joints
 from tests.support.cli import links
+from tests.support.results import assert_same_results
 
 
 @pytest.fixture(scope="module")
@@ -416,7 +417,7 @@ def test_coarse_lists_group_rows_and_probing_finds_the_near_ones(
     np.testing.assert_array_equal(lists.paths(np.arange(len(lists))), stored_points(lists))
     # Every list scanned: the same answers as the index of one list.
     for query in queries():
-        assert lists.retrieve(query, k=5) == index.retrieve(query, k=5)
+        assert_same_results(lists.retrieve(query, k=5), index.retrieve(query, k=5))
     # A quarter of the rows scanned, a fifth of those passed on: a stored path finds itself.
     # (Not a tenth: the sketches barely tell apart the many near-straight paths, a few
     # hundredths wide, so one of those can rank 30th among its look-alikes.)
@@ -474,7 +475,7 @@ def test_warm_up_is_bounded_and_leaves_answers_unchanged(index: RetrievalIndex) 
     before = index.retrieve(query, k=5)
     assert index.warm(seconds=60, queries=7) == 7
     assert index.warm(seconds=0, queries=100) == 1, "the first query is always answered"
-    assert index.retrieve(query, k=5) == before
+    assert_same_results(index.retrieve(query, k=5), before)
     with pytest.raises(ValueError, match="queries >= 1"):
         index.warm(queries=0)
 

@@ -16,6 +16,7 @@ from links_ray.serve.deployments import PartitionedIndex
 from links_ray.serve.http.backend import LocalIndex, RetrievalBackend
 from links_ray.serve.http.responses import ApiError
 from links_ray.serve.http.routes import LinksApiRoutes
+from tests.support.results import assert_same_results
 
 
 def interface_methods() -> dict[str, inspect.Signature]:
@@ -66,13 +67,13 @@ def test_a_local_index_answers_as_its_index_pooled_as_synthesis_pools(
     index = local.slot.index
     t = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
     points = np.column_stack([0.5 + 0.3 * np.cos(t), 0.5 + 0.2 * np.sin(2 * t)])
-    assert asyncio.run(local.retrieve(points, 5, 0.0)) == index.retrieve(points, 5, 0.0)
+    assert_same_results(asyncio.run(local.retrieve(points, 5, 0.0)), index.retrieve(points, 5, 0.0))
     wanted = retrievals(3, None, True, 0.0)  # a front: several retrievals, pooled
     assert len(wanted) > 1
     candidates, waited = asyncio.run(local.retrieve_pooled(points, wanted))
     assert waited >= 0.0
     expected = pooled([index.retrieve(points, count, deg, most) for count, most, deg in wanted])
-    assert candidates == expected
+    assert_same_results(candidates, expected)
     assert asyncio.run(local.health()) == {"paths": len(index)}
 
 

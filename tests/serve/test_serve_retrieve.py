@@ -3,7 +3,6 @@ with a mechanism that traces it in the query's frame; k results, best first; the
 min_transmission and max_joints filters (the `client` fixture's app, checked against
 `dataset`'s curated paths and its index)."""
 
-import json
 from typing import Any
 
 import numpy as np
@@ -11,7 +10,7 @@ import pytest
 
 import links_ray
 from links_ray.engine import inputs
-from tests.support.serving import Client, post_ok
+from tests.support.serving import Client, as_served, post_ok
 
 RESULT_FIELDS = {
     "path_id",
@@ -90,11 +89,11 @@ def test_retrieve_keeps_to_mechanisms_of_at_most_max_joints(
     for query in queries[:3]:
         body = {"points": np.asarray(query).tolist(), "k": 5}
         _, data = post_ok(client, "/api/retrieve", {**body, "max_joints": most})
-        expected = json.loads(json.dumps(dataset_index.retrieve(query, 5, max_joints=most)))
+        expected = as_served(dataset_index.retrieve(query, 5, max_joints=most))
         assert len(expected) == 5 and data["results"] == expected
         assert all(result["n_joints"] <= most for result in data["results"])
         _, unrestricted = post_ok(client, "/api/retrieve", {**body, "max_joints": None})
-        assert unrestricted["results"] == json.loads(json.dumps(dataset_index.retrieve(query, 5)))
+        assert unrestricted["results"] == as_served(dataset_index.retrieve(query, 5))
     smallest = int(counts.min())
     if smallest > inputs.MIN_JOINTS:
         _, data = post_ok(client, "/api/retrieve", {**body, "max_joints": smallest - 1})

@@ -213,8 +213,11 @@ def retrieved(client: Client, query: np.ndarray, k: int) -> list[dict]:
 
 
 def as_served(results: list[dict]) -> list[dict]:
-    """Results as they come back over HTTP (JSON round-trips floats exactly)."""
-    return json.loads(json.dumps(results))
+    """Results as they come back over HTTP, rendered as the routes render them (their arrays
+    as lists; JSON round-trips floats exactly)."""
+    from links_ray.serve.http.responses import render_json
+
+    return json.loads(render_json(results))
 
 
 def listening_process(port: int) -> str:

@@ -18,6 +18,7 @@ from links_ray.engine.kinematics.solver import simulate
 from links_ray.engine.synthesis.constraints import KEPT, Constraints, Violation, joined, violation
 from links_ray.engine.synthesis.coupler_points import with_coupler_point
 from links_ray.engine.synthesis.limits import check_refine_size
+from links_ray.engine.synthesis.plan import RetrievalResult
 from links_ray.engine.synthesis.refinement.checks import below_margin, check_mechanism, target_error
 from links_ray.engine.synthesis.refinement.loop import DAMPING_START, Refinement, refine_validated
 from links_ray.engine.synthesis.target import Target, target_chamfer
@@ -33,7 +34,7 @@ WORST_RANK = (True, float("inf"), float("inf"))
 class Candidate:
     """One retrieved mechanism on its way through the passes."""
 
-    result: dict  # the retrieval result it started from
+    result: RetrievalResult  # the retrieval result it started from
     topology: Topology
     joint: int
     origin: np.ndarray  # the retrieved positions
@@ -169,11 +170,17 @@ class Candidate:
 
 
 def candidate(
-    result: dict, target: Target, constraints: Constraints | None, min_transmission_deg: float
+    result: RetrievalResult,
+    target: Target,
+    constraints: Constraints | None,
+    min_transmission_deg: float,
 ) -> Candidate | None:
     """A retrieval result ready to refine, with what it misses (the constraints, and the
     transmission margin `min_transmission_deg`, which refinement restores first), or None if it
-    cannot be (it locks between the simulation's steps, or is too large to refine)."""
+    cannot be (it locks between the simulation's steps, or is too large to refine).
+
+    The result's arrays are read as they are: its positions become the candidate's `origin`
+    uncopied (refinement copies what it changes). A retriever answering lists works too."""
     mechanism = result["mechanism"]
     try:
         topology = analyze_topology(mechanism["adjacency"], mechanism["node_types"])
@@ -185,7 +192,7 @@ def candidate(
 
 
 def _prepared(
-    result: dict,
+    result: RetrievalResult,
     topology: Topology,
     positions: np.ndarray,
     joint: int,

@@ -43,6 +43,7 @@ from links_ray.engine.synthesis.coupler_points import COUPLER_POINT_MAX_JOINTS
 from links_ray.engine.synthesis.kit_layers import LayerCounts, layer_deadline, plans_layers
 from links_ray.engine.synthesis.options import SynthesisOptions
 from links_ray.engine.synthesis.pareto import pareto_front
+from links_ray.engine.synthesis.plan import RetrievalResult
 from links_ray.engine.synthesis.refinement.step import IRLS_WEIGHT_FLOOR
 from links_ray.engine.synthesis.results import SynthesisResults, as_result
 from links_ray.engine.synthesis.target import Target
@@ -122,7 +123,7 @@ class SynthesisPasses:
         self._reported_at = -math.inf
         self._looked_at: tuple | None = None
 
-    def run(self, retrieved: list[dict]) -> SynthesisResults:
+    def run(self, retrieved: list[RetrievalResult]) -> SynthesisResults:
         """Every pass over the `retrieved` results, and the answer."""
         self.prepare(retrieved)
         self.report()
@@ -135,12 +136,12 @@ class SynthesisPasses:
         self.restarts()
         return self.answer()
 
-    def prepare(self, retrieved: list[dict]) -> None:
+    def prepare(self, retrieved: list[RetrievalResult]) -> None:
         """The retrieved results as candidates: retrieval's first k whatever the budget (an
         answer needs them), the rest while it lasts."""
         k, target, constraints = self.options.k, self.target, self.options.constraints
 
-        def prepared(item: tuple[int, dict]) -> Candidate | None:
+        def prepared(item: tuple[int, RetrievalResult]) -> Candidate | None:
             place, result = item
             if place >= k and self.budget.expired():
                 return None

@@ -14,9 +14,9 @@ normalized query and the normalized path. Every refined mechanism is valid as
 `engine.synthesis.refinement.loop` keeps it: it turns fully at `REFINE_CHECK_STEPS` steps, keeps its
 assembly branches and its transmission floor.
 
-`index` is anything with `retrieve(points, k, min_transmission, max_joints) -> list[dict]`
-answering as `links_ray.search.index.RetrievalIndex.retrieve` does (the engine imports no
-index).
+`index` is anything with `retrieve(points, k, min_transmission, max_joints)` answering as
+`links_ray.search.index.RetrievalIndex.retrieve` does (`engine.synthesis.plan.Retriever`: result
+dicts whose mechanisms are numpy arrays, read without conversion; the engine imports no index).
 
 Pure numpy/numba and threads: no Ray, no files.
 """
@@ -34,7 +34,7 @@ from links_ray.engine.synthesis.budget import Budget, IterationBudget, TimeBudge
 from links_ray.engine.synthesis.kit_layers import LAYER_SHARE, plans_layers
 from links_ray.engine.synthesis.options import DEFAULT_SYNTHESIS_TRANSMISSION_DEG, SynthesisOptions
 from links_ray.engine.synthesis.passes import Progress, SynthesisPasses
-from links_ray.engine.synthesis.plan import Retriever, pooled, retrievals
+from links_ray.engine.synthesis.plan import RetrievalResult, Retriever, pooled, retrievals
 from links_ray.engine.synthesis.results import SynthesisResults
 from links_ray.engine.synthesis.target import as_target
 
@@ -43,7 +43,7 @@ __all__ = ["refine_retrieved", "synthesize"]
 
 def refine_retrieved(
     points: object,
-    retrieved: Sequence[dict],
+    retrieved: Sequence[RetrievalResult],
     options: SynthesisOptions,
     *,
     started: float | None = None,

@@ -1,18 +1,29 @@
 """What a synthesis retrieves before it refines: how many paths, of which joint counts
-(`retrievals`), and their answers joined (`pooled`). The HTTP API plans its retrievals here
-too, so that a synthesis over HTTP starts from the same candidates as one in Python.
+(`retrievals`), and their answers joined (`pooled`), and what a retrieval answers
+(`RetrievalResult`). The HTTP API plans its retrievals here too, so that a synthesis over HTTP
+starts from the same candidates as one in Python.
 
-Pure Python: no Ray.
+Pure Python and numpy: no Ray.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol
+from typing import Protocol, TypedDict
+
+import numpy as np
 
 from links_ray.engine.inputs import DEFAULT_K
 
-__all__ = ["BELOW_FLOOR_CANDIDATES", "CANDIDATES", "Retriever", "pooled", "retrievals"]
+__all__ = [
+    "BELOW_FLOOR_CANDIDATES",
+    "CANDIDATES",
+    "PlacedMechanism",
+    "RetrievalResult",
+    "Retriever",
+    "pooled",
+    "retrievals",
+]
 
 #: Retrieved candidates the short pass refines.
 CANDIDATES = 96
@@ -26,6 +37,31 @@ BELOW_FLOOR_CANDIDATES = 48
 FRONT_JOINTS, FRONT_CANDIDATES = (5, 6, 8), 24
 
 
+class PlacedMechanism(TypedDict):
+    """A retrieved path's reduced mechanism, placed in the drawing's frame."""
+
+    adjacency: np.ndarray  # (n, n) uint8
+    node_types: np.ndarray  # (n,) int8
+    positions: np.ndarray  # (n, 2) float64
+
+
+class RetrievalResult(TypedDict):
+    """One retrieval result, as `RetrievalIndex.retrieve` answers it (docs/reference/contract.md
+    says what each key means). A plain dict at run time, so results keep their documented keys;
+    its arrays stay arrays from the index to synthesis (and across Ray Serve's handles), and
+    become JSON lists only where an answer is written (the HTTP answers, the CLI's output)."""
+
+    path_id: int
+    mechanism_id: int
+    joint: int
+    chamfer: float
+    min_transmission_deg: float | None
+    n_joints: int
+    points: np.ndarray  # (steps, 2) float64: the stored normalized path
+    mechanism: PlacedMechanism
+    mechanism_joint: int
+
+
 class Retriever(Protocol):
     """What synthesis needs of a retrieval index."""
 
@@ -35,7 +71,7 @@ class Retriever(Protocol):
         k: int = DEFAULT_K,
         min_transmission: float = 0.0,
         max_joints: int | None = None,
-    ) -> list[dict]:
+    ) -> list[RetrievalResult]:
         """The k best retrieval results for the drawn `points`, best first, among the paths
         keeping `min_transmission` degrees whose reduced mechanisms have at most `max_joints`
         joints, each with its mechanism in the drawing's frame."""
@@ -64,7 +100,7 @@ def retrievals(
     return wanted
 
 
-def pooled(answers: Sequence[Sequence[dict]]) -> list[dict]:
+def pooled(answers: Sequence[Sequence[RetrievalResult]]) -> list[RetrievalResult]:
     """The results of several retrievals (`retrievals`), each path once, in their order."""
     seen: set[int] = set()
     results = []

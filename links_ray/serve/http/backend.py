@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from links_ray.engine.synthesis.plan import pooled
+from links_ray.engine.synthesis.plan import RetrievalResult, pooled
 from links_ray.serve.http.admission import low_priority_thread
 from links_ray.serve.http.responses import ApiError
 
@@ -30,8 +30,9 @@ Retrieval = tuple[int, int | None, float]
 
 class RetrievalBackend(ABC):
     """An index the routes retrieve from. Answers are lists of result dicts, best first, as
-    `RetrievalIndex.retrieve` gives them; a query the index refuses is ApiError 400, an index
-    that cannot answer now ApiError 503."""
+    `RetrievalIndex.retrieve` gives them (numpy arrays in them: the routes' JSON rendering makes
+    them lists); a query the index refuses is ApiError 400, an index that cannot answer now
+    ApiError 503."""
 
     @abstractmethod
     async def retrieve_waited(
@@ -40,7 +41,7 @@ class RetrievalBackend(ABC):
         k: int,
         min_transmission_deg: float,
         max_joints: int | None = None,
-    ) -> tuple[list[dict], float]:
+    ) -> tuple[list[RetrievalResult], float]:
         """The k best results for a query, and the seconds it waited behind other retrievals
         before its own began."""
 
@@ -59,14 +60,14 @@ class RetrievalBackend(ABC):
         k: int,
         min_transmission_deg: float,
         max_joints: int | None = None,
-    ) -> list[dict]:
+    ) -> list[RetrievalResult]:
         """The k best results for a query, best first."""
         results, _ = await self.retrieve_waited(points, k, min_transmission_deg, max_joints)
         return results
 
     async def retrieve_pooled(
         self, points: np.ndarray, wanted: Sequence[Retrieval]
-    ) -> tuple[list[dict], float]:
+    ) -> tuple[list[RetrievalResult], float]:
         """A synthesis's candidates: each retrieval of `wanted` in turn, pooled
         (`engine.synthesis.plan.pooled`), and the seconds they waited in all."""
         answers, waited = [], 0.0
@@ -96,13 +97,13 @@ class RetrievalSlot:
         k: int,
         min_transmission_deg: float,
         max_joints: int | None = None,
-    ) -> tuple[list[dict], float]:
+    ) -> tuple[list[RetrievalResult], float]:
         """`RetrievalIndex.retrieve`'s answer, from the slot's thread, and the seconds it
         waited behind other retrievals."""
         asked = time.perf_counter()
         began: list[float] = []
 
-        def run() -> list[dict]:
+        def run() -> list[RetrievalResult]:
             began.append(time.perf_counter())
             return self.index.retrieve(points, k, min_transmission_deg, max_joints)
 
@@ -126,7 +127,7 @@ class LocalIndex(RetrievalBackend):
         k: int,
         min_transmission_deg: float,
         max_joints: int | None = None,
-    ) -> tuple[list[dict], float]:
+    ) -> tuple[list[RetrievalResult], float]:
         """The slot's answer; its ValueError as ApiError 400."""
         try:
             return await self.slot.retrieve_waited(points, k, min_transmission_deg, max_joints)

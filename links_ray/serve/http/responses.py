@@ -39,7 +39,8 @@ class ApiError(Exception):
 
 
 def _jsonable(value: object) -> object:
-    """`json.dumps` fallback for numpy scalars and arrays."""
+    """`json.dumps` fallback for numpy scalars and arrays: where a retrieval result's arrays
+    become lists, the numbers `tolist` gives (those of a list made before rendering)."""
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):

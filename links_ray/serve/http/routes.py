@@ -349,6 +349,7 @@ class LinksApiRoutes:
             took_ms = (time.perf_counter() - start) * 1e3
         finally:
             self._admission.release_retrieval()
+        # The results' numpy arrays become JSON lists only here, as the answer is rendered.
         return await json_answer({"results": results, "took_ms": round(took_ms, 3)})
 
     @router.post(

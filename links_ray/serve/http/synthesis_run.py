@@ -21,6 +21,7 @@ from fastapi import Request
 
 from links_ray.engine.synthesis.options import SynthesisOptions
 from links_ray.engine.synthesis.pipeline import refine_retrieved
+from links_ray.engine.synthesis.plan import RetrievalResult
 from links_ray.engine.synthesis.results import SynthesisResults
 from links_ray.serve.http.responses import json_line, logger
 
@@ -32,16 +33,17 @@ GONE_POLL_S = 0.25
 def start_refinement(
     refiner: ThreadPoolExecutor,
     points: np.ndarray,
-    retrieved: list[dict],
+    retrieved: list[RetrievalResult],
     options: SynthesisOptions,
     timing: tuple[float, float, float],
     reports: asyncio.Queue[dict[str, Any]] | None,
     stop: threading.Event,
 ) -> asyncio.Future[tuple[SynthesisResults, float]]:
-    """The refinement of `retrieved` onto `points`, submitted to `refiner`: its outcome is
-    (results, seconds queued). `timing` is (seconds the retrieval took, seconds it waited for
-    the index, `time.perf_counter()` when it ended): the budget counts the retrieval, never a
-    wait. Each better best so far is put on `reports` (if given); `stop` ends it early."""
+    """The refinement of `retrieved` (their arrays as retrieved) onto `points`, submitted to
+    `refiner`: its outcome is (results, seconds queued). `timing` is (seconds the retrieval
+    took, seconds it waited for the index, `time.perf_counter()` when it ended): the budget
+    counts the retrieval, never a wait. Each better best so far is put on `reports` (if
+    given); `stop` ends it early."""
     retrieval_s, waited, retrieved_at = timing
     loop = asyncio.get_running_loop()
     progress = (
