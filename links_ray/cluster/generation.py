@@ -55,6 +55,16 @@ class GeneratorActor:
             raise LeaseLost(f"{self.store.uri}: the run this actor works for lost the root")
 
 
+#: What a run recorded before an option existed did: all tables, the first topology generator,
+#: no transmission threshold, no extension.
+RECORD_DEFAULTS = {
+    "tables": list(GENERATION_TABLES),
+    "topology_rules": "feasible",
+    "min_transmission_deg": 0.0,
+    "extended_from": [],
+}
+
+
 def generate(
     out: str,
     mechanisms: int,
@@ -95,16 +105,8 @@ def generate(
     )
     store = Store.open(out)
     with Lease.acquire(store, "writer", "links generate") as lease:
-        # What a run recorded before an option existed did: all tables, the first topology
-        # generator, no transmission threshold.
-        before_options = {
-            "tables": list(GENERATION_TABLES),
-            "topology_rules": "feasible",
-            "min_transmission_deg": 0.0,
-            "extended_from": [],
-        }
         refuse_imported(store)
-        plan = _plan_on_root(store, plan, before_options)
+        plan = plan_on_root(store, plan, RECORD_DEFAULTS)
         committed = committed_shards(store, "shards")
         remove_uncommitted(store, "shards", committed)
         todo = deque(shard for shard in plan.shards() if shard.shard_id not in committed)
@@ -149,7 +151,7 @@ def generate(
     return summary
 
 
-def _plan_on_root(store: Store, asked: GenerationPlan, defaults: dict) -> GenerationPlan:
+def plan_on_root(store: Store, asked: GenerationPlan, defaults: dict) -> GenerationPlan:
     """The plan a run asking for `asked` carries out at `store`, recorded in `run.json`: `asked`
     on a new root, the recorded plan to resume it, or the recorded plan extended to
     `asked.mechanisms` when that is more (StoreError if the root holds another run)."""

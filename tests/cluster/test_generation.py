@@ -590,3 +590,25 @@ def test_a_full_disk_stops_curation_in_one_line_and_the_same_command_finishes_it
         ours = links_ray.load(str(out), table, format="arrow").sort_by("path_id")
         theirs = links_ray.load(str(undisturbed), table, format="arrow").sort_by("path_id")
         assert ours.equals(theirs), f"{table} differs"
+
+
+def test_a_root_recorded_with_grown_from_still_reads_and_is_extended(tmp_path: Path) -> None:
+    """A root written before the extension's record was named `extended_from` (its run.json
+    says `grown_from`) resumes as the plan it recorded, and is extended from it."""
+    store = Store.open(str(tmp_path / "old"))
+    first = GenerationPlan(seed=3, mechanisms=100, topologies_per_shard=4)
+    held = first.extended_to(150)
+    record = held.config()
+    record["grown_from"] = record.pop("extended_from")
+    store.write_json(f"{META}/run.json", record)
+    asked = GenerationPlan(seed=3, mechanisms=150, topologies_per_shard=4)
+    resumed = generation.plan_on_root(store, asked, generation.RECORD_DEFAULTS)
+    assert resumed == held and resumed.extended_from == (100,)
+    extended = generation.plan_on_root(
+        store,
+        GenerationPlan(seed=3, mechanisms=220, topologies_per_shard=4),
+        generation.RECORD_DEFAULTS,
+    )
+    assert extended == held.extended_to(220)
+    assert extended.shards()[: len(held.shards())] == held.shards()
+    assert store.read_json(f"{META}/run.json")["extended_from"] == [100, 150]

@@ -38,7 +38,7 @@ def _generated(root: Path, mechanisms: int) -> str:
 
 
 @pytest.fixture(scope="module")
-def coupler_point_children(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, str]:
+def extended(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, str]:
     """The same plan at 40 and at 80 mechanisms (8 and 16 topologies)."""
     folder = tmp_path_factory.mktemp("splits")
     return _generated(folder / "small", 40), _generated(folder / "large", 80)
