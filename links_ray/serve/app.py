@@ -24,10 +24,12 @@ import gc
 import logging
 import math
 import os
+import random
 import signal
 import socket
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 from ray import serve
@@ -209,6 +211,35 @@ def bindable_port(host: str, port: int) -> int:
         raise ValueError(f"cannot serve on {host} port {port}: {exc.strerror}") from None
 
 
+#: Where the kernel's ephemeral ports begin when /proc does not say (Linux's default).
+EPHEMERAL_LOW = 32768
+#: How far below the ephemeral range a port for Serve is looked for.
+QUIET_PORTS = 12_000
+
+
+def ephemeral_low() -> int:
+    """The first port the kernel hands out to a socket bound to port 0."""
+    try:
+        return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return EPHEMERAL_LOW
+
+
+def quiet_port(host: str) -> int:
+    """A port free on `host` now and below the kernel's ephemeral range, for a listener Serve
+    binds later: Ray's processes bind ephemeral ports by the dozen as they start, between this
+    choice and Serve's bind, and a port from that range could be taken meanwhile; the kernel
+    never hands out one below it. A free ephemeral port if none below is free."""
+    low = ephemeral_low()
+    draw = random.Random()
+    for _ in range(100):
+        try:
+            return bindable_port(host, draw.randrange(max(1024, low - QUIET_PORTS), low))
+        except ValueError:
+            continue
+    return bindable_port(host, 0)
+
+
 def check_fits(
     replicas: int,
     shards: int | None,
@@ -293,10 +324,10 @@ def run_server(
     if local:
         # Serve answers only the gate, on loopback; the gate answers the user on host:port.
         bindable_port(host, port)  # else the command would fail after Ray's start
-        serve_host, proxy_port = LOOPBACK, bindable_port(LOOPBACK, 0)
+        serve_host, proxy_port = LOOPBACK, quiet_port(LOOPBACK)
         upstream_port = proxy_port
         if direct:
-            upstream_port = bindable_port(LOOPBACK, 0)
+            upstream_port = quiet_port(LOOPBACK)
             os.environ.update(direct_ingress_env(upstream_port))
         gate = GateThread(RequestGate(host, port, upstream_port, as_host_names(allowed_hosts)))
     if blocking:

@@ -95,3 +95,17 @@ def test_links_serve_on_loopback_listens_on_loopback_only(
     assert any("ServeReplica" in command for *_, command in listeners), shown
     assert any(p == port and a == "127.0.0.1" for _, a, p, _, _ in listeners), shown
     assert outside == [], shown
+
+
+def test_serve_listens_on_ports_the_kernel_never_hands_out() -> None:
+    """The ports `links serve` keeps for Serve's own listeners lie below the kernel's ephemeral
+    range, where none of the sockets Ray's processes bind meanwhile can take them, and are free
+    when chosen."""
+    from links_ray.serve.app import QUIET_PORTS, bindable_port, ephemeral_low, quiet_port
+
+    low = ephemeral_low()
+    ports = {quiet_port("127.0.0.1") for _ in range(20)}
+    assert all(max(1024, low - QUIET_PORTS) <= port < low for port in ports)
+    assert len(ports) > 1  # drawn, not one fixed port two servers would share
+    for port in ports:
+        assert bindable_port("127.0.0.1", port) == port
