@@ -148,9 +148,9 @@ def synthesize(
     `options`: all of the above but `points` and `progress` as one `SynthesisOptions`, instead
     of the separate arguments. Raises ValueError naming bad input.
 
-    The time counts from when the kernels are loaded: a process's first synthesis compiles (or
-    loads from numba's cache) those of the index, if it has a `warm` method, and refinement's
-    first (`engine.synthesis.warm`)."""
+    The time counts from when the kernels are loaded: a process's first synthesis of a kind
+    compiles (or loads from numba's cache) those of its retrievals (one result of each, asked of
+    `index`) and of refinement first (`engine.synthesis.warm`)."""
     if options is None:
         options = SynthesisOptions(
             k=k,
