@@ -28,6 +28,7 @@ import numpy as np
 from links_ray.engine.inputs import DEFAULT_STEPS
 from links_ray.engine.kinematics.solver import simulate
 from links_ray.engine.synthesis.budget import IterationBudget
+from links_ray.engine.synthesis.constraints import MAX_LAYERS, Constraints
 from links_ray.engine.synthesis.kit_layers import plans_layers
 from links_ray.engine.synthesis.options import SynthesisOptions
 from links_ray.engine.synthesis.passes import SynthesisPasses
@@ -120,8 +121,18 @@ def warm_default() -> float:
 
 def _warm_run(target: Target, options: SynthesisOptions) -> None:
     """A synthesis of WARM_ITERATIONS on the warming mechanism placed on `target`, its answer
-    dropped."""
-    counted = dataclasses.replace(options, k=1, seconds=None, iterations=WARM_ITERATIONS)
+    dropped. The design constraints are numpy alone: the warming keeps none but the loosest
+    `max_layers` when layers are planned, and no floor but refinement's own, so that its
+    mechanism keeps them and its answer plans its layers as a real one's would."""
+    layers = Constraints(max_layers=MAX_LAYERS) if options.constraints is not None else None
+    counted = dataclasses.replace(
+        options,
+        k=1,
+        seconds=None,
+        iterations=WARM_ITERATIONS,
+        min_transmission_deg=0.0,
+        constraints=layers if plans_layers(options) else None,
+    )
     budget = IterationBudget(WARM_ITERATIONS)
     with ThreadPoolExecutor(1, thread_name_prefix="links-warm") as pool:
         passes = SynthesisPasses(counted, target, budget, pool, 1, None, time.perf_counter())

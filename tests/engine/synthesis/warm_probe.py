@@ -15,13 +15,17 @@ from typing import Any
 
 import numpy as np
 
-#: Each kind of synthesis the warming tells apart (`warm.variant`), as `synthesize`'s options.
+#: Each kind of synthesis the warming tells apart (`warm.variant`), as `synthesize`'s options,
+#: each in the order warmed: each warming must cover its own (the first its layer plans too).
 VARIANTS: dict[str, dict[str, Any]] = {
-    "closed": {},
+    "designed": {
+        "constraints": {"max_link_ratio": 20.0, "max_layers": 6},
+        "min_transmission_deg": 30.0,
+    },
     "stroke": {"partial": True},
     "timed": {"timing": True},
     "front": {"front": True},
-    "designed": {"constraints": {"max_link_ratio": 20.0, "max_layers": 6}},
+    "closed": {},
 }
 #: Counted work of each probing synthesis (its retrievals' kernels), and of each refinement of
 #: FEW retrieved candidates, enough for every pass over so few: the short, middle and long
