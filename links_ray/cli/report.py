@@ -310,8 +310,9 @@ def format_retrieve(answer: dict) -> str:
 
 
 def format_synthesize(answer: dict) -> str:
-    """Each mechanism: its chamfer on the drawing, before and after refinement, and where on
-    the crank's turn a partial stroke lies."""
+    """Each mechanism: its chamfer on the drawing, before and after refinement, whether
+    refinement moved it (why not, when not), and where on the crank's turn a partial stroke
+    lies."""
     results = answer["results"]
     if answer.get("unmet"):
         unmet = answer["unmet"]
@@ -334,6 +335,7 @@ def format_synthesize(answer: dict) -> str:
                 f"{result['chamfer']:.4f}",
                 f"{result['retrieved_chamfer']:.4f}",
                 *([f"{result['timed_error']:.4f}"] if timed else []),
+                "yes" if result["refined"] else UNREFINED_WORDS[result["why"]][0],
                 len(result["mechanism"]["node_types"]),
                 result["mechanism_joint"],
                 result["path_id"],
@@ -350,6 +352,7 @@ def format_synthesize(answer: dict) -> str:
                     "chamfer",
                     "retrieved",
                     *(["timed"] if timed else []),
+                    "refined",
                     "joints",
                     "joint",
                     "from path",
@@ -357,9 +360,25 @@ def format_synthesize(answer: dict) -> str:
                 ],
                 rows,
             ),
-            "(--json for the mechanisms)",
+            synthesize_footnote(results),
         ]
     )
+
+
+#: A result's `why` (not refined), as the table says it, and what the footnote says of it.
+UNREFINED_WORDS = {
+    "no_time": ("no (no time)", "no time: the budget was spent before its first iteration"),
+    "no_step": ("no (no step)", "no step: none tried lowered its chamfer and kept it valid"),
+    "cannot_refine": ("no (refused)", "refused: refinement cannot take it as retrieved"),
+    "stopped": ("no (stopped)", "stopped: the work was called off first"),
+}
+
+
+def synthesize_footnote(results: list[dict]) -> str:
+    """The table's last line: why results are unrefined, when any is, and where the rest is."""
+    why = sorted({result["why"] for result in results if not result["refined"]})
+    said = [UNREFINED_WORDS[reason][1] for reason in why]
+    return f"({'; '.join([*said, '--json for the mechanisms'])})"
 
 
 # -- links demo -----------------------------------------------------------------------------

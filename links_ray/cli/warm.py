@@ -41,9 +41,9 @@ WARM_ITERATIONS = 20
 def warm(folder: str | None = None) -> dict[str, float]:
     """Compile every kernel into numba's cache by running, without Ray, what the commands run:
     generation shards (both samplers), their curation (from stored simulations and simulated
-    again), a search index built on them, a retrieval and a synthesis (closed curve and open
-    stroke). Works in `folder` (a temporary one by default) and returns the seconds of each
-    stage."""
+    again), a search index built on them, a retrieval and a synthesis (closed curve, open
+    stroke, Pareto front). Works in `folder` (a temporary one by default) and returns the
+    seconds of each stage."""
     if folder is None:
         with tempfile.TemporaryDirectory(prefix="links-warm-") as scratch:
             return warm(scratch)
@@ -87,6 +87,8 @@ def warm(folder: str | None = None) -> dict[str, float]:
     # compiling before the refinement is reached, and its kernels left cold.
     synthesize(index, curve, k=2, iterations=WARM_ITERATIONS)
     synthesize(index, curve[:30], k=2, partial=True, iterations=WARM_ITERATIONS)
+    # A front plans layers: the collision kernels (timing and constraints call no others).
+    synthesize(index, curve, k=2, front=True, iterations=WARM_ITERATIONS)
     seconds["search and synthesis"] = time.perf_counter() - start
     return seconds
 

@@ -49,6 +49,7 @@ from ray.serve.handle import DeploymentHandle, DeploymentResponse
 from links_ray.engine.cpus import set_given_cpus
 from links_ray.engine.kinematics.solver import simulate
 from links_ray.engine.synthesis.plan import RetrievalResult
+from links_ray.engine.synthesis.warm import warm_default
 from links_ray.interop.curve_worker import warm_curve_readers
 from links_ray.search.index import RetrievalIndex
 from links_ray.serve.http.admission import Admission, busy, low_priority_thread
@@ -233,6 +234,8 @@ class LinksApi(LinksApiRoutes):
             simulate(*WARM_FOUR_BAR, steps=8)  # loads the solver /api/simulate uses
         else:  # warming the index also loads the solver /api/simulate uses
             self._backend = LocalIndex(RetrievalIndex.open(root))
+        # Refinement's kernels, loaded in the thread that runs it, before the first synthesis.
+        self._refining.submit(warm_default).result()
         studio_files()  # a package without the studio fails here, not on a user's first visit
         warm_curve_readers()  # the processes /api/curve reads drawings in
         # What the replica holds from here on (the index, the compiled kernels, the libraries'

@@ -9,6 +9,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -24,7 +25,13 @@ from links_ray.engine.synthesis.refinement.loop import DAMPING_START, Refinement
 from links_ray.engine.synthesis.target import Target, target_chamfer
 from links_ray.engine.synthesis.timing import best_start
 
-__all__ = ["Candidate", "candidate", "traced"]
+__all__ = ["UNREFINED", "Candidate", "UnrefinedWhy", "candidate", "traced"]
+
+#: Why a result is as retrieved (`Candidate.why_unrefined`): refinement ran on it and kept no
+#: step (none lowered its measure and kept it valid); refinement refused its positions; the
+#: work was called off first; the time budget was spent before its first iteration.
+UnrefinedWhy = Literal["no_step", "cannot_refine", "stopped", "no_time"]
+UNREFINED: tuple[str, ...] = get_args(UnrefinedWhy)
 
 #: A rank no candidate is worse than: (misses the constraints, by infinitely much, error).
 WORST_RANK = (True, float("inf"), float("inf"))
@@ -51,6 +58,12 @@ class Candidate:
     )
     parent: Candidate | None = None  # the candidate it was given a coupler point from
     branched: bool = False  # whether its coupler-point children have been made
+    # What refinement did to it (`why_unrefined`): whether it kept a step (a coupler-point
+    # child starts as its parent's), the iterations run on it, and whether a refinement of
+    # its own positions was refused (it locks or is degenerate as refinement checks it).
+    moved: bool = False
+    iterations: int = 0
+    refused: bool = False
 
     @property
     def retrieved_as(self) -> Candidate:
@@ -91,6 +104,7 @@ class Candidate:
                 child.retrieved = self.retrieved
                 child.coupler_points = self.coupler_points + 1
                 child.parent = self
+                child.moved = self.moved  # it starts where its parent's refinement left it
                 children.append(child)
         return children
 
@@ -134,6 +148,7 @@ class Candidate:
                 stop=stop,
             )
         except (LockingError, ValueError):  # a shaken start that locks or is degenerate
+            self.refused |= start is self.positions
             return None
 
     def keep(self, refinement: Refinement | None, iterations: int) -> bool:
@@ -144,6 +159,7 @@ class Candidate:
         prove. `iterations`: what it was given, to tell whether it converged."""
         if refinement is None:
             return False
+        self.iterations += refinement.iterations
         missed = refinement.violation
         rank = (not missed.kept, missed.total, refinement.chamfer_after)
         if not rank < self.rank():
@@ -156,7 +172,20 @@ class Candidate:
         self.interval = refinement.interval
         self.damping = refinement.damping
         self.converged = refinement.iterations < iterations
+        self.moved = True
         return True
+
+    def why_unrefined(self, stopped: bool) -> UnrefinedWhy | None:
+        """None if refinement kept a step of it; else why not (`UNREFINED`): no step it tried
+        was kept, its refinement was refused, the work was called off (`stopped`) or the
+        budget spent before its first iteration."""
+        if self.moved:
+            return None
+        if self.iterations:
+            return "no_step"
+        if self.refused:
+            return "cannot_refine"
+        return "stopped" if stopped else "no_time"
 
     def start_timed(self, timed: Target) -> None:
         """Move along the turn to the start that suits the timing best, and measure by the

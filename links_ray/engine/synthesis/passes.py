@@ -351,7 +351,10 @@ class SynthesisPasses:
             chosen = pareto_front(kept) if self.options.front else kept[: self.options.k]
         if counts is not None:
             counts.plan(chosen, bounded=False)  # a front's, planned whatever the bounds
-        answer = SynthesisResults(as_result(c, self.target, self.timed) for c in chosen)
+        stopped = self.budget.stopped()
+        answer = SynthesisResults(
+            as_result(c, self.target, self.timed, stopped=stopped) for c in chosen
+        )
         if counts is not None:
             for result, c in zip(answer, chosen, strict=True):
                 result["layers"] = counts.counts[c]

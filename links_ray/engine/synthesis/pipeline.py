@@ -37,6 +37,7 @@ from links_ray.engine.synthesis.passes import Progress, SynthesisPasses
 from links_ray.engine.synthesis.plan import RetrievalResult, Retriever, pooled, retrievals
 from links_ray.engine.synthesis.results import SynthesisResults
 from links_ray.engine.synthesis.target import as_target
+from links_ray.engine.synthesis.warm import warm_synthesis
 
 __all__ = ["refine_retrieved", "synthesize"]
 
@@ -55,7 +56,8 @@ def refine_retrieved(
     floor of at least DEFAULT_MIN_TRANSMISSION_DEG and `options.min_transmission_deg`.
 
     The work is bounded by time, or counted. Timed: within `options.seconds` counted from
-    `started` (a `time.perf_counter()` value; now if None); every piece of work checks the
+    `started` (a `time.perf_counter()` value; now if None), less the time this process first
+    takes to compile or load the kernels (`engine.synthesis.warm`); every piece of work checks the
     deadline, so the answer comes at most one damping trial past it (the first k retrieved
     are prepared whatever the time, so that there is an answer). Counted
     (`options.iterations`): the passes stop after about that many refinement iterations over
@@ -82,10 +84,13 @@ def refine_retrieved(
     Counted work on more points than MAX_SYNTHESIS_WORK allows raises ValueError
     (`SynthesisOptions.check_work`). `stop`, once set (a server's client has gone), calls the
     rest of the work off: each refinement under way ends at its next iteration, and the
-    answer is the best so far. The answer's `iterations` and `stopped` say what was done."""
-    started = time.perf_counter() if started is None else started
+    answer is the best so far. The answer's `iterations` and `stopped` say what was done, and
+    each result's `refined` and `why` whether refinement kept a step of it, and if not why."""
     target = as_target(points, options.partial)
     options.check_work(len(target.points))
+    # The kernels compile (or load) before the clock starts: a first synthesis gets all its time.
+    warming = warm_synthesis(target, options)
+    started = time.perf_counter() if started is None else started + warming
     budget: Budget
     if options.iterations is not None:
         budget = IterationBudget(options.iterations, stop)
@@ -141,8 +146,11 @@ def synthesize(
     angles from a free start, each result's `timed_error` measuring it.
 
     `options`: all of the above but `points` and `progress` as one `SynthesisOptions`, instead
-    of the separate arguments. Raises ValueError naming bad input."""
-    started = time.perf_counter()
+    of the separate arguments. Raises ValueError naming bad input.
+
+    The time counts from when the kernels are loaded: a process's first synthesis of a kind
+    compiles (or loads from numba's cache) those of its retrievals (one result of each, asked of
+    `index`) and of refinement first (`engine.synthesis.warm`)."""
     if options is None:
         options = SynthesisOptions(
             k=k,
@@ -166,6 +174,10 @@ def synthesize(
     ) or (constraints, timing, seed, iterations) != (None, None, None, None):
         raise ValueError("give options or the separate synthesis arguments, not both")
     drawn = options.drawing(points)  # refused before any retrieval
+    # The index's kernels and refinement's load before the clock starts (`refine_retrieved`
+    # would warm refinement's within it, but not the retrieval's).
+    warm_synthesis(as_target(drawn, options.partial), options, index)
+    started = time.perf_counter()
     retrieved = pooled(
         [
             index.retrieve(drawn, count, floor, most)

@@ -55,10 +55,13 @@ def as_result(
     timed: Target | None = None,
     trajectories: bool = False,
     elapsed: float | None = None,
+    stopped: bool | None = None,
 ) -> dict[str, Any]:
     """A candidate as an answer (docs/reference/contract.md, HTTP API, describes it), with its
     `timed_error` against a `timed` target; a progress report adds every joint's
-    `trajectories` and the `elapsed_ms` since the synthesis began."""
+    `trajectories` and the `elapsed_ms` since the synthesis began. The answer's results (given
+    whether the work was `stopped`) say whether refinement kept a step of it (`refined`) and,
+    if not, `why` (`Candidate.why_unrefined`)."""
     topology = candidate.topology
     positions = candidate.positions
     path = simulate(topology.adjacency, topology.node_types, positions, DEFAULT_STEPS)
@@ -98,6 +101,9 @@ def as_result(
             "start_deg": 360.0 * start / DEFAULT_STEPS,
             "sweep_deg": 360.0 * (count - 1) / DEFAULT_STEPS,
         }
+    if stopped is not None:
+        why = candidate.why_unrefined(stopped)
+        answer["refined"], answer["why"] = why is None, why
     if trajectories:
         answer["trajectories"] = path.tolist()
     if elapsed is not None:

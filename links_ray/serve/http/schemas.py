@@ -38,6 +38,7 @@ from links_ray.engine.inputs import (
     MIN_STEPS,
 )
 from links_ray.engine.node_kinds import ACTUATED, FIXED
+from links_ray.engine.synthesis.candidates import UnrefinedWhy
 from links_ray.engine.synthesis.constraints import MAX_LAYERS, MAX_LINK_RATIO
 from links_ray.engine.synthesis.options import (
     DEFAULT_SYNTHESIS_SECONDS,
@@ -352,10 +353,8 @@ class SynthesisResult(BaseModel):
     )
     timed_error: float | None = Field(
         None,
-        description=(
-            "with timing: mean distance of each point from the path at its crank angle, over "
-            "the drawing's longest chord"
-        ),
+        description="with timing: mean distance of each point from the path at its crank angle, "
+        "over the drawing's longest chord",
     )
     layers: int | None = Field(
         None,
@@ -364,6 +363,8 @@ class SynthesisResult(BaseModel):
             "crank; null when no stacking exists (absent otherwise)"
         ),
     )
+    refined: bool = Field(description="refinement kept a step of it; false: as retrieved")
+    why: UnrefinedWhy | None = Field(description="null if refined, else why not (contract.md)")
 
 
 class Unmet(BaseModel):
