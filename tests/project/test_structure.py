@@ -134,6 +134,15 @@ def test_every_module_is_a_room_of_readable_size() -> None:
     assert too_long == []
 
 
+def test_every_folder_of_modules_is_a_package() -> None:
+    """A folder of modules without `__init__.py` is a namespace package, which the wheel's
+    package search leaves out: its modules would be missing from an installed links-ray."""
+    folders = {path.parent for path in (REPO / PACKAGE).rglob("*.py")}
+    assert (
+        sorted(str(f.relative_to(REPO)) for f in folders if not (f / "__init__.py").is_file()) == []
+    )
+
+
 def test_every_test_file_is_of_readable_size() -> None:
     too_long = [
         f"{path.relative_to(REPO)}: {lines} lines (at most {MAX_TEST_FILE_LINES})"
