@@ -46,11 +46,12 @@ def covering_tests(path: str) -> str | None:
     """The test folder or file that covers `path`, or None."""
     parts = Path(path).parts
     if parts[:1] == ("tests",):
-        if Path(path).name.startswith("test_") and path.endswith(".py"):
+        name = parts[-1]
+        if name.startswith("test_") and name.endswith(".py"):
             return path
-        if parts[1:2] == ("support",) or Path(path).name == "conftest.py":
-            return str(Path(*parts[:-1])) if len(parts) > 2 and parts[1] != "support" else None
-        return None
+        if name == "conftest.py" and len(parts) > 2:  # a folder's own fixtures: its tests
+            return str(Path(*parts[:-1]))
+        return None  # a support module serves many folders: the whole suite is its test
     if parts[:1] == ("links_ray",) and len(parts) > 2:
         for depth in range(len(parts) - 1, 1, -1):
             folder = Path("tests", *parts[1:depth])
